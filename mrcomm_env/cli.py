@@ -1,0 +1,234 @@
+"""The ``mrcomm`` command: list, evaluate, reproduce, bench and docs."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+from mrcomm_env.registry import canonical_id, env_class, env_ids, make
+
+BENCH_REFERENCE = "mpe2 simple_spread_v3 (N=3, discrete actions, random actions)"
+
+
+def parse_params(pairs: list[str] | None, flag: str = "--param") -> dict:
+    """``key=value`` pairs; values are read as JSON where possible (numbers, true, lists), else kept as text."""
+    params = {}
+    for pair in pairs or []:
+        if "=" not in pair:
+            raise ValueError(f"{flag} takes key=value, got {pair!r}")
+        key, text = pair.split("=", 1)
+        try:
+            params[key.strip()] = json.loads(text)
+        except json.JSONDecodeError:
+            params[key.strip()] = text
+    return params
+
+
+def reproduction_module(env_id: str):
+    """``mrcomm_env/<name>/reproduce.py`` of the env's package."""
+    package = env_class(env_id).__module__.rsplit(".", 1)[0]
+    return importlib.import_module(f"{package}.reproduce")
+
+
+def short_name(env_id: str) -> str:
+    return canonical_id(env_id).split("/", 1)[1]
+
+
+# ---------------------------------------------------------------------------------------------- commands
+def cmd_list(args) -> int:
+    from baselines import default_policy, policy_names
+
+    for env_id in env_ids():
+        cls = env_class(env_id)
+        print(f"{env_id}  —  {cls.DESCRIPTION}")
+        policies = [f"{p}*" if p == default_policy(env_id) else p for p in policy_names(env_id)]
+        print(f"    policies (* default): {', '.join(policies)}")
+        print(f"    reproduction: {', '.join(reproduction_module(env_id).EXPERIMENTS)}")
+    return 0
+
+
+def cmd_evaluate(args) -> int:
+    from baselines import make_policy
+    from mrcomm_env.evaluation import evaluate, limit_threads
+
+    limit_threads()
+    env_id = canonical_id(args.env_id)
+    params = parse_params(args.param)
+    policy_params = parse_params(args.policy_param, "--policy-param")
+    make(env_id, **params).close()  # validates the params before any episode runs
+    policy = make_policy(env_id, args.policy, **policy_params)
+    metrics = evaluate(lambda: make(env_id, **params), policy, args.episodes, args.seed, progress=not args.quiet)
+    width = max(len(name) for name in metrics)
+    print(f"{env_id}  policy={args.policy}  episodes={args.episodes}  seed={args.seed}  params={params}")
+    for name, m in metrics.items():
+        print(f"  {name:<{width}}  {m['mean']:>14.6g} ± {m['ci95']:.3g}")
+    if args.json:
+        record = {
+            "env": env_id,
+            "policy": args.policy,
+            "episodes": args.episodes,
+            "seed": args.seed,
+            "params": params,
+            "policy_params": policy_params,
+            "metrics": metrics,
+        }
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(record, indent=2))
+        print(f"wrote {args.json}")
+    return 0
+
+
+def cmd_reproduce(args) -> int:
+    from mrcomm_env.evaluation import limit_threads
+
+    limit_threads()
+    if args.all == bool(args.env_ids):
+        raise ValueError("name environment ids or pass --all (not both)")
+    targets = env_ids() if args.all else [canonical_id(e) for e in args.env_ids]
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    sections = []
+    for env_id in targets:
+        name = short_name(env_id)
+        print(f"== reproducing {env_id} ({'quick' if args.quick else 'full'}) ==", flush=True)
+        start = time.perf_counter()
+        section = reproduction_module(env_id).run(out / name, quick=args.quick)
+        elapsed = time.perf_counter() - start
+        sections.append(f"## {env_id}\n\n_{'quick' if args.quick else 'full'} run, {elapsed:.0f} s_\n\n{section}\n")
+    header = (
+        "# mrcomm-env reproduction report\n\n"
+        f"Command: `mrcomm reproduce {' '.join(sys.argv[2:])}`. Scripted baselines only. "
+        "Each section puts the paper's numbers beside ours.\n\n"
+    )
+    report = out / "REPORT.md"
+    report.write_text(header + "\n".join(sections))
+    print(f"wrote {report}")
+    return 0
+
+
+def cmd_bench(args) -> int:
+    from baselines import default_policy, make_policy
+    from mrcomm_env.evaluation import limit_threads, steps_per_second
+
+    limit_threads()
+    targets = [canonical_id(e) for e in args.env_ids] or env_ids()
+    params = parse_params(args.param)
+    runs = args.runs
+
+    def median_of(measure):
+        samples = [measure(k) for k in range(runs)]
+        return statistics.median(s[0] for s in samples), statistics.median(s[1] for s in samples)
+
+    from mpe2 import simple_spread_v3
+
+    ref_env = simple_spread_v3.parallel_env(N=3, continuous_actions=False)
+    space = ref_env.action_space(ref_env.possible_agents[0])
+    space.seed(0)
+    ref = median_of(
+        lambda k: steps_per_second(ref_env, lambda obs: {a: space.sample() for a in obs}, args.seconds, seed=k)
+    )
+    print(f"reference {BENCH_REFERENCE}: {ref[0]:,.0f} env-steps/s, {ref[1]:,.0f} agent-steps/s")
+    results = {"reference": {"name": BENCH_REFERENCE, "env_steps_per_s": ref[0], "agent_steps_per_s": ref[1]}}
+    results["envs"] = {}
+    for env_id in targets:
+        env = make(env_id, **params)
+        policy_name = default_policy(env_id)
+        policy = make_policy(env_id, policy_name)
+        eps, aps = median_of(
+            lambda k: steps_per_second(
+                env, lambda obs: policy.act(obs, env), args.seconds, seed=k, on_reset=lambda s: policy.reset(env, s)
+            )
+        )
+        ratio = eps / ref[0]
+        results["envs"][env_id] = {
+            "policy": policy_name,
+            "params": params,
+            "n_agents": env.n_agents,
+            "env_steps_per_s": eps,
+            "agent_steps_per_s": aps,
+            "ratio_to_reference": ratio,
+        }
+        print(
+            f"{env_id} [{policy_name}, N={env.n_agents}]: {eps:,.1f} env-steps/s, {aps:,.0f} agent-steps/s, "
+            f"ratio {ratio:.2f}"
+        )
+        env.close()
+    results["runs"] = runs
+    results["seconds_per_run"] = args.seconds
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(results, indent=2))
+    print(f"wrote {out} (median of {runs} runs of {args.seconds:g} s each)")
+    return 0
+
+
+def cmd_docs(args) -> int:
+    from mrcomm_env.docs import write_docs
+
+    changed = write_docs(Path(args.out), check=args.check)
+    if args.check and changed:
+        print("out of date: " + ", ".join(map(str, changed)))
+        return 1
+    print("docs up to date" if args.check else f"wrote docs into {args.out}")
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------- parser
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="mrcomm", description="Multi-robot communication environments.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    sub.add_parser("list", help="environment ids, policies and reproductions").set_defaults(func=cmd_list)
+
+    p = sub.add_parser("evaluate", help="run a policy for K episodes; mean ± 95%% CI of every metric")
+    p.add_argument("env_id")
+    p.add_argument("--policy", required=True)
+    p.add_argument("--episodes", type=int, default=10)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--param", action="append", metavar="KEY=VALUE", help="environment argument (JSON value)")
+    p.add_argument("--policy-param", action="append", metavar="KEY=VALUE", help="policy parameter (JSON value)")
+    p.add_argument("--json", metavar="PATH")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("reproduce", help="the papers' experiments with the scripted baselines")
+    p.add_argument("env_ids", nargs="*")
+    p.add_argument("--all", action="store_true")
+    p.add_argument("--quick", action="store_true", help="a reduced run that fits in a few minutes")
+    p.add_argument("--out", default="results")
+    p.set_defaults(func=cmd_reproduce)
+
+    p = sub.add_parser("bench", help="env-steps/s against mpe2 simple_spread_v3 (a benchmark, not a test)")
+    p.add_argument("env_ids", nargs="*")
+    p.add_argument("--param", action="append", metavar="KEY=VALUE")
+    p.add_argument("--runs", type=int, default=3)
+    p.add_argument("--seconds", type=float, default=3.0, help="length of each run")
+    p.add_argument("--out", default="results/bench.json")
+    p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("docs", help="generate docs/envs/*.md from the live environments")
+    p.add_argument("--out", default="docs")
+    p.add_argument("--check", action="store_true", help="exit 1 when the committed docs differ")
+    p.set_defaults(func=cmd_docs)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if getattr(args, "episodes", 1) < 1:
+        print("mrcomm: error: --episodes must be ≥ 1", file=sys.stderr)
+        return 2
+    try:
+        return args.func(args)
+    except ValueError as exc:
+        print(f"mrcomm: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,280 @@
+"""Conformance suite: every registered environment × every configuration it documents.
+
+PettingZoo's own checkers run first; our own checks follow (full-episode determinism with infos,
+observation bounds, pickling, long random runs, bad input).
+"""
+
+from __future__ import annotations
+
+import math
+import pickle
+import types
+
+import numpy as np
+import pettingzoo
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from pettingzoo.test import api_test, max_cycles_test, parallel_api_test, parallel_seed_test, render_test
+
+import mrcomm_env
+from mrcomm_env.core.config import Bool, Choice, Int, Optional, Real
+from mrcomm_env.registry import env_class, env_ids, env_module
+
+ENV_IDS = env_ids()
+CASES = [
+    pytest.param(env_id, name, id=f"{env_id.split('/')[1]}[{name}]")
+    for env_id in ENV_IDS
+    for name in env_class(env_id).DOCUMENTED_CONFIGS
+]
+
+
+def config(env_id: str, name: str, **overrides) -> dict:
+    return {**env_class(env_id).DOCUMENTED_CONFIGS[name], **overrides}
+
+
+def short_config(env_id, name, steps=60):
+    cfg = config(env_id, name)
+    cfg["max_steps"] = min(cfg.get("max_steps", env_class(env_id).PARAMS["max_steps"].default), steps)
+    return cfg
+
+
+def flat_values(obj):
+    """Every number inside nested dicts/lists/arrays of an env's output."""
+    if isinstance(obj, dict):
+        for v in obj.values():
+            yield from flat_values(v)
+    elif isinstance(obj, (list, tuple)):
+        for v in obj:
+            yield from flat_values(v)
+    elif isinstance(obj, np.ndarray):
+        yield from obj.ravel().tolist()
+    else:
+        yield obj
+
+
+# ------------------------------------------------------------------------------------------------ registry
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_registered_with_pettingzoo(env_id):
+    par = pettingzoo.make("parallel", env_id)
+    aec = pettingzoo.make("aec", env_id)
+    assert par.possible_agents[0] == "robot_0"
+    assert aec.possible_agents == par.possible_agents
+    short = env_id.split("/", 1)[1]
+    assert type(mrcomm_env.make(short)) is type(par)
+    module = env_module(env_id)
+    for attr in ("parallel_env", "env", "raw_env"):
+        assert callable(getattr(module, attr))
+
+
+def test_unknown_id_lists_valid_ones():
+    with pytest.raises(ValueError, match="valid ids are: .*mrcomm/"):
+        mrcomm_env.make("NoSuchEnv-v0")
+
+
+# ------------------------------------------------------------------------------------------------ PettingZoo checkers
+@pytest.mark.parametrize(("env_id", "name"), CASES)
+def test_parallel_api(env_id, name):
+    parallel_api_test(mrcomm_env.make(env_id, **short_config(env_id, name)), num_cycles=60)
+
+
+@pytest.mark.parametrize(("env_id", "name"), CASES)
+def test_parallel_seed(env_id, name):
+    parallel_seed_test(lambda: mrcomm_env.make(env_id, **short_config(env_id, name)), num_cycles=60)
+
+
+@pytest.mark.parametrize(("env_id", "name"), CASES)
+def test_aec_api(env_id, name):
+    api_test(env_module(env_id).env(**short_config(env_id, name, steps=30)), num_cycles=30)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_max_cycles(env_id):
+    shim = env_module(env_id)
+    # PettingZoo's checker passes max_cycles; our argument is called max_steps
+    mod = types.SimpleNamespace(
+        parallel_env=lambda max_cycles: shim.parallel_env(max_steps=max_cycles),
+        env=lambda max_cycles: shim.env(max_steps=max_cycles),
+    )
+    max_cycles_test(mod)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_render(env_id):
+    shim = env_module(env_id)
+    render_test(lambda render_mode=None: shim.env(render_mode=render_mode, max_steps=20))
+
+
+# ------------------------------------------------------------------------------------------------ our own checks
+def rollout(env, seed, steps, action_seed=0):
+    """A seeded episode with seeded random actions: the list of every step's full output."""
+    trace = [env.reset(seed=seed)]
+    space = env.action_space(env.possible_agents[0])
+    space.seed(action_seed)
+    for _ in range(steps):
+        if not env.agents:
+            break
+        trace.append(env.step({a: space.sample() for a in env.agents}))
+    trace.append(env.metrics())
+    return trace
+
+
+def same(a, b) -> bool:
+    va, vb = list(flat_values(a)), list(flat_values(b))
+    return len(va) == len(vb) and all(x == y or (x != x and y != y) for x, y in zip(va, vb))
+
+
+@pytest.mark.parametrize(("env_id", "name"), CASES)
+def test_full_episode_is_deterministic_step_by_step(env_id, name):
+    cfg = short_config(env_id, name, steps=120)
+    t1 = rollout(mrcomm_env.make(env_id, **cfg), seed=11, steps=200)
+    t2 = rollout(mrcomm_env.make(env_id, **cfg), seed=11, steps=200)
+    assert len(t1) == len(t2)
+    for k, (s1, s2) in enumerate(zip(t1, t2)):
+        assert same(s1, s2), f"step {k} differs between two runs with the same seed"
+        if isinstance(s1, tuple) and len(s1) == 5:  # infos: same keys at every step as at reset
+            assert all(set(i) == set(t1[0][1][a]) for a, i in s1[4].items())
+    t3 = rollout(mrcomm_env.make(env_id, **cfg), seed=12, steps=200)
+    assert not all(same(x, y) for x, y in zip(t1, t3)), "a different seed gave the very same episode"
+
+
+@pytest.mark.parametrize(("env_id", "name"), CASES)
+def test_observations_in_space_and_pickle_roundtrip(env_id, name):
+    env = mrcomm_env.make(env_id, **short_config(env_id, name, steps=80))
+    obs, infos = env.reset(seed=3)
+    space = env.observation_space("robot_0")
+    assert all(env.observation_space(a) is space for a in env.possible_agents), "spaces must be shared"
+    assert all(env.action_space(a) is env.action_space("robot_0") for a in env.possible_agents)
+    assert set(infos) == set(env.agents) and all("bits_sent" in i for i in infos.values())
+    act = env.action_space("robot_0")
+    act.seed(5)
+    for _ in range(20):
+        obs, *_ = env.step({a: act.sample() for a in env.agents})
+        assert all(space.contains(o) for o in obs.values())
+    clone = pickle.loads(pickle.dumps(env))
+    actions = {a: act.sample() for a in env.agents}
+    assert same(env.step(actions), clone.step(actions))
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_ten_thousand_random_steps_stay_finite(env_id):
+    env = mrcomm_env.make(env_id)
+    space = env.action_space("robot_0")
+    space.seed(0)
+    obs_space = env.observation_space("robot_0")
+    env.reset(seed=0)
+    for step in range(10_000):
+        if not env.agents:
+            assert all(math.isfinite(v) for v in env.metrics().values() if not math.isnan(v))
+            env.reset(seed=step)
+        obs, rewards, _, _, infos = env.step({a: space.sample() for a in env.agents})
+        values = np.fromiter(flat_values([rewards, infos]), dtype=float)
+        assert np.all(np.isfinite(values)), f"non-finite reward or info at step {step}"
+        stacked = np.stack(list(obs.values()))
+        assert np.all(np.isfinite(stacked)) and np.all(stacked >= obs_space.low) and np.all(stacked <= obs_space.high)
+
+
+# ------------------------------------------------------------------------------------------------ bad input
+def _invalid_values(validator):
+    if isinstance(validator, Optional):
+        return _invalid_values(validator.inner)
+    if isinstance(validator, Int):
+        bad = ["three", 2.5, True]
+        if validator.lo is not None:
+            bad.append(validator.lo - 1)
+        if validator.hi is not None:
+            bad.append(validator.hi + 1)
+        return bad
+    if isinstance(validator, Real):
+        bad = ["x", float("nan")]
+        if validator.lo is not None:
+            bad.append(validator.lo - 1.0)
+        if validator.hi is not None:
+            bad.append(validator.hi + 1.0)
+        return bad
+    if isinstance(validator, Choice):
+        return ["no-such-option"]
+    if isinstance(validator, Bool):
+        return ["yes"]
+    return []
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_invalid_arguments_raise_value_error_naming_them(env_id):
+    cls = env_class(env_id)
+    with pytest.raises(ValueError, match="no_such_argument"):
+        mrcomm_env.make(env_id, no_such_argument=1)
+    checked = 0
+    for arg, spec in cls.PARAMS.items():
+        for bad in _invalid_values(spec.check):
+            with pytest.raises(ValueError, match=f"'{arg}'"):
+                mrcomm_env.make(env_id, **{arg: bad})
+            checked += 1
+    assert checked >= len(cls.PARAMS) // 2
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_invalid_actions_and_agents_raise_value_error(env_id):
+    env = mrcomm_env.make(env_id)
+    env.reset(seed=0)
+    space = env.action_space("robot_0")
+    good = {a: space.sample() for a in env.agents}
+    with pytest.raises(ValueError, match="robot_"):
+        env.observation_space("robot_99999")
+    with pytest.raises(ValueError):
+        env.step({**good, "robot_99999": space.sample()})
+    with pytest.raises(ValueError):
+        env.step({a: v for a, v in good.items() if a != "robot_0"})
+    if hasattr(space, "n"):
+        bad_values = [int(space.start + space.n), -1, 0.5]
+    elif hasattr(space, "high"):
+        bad_values = [space.high + 1.0, np.full(space.shape, np.nan, dtype=space.dtype), np.zeros(space.shape[0] + 1)]
+    else:
+        bad_values = []
+    for bad in bad_values:
+        with pytest.raises(ValueError, match="robot_0"):
+            env.step({**good, "robot_0": bad})
+    env.step(good)  # the env is still usable after rejected actions
+
+
+# ------------------------------------------------------------------------------------------------ property tests
+def _strategy(validator):
+    if isinstance(validator, Int) and validator.fuzz:
+        return st.integers(*validator.fuzz)
+    if isinstance(validator, Real) and validator.fuzz:
+        return st.floats(*validator.fuzz, allow_nan=False)
+    if isinstance(validator, Choice):
+        return st.sampled_from(validator.options)
+    if isinstance(validator, Bool):
+        return st.booleans()
+    return None
+
+
+def _config_strategy(env_id):
+    fields = {
+        arg: s for arg, spec in env_class(env_id).PARAMS.items() if (s := _strategy(spec.check)) is not None
+    }
+    return st.fixed_dictionaries({}, optional=fields)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_random_valid_configurations_run(env_id):
+    params = env_class(env_id).PARAMS
+
+    @settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+    @given(cfg=_config_strategy(env_id), seed=st.integers(0, 2**16))
+    def check(cfg, seed):
+        cfg = {**cfg, "max_steps": min(cfg.get("max_steps", 25), 25)}
+        try:
+            env = mrcomm_env.make(env_id, **cfg)
+        except ValueError as exc:  # arguments that constrain each other must say which
+            assert any(f"'{arg}'" in str(exc) for arg in params), str(exc)
+            return
+        rollout_obs_space = env.observation_space("robot_0")
+        trace = rollout(env, seed=seed, steps=25)
+        for out in trace[1:-1]:
+            obs = out[0]
+            assert all(rollout_obs_space.contains(o) for o in obs.values())
+            assert np.all(np.isfinite(np.fromiter(flat_values([out[1], out[4]]), dtype=float)))
+
+    check()
