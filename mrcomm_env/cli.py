@@ -120,8 +120,10 @@ def cmd_bench(args) -> int:
     params = parse_params(args.param)
     runs = args.runs
 
-    def median_of(measure):
-        samples = [measure(k) for k in range(runs)]
+    from tqdm.auto import tqdm
+
+    def median_of(measure, label):
+        samples = [measure(k) for k in tqdm(range(runs), desc=label, leave=False)]
         return statistics.median(s[0] for s in samples), statistics.median(s[1] for s in samples)
 
     from mpe2 import simple_spread_v3
@@ -130,7 +132,8 @@ def cmd_bench(args) -> int:
     space = ref_env.action_space(ref_env.possible_agents[0])
     space.seed(0)
     ref = median_of(
-        lambda k: steps_per_second(ref_env, lambda obs: {a: space.sample() for a in obs}, args.seconds, seed=k)
+        lambda k: steps_per_second(ref_env, lambda obs: {a: space.sample() for a in obs}, args.seconds, seed=k),
+        "simple_spread_v3",
     )
     print(f"reference {BENCH_REFERENCE}: {ref[0]:,.0f} env-steps/s, {ref[1]:,.0f} agent-steps/s")
     results = {"reference": {"name": BENCH_REFERENCE, "env_steps_per_s": ref[0], "agent_steps_per_s": ref[1]}}
@@ -142,7 +145,8 @@ def cmd_bench(args) -> int:
         eps, aps = median_of(
             lambda k: steps_per_second(
                 env, lambda obs: policy.act(obs, env), args.seconds, seed=k, on_reset=lambda s: policy.reset(env, s)
-            )
+            ),
+            env_id,
         )
         ratio = eps / ref[0]
         results["envs"][env_id] = {
