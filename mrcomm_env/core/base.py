@@ -55,7 +55,8 @@ class MrcommParallelEnv(ParallelEnv):
     def _reset_world(self) -> None:
         raise NotImplementedError
 
-    def _step_world(self, actions: list) -> float | np.ndarray:
+    def _step_world(self, actions) -> float | np.ndarray:
+        """``actions``: a list of ints (Discrete) or an ``(N, *shape)`` array (Box), in agent order."""
         raise NotImplementedError
 
     def _observe(self) -> np.ndarray:
@@ -100,8 +101,7 @@ class MrcommParallelEnv(ParallelEnv):
                 f"argument 'actions' must hold one action for each agent {self.agents[0]} … {self.agents[-1]}; "
                 f"unknown: {unknown[:5]}, missing: {missing[:5]}"
             )
-        check = self._check_action
-        acts = [check(agent, actions[agent]) for agent in self.agents]
+        acts = self._check_action(self.agents, [actions[agent] for agent in self.agents])
         rewards = self._step_world(acts)
         self.step_count += 1
         truncated = self.step_count >= self.cfg["max_steps"]
@@ -171,51 +171,64 @@ class MrcommParallelEnv(ParallelEnv):
 
 
 def _action_checker(space: spaces.Space):
-    """A fast validator for one agent's action; raises ``ValueError`` naming the allowed set."""
+    """A validator for all agents' actions at once; raises ``ValueError`` naming the agent and the allowed set.
+
+    Checks are vectorised over agents (a per-agent check cost a third of a 100-robot step).
+    """
     if isinstance(space, spaces.Discrete):
         lo, n = int(space.start), int(space.n)
 
-        def check(agent, action):
-            if isinstance(action, (bool, np.bool_)):
-                action = int(action)
-            try:
-                value = int(action)
-            except (TypeError, ValueError):
-                value = None
-            if value is None or value != action or not lo <= value < lo + n:
-                raise ValueError(
-                    f"action of {agent} must be an integer in [{lo}, {lo + n - 1}], got {action!r}"
-                )
-            return value
+        def fail(agent, action):
+            raise ValueError(f"action of {agent} must be an integer in [{lo}, {lo + n - 1}], got {action!r}")
+
+        def check(agents, actions):
+            arr = np.asarray(actions)
+            if arr.shape == (len(agents),) and (arr.dtype.kind in "iub" or (arr.dtype.kind == "f" and np.all(arr == np.floor(arr)))):
+                ok = (arr >= lo) & (arr < lo + n)
+                if ok.all():
+                    return arr.astype(np.int64).tolist()
+                bad = int(np.argmin(ok))
+                fail(agents[bad], actions[bad])
+            for agent, action in zip(agents, actions):  # mixed or odd types: find the culprit
+                try:
+                    value = int(action)
+                except (TypeError, ValueError):
+                    fail(agent, action)
+                if value != action or not lo <= value < lo + n:
+                    fail(agent, action)
+            fail(agents[0], actions[0])  # pragma: no cover - unreachable
 
         return check
     if isinstance(space, spaces.Box):
         low, high, shape = space.low, space.high, space.shape
 
-        def check(agent, action):
-            arr = np.asarray(action, dtype=space.dtype)
-            if arr.shape != shape or not np.all(np.isfinite(arr)) or np.any(arr < low) or np.any(arr > high):
-                raise ValueError(
-                    f"action of {agent} must be a finite array of shape {shape} within "
-                    f"[{float(np.min(low)):g}, {float(np.max(high)):g}], got {action!r}"
+        def check(agents, actions):
+            try:
+                arr = np.asarray(actions, dtype=space.dtype)
+            except (TypeError, ValueError):
+                arr = None
+            if arr is not None and arr.shape == (len(agents), *shape):
+                ok = np.isfinite(arr) & (arr >= low) & (arr <= high)
+                ok = ok.reshape(len(agents), -1).all(axis=1)
+                if ok.all():
+                    return arr
+                bad = int(np.argmin(ok))
+            else:
+                bad = next(
+                    (i for i, a in enumerate(actions) if np.shape(a) != shape),
+                    0,
                 )
-            return arr
-
-        return check
-    if isinstance(space, spaces.MultiDiscrete):
-        nvec = space.nvec
-
-        def check(agent, action):
-            arr = np.asarray(action)
-            if arr.shape != nvec.shape or not np.issubdtype(arr.dtype, np.integer) or np.any(arr < 0) or np.any(arr >= nvec):
-                raise ValueError(f"action of {agent} must be integers of shape {nvec.shape} below {nvec.tolist()}, got {action!r}")
-            return arr.astype(np.int64)
+            raise ValueError(
+                f"action of {agents[bad]} must be a finite array of shape {shape} within "
+                f"[{float(np.min(low)):g}, {float(np.max(high)):g}], got {actions[bad]!r}"
+            )
 
         return check
 
-    def check(agent, action):
-        if not space.contains(action):
-            raise ValueError(f"action of {agent} must lie in {space}, got {action!r}")
-        return action
+    def check(agents, actions):
+        for agent, action in zip(agents, actions):
+            if not space.contains(action):
+                raise ValueError(f"action of {agent} must lie in {space}, got {action!r}")
+        return list(actions)
 
     return check
