@@ -142,12 +142,7 @@ def cmd_bench(args) -> int:
         env = make(env_id, **params)
         policy_name = default_policy(env_id)
         policy = make_policy(env_id, policy_name)
-        eps, aps = median_of(
-            lambda k: steps_per_second(
-                env, lambda obs: policy.act(obs, env), args.seconds, seed=k, on_reset=lambda s: policy.reset(env, s)
-            ),
-            env_id,
-        )
+        eps, aps = median_of(lambda k, env=env, policy=policy: _policy_speed(env, policy, args.seconds, k), env_id)
         ratio = eps / ref[0]
         results["envs"][env_id] = {
             "policy": policy_name,
@@ -169,6 +164,14 @@ def cmd_bench(args) -> int:
     out.write_text(json.dumps(results, indent=2))
     print(f"wrote {out} (median of {runs} runs of {args.seconds:g} s each)")
     return 0
+
+
+def _policy_speed(env, policy, seconds: float, seed: int) -> tuple[float, float]:
+    from mrcomm_env.evaluation import steps_per_second
+
+    return steps_per_second(
+        env, lambda obs: policy.act(obs, env), seconds, seed=seed, on_reset=lambda s: policy.reset(env, s)
+    )
 
 
 def cmd_docs(args) -> int:

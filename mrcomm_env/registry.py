@@ -37,13 +37,19 @@ def make(env_id: str, **kwargs):
     return env_module(env_id).parallel_env(**kwargs)
 
 
+_registered: set[str] = set()
+
+
 def register_all() -> None:
-    """Register every env with PettingZoo, so ``pettingzoo.make("parallel", "mrcomm/<Name>-v0")`` works."""
+    """Register every env with PettingZoo, so ``pettingzoo.make("parallel", "mrcomm/<Name>-v0")`` works.
+
+    Entry points are strings, so registering imports no environment code.
+    """
     import pettingzoo
 
-    from pettingzoo.env_registry.registration import _get_registry
-
     for env_id, module_name in ENV_MODULES.items():
-        for env_type, attr in (("parallel", "parallel_env"), ("aec", "env")):
-            if env_id not in _get_registry(env_type):
-                pettingzoo.register(env_type, env_id, entry_point=f"{module_name}:{attr}")
+        if env_id in _registered:
+            continue
+        pettingzoo.register("parallel", env_id, entry_point=f"{module_name}:parallel_env")
+        pettingzoo.register("aec", env_id, entry_point=f"{module_name}:env")
+        _registered.add(env_id)

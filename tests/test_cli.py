@@ -45,7 +45,7 @@ def test_evaluate_writes_json_of_stable_shape(env_id, tmp_path, capsys):
     assert record["env"] == env_id and record["episodes"] == 3 and record["seed"] == 5
     assert record["params"] == {"max_steps": 15}
     assert set(env_class(env_id).METRICS) <= set(record["metrics"])
-    for name, m in record["metrics"].items():
+    for m in record["metrics"].values():
         assert set(m) == {"mean", "ci95", "values"} and len(m["values"]) == 3
         finite = [v for v in m["values"] if v is not None and np.isfinite(v)]
         if finite:

@@ -9,9 +9,11 @@ property tests draw random valid values from the validators' ``fuzz_range``.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from numbers import Integral, Real as _RealNumber
-from typing import Any, Sequence
+from numbers import Integral
+from numbers import Real as _RealNumber
+from typing import Any
 
 
 class Validator:
