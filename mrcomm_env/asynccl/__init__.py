@@ -1,0 +1,1 @@
+"""AsyncCL-v0: asynchronous multi-centralized cooperative localization (Nerurkar & Roumeliotis, paper 000)."""

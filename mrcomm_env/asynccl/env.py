@@ -1,0 +1,315 @@
+"""AsyncCL-v0: asynchronous multi-centralized cooperative localization (Nerurkar & Roumeliotis, paper 000).
+
+| | |
+| --- | --- |
+| Agents | `n_robots` robots `robot_0 … robot_{N-1}` (default 5) |
+| Actions | `Discrete(len(modes))` per robot: the transfer mode it uses on all its links this step, an index into `modes` (default `silent`, `scheme1`, `scheme2_q1`, `scheme2_q2`, `scheme2_q4`, `scheme2_q8`, `scheme2_qinf`) |
+| Observations | `Box(0, 1, (N + 4,))`: age a of the oldest incomplete column as `a/(a+10)`; for every robot v how many steps behind its row is, `b/(b+10)`; trace of the own-pose covariance `tr/(tr+1)`; neighbours now `/(N−1)`; bits sent recently (EMA) `e/(e+10⁴)` |
+| Reward | team reward `−mean_i RMS_pos(causal team estimate of robot i) − lam · (bits sent by the team this step)` |
+| Arguments | `n_robots`, `link_model`, `link_probability`, `comm_radius`, `sensing_radius`, `packet_loss`, `bit_budget`, `modes`, `lam`, `estimation`, `max_steps`, `max_history`, `trajectory`, `dt`, `sigma_v`, `sigma_omega_deg`, `sigma_d`, `sigma_theta_deg`, `q_rule`, `initial_sigma` |
+
+N robots move in 2D on unicycle paths (phase-shifted sinusoids of §IV, or random waypoints), measure
+their odometry and the range and bearing to every robot within ``sensing_radius``, and communicate over
+time-varying bidirectional links: independent Bernoulli(p) links per pair and step (Table I's model),
+disk links of radius ``comm_radius``, or both. Each robot keeps the information table T of §II (robots ×
+time steps of measurement packets M_k^j) and, at every step, chooses *what to send*: nothing, its own
+row (Scheme 1, §III-A) or all it holds from its q oldest columns (Scheme 2, §III-B; q = ∞ is the scheme
+of [11] with the L_i / D1 / D2 book-keeping). Information moves one hop per step: what robot j sends at
+step k comes from T_k^{j-} (eq. (4)–(5)). The discard rules of §III-A.3 / §III-B.3 keep the tables small.
+
+From its table every robot computes the **delayed centralized estimate** x̂_{c|c} at its complete
+frontier c — identical to a centralized EKF on all measurements (tested to 1e-9) — and a **causal
+estimate** of the whole team at the current step from what it holds (missing odometry replaced by the
+last available one, §IV). The reward trades the causal estimates' position error against bits.
+``mean_delay`` is eq. (7): steps from k until robot i can compute x̂_{k|k}, over k and robots, ignoring
+steps still incomplete when the episode ends. ``estimation=False`` skips the EKF (delay-only runs,
+Table I); the error terms are then 0.
+
+One env step = one time step k: the exchange of step k with the chosen modes, the estimates of step k,
+then the world moves to k+1 and every robot adds its new packet M_{k+1}^i. The links of the coming
+exchange are drawn beforehand, so the observation shows the current neighbour count. Mixed modes in
+one step are allowed; a sender never sends what its receiver already holds (idealised hand-shake,
+exact for the pure schemes).
+
+**Bits** (``world.py``): a packet M_k^i is 40 bits of tag (8-bit robot id, 32-bit step) + odometry
+2 × 32-bit floats + 72 bits per range/bearing measurement (8-bit target id, 2 × 32-bit floats); every
+transmission carries a 72-bit header (sender id, its complete and discard frontiers) and under q = ∞
+also the list L_i, 40 bits per (robot, latest step) entry. ``bit_budget`` caps the bits per link and
+step: header first, then packets oldest step first. ``q_rule`` selects the reading of "the q oldest
+time steps" (only the Table I discussion uses the variants). ``max_history`` bounds memory: a robot
+that never completed a step which leaves memory abandons it and restarts from its causal estimate.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from gymnasium import spaces
+
+from mrcomm_env.asynccl.estimator import Estimators
+from mrcomm_env.asynccl.table import QINF, SCHEME1, SILENT, InfoTables
+from mrcomm_env.asynccl.world import World, wrap
+from mrcomm_env.core import BitLedger, MrcommParallelEnv, apply_packet_loss, bernoulli_links, disk_links
+from mrcomm_env.core.config import Bool, Choice, Int, ListOf, Optional, Param, Real, Validator
+
+ALL_MODES = ("silent", "scheme1", "scheme2_q1", "scheme2_q2", "scheme2_q4", "scheme2_q8", "scheme2_qinf")
+AGE_SCALE, BITS_SCALE, EMA = 10.0, 1.0e4, 0.2
+# floors of the filter's noise model so that zero-noise configurations stay numerically sound
+SIGMA_FLOOR = 1e-4
+
+
+def mode_code(name: str) -> int:
+    """``silent`` → -1, ``scheme1`` → 0, ``scheme2_q<q>`` → q, ``scheme2_qinf`` → ∞ (``QINF``)."""
+    if name == "silent":
+        return SILENT
+    if name == "scheme1":
+        return SCHEME1
+    if name == "scheme2_qinf":
+        return QINF
+    return int(name[len("scheme2_q"):])
+
+
+class ModeName(Validator):
+    """``silent``, ``scheme1``, ``scheme2_q<q>`` with an integer q ≥ 1, or ``scheme2_qinf``."""
+
+    def __call__(self, name, value):
+        if isinstance(value, str):
+            if value in ("silent", "scheme1", "scheme2_qinf"):
+                return value
+            if value.startswith("scheme2_q") and value[9:].isdigit():
+                if int(value[9:]) >= 1:
+                    return f"scheme2_q{int(value[9:])}"
+                raise ValueError(f"argument '{name}': q must be ≥ 1 (or inf), got {value!r}")
+        self._fail(name, value)
+
+    def describe(self):
+        return "`silent`, `scheme1`, `scheme2_q<q>` (integer q ≥ 1) or `scheme2_qinf`"
+
+
+class AsyncCLEnv(MrcommParallelEnv):
+    ENV_ID = "mrcomm/AsyncCL-v0"
+    DESCRIPTION = "Which information-transfer scheme each robot uses per step in asynchronous multi-centralized CL"
+    metadata = {"name": "asynccl_v0", "render_modes": ["rgb_array", "human"], "render_fps": 10}
+    PARAMS = {
+        "n_robots": Param(5, "number of robots N", Int(lo=2, hi=2000, fuzz=(2, 6))),
+        "link_model": Param("bernoulli", "`bernoulli` (each pair linked with probability p per step, Table I), "
+                            "`disk` (within `comm_radius`) or `combined` (both)",
+                            Choice(("bernoulli", "disk", "combined"))),
+        "link_probability": Param(0.5, "p: probability of a link per pair and step", Real(0.0, 1.0, fuzz=(0.0, 1.0))),
+        "comm_radius": Param(3.0, "r: communication radius (m) of the disk model", Real(0.0, lo_open=True,
+                                                                                        fuzz=(0.5, 6.0))),
+        "sensing_radius": Param(10.0, "d_max: sensing radius (m) for range and bearing", Real(
+            0.0, lo_open=True, allow_inf=True, fuzz=(0.5, 10.0))),
+        "packet_loss": Param(0.0, "probability that a directed delivery is lost", Real(0.0, 1.0, hi_open=True,
+                                                                                        fuzz=(0.0, 0.5))),
+        "bit_budget": Param(None, "per-link bit budget per step; the payload is truncated oldest data first",
+                            Optional(Real(0.0, fuzz=(50.0, 5000.0)))),
+        "modes": Param(ALL_MODES, "the transfer modes an action indexes", ListOf(ModeName())),
+        "lam": Param(1e-6, "λ: reward cost per bit sent", Real(0.0, fuzz=(0.0, 1e-4))),
+        "estimation": Param(True, "run the EKFs (false: delay-only bookkeeping, as for Table I)", Bool()),
+        "max_steps": Param(500, "episode length in time steps", Int(lo=1, fuzz=(1, 60))),
+        "max_history": Param(500, "time steps of packets kept in memory; a robot still missing a column that "
+                             "leaves memory abandons it", Int(lo=2, hi=100_000, fuzz=(2, 50))),
+        "trajectory": Param("sinusoid", "`sinusoid` (phase-shifted figure-eights, §IV) or `waypoint`",
+                            Choice(("sinusoid", "waypoint"))),
+        "dt": Param(0.05, "time step (s)", Real(0.0, 1.0, lo_open=True, fuzz=(0.01, 0.2))),
+        "sigma_v": Param(0.02, "σ_v as a fraction of v", Real(0.0, 1.0, fuzz=(0.0, 0.1))),
+        "sigma_omega_deg": Param(1.0, "σ_ω (deg/s)", Real(0.0, 90.0, fuzz=(0.0, 5.0))),
+        "sigma_d": Param(0.02, "σ_d as a fraction of d", Real(0.0, 1.0, fuzz=(0.0, 0.1))),
+        "sigma_theta_deg": Param(1.0, "σ_θ (deg)", Real(0.0, 90.0, fuzz=(0.0, 5.0))),
+        "q_rule": Param("paper", "reading of Scheme 2's q oldest time steps: `paper` (the sender's q oldest "
+                        "non-discarded columns, discard by the rules of §III-B.3), `oracle` (a column is discarded "
+                        "as soon as every robot has it) or `receiver` (the q oldest columns in which the receiver "
+                        "lacks something)", Choice(("paper", "oracle", "receiver"))),
+        "initial_sigma": Param(0.05, "std of the initial pose prior (m and rad)", Real(0.0, 10.0, lo_open=True,
+                                                                                      fuzz=(0.01, 0.5))),
+    }
+    METRICS = {
+        "mean_delay": "eq. (7): mean steps from k until a robot can compute x̂_{k|k} (complete steps only)",
+        "rms_position": "RMS position error (m) of the robots' causal team estimates, mean over steps and robots",
+        "rms_orientation": "RMS orientation error (rad) of the causal team estimates, mean over steps and robots",
+        "bits_sent": "bits sent by the team over the episode",
+        "bits_per_link": "bits per used directed link per step",
+        "table_size": "packets held per robot, mean over steps and robots",
+        "max_table_size": "largest table (packets) any robot held",
+        "abandoned_steps": "robot-steps dropped because they left memory before being complete",
+    }
+    INFO_KEYS = {
+        "delay": "t − c: steps since the newest delayed centralized estimate of this robot",
+        "rms_position": "RMS position error (m) of this robot's causal team estimate",
+        "rms_orientation": "RMS orientation error (rad) of this robot's causal team estimate",
+        "bits_sent": "bits this robot sent this step",
+        "table_size": "packets this robot holds",
+        "neighbours": "robots it can reach in the coming exchange",
+    }
+    DOCUMENTED_CONFIGS = {
+        "default": {},
+        "delay_only_n20": {"n_robots": 20, "estimation": False, "max_steps": 200},
+        "disk_budget": {"n_robots": 4, "link_model": "combined", "comm_radius": 3.0, "bit_budget": 3000.0,
+                        "packet_loss": 0.1, "trajectory": "waypoint", "max_steps": 100},
+    }
+    VERSION_HISTORY = [("v0", "first version: Scheme 1, Scheme 2 (q ≥ 1 and ∞) and silence as per-step actions")]
+
+    def _setup(self) -> None:
+        cfg = self.cfg
+        n = self.n_agents = cfg["n_robots"]
+        self.mode_names = tuple(cfg["modes"])
+        self._codes = np.array([mode_code(m) for m in self.mode_names], dtype=np.int64)
+        self._obs_space = spaces.Box(0.0, 1.0, shape=(n + 4,), dtype=np.float32)
+        self._act_space = spaces.Discrete(len(self.mode_names))
+        self.world = World(n, cfg["dt"], cfg["trajectory"], cfg["sensing_radius"], cfg["sigma_v"],
+                           math.radians(cfg["sigma_omega_deg"]), cfg["sigma_d"], math.radians(cfg["sigma_theta_deg"]),
+                           cfg["estimation"])
+        self.tables = InfoTables(n, cfg["max_history"], cfg["q_rule"])
+        self.est = Estimators(n, cfg["dt"], max(cfg["sigma_v"], SIGMA_FLOOR),
+                              max(math.radians(cfg["sigma_omega_deg"]), SIGMA_FLOOR), max(cfg["sigma_d"], SIGMA_FLOOR),
+                              max(math.radians(cfg["sigma_theta_deg"]), SIGMA_FLOOR), cfg["max_history"])
+        self.ledger = BitLedger(n)
+        # flat index of P_i[3i+d, 3i+d] in robot i's covariance: the diagonal of its own-pose block
+        self._own_rows = np.arange(n)[:, None]
+        self._own_flat = (np.arange(n)[:, None] * 3 + np.arange(3)[None, :]) * (3 * n + 1)
+
+    # ------------------------------------------------------------------ episode
+    def _reset_world(self) -> None:
+        cfg, n, rng = self.cfg, self.n_agents, self.np_random
+        self.world.reset(rng)
+        pk = self.world.measure(rng)
+        self.tables.reset(pk.bits)
+        self.ledger.reset()
+        self._ema = np.zeros(n)
+        self._links_used = 0.0
+        self._err_pos = np.zeros(n)
+        self._err_ori = np.zeros(n)
+        self._sum_pos = self._sum_ori = self._sum_table = 0.0
+        self._n_err = 0
+        self._n_table = 0
+        self._max_table = 0.0
+        if cfg["estimation"]:
+            s0 = cfg["initial_sigma"]
+            x0 = (self.world.x + s0 * rng.standard_normal((n, 3))).ravel()
+            x0[2::3] = wrap(x0[2::3])
+            self.est.reset(x0, np.eye(3 * n) * s0 * s0, pk)
+            self.est.step(0, self.tables.c, self.tables.latest)
+            self._errors()
+        self._draw_links()
+        self._account_table()
+
+    def _draw_links(self) -> None:
+        cfg, rng = self.cfg, self.np_random
+        model = cfg["link_model"]
+        if model == "bernoulli":
+            adj = bernoulli_links(rng, self.n_agents, cfg["link_probability"])
+        else:
+            adj = disk_links(self.world.x[:, :2], cfg["comm_radius"])
+            if model == "combined":
+                adj &= bernoulli_links(rng, self.n_agents, cfg["link_probability"])
+        self.adj = adj
+        self.delivered = apply_packet_loss(rng, adj, cfg["packet_loss"])
+        self.neighbours = adj.sum(axis=1)
+
+    def _step_world(self, actions: list) -> float:
+        cfg, rng, tab = self.cfg, self.np_random, self.tables
+        modes = self._codes[actions]
+        t = tab.t
+        self.ledger.begin_step()
+        bits, links = tab.exchange(modes, self.adj, self.delivered, cfg["bit_budget"])
+        self.ledger.add(np.arange(self.n_agents), bits, messages=int(links.sum()))
+        self._links_used += float(links.sum())
+        self._ema += EMA * (bits - self._ema)
+        if cfg["estimation"]:
+            self.est.step(t, tab.c, tab.latest)
+            self._errors()
+            reward = -float(self._err_pos.mean())
+        else:
+            reward = 0.0
+        reward -= cfg["lam"] * float(bits.sum())
+        # the world moves on to step t+1; every robot adds its own packet M_{t+1}^i (eq. (5))
+        self.world.advance(rng)
+        pk = self.world.measure(rng)
+        if cfg["estimation"]:
+            floor = t + 1 - cfg["max_history"]
+            L_old, c_old = tab.latest.copy(), tab.c.copy()
+            lagging = tab.new_step(pk.bits)
+            self.est.add_packets(t + 1, pk, floor)
+            if lagging.size:
+                self.est.abandon(lagging, floor, L_old[lagging], c_old[lagging])
+        else:
+            tab.new_step(pk.bits)
+        self._draw_links()
+        self._account_table()
+        return reward
+
+    def _errors(self) -> None:
+        n = self.n_agents
+        E = self.est.X.reshape(n, n, 3) - self.world.x
+        E[:, :, 2] = wrap(E[:, :, 2])
+        E *= E
+        S = E.sum(axis=1) * (1.0 / n)  # (robot, [x², y², φ²]) means over the team
+        self._err_pos = np.sqrt(S[:, 0] + S[:, 1])
+        self._err_ori = np.sqrt(S[:, 2])
+        self._sum_pos += float(self._err_pos.sum()) / n
+        self._sum_ori += float(self._err_ori.sum()) / n
+        self._n_err += 1
+
+    def _account_table(self) -> None:
+        size = self.tables.table_size()
+        self._table = size
+        self._sum_table += float(size.sum()) / self.n_agents
+        self._n_table += 1
+        self._max_table = max(self._max_table, float(size.max()))
+
+    # ------------------------------------------------------------------ views
+    def _observe(self) -> np.ndarray:
+        tab, n = self.tables, self.n_agents
+        t = tab.t
+        obs = np.empty((n, n + 4), dtype=np.float32)
+        age = (t - 1 - tab.c).astype(float)
+        obs[:, 0] = age / (age + AGE_SCALE)
+        behind = (t - tab.latest).astype(float)
+        obs[:, 1:n + 1] = behind / (behind + AGE_SCALE)
+        if self.cfg["estimation"]:
+            tr = self.est.P.reshape(n, -1)[self._own_rows, self._own_flat].sum(axis=1)  # trace of own-pose block
+            obs[:, n + 1] = tr / (tr + 1.0)
+        else:
+            obs[:, n + 1] = 0.0
+        obs[:, n + 2] = self.neighbours / (n - 1)
+        obs[:, n + 3] = self._ema / (self._ema + BITS_SCALE)
+        return obs
+
+    def _agent_infos(self) -> dict:
+        tab = self.tables
+        return {
+            "delay": tab.t - tab.c,
+            "rms_position": self._err_pos,
+            "rms_orientation": self._err_ori,
+            "bits_sent": self.ledger.step_bits,
+            "table_size": self._table,
+            "neighbours": self.neighbours,
+        }
+
+    def metrics(self) -> dict[str, float]:
+        tab = self.tables
+        links = self._links_used
+        return {
+            "mean_delay": tab.mean_delay(),
+            "rms_position": self._sum_pos / self._n_err if self._n_err else 0.0,
+            "rms_orientation": self._sum_ori / self._n_err if self._n_err else 0.0,
+            "bits_sent": float(self.ledger.total_bits.sum()),
+            "bits_per_link": float(self.ledger.total_bits.sum()) / links if links else 0.0,
+            "table_size": self._sum_table / self._n_table if self._n_table else 0.0,
+            "max_table_size": self._max_table,
+            "abandoned_steps": float(tab.abandoned),
+        }
+
+    def _render(self, ax) -> None:
+        x = self.world.x
+        for i, j in zip(*np.nonzero(np.triu(self.adj)), strict=True):
+            ax.plot(x[[i, j], 0], x[[i, j], 1], color="0.8", lw=0.8, zorder=1)
+        ax.scatter(x[:, 0], x[:, 1], c="tab:blue", s=30, zorder=2, label="truth")
+        if self.cfg["estimation"]:
+            e = self.est.X[0].reshape(-1, 3)
+            ax.scatter(e[:, 0], e[:, 1], marker="x", c="tab:red", s=25, zorder=3, label="robot_0's estimate")
+        ax.set_aspect("equal")
+        ax.legend(loc="upper right", fontsize=7)
+        ax.set_title(f"AsyncCL  k={self.tables.t}  delay robot_0={int(self.tables.t - self.tables.c[0])}")
