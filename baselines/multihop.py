@@ -1,0 +1,138 @@
+"""Scripted slot-filling policies for MultiHop-v0 (Julian et al., paper 003).
+
+The action of robot i is a priority per estimate; the env sends i's own estimate plus the ``m − 1``
+known estimates of highest priority at i's slot (priority 0 withholds). Every policy here reads only
+what robot i knows: its own position, its estimate list (positions, time stamps) and what it sent.
+
+* ``location_based`` — Algorithm 1 with persistent counters, O(mn) per robot and frame, vectorised over
+  all robots (``rule="text"``: lowest counter as §3.2 says; ``rule="listing"``: argmax as printed).
+* ``probabilistic`` — eq. (2): sample without replacement proportional to ``d^-α`` (Gumbel-top-k).
+* ``flooding`` — all known estimates (meant for ``slot_size = n``; below that it rotates round-robin).
+* ``no_hop`` — only the robot's own estimate (the paper's m = 1 scheme at any m).
+* ``age_aware`` — ours: rank by ``d^-α × (t_ij − s_ij)``, importance times the freshness gained since the
+  robot last broadcast j (``s_ij`` = the stamp it sent then). An estimate whose stamp it already sent is
+  held by every neighbour on a static lossless channel, so resending it is wasted room; ``f × gain`` is
+  the importance-weighted age its neighbours shed. Estimates without gain only fill leftover room.
+* ``random`` — uniform random priorities.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from baselines.common import Policy, RandomPolicy
+from mrcomm_env.core.config import Choice, Param
+from mrcomm_env.multihop import protocol as proto
+
+ENV_ID = "mrcomm/MultiHop-v0"
+DEFAULT_POLICY = "location_based"
+
+
+def _as_actions(env, prio: np.ndarray, observations) -> dict:
+    prio = prio.astype(np.float32)
+    return {a: prio[env._agent_index[a]] for a in observations}
+
+
+def _importance(env) -> tuple[np.ndarray, np.ndarray]:
+    """Each robot's eq. (1) importances of its own estimates and which estimates it holds."""
+    known = env.stamps > proto.UNKNOWN
+    return proto.importance(env.estimated_distances(), known, env.cfg.alpha), known
+
+
+def _rank_priorities(order: np.ndarray, n: int, base: np.ndarray) -> np.ndarray:
+    """Priorities in (0.5, 1] for ``order`` (n, m) (first = highest), ``base`` (< 0.5) elsewhere."""
+    prio = base.copy()
+    m = order.shape[1]
+    rows = np.repeat(np.arange(n), m)
+    cols = order.ravel()
+    val = np.tile(1.0 - np.arange(m) / (2.0 * m), n)
+    ok = cols >= 0
+    prio[rows[ok], cols[ok]] = val[ok]
+    return prio
+
+
+def _fill(f: np.ndarray) -> np.ndarray:
+    """Below-selection priorities: by importance in (0.01, 0.4]; unknown estimates 0.005 so that one that
+    arrives before the robot's slot still fills room left over (as Algorithm 1 run at the slot would)."""
+    fmax = np.maximum(f.max(axis=1, keepdims=True), 1e-300)
+    return np.where(f > 0, 0.01 + 0.39 * f / fmax, 0.005)
+
+
+class LocationBased(Policy):
+    """Algorithm 1 with persistent counters (§3.2), one counter row per robot."""
+
+    name = "location_based"
+    PARAMS = {"rule": Param("text", "`text`: take the lowest counter (§3.2); `listing`: argmax as printed in "
+                            "Algorithm 1", Choice(("text", "listing")))}
+
+    def reset(self, env, seed=None):
+        super().reset(env, seed)
+        self.counters = np.ones((env.n_agents, env.n_agents))
+
+    def act(self, observations, env):
+        n = env.n_agents
+        f, known = _importance(env)
+        order = proto.location_based_select(self.counters, f, known, np.arange(n), env.m, self.params.rule)
+        return _as_actions(env, _rank_priorities(order, n, _fill(f)), observations)
+
+
+class AgeAware(Policy):
+    """Ours: importance × freshness gained since this robot last broadcast the estimate (see
+    :func:`mrcomm_env.multihop.protocol.age_aware_select`); no counters needed."""
+
+    name = "age_aware"
+
+    def act(self, observations, env):
+        n = env.n_agents
+        f, known = _importance(env)
+        order = proto.age_aware_select(f, env.stamps, env.sent_stamp, known, np.arange(n), env.m)
+        return _as_actions(env, _rank_priorities(order, n, _fill(f)), observations)
+
+
+class Probabilistic(Policy):
+    """Eq. (2): successive draws proportional to d^-α without replacement (Plackett–Luce = Gumbel-top-k)."""
+
+    name = "probabilistic"
+
+    def act(self, observations, env):
+        n = env.n_agents
+        f, known = _importance(env)
+        order = proto.probabilistic_select(self.rng, f, known, np.arange(n), env.m)
+        return _as_actions(env, _rank_priorities(order, n, _fill(f)), observations)
+
+
+class Flooding(Policy):
+    """Every known estimate (slot_size = n); with a shorter slot, a round-robin window over the list."""
+
+    name = "flooding"
+
+    def reset(self, env, seed=None):
+        super().reset(env, seed)
+        self.frame = 0
+
+    def act(self, observations, env):
+        n, m = env.n_agents, env.m
+        offset = self.frame * max(m - 1, 1)
+        self.frame += 1
+        j = np.arange(n)
+        prio = 1.0 - ((j[None, :] - j[:, None] - 1 - offset) % n) / n
+        return _as_actions(env, prio, observations)
+
+
+class NoHop(Policy):
+    """Only the robot's own estimate (the paper's m = 1 scheme)."""
+
+    name = "no_hop"
+
+    def act(self, observations, env):
+        return _as_actions(env, np.zeros((env.n_agents, env.n_agents)), observations)
+
+
+POLICIES = {
+    "location_based": LocationBased,
+    "flooding": Flooding,
+    "no_hop": NoHop,
+    "probabilistic": Probabilistic,
+    "age_aware": AgeAware,
+    "random": RandomPolicy,
+}

@@ -1,0 +1,356 @@
+"""MultiHop-v0: multi-hopping time-stamped state estimates over TDMA (Julian et al., paper 003).
+
+| | |
+| --- | --- |
+| Agents | `n_robots` robots `robot_0 … robot_{N-1}` (grid: `grid_side²`, field: 20, coverage: 9 by default) |
+| Actions | `Box(0, 1, (N,))` per robot: a priority for each robot's estimate; the env sends the robot's own estimate plus the `slot_size − 1` known estimates of highest priority (ties: lower index); priority `0` withholds an estimate |
+| Observations | `Box(0, 1, (3N + 2,))`: per robot j the age of my estimate of j `a/(a + T_frame)` (1 = unknown), the estimated distance to j over the arena diagonal (1 = unknown), j's slot position after mine `((s_j − s_i) mod N)/N`; then my slot `s_i/N` and `m/N` |
+| Reward | team reward `−Σ_{i≠j} w_ij a_ij / Σ w_ij`, the age of information (seconds) weighted by the importance `w_ij = d_ij^-α` of eq. (1) at frame end |
+| Arguments | `scene`, `n_robots`, `grid_side`, `slot_size`, `alpha`, `bits_per_estimate`, `baud`, `max_steps`, `arena_size`, `comm_range`, `speed`, `max_speed`, `control_gain` |
+
+Every robot knows its own current state and keeps a list of the others' estimates, each with the time
+stamp at which it was valid; at the start it knows only its own (unknown = "infinite", §2.1). TDMA gives
+every robot one slot per frame, in an order drawn at random per episode (§4). A slot carries ``m``
+estimates of ``b`` bits and lasts ``m b / r_b`` seconds, so a frame lasts ``n m b / r_b`` and the frame
+rate is ``r_f = r_b / (m n b)`` (§2.1). Time is kept in these real units (seconds). Receivers keep the
+newest time stamp per robot. Scenes: ``grid`` (the paper's stationary 10×10 grid with 4-neighbour links,
+Fig. 2), ``field`` (disk links of radius ``comm_range``, random-waypoint motion at ``speed``, 0 = static)
+and ``coverage`` (nine flying robots running a Voronoi coverage controller on their *received* estimates,
+§4 / Fig. 3; the cost is in the metrics).
+
+**One env step is one TDMA frame.** Every robot transmits exactly once per frame, so in a frame step all
+N agents act, which is what a parallel env expresses; with one step per slot 99 of 100 actions would be
+ignored each step and every step would pay the PettingZoo overhead of N agents. A robot's priorities are
+chosen at the start of the frame and applied *at its slot*, to the estimates it holds then (estimates
+received earlier in the same frame are eligible). Algorithm 1's counters live in the policy
+(``baselines/multihop.py``); on stationary scenes in steady state this reproduces the per-slot
+algorithm exactly; during the cold start the policy sees new estimates one frame later than a per-slot
+implementation (the reproduction runs the per-slot algorithm through the same core, ``protocol.py``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from gymnasium import spaces
+from scipy.sparse.csgraph import shortest_path
+
+from mrcomm_env.core import BitLedger, MrcommParallelEnv, TDMASchedule, disk_links, grid_links
+from mrcomm_env.core.config import Choice, Int, Optional, Param, Real
+from mrcomm_env.multihop import coverage as cov
+from mrcomm_env.multihop import protocol as proto
+from mrcomm_env.multihop import theory
+
+SUBGRAPHS = (2, 4, 6, 8)
+HOP_BUCKETS = ("1", "2", "3", "4plus")
+
+
+class MultiHopEnv(MrcommParallelEnv):
+    ENV_ID = "mrcomm/MultiHop-v0"
+    DESCRIPTION = "Which time-stamped state estimates fill each robot's TDMA slot (location-based multi-hopping)"
+    metadata = {"name": "multihop_v0", "render_modes": ["rgb_array", "human"], "render_fps": 4}
+    PARAMS = {
+        "scene": Param("grid", "`grid` (stationary 4-neighbour grid, Fig. 2), `field` (disk links, optional motion) "
+                       "or `coverage` (Voronoi coverage by flying robots, Fig. 3)", Choice(("grid", "field", "coverage"))),
+        "n_robots": Param(None, "number of robots n; default grid_side² (grid), 20 (field), 9 (coverage); "
+                          "in the grid scene robots fill rows of grid_side columns (a partial last row is allowed)", Optional(Int(lo=2, hi=1024, fuzz=(4, 12)))),
+        "grid_side": Param(10, "columns of the grid scene (robots at unit spacing; a square grid by default)", Int(lo=2, hi=32, fuzz=(2, 5))),
+        "slot_size": Param(None, "m: estimates per TDMA slot, 1 <= m <= n (m = n is flooding, m = 1 no hop); "
+                           "default min(7, n), 7 being the paper's choice for the 10×10 grid",
+                           Optional(Int(lo=1, hi=1024, fuzz=(1, 4)))),
+        "alpha": Param(1.0, "α of the importance d^-α, eq. (1)", Real(lo=0.0, lo_open=True, fuzz=(0.25, 3.0))),
+        "bits_per_estimate": Param(192, "b: bits per estimate incl. time stamp (six 32-bit integers, §4)",
+                                   Int(lo=1, fuzz=(8, 256))),
+        "baud": Param(3000.0, "r_b: channel bit rate (bits/s, §4)", Real(lo=0.0, lo_open=True, fuzz=(300.0, 1e5))),
+        "max_steps": Param(400, "episode length in TDMA frames (400 lets the 8×8 cold start finish at m = 7)",
+                           Int(lo=1, fuzz=(1, 30))),
+        "arena_size": Param(100.0, "side of the square (m), field and coverage scenes",
+                            Real(lo=0.0, lo_open=True, fuzz=(10.0, 200.0))),
+        "comm_range": Param(40.0, "disk link radius (m), field and coverage scenes",
+                            Real(lo=0.0, lo_open=True, fuzz=(5.0, 200.0))),
+        "speed": Param(0.0, "field scene: random-waypoint speed (m/s), 0 = stationary", Real(lo=0.0, fuzz=(0.0, 5.0))),
+        "max_speed": Param(5.0, "coverage scene: speed limit of the flying robots (m/s)",
+                           Real(lo=0.0, lo_open=True, fuzz=(0.5, 5.0))),
+        "control_gain": Param(1.0, "coverage scene: k of ṗ = k (C_i − p_i) (1/s)",
+                              Real(lo=0.0, lo_open=True, fuzz=(0.1, 2.0))),
+    }
+    METRICS = {
+        **{f"propagation_time_{k}x{k}": f"cold start: seconds until every member of the centred {k}×{k} subgraph "
+           "holds an estimate of every other member (square grid scene; nan if it does not fit or is not complete)"
+           for k in SUBGRAPHS},
+        "mean_age": "time-average over frame ends of the mean age (s) of the estimates of all pairs i≠j "
+                    "(unknown = age since the start)",
+        "weighted_mean_age": "time-average of the d^-α-weighted mean age (s), minus the mean reward",
+        **{f"mean_age_hop{h}": f"time-average over frame ends of the mean age (s) of estimates of robots at hop "
+           f"distance {h.replace('plus', ' or more')}" for h in HOP_BUCKETS},
+        **{f"max_age_hop{h}": f"largest age (s) of an estimate of a robot at hop distance "
+           f"{h.replace('plus', ' or more')} seen at any frame end" for h in HOP_BUCKETS},
+        "frame_rate": "r_f = r_b / (m n b) (Hz)",
+        "coverage_cost": "mean squared distance (m²) from the square to the nearest robot, H/area "
+                         "(true positions; coverage and field scenes, nan on the grid)",
+        "known_fraction": "fraction of pairs i≠j holding an estimate",
+        "bits_sent": "bits broadcast in the episode (all robots)",
+    }
+    INFO_KEYS = {
+        "bits_sent": "bits this robot broadcast this frame",
+        "mean_age": "mean age (s) of this robot's estimates of the others (unknown = age since the start)",
+        "known_fraction": "fraction of the others this robot holds an estimate of",
+        "slot": "this robot's slot index within the frame",
+    }
+    DOCUMENTED_CONFIGS = {
+        "default": {},
+        "small_grid": {"grid_side": 4, "slot_size": 3, "max_steps": 40},
+        "flooding_grid": {"grid_side": 4, "slot_size": 16, "max_steps": 40},
+        "field_moving": {"scene": "field", "n_robots": 12, "speed": 2.0, "comm_range": 35.0, "max_steps": 40},
+        "coverage": {"scene": "coverage", "slot_size": 3, "max_steps": 40},
+    }
+    VERSION_HISTORY = [("v0", "first version: grid, field and coverage scenes; one step = one TDMA frame")]
+
+    # ----------------------------------------------------------------- setup
+    def _setup(self) -> None:
+        c = self.cfg
+        if c.scene == "grid":
+            n = c.grid_side ** 2 if c.n_robots is None else c.n_robots
+        else:
+            n = c.n_robots if c.n_robots is not None else (9 if c.scene == "coverage" else 20)
+        m = min(7, n) if c.slot_size is None else c.slot_size
+        if m > n:
+            raise ValueError(f"argument 'slot_size' must be in [1, n_robots = {n}], got {m}")
+        self.n_agents = n
+        self.m = m
+        self.slot_dur = theory.slot_duration(self.m, c.bits_per_estimate, c.baud)
+        self.frame_dur = n * self.slot_dur
+        self._moving = (c.scene == "field" and c.speed > 0) or c.scene == "coverage"
+        if c.scene == "grid":
+            cols = c.grid_side
+            rows = -(-n // cols)
+            self.side = float(max(cols, rows) - 1)
+            r = np.arange(n)
+            self._grid_pos = np.column_stack([r % cols, r // cols]).astype(np.float64)
+            self._static_adj = grid_links(rows, cols)[:n, :n]  # row-major ids: a partial last row is a slice
+            square = n == cols * cols
+            self._blocks = {k: proto.centred_block(cols, k) if square else np.empty(0, np.int64) for k in SUBGRAPHS}
+        else:
+            self.side = float(c.arena_size)
+            self._blocks = {}
+        self.diag = max(self.side * math.sqrt(2.0), 1e-9)
+        if c.scene != "grid":
+            self._cost_points = cov.sample_points(self.side, 40)
+            self._ctrl_points = cov.sample_points(self.side, 30)
+        self._obs_space = spaces.Box(0.0, 1.0, shape=(3 * n + 2,), dtype=np.float32)
+        self._act_space = spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float32)
+        self._eye = np.eye(n, dtype=bool)
+        self.ledger = BitLedger(n)
+
+    # ----------------------------------------------------------------- episode
+    def _reset_world(self) -> None:
+        c, n, rng = self.cfg, self.n_agents, self.np_random
+        self.tdma = TDMASchedule(n, rng)  # random slot order per episode (§4)
+        if c.scene == "grid":
+            self.pos = self._grid_pos.copy()
+        elif c.scene == "field":
+            self.pos = rng.uniform(0.0, self.side, size=(n, 2))
+            self.waypoint = rng.uniform(0.0, self.side, size=(n, 2))
+        else:  # coverage: take off from a corner region, spread out by the controller
+            self.pos = rng.uniform(0.0, 0.25 * self.side, size=(n, 2))
+        self._links()
+        self._hops()
+        self.t = 0.0
+        self.stamps = np.full((n, n), proto.UNKNOWN)
+        self.stamps[self._eye] = 0.0
+        self.est = np.broadcast_to(self.pos, (n, n, 2)).copy()  # only entries with a stamp mean anything
+        self.first_known = np.full((n, n), np.inf)
+        self.first_known[self._eye] = 0.0
+        self._all_known = False
+        self.last_sent = np.zeros((n, n), dtype=bool)
+        self.sent_stamp = np.full((n, n), -self.frame_dur)  # never sent: as if sent one frame before start
+        self.ledger.reset()
+        self._step_bits = np.zeros(n)
+        self._frames = 0
+        self._sum_age = 0.0
+        self._sum_wage = 0.0
+        self._max_age = np.zeros(len(HOP_BUCKETS))
+        self._sum_age_hop = np.zeros(len(HOP_BUCKETS))
+        self._reward_weights()
+        self._ages = np.zeros((n, n))
+
+    def _links(self) -> None:
+        if self.cfg.scene == "grid":
+            self.adj = self._static_adj
+        else:
+            self.adj = disk_links(self.pos, self.cfg.comm_range)
+        self._nbrs = [np.flatnonzero(row) for row in self.adj]
+
+    def _hops(self) -> None:
+        """Hop-distance buckets of the current topology (for the max-age-by-hop metrics)."""
+        hops = shortest_path(self.adj, unweighted=True, directed=False)
+        self._hop_masks = [hops == 1, hops == 2, hops == 3, (hops >= 4) & ~self._eye]
+
+    def _reward_weights(self) -> None:
+        d = np.linalg.norm(self.pos[:, None] - self.pos[None], axis=-1)
+        w = np.maximum(d, proto.MIN_DIST) ** (-self.cfg.alpha)
+        w[self._eye] = 0.0
+        self._w = w
+        self._wsum = max(float(w.sum()), 1e-300)
+
+    # ----------------------------------------------------------------- dynamics
+    def _step_world(self, actions: list) -> float:
+        n, m, b = self.n_agents, self.m, self.cfg.bits_per_estimate
+        stamps, est, t = self.stamps, self.est, self.t
+        # a robot's priorities are fixed for the frame; its candidate list is ranked once, filtered to the
+        # estimates it holds at its own slot (protocol.priority_select, vectorised over the frame)
+        rank, count = proto.priority_ranking(np.asarray(actions, dtype=np.float64))
+        sent_counts = np.zeros(n)
+        last_sent, sent_stamp = self.last_sent, self.sent_stamp
+        last_sent[:] = False
+        fk = None if self._all_known else self.first_known.reshape(-1)
+        all_known = self._all_known
+        moving = self._moving
+        for s in self.tdma.order.tolist():
+            row = stamps[s]
+            row[s] = t  # own state is always current (t_ii = t)
+            cand = rank[s, : count[s]]
+            idx = cand[:m] if all_known else cand[row[cand] > proto.UNKNOWN][:m]
+            sent_counts[s] = idx.size
+            last_sent[s, idx] = True
+            sent_stamp[s, idx] = row[idx]
+            t += self.slot_dur
+            rcv = self._nbrs[s]
+            if rcv.size:
+                if moving:
+                    est[s, s] = self.pos[s]
+                    flat, old, upd = proto.deliver_one(stamps, s, rcv, idx, est)
+                else:
+                    flat, old, upd = proto.deliver_one(stamps, s, rcv, idx)
+                if fk is not None:
+                    fk[flat[upd & (old == proto.UNKNOWN)]] = t  # first arrival: end of this slot
+            if moving:
+                self.t = t
+                self._move(self.slot_dur)
+        self.t = t
+        stamps[self._eye] = t
+        if moving:
+            est[self._eye] = self.pos
+            self._reward_weights()
+            self._hops()
+        if not self._all_known:
+            self._all_known = bool(np.isfinite(self.first_known).all())
+        self._step_bits = sent_counts * b
+        self.ledger.begin_step()
+        self.ledger.add(np.arange(n), self._step_bits, messages=n)
+        return self._frame_end()
+
+    def _move(self, duration: float) -> None:
+        c = self.cfg
+        if c.scene == "field":
+            delta = self.waypoint - self.pos
+            dist = np.linalg.norm(delta, axis=1)
+            step = c.speed * duration
+            arrive = dist <= step
+            self.pos = np.where(arrive[:, None], self.waypoint,
+                                self.pos + delta * (step / np.maximum(dist, 1e-12))[:, None])
+            if arrive.any():
+                self.waypoint[arrive] = self.np_random.uniform(0.0, self.side, size=(int(arrive.sum()), 2))
+        else:
+            # control period at most 0.25 s so slow frames (m = 9) are integrated as finely as fast ones
+            sub = max(1, math.ceil(duration / 0.25 - 1e-9))
+            known = self.stamps > proto.UNKNOWN
+            for _ in range(sub):
+                target = cov.centroids(self._ctrl_points, self.pos, self.est, known)
+                self.pos = cov.control_step(self.pos, target, c.control_gain, c.max_speed, duration / sub, self.side)
+        self._links()
+
+    def _frame_end(self) -> float:
+        ages = np.where(self.stamps > proto.UNKNOWN, self.t - self.stamps, self.t)  # unknown: age since start
+        self._ages = ages
+        off = ~self._eye
+        self._frames += 1
+        self._sum_age += float(ages[off].mean())
+        wage = float((self._w * ages).sum()) / self._wsum
+        self._sum_wage += wage
+        for k, mask in enumerate(self._hop_masks):
+            if mask.any():
+                sel = ages[mask]
+                self._max_age[k] = max(self._max_age[k], float(sel.max()))
+                self._sum_age_hop[k] += float(sel.mean())
+        return -wage
+
+    # ----------------------------------------------------------------- views
+    def knowledge(self, i: int | None = None):
+        """What robot(s) know: own positions, estimated positions, time stamps (-inf unknown), now."""
+        if i is None:
+            return self.pos, self.est, self.stamps, self.t
+        return self.pos[i], self.est[i], self.stamps[i], self.t
+
+    def estimated_distances(self) -> np.ndarray:
+        """(n, n) distance from each robot's own position to its estimate of each other robot."""
+        return np.linalg.norm(self.est - self.pos[:, None, :], axis=-1)
+
+    def _observe(self) -> np.ndarray:
+        n = self.n_agents
+        known = self.stamps > proto.UNKNOWN
+        age = np.where(known, self.t - self.stamps, 0.0)
+        age_n = np.where(known, age / (age + self.frame_dur), 1.0)
+        dist_n = np.where(known, np.minimum(self.estimated_distances() / self.diag, 1.0), 1.0)
+        slot = self.tdma.slot_of
+        phase = ((slot[None, :] - slot[:, None]) % n) / n
+        extra = np.column_stack([slot / n, np.full(n, self.m / n)])
+        return np.concatenate([age_n, dist_n, phase, extra], axis=1).astype(np.float32)
+
+    def _agent_infos(self) -> dict:
+        n = self.n_agents
+        off = ~self._eye
+        return {
+            "bits_sent": self._step_bits,
+            "mean_age": (self._ages * off).sum(axis=1) / (n - 1),
+            "known_fraction": ((self.stamps > proto.UNKNOWN) & off).sum(axis=1) / (n - 1),
+            "slot": self.tdma.slot_of,
+        }
+
+    def propagation_times(self) -> dict[int, float]:
+        """Cold-start propagation time (s) of each centred subgraph; nan while incomplete or not fitting."""
+        out = {}
+        for k in SUBGRAPHS:
+            blk = self._blocks.get(k)
+            if blk is None or blk.size == 0:
+                out[k] = math.nan
+                continue
+            v = float(self.first_known[np.ix_(blk, blk)].max())
+            out[k] = v if math.isfinite(v) else math.nan
+        return out
+
+    def coverage_cost(self) -> float:
+        if self.cfg.scene == "grid":
+            return math.nan
+        return theory.coverage_cost(self.pos, self._cost_points)
+
+    def metrics(self) -> dict[str, float]:
+        f = max(self._frames, 1)
+        out = {f"propagation_time_{k}x{k}": v for k, v in self.propagation_times().items()}
+        out["mean_age"] = self._sum_age / f
+        out["weighted_mean_age"] = self._sum_wage / f
+        for h, v in zip(HOP_BUCKETS, self._sum_age_hop, strict=True):
+            out[f"mean_age_hop{h}"] = float(v) / f
+        for h, v in zip(HOP_BUCKETS, self._max_age, strict=True):
+            out[f"max_age_hop{h}"] = float(v)
+        out["frame_rate"] = theory.frame_rate(self.m, self.n_agents, self.cfg.bits_per_estimate, self.cfg.baud)
+        out["coverage_cost"] = self.coverage_cost()
+        n = self.n_agents
+        out["known_fraction"] = float(((self.stamps > proto.UNKNOWN) & ~self._eye).sum() / (n * (n - 1)))
+        out["bits_sent"] = float(self.ledger.total_bits.sum())
+        return out
+
+    def _render(self, ax) -> None:
+        p = self.pos
+        from matplotlib.collections import LineCollection
+
+        ii, jj = np.nonzero(np.triu(self.adj))
+        ax.add_collection(LineCollection(np.stack([p[ii], p[jj]], axis=1), colors="0.8", linewidths=0.6, zorder=1))
+        age = (self._ages * ~self._eye).sum(axis=1) / max(self.n_agents - 1, 1)
+        sc = ax.scatter(p[:, 0], p[:, 1], c=age, cmap="viridis", s=30, zorder=2)
+        ax.figure.colorbar(sc, ax=ax, label="mean age of held estimates (s)")
+        ax.set_xlim(-0.05 * self.side - 0.5, 1.05 * self.side + 0.5)
+        ax.set_ylim(-0.05 * self.side - 0.5, 1.05 * self.side + 0.5)
+        ax.set_aspect("equal")
+        ax.set_title(f"{self.cfg.scene}: m={self.m}, frame {self.step_count}, t={self.t:.1f} s")

@@ -1,0 +1,237 @@
+"""The multi-hop broadcast core of Julian et al. (paper 003), vectorised over a batch of runs.
+
+Everything here works on a leading batch axis ``B`` so that the environment (``B = 1``, or ``B = n``
+robots when a policy plans every robot's slot at once) and the Monte-Carlo reproduction (``B`` random
+slot orders side by side) run *the same code*:
+
+* :func:`importance` — eq. (1), ``f_ij = d(p_i, p̂_j)^-α`` (0 for an unknown estimate);
+* :func:`location_based_select` — Algorithm 1 with persistent counters, ``O(m n)`` per slot; ``rule``
+  ``"text"`` takes the *lowest* counter (§3.2), ``"listing"`` the *highest* (the printed listing);
+* :func:`probabilistic_select` — eq. (2) sampling without replacement, in one shot (Plackett–Luce:
+  repeatedly drawing by eq. (2) is the same as ranking ``log f + Gumbel``, :func:`gumbel_ranks`);
+* :func:`age_aware_select` — our rule: importance × freshness gained since last sent;
+* :func:`priority_select` — the env's action semantics: own estimate first, then the highest
+  priorities among the *known* estimates, at most ``m`` in all, priorities ``<= 0`` withheld;
+* :func:`deliver` / :func:`deliver_one` — a broadcast: each receiver keeps the newest time stamp per
+  robot (§2.1), batched / for one run;
+* :func:`record_arrivals` — first time a receiver holds a stamp ``>= threshold`` (propagation time).
+
+Time stamps are float64 seconds; an unknown estimate has stamp ``-inf`` (§2.1's "infinity").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+UNKNOWN = -np.inf
+#: distances are clamped here so that f = d^-α stays finite for co-located robots (own estimate excepted)
+MIN_DIST = 1e-3
+
+
+def importance(dist: np.ndarray, known: np.ndarray, alpha: float) -> np.ndarray:
+    """Eq. (1): ``d^-α`` for known estimates, 0 for unknown ones (they cannot be chosen)."""
+    d = np.maximum(dist, MIN_DIST)
+    return np.where(known, d ** (-alpha), 0.0)
+
+
+def location_based_select(
+    counters: np.ndarray, f: np.ndarray, known: np.ndarray, own: np.ndarray, m: int, rule: str = "text"
+) -> np.ndarray:
+    """Algorithm 1 for a batch of senders; updates ``counters`` (B, n) in place.
+
+    ``f`` (B, n) importances of eq. (1) with ``f[b, own[b]]`` ignored (it is infinite: the first pick is
+    always the sender itself, §3.1), ``known`` (B, n) which estimates exist. Returns ``order`` (B, m)
+    of selected robot indices in selection order, ``-1`` where fewer than ``m`` estimates are known.
+
+    Counters are the probability of *not* having been selected (§3.2). Each pick multiplies the
+    counters of every still-selectable index by ``1 - P`` (eq. 2 over the remaining set ``M_i``), takes
+    the lowest (``"text"``) or highest (``"listing"``) counter and resets it to 1. Unknown indices have
+    ``P = 0`` so their counters never move, exactly as in the listing where ``M_i`` holds all indices; they
+    are never selected (there is nothing to send).
+    """
+    bsz, n = counters.shape
+    rows = np.arange(bsz)
+    order = np.full((bsz, m), -1, dtype=np.int64)
+    # first pick: own index (P_ii = 1, every other P = 0): c_ii -> 0, selected, reset to 1. (The listing's
+    # argmax would skip it, since 0 is the lowest counter; the own estimate is always sent, §2.2/§3.1.)
+    order[:, 0] = own
+    counters[rows, own] = 1.0
+    avail = known.copy()
+    avail[rows, own] = False
+    n_avail = avail.sum(axis=1)
+    rounds = int(min(m - 1, n_avail.max(initial=0)))
+    if rounds <= 0:
+        return order
+    # rows that can send every known estimate need no arithmetic: every pick ends with c = 1 (shortcut,
+    # identical to iterating). Only rows with more candidates than room run the m-1 picks.
+    full = n_avail <= m - 1
+    if full.any():
+        fr = np.flatnonzero(full)
+        sub = avail[fr]
+        counters[fr] = np.where(sub, 1.0, counters[fr])
+        # selection order among a full row does not matter for delivery; list by index
+        idx = np.argsort(~sub, axis=1, kind="stable")[:, : m - 1]
+        order[fr, 1:] = np.where(np.take_along_axis(sub, idx, axis=1), idx, -1)
+    hard = np.flatnonzero(~full)
+    if hard.size == 0:
+        return order
+    c = counters[hard]
+    av = avail[hard]
+    fh = np.where(av, f[hard], 0.0)
+    hr = np.arange(hard.size)
+    pick_lowest = rule == "text"
+    for k in range(1, m):
+        total = fh.sum(axis=1, keepdims=True)  # > 0: these rows still have >= 1 candidate
+        c *= 1.0 - fh / total  # eq. (2) inside Algorithm 1; unknown / removed indices have f = 0
+        if pick_lowest:
+            pick = np.argmin(np.where(av, c, np.inf), axis=1)
+        else:
+            pick = np.argmax(np.where(av, c, -np.inf), axis=1)
+        order[hard, k] = pick
+        c[hr, pick] = 1.0
+        av[hr, pick] = False
+        fh[hr, pick] = 0.0
+    counters[hard] = c
+    return order
+
+
+def gumbel_ranks(rng: np.random.Generator, f: np.ndarray) -> np.ndarray:
+    """Keys whose descending order is a draw of eq. (2) without replacement (Gumbel-top-k).
+
+    Zero-importance (unknown) entries get ``-inf``.
+    """
+    with np.errstate(divide="ignore"):
+        logf = np.log(f)
+    return logf + rng.gumbel(size=f.shape)
+
+
+def probabilistic_select(rng: np.random.Generator, f: np.ndarray, known: np.ndarray, own: np.ndarray,
+                         m: int) -> np.ndarray:
+    """Eq. (2) for a batch: own estimate, then ``m - 1`` draws without replacement ∝ ``f`` among known
+    estimates. Returns ``order`` (B, m), ``-1`` padded."""
+    rows = np.arange(len(own))
+    keys = gumbel_ranks(rng, np.where(known, f, 0.0))
+    keys[rows, own] = np.inf
+    cand = np.argsort(-keys, axis=1, kind="stable")[:, :m]
+    ok = np.take_along_axis(known, cand, axis=1)
+    ok[:, 0] = True
+    return np.where(ok, cand, -1)
+
+
+def age_aware_select(f: np.ndarray, stamps: np.ndarray, sent: np.ndarray, known: np.ndarray, own: np.ndarray,
+                     m: int) -> np.ndarray:
+    """Our rule (beyond the paper): rank estimates by ``f_ij × (t_ij − s_ij)``, the eq. (1) importance
+    times the freshness the robot gained since it last broadcast ``j`` (``s_ij``: the stamp it sent then).
+
+    On a lossless broadcast every neighbour already holds ``s_ij``, so an estimate with no gain is pure
+    redundancy, while ``f × gain`` is the importance-weighted age the neighbours shed by hearing it.
+    Estimates without gain only fill room left over (nearest first). Returns ``order`` (B, m)."""
+    rows = np.arange(len(own))
+    gain = np.where(known, stamps - sent, 0.0)
+    score = f * gain
+    novel = known & (gain > 0)
+    smax = np.maximum(np.where(novel, score, 0.0).max(axis=1, keepdims=True), 1e-300)
+    fmax = np.maximum(np.where(known, f, 0.0).max(axis=1, keepdims=True), 1e-300)
+    key = np.where(novel, 1.0 + 0.999 * score / smax, np.where(known, 0.999 * f / fmax, -1.0))
+    key[rows, own] = np.inf
+    cand = np.argsort(-key, axis=1, kind="stable")[:, :m]
+    ok = np.take_along_axis(known, cand, axis=1)
+    ok[:, 0] = True
+    return np.where(ok, cand, -1)
+
+
+def order_to_mask(order: np.ndarray, n: int) -> np.ndarray:
+    """(B, m) index lists (``-1`` padded) to a (B, n) selection mask."""
+    bsz, m = order.shape
+    sel = np.zeros((bsz, n), dtype=bool)
+    rows = np.repeat(np.arange(bsz), m)
+    cols = order.ravel()
+    ok = cols >= 0
+    sel[rows[ok], cols[ok]] = True
+    return sel
+
+
+def priority_select(priority: np.ndarray, known: np.ndarray, own: int, m: int) -> np.ndarray:
+    """The env's action semantics for one sender: own estimate, then the ``m-1`` highest priorities
+    among known estimates (ties: lower index first); priorities ``<= 0`` are withheld. Returns indices."""
+    p = np.where(known, priority, 0.0)
+    p[own] = np.inf
+    cand = np.flatnonzero(p > 0.0)
+    if cand.size > m:
+        cand = cand[np.argsort(-p[cand], kind="stable")[:m]]
+    return cand
+
+
+def priority_ranking(priority: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """All senders' candidate lists at once (the env precomputes them once per frame): row ``i`` of
+    ``rank`` lists own index first, then indices with priority ``> 0`` by descending priority (ties: lower
+    index first); ``count[i]`` entries are valid. ``rank[i, :count[i]]`` filtered to known estimates and
+    cut to ``m`` is exactly :func:`priority_select`."""
+    n = priority.shape[1]
+    p = np.where(priority > 0.0, priority, -1.0)
+    p[np.arange(n), np.arange(n)] = np.inf
+    rank = np.argsort(-p, axis=1, kind="stable")
+    return rank, (p > 0.0).sum(axis=1)
+
+
+def deliver_one(stamps: np.ndarray, sender: int, receivers: np.ndarray, idx: np.ndarray,
+                positions: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`deliver` for a single run (``stamps`` (n, n)), with the selection as indices ``idx``.
+
+    Same rule (receivers keep the newest stamp); flat indexing keeps the per-slot cost to a few numpy
+    calls. Returns the flat indices touched, the receivers' old stamps there and the update mask."""
+    n = stamps.shape[1]
+    flat = (receivers[:, None] * n + idx[None, :]).ravel()
+    sv = stamps.reshape(-1)
+    old = sv[flat].reshape(receivers.size, idx.size)
+    new = stamps[sender, idx]
+    upd = new > old  # (K, L), broadcast over receivers
+    sv[flat] = np.where(upd, new, old).ravel()
+    upd = upd.ravel()
+    if positions is not None and upd.any():
+        pv = positions.reshape(n * n, -1)
+        src = np.broadcast_to(positions[sender, idx], (receivers.size, idx.size, pv.shape[1]))
+        pv[flat[upd]] = src.reshape(-1, pv.shape[1])[upd]
+    return flat, old.ravel(), upd
+
+
+def deliver(stamps: np.ndarray, bi: np.ndarray, sender: np.ndarray, receivers: np.ndarray, sel: np.ndarray,
+            positions: np.ndarray | None = None) -> None:
+    """One TDMA slot for a batch: ``sender`` (B,) broadcasts the estimates in mask ``sel`` (B, n) to
+    ``receivers`` (B, K) (row indices into ``stamps``; a dummy row may pad). Each receiver keeps the
+    newest time stamp per robot (§2.1); ``positions`` (B, R, n, d) follow their stamps."""
+    out = np.where(sel, stamps[bi, sender], UNKNOWN)  # (B, n)
+    b2 = bi[:, None]
+    cur = stamps[b2, receivers]  # (B, K, n)
+    upd = out[:, None, :] > cur
+    if not upd.any():
+        return
+    stamps[b2, receivers] = np.where(upd, out[:, None, :], cur)
+    if positions is not None:
+        src = positions[bi, sender][:, None]  # (B, 1, n, d)
+        positions[b2, receivers] = np.where(upd[..., None], src, positions[b2, receivers])
+
+
+def record_arrivals(arrival: np.ndarray, stamps: np.ndarray, bi: np.ndarray, receivers: np.ndarray,
+                    threshold: float | np.ndarray, now: float | np.ndarray) -> None:
+    """Set ``arrival[b, r, j] = now`` where receiver ``r`` first holds a stamp of ``j`` ``>= threshold``."""
+    b2 = bi[:, None]
+    a = arrival[b2, receivers]
+    thr = np.asarray(threshold, dtype=np.float64)
+    if thr.ndim:
+        thr = thr[:, None, None]
+    new = np.isinf(a) & (stamps[b2, receivers] >= thr)
+    if new.any():
+        nw = np.asarray(now, dtype=np.float64)
+        if nw.ndim:
+            nw = nw[:, None, None]
+        arrival[b2, receivers] = np.where(new, nw, a)
+
+
+def centred_block(side: int, k: int) -> np.ndarray:
+    """Robot indices of the ``k × k`` subgraph centred on a ``side × side`` grid (row-major ids)."""
+    if k > side:
+        return np.empty(0, dtype=np.int64)
+    lo = (side - k) // 2
+    r = np.arange(lo, lo + k)
+    return (r[:, None] * side + r[None, :]).ravel()
