@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import math
 import statistics
 import sys
 import time
@@ -27,6 +28,16 @@ def parse_params(pairs: list[str] | None, flag: str = "--param") -> dict:
         except json.JSONDecodeError:
             params[key.strip()] = text
     return params
+
+
+def _json_safe(obj):
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    return obj
 
 
 def reproduction_module(env_id: str):
@@ -78,7 +89,8 @@ def cmd_evaluate(args) -> int:
             "metrics": metrics,
         }
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(record, indent=2))
+        # NaN (a metric undefined in an episode, e.g. a subgraph that never completed) becomes null: strict JSON
+        Path(args.json).write_text(json.dumps(_json_safe(record), indent=2, allow_nan=False))
         print(f"wrote {args.json}")
     return 0
 
@@ -144,6 +156,7 @@ def cmd_bench(args) -> int:
         policy = make_policy(env_id, policy_name)
         eps, aps = median_of(lambda k, env=env, policy=policy: _policy_speed(env, policy, args.seconds, k), env_id)
         ratio = eps / ref[0]
+        unit, per = env.STEP_UNIT[0], env.substeps_per_step()
         results["envs"][env_id] = {
             "policy": policy_name,
             "params": params,
@@ -151,11 +164,15 @@ def cmd_bench(args) -> int:
             "env_steps_per_s": eps,
             "agent_steps_per_s": aps,
             "ratio_to_reference": ratio,
+            "unit": unit,
+            "units_per_env_step": per,
+            "units_per_s": eps * per,
+            "ratio_per_unit": eps * per / ref[0],
         }
-        print(
-            f"{env_id} [{policy_name}, N={env.n_agents}]: {eps:,.1f} env-steps/s, {aps:,.0f} agent-steps/s, "
-            f"ratio {ratio:.2f}"
-        )
+        line = f"{env_id} [{policy_name}, N={env.n_agents}]: {eps:,.1f} env-steps/s, {aps:,.0f} agent-steps/s, ratio {ratio:.2f}"
+        if per != 1:  # e.g. one env step = one TDMA frame of N slots: compare slots with the reference's steps
+            line += f"; {eps * per:,.0f} {unit}s/s, ratio per {unit} {eps * per / ref[0]:.2f}"
+        print(line)
         env.close()
     results["runs"] = runs
     results["seconds_per_run"] = args.seconds

@@ -25,6 +25,9 @@ class MrcommParallelEnv(ParallelEnv):
     INFO_KEYS: ClassVar[dict[str, str]] = {}
     DOCUMENTED_CONFIGS: ClassVar[dict[str, dict[str, Any]]] = {"default": {}}
     VERSION_HISTORY: ClassVar[list[tuple[str, str]]] = []
+    #: what one env step stands for in the paper's own time unit, for the benchmark: an env whose step is a
+    #: whole TDMA frame sets ("slot", True) so that speed is also reported per slot (N slots per step)
+    STEP_UNIT: ClassVar[tuple[str, bool]] = ("step", False)
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
 
     # set by _setup()
@@ -73,6 +76,10 @@ class MrcommParallelEnv(ParallelEnv):
 
     def _render(self, ax) -> None:
         ax.text(0.5, 0.5, f"{self.ENV_ID}\nstep {self.step_count}", ha="center", va="center")
+
+    def substeps_per_step(self) -> int:
+        """How many of ``STEP_UNIT`` one env step holds (1, or N when a step is one slot per agent)."""
+        return self.n_agents if self.STEP_UNIT[1] else 1
 
     # ----------------------------------------------------------------- PettingZoo API
     def observation_space(self, agent: str) -> spaces.Space:

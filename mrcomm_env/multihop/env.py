@@ -50,6 +50,7 @@ class MultiHopEnv(MrcommParallelEnv):
     ENV_ID = "mrcomm/MultiHop-v0"
     DESCRIPTION = "Which time-stamped state estimates fill each robot's TDMA slot (location-based multi-hopping)"
     metadata = {"name": "multihop_v0", "render_modes": ["rgb_array", "human"], "render_fps": 4}
+    STEP_UNIT = ("slot", True)  # one env step is one TDMA frame: N slots
     PARAMS = {
         "scene": Param("grid", "`grid` (stationary 4-neighbour grid, Fig. 2), `field` (disk links, optional motion) "
                        "or `coverage` (Voronoi coverage by flying robots, Fig. 3)", Choice(("grid", "field", "coverage"))),
