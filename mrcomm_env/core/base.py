@@ -94,6 +94,7 @@ class MrcommParallelEnv(ParallelEnv):
         if seed is not None:
             self.np_random, self.np_random_seed = seeding.np_random(seed)
         self.agents = list(self.possible_agents)
+        self._live = dict.fromkeys(self.agents)  # key view compared with each step's actions in C
         self.step_count = 0
         self._reset_world()
         return self._observations(), self._infos()
@@ -101,7 +102,7 @@ class MrcommParallelEnv(ParallelEnv):
     def step(self, actions: dict[str, Any]):
         if not self.agents:
             raise RuntimeError("step() called on a finished episode; call reset() first")
-        if len(actions) != len(self.agents) or any(a not in self._agent_index for a in actions):
+        if actions.keys() != self._live.keys():
             unknown = sorted(set(actions) - set(self.agents))
             missing = sorted(set(self.agents) - set(actions))
             raise ValueError(
@@ -116,9 +117,8 @@ class MrcommParallelEnv(ParallelEnv):
         observations = self._observations()
         infos = self._infos()
         agents = self.agents
-        if np.ndim(rewards) == 0:
-            r = float(rewards)
-            reward_dict = dict.fromkeys(agents, r)
+        if isinstance(rewards, (float, int, np.number)):
+            reward_dict = dict.fromkeys(agents, float(rewards))
         else:
             reward_dict = dict(zip(agents, np.asarray(rewards, dtype=np.float64).tolist()))
         term_dict = dict.fromkeys(agents, terminated)
@@ -189,6 +189,8 @@ def _action_checker(space: spaces.Space):
             raise ValueError(f"action of {agent} must be an integer in [{lo}, {lo + n - 1}], got {action!r}")
 
         def check(agents, actions):
+            if all(type(a) is int for a in actions) and lo <= min(actions) and max(actions) < lo + n:
+                return actions  # plain ints, the common case: no numpy round trip
             arr = np.asarray(actions)
             if arr.shape == (len(agents),) and (arr.dtype.kind in "iub" or (arr.dtype.kind == "f" and np.all(arr == np.floor(arr)))):
                 ok = (arr >= lo) & (arr < lo + n)
