@@ -127,7 +127,7 @@ class Optional(Validator):
         return None if value is None else self.inner(name, value)
 
     def describe(self) -> str:
-        return f"null (off) or {self.inner.describe()}"
+        return f"null or {self.inner.describe()}"
 
 
 @dataclass(frozen=True)
