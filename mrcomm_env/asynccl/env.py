@@ -57,6 +57,7 @@ ALL_MODES = ("silent", "scheme1", "scheme2_q1", "scheme2_q2", "scheme2_q4", "sch
 AGE_SCALE, BITS_SCALE, EMA = 10.0, 1.0e4, 0.2
 # floors of the filter's noise model so that zero-noise configurations stay numerically sound
 SIGMA_FLOOR = 1e-4
+_sum = np.add.reduce  # = ndarray.sum without its two Python frames per call (tiny arrays: half the cost)
 
 
 def mode_code(name: str) -> int:
@@ -169,6 +170,9 @@ class AsyncCLEnv(MrcommParallelEnv):
         # flat index of P_i[3i+d, 3i+d] in robot i's covariance: the diagonal of its own-pose block
         self._own_rows = np.arange(n)[:, None]
         self._own_flat = (np.arange(n)[:, None] * 3 + np.arange(3)[None, :]) * (3 * n + 1)
+        self._all_robots = np.arange(n)
+        self._obs_scale = np.array([AGE_SCALE] * (n + 1) + [1.0, 1.0, BITS_SCALE])
+        self._upper = np.triu(np.ones((n, n), dtype=bool), k=1)
 
     # ------------------------------------------------------------------ episode
     def _reset_world(self) -> None:
@@ -198,15 +202,17 @@ class AsyncCLEnv(MrcommParallelEnv):
     def _draw_links(self) -> None:
         cfg, rng = self.cfg, self.np_random
         model = cfg["link_model"]
-        if model == "bernoulli":
-            adj = bernoulli_links(rng, self.n_agents, cfg["link_probability"])
+        if model == "bernoulli":  # = core.bernoulli_links (same draw), with the upper-triangle mask kept
+            upper = rng.random((self.n_agents, self.n_agents)) < cfg["link_probability"]
+            upper &= self._upper
+            adj = upper | upper.T
         else:
             adj = disk_links(self.world.x[:, :2], cfg["comm_radius"])
             if model == "combined":
                 adj &= bernoulli_links(rng, self.n_agents, cfg["link_probability"])
         self.adj = adj
         self.delivered = apply_packet_loss(rng, adj, cfg["packet_loss"])
-        self.neighbours = adj.sum(axis=1)
+        self.neighbours = _sum(adj, axis=1)
 
     def _step_world(self, actions: list) -> float:
         cfg, rng, tab = self.cfg, self.np_random, self.tables
@@ -214,16 +220,17 @@ class AsyncCLEnv(MrcommParallelEnv):
         t = tab.t
         self.ledger.begin_step()
         bits, links = tab.exchange(modes, self.adj, self.delivered, cfg["bit_budget"])
-        self.ledger.add(np.arange(self.n_agents), bits, messages=int(links.sum()))
-        self._links_used += float(links.sum())
+        n_links = float(_sum(links, axis=None))
+        self.ledger.add(self._all_robots, bits, messages=int(n_links))
+        self._links_used += n_links
         self._ema += EMA * (bits - self._ema)
         if cfg["estimation"]:
             self.est.step(t, tab.c, tab.latest)
             self._errors()
-            reward = -float(self._err_pos.mean())
+            reward = -self._mean_pos  # = mean over robots of the RMS position errors
         else:
             reward = 0.0
-        reward -= cfg["lam"] * float(bits.sum())
+        reward -= cfg["lam"] * float(_sum(bits, axis=None))
         # the world moves on to step t+1; every robot adds its own packet M_{t+1}^i (eq. (5))
         self.world.advance(rng)
         pk = self.world.measure(rng)
@@ -243,39 +250,43 @@ class AsyncCLEnv(MrcommParallelEnv):
     def _errors(self) -> None:
         n = self.n_agents
         E = self.est.X.reshape(n, n, 3) - self.world.x
-        E[:, :, 2] = wrap(E[:, :, 2])
+        th = E[:, :, 2]  # heading errors wrapped into (-π, π] in place (``wrap``)
+        th += np.pi
+        np.remainder(th, 2.0 * np.pi, out=th)
+        th -= np.pi
         E *= E
-        S = E.sum(axis=1) * (1.0 / n)  # (robot, [x², y², φ²]) means over the team
+        S = _sum(E, axis=1) * (1.0 / n)  # (robot, [x², y², φ²]) means over the team
         self._err_pos = np.sqrt(S[:, 0] + S[:, 1])
         self._err_ori = np.sqrt(S[:, 2])
-        self._sum_pos += float(self._err_pos.sum()) / n
-        self._sum_ori += float(self._err_ori.sum()) / n
+        self._mean_pos = float(_sum(self._err_pos, axis=None)) / n
+        self._sum_pos += self._mean_pos
+        self._sum_ori += float(_sum(self._err_ori, axis=None)) / n
         self._n_err += 1
 
     def _account_table(self) -> None:
         size = self.tables.table_size()
         self._table = size
-        self._sum_table += float(size.sum()) / self.n_agents
+        self._sum_table += float(_sum(size, axis=None)) / self.n_agents
         self._n_table += 1
-        self._max_table = max(self._max_table, float(size.max()))
+        self._max_table = max(self._max_table, float(np.maximum.reduce(size, axis=None)))
 
     # ------------------------------------------------------------------ views
     def _observe(self) -> np.ndarray:
         tab, n = self.tables, self.n_agents
         t = tab.t
-        obs = np.empty((n, n + 4), dtype=np.float32)
-        age = (t - 1 - tab.c).astype(float)
-        obs[:, 0] = age / (age + AGE_SCALE)
-        behind = (t - tab.latest).astype(float)
-        obs[:, 1:n + 1] = behind / (behind + AGE_SCALE)
+        # every feature but the neighbour count is x / (x + scale): one division over the whole row
+        raw = np.empty((n, n + 4))
+        np.subtract(t - 1, tab.c, out=raw[:, 0])  # age of the oldest incomplete column
+        np.subtract(t, tab.latest, out=raw[:, 1:n + 1])  # how many steps behind each row is
         if self.cfg["estimation"]:
-            tr = self.est.P.reshape(n, -1)[self._own_rows, self._own_flat].sum(axis=1)  # trace of own-pose block
-            obs[:, n + 1] = tr / (tr + 1.0)
+            raw[:, n + 1] = _sum(self.est.P.reshape(n, -1)[self._own_rows, self._own_flat], axis=1)  # own-pose trace
         else:
-            obs[:, n + 1] = 0.0
-        obs[:, n + 2] = self.neighbours / (n - 1)
-        obs[:, n + 3] = self._ema / (self._ema + BITS_SCALE)
-        return obs
+            raw[:, n + 1] = 0.0
+        raw[:, n + 2] = 0.0
+        raw[:, n + 3] = self._ema
+        raw /= raw + self._obs_scale
+        raw[:, n + 2] = self.neighbours / (n - 1)
+        return raw.astype(np.float32)
 
     def _agent_infos(self) -> dict:
         tab = self.tables

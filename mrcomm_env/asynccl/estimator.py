@@ -16,6 +16,12 @@ holds. Which packets a filter holds is read from the robot's information table.
   checkpoint only when data about old steps arrived; otherwise it extends its previous causal estimate
   by one column. Filters that share a prior (same state, same odometry) share its propagation and
   linearisation; all filters of a step are batched into the same numpy calls.
+* **Cost.** A step is a handful of small numpy calls, so their number is what counts. While every robot
+  is exact (always, unless memory ran out), ``_step_recent`` runs the step as a fixed sequence of batched
+  calls: the central prior of column t is shared by every robot with c = t-1, a restart from an older
+  x̂_{c|c} starts from the central chain's kept prior of column c+1 (``lin``), and each update is one
+  small product with per-observer information terms (``ekf.info_terms``). ``_step_general`` (through
+  ``_advance``) handles every other case; both run the same column steps.
 * **Bounded memory.** When the shared packet ring drops a column that some robot never completed, that
   robot adopts its causal estimate of the column as its new checkpoint (no longer centralized-exact).
 """
@@ -27,6 +33,7 @@ import numpy as np
 from mrcomm_env.asynccl import ekf
 
 NO_ODOMETRY_SIGMA_V, NO_ODOMETRY_SIGMA_W = 1.0, 1.0  # before any odometry of a robot is known
+KEPT_PRIOR_BYTES = 8 << 20  # memory for the central chain's linearised priors kept for restarts (``lin``)
 
 
 class Estimators:
@@ -34,29 +41,63 @@ class Estimators:
         self.n, self.dt = n, dt
         self.sv, self.sw, self.sd, self.sth = sigma_v_frac, sigma_omega, sigma_d_frac, sigma_theta
         self.W = history + 3
+        n3 = 3 * n
+        self.keep_priors = int(np.clip(KEPT_PRIOR_BYTES // (8 * (n + 1) * (n3 * n3 + n3)), 2, 64))  # columns
 
     def reset(self, x0, P0, packets0) -> None:
         n = self.n
         self.packets = {0: packets0}
-        self.u_ring = np.zeros((self.W, n, 2))
-        self.u_ring[0] = packets0.u
+        # odometry ring: [v, ω, σ_v², σ_ω²] of every robot per step (Q of eq. (1)); the extra last slot is the
+        # standstill with a large noise used before any odometry of a robot is known
+        self.uq_ring = np.zeros((self.W + 1, n, 4))
+        self.uq_ring[:, :, 3] = self.sw**2
+        self.uq_ring[self.W, :, 2:] = (NO_ODOMETRY_SIGMA_V**2, NO_ODOMETRY_SIGMA_W**2)
+        self._set_odometry(0, packets0.u)
         self.central = {-1: (x0, P0)}  # x̂_{k|k}, P_{k|k}; -1 is the prior
-        self.lin = {}  # (k, state id, odometry source) -> prior X, P, H, r, w of column k
+        self.lin = {}  # (k, state id, odometry source) -> prior X, Y = P⁻¹ and information terms J, β of column k
         self.exact = np.ones(n, dtype=bool)
+        self._all_exact = True
         self.ck = [None] * n  # own checkpoints (c, X, P) of robots that are no longer exact
-        self._cache_step, self._cache_c, self._cache_exact = -2, np.full(n, -9), self.exact.copy()
-        self._cache_L = np.zeros((n, n), dtype=np.int64)
+        self._cache_step, self._cache_c, self._cache_exact, self._cache_L = -2, None, None, None
         self.X = np.repeat(x0[None, :], n, axis=0)
         self.P = np.repeat(P0[None], n, axis=0)
         self._full = np.zeros(n, dtype=np.int64)
         self._uid = 0
         self._central_lo = -1
+        self._kept_lo = -2
+        self._lin_dirty = False
         self._jidx: dict = {}
+        self._ar = np.arange(n)[None, :]
+        self._sources_known = False  # every robot has some complete column (no odometry source is -1)
 
     def add_packets(self, t: int, packets, floor: int) -> None:
         self.packets[t] = packets
-        self.u_ring[t % self.W] = packets.u
+        self._set_odometry(t, packets.u)
         self.packets.pop(floor - 2, None)
+
+    def _set_odometry(self, t: int, u) -> None:
+        row = self.uq_ring[t % self.W]
+        row[:, :2] = u
+        row[:, 2] = (self.sv * u[:, 0]) ** 2  # (σ_ω² is constant: set once in reset)
+
+    def _slots(self, src):
+        """Ring slots of the odometry of steps ``src``; step -1 (none of that robot yet) is the standstill slot.
+
+        Sources are min(L, k-1) ≥ min(c, k-1), so once every robot has a complete column (c ≥ 0) none is -1."""
+        return src % self.W if self._sources_known else np.where(src < 0, self.W, src % self.W)
+
+    def _linearize(self, X, pk):
+        """Per-observer information terms (J, β) of column ``pk`` linearised at the priors X (eq. (2))."""
+        if pk.hidx is None:  # the same sensing graph recurs: one index table per distinct (a, b)
+            gkey = pk.a.tobytes() + pk.b.tobytes()
+            pk.hidx = self._jidx.get(gkey)
+            if pk.hidx is None:
+                if len(self._jidx) > 64:
+                    self._jidx.clear()
+                pk.hidx = self._jidx[gkey] = ekf.Geometry(pk.a, pk.b, self.n)
+            pk.wobs = pk.hidx.weights(pk.z, self.sd, self.sth)
+        H, r = ekf.linearize(X, pk.hidx, pk.z)
+        return ekf.info_terms(H, r, *pk.wobs)
 
     # ------------------------------------------------------------------ batched column steps
     def _advance(self, end, sids, starts, Xs, Ps, Ls):
@@ -89,55 +130,39 @@ class Estimators:
                 Xp = np.array([X[g] for _, g in new])
                 Pp = np.array([P[g] for _, g in new])
                 if k >= 1:
-                    src = np.minimum(Larr[[g for _, g in new]], k - 1)
-                    u = self.u_ring[src % W, ar[None, :]]
-                    qv = (self.sv * u[:, :, 0]) ** 2
-                    qw = np.full(qv.shape, self.sw**2)
-                    none = src < 0
-                    if none.any():  # nothing of that robot yet: standstill with a large noise
-                        u = np.where(none[:, :, None], 0.0, u)
-                        qv = np.where(none, NO_ODOMETRY_SIGMA_V**2, qv)
-                        qw = np.where(none, NO_ODOMETRY_SIGMA_W**2, qw)
-                    Xp, Pp = ekf.propagate(Xp, Pp, u, qv, qw, self.dt)
-                if pk.hidx is None:  # the same sensing graph recurs: one index per distinct (a, b)
-                    gkey = pk.a.tobytes() + pk.b.tobytes()
-                    pk.hidx = self._jidx.get(gkey)
-                    if pk.hidx is None:
-                        if len(self._jidx) > 64:
-                            self._jidx.clear()
-                        pk.hidx = self._jidx[gkey] = ekf.jacobian_index(pk.a, pk.b, 3 * n)
-                H, r, w = ekf.linearize(Xp, pk.a, pk.b, pk.z, self.sd, self.sth, pk.hidx)
+                    gs = [g for _, g in new]
+                    if min(Lmin[g] for g in gs) >= k - 1:  # every robot's odometry of step k-1 is held
+                        uq = np.broadcast_to(self.uq_ring[(k - 1) % W], (len(gs), n, 4))
+                    else:  # its last available odometry otherwise (§IV); slot -1 of the ring: none yet
+                        src = np.minimum(Larr[gs], k - 1)
+                        uq = self.uq_ring[np.where(src < 0, W, src % W), ar[None, :]]
+                    Xp, Pp = ekf.propagate(Xp, Pp, uq, self.dt)
+                J, beta = self._linearize(Xp, pk)
                 Yp = ekf.inv(Pp)
                 for j, (key, _) in enumerate(new):
-                    self.lin[key] = (Xp[j], Yp[j], H[j], r[j], w, None)
-            order = list(keys)
-            lins = [self.lin[key] for key in order]
-            masks = (Larr if len(act) == len(Larr) else Larr[act])[:, pk.a] >= k
-            allm = masks.all()
-            if len(lins) == 1:  # one shared prior (the common case): precomputed per-row information terms
-                v = lins[0]
-                if v[5] is None:
-                    v = self.lin[order[0]] = v[:5] + (ekf.shared_terms(v[2], v[3], v[4]),)
-                Xn, Pn = ekf.update_shared(v[0], v[1], v[5][0], v[5][1], v[4], masks)
+                    self.lin[key] = (Xp[j], Yp[j], J[j], beta[j])
+            # a filter holds measurement (a, b) of column k iff it holds robot a's packet of k
+            M = ((Larr if len(act) == len(Larr) else Larr[act]) >= k).astype(float)
+            if len(keys) == 1:  # one shared prior (the common case): its terms broadcast over the filters
+                Xn, Pn = ekf.update(*self.lin[next(iter(keys))], M)
             else:
-                Xp = np.array([v[0] for v in lins])
-                Yp = np.array([v[1] for v in lins])
-                H = np.array([v[2] for v in lins])
-                r = np.array([v[3] for v in lins])
-                Xn, Pn = ekf.update_info(Xp, Yp, H, r, lins[0][4], np.array(prior_of), None if allm else masks)
+                lins = [self.lin[key] for key in keys]
+                pr = np.array(prior_of)
+                Xn, Pn = ekf.update(*(np.array([v[q] for v in lins])[pr] for q in range(4)), M)
             if k == end:  # last column: no later prior to share, state ids are not needed
                 for j, g in enumerate(act.tolist()):
                     X[g], P[g] = Xn[j], Pn[j]
                 break
             for j, g in enumerate(act.tolist()):
                 X[g], P[g] = Xn[j], Pn[j]
-                pkey = (prior_of[j], b"" if allm else masks[j].tobytes())
+                pkey = (prior_of[j], M[j].tobytes())
                 sid = post.get(pkey)
                 if sid is None:
                     sid = post[pkey] = ("P", k, len(post), self._uid)
                 sids[g] = sid
             post = {}
         self._uid += 1
+        self._lin_dirty = True  # it may have stored priors of other filters than the central chain
         return X, P
 
     def _checkpoint(self, i: int, c: int):
@@ -159,39 +184,22 @@ class Estimators:
             Xs.append(X)
             Ps.append(P)
         X, P = self._advance(floor, sids, c_old, Xs, Ps, list(np.minimum(L_old, floor)))
+        self._all_exact = False
         for g, i in enumerate(robots):
             self.exact[i] = False
             self.ck[i] = (floor, X[g], P[g])
 
-    def step(self, t: int, c: np.ndarray, latest: np.ndarray) -> None:
-        """Central column t and the causal estimates x̂_{t|t} of every robot after the exchange of step t."""
-        n = self.n
-        L = np.minimum(latest, t)
-        exact_all = bool(self.exact.all())
-        if not exact_all:
-            for i in np.nonzero(~self.exact)[0]:  # own checkpoints follow the frontier before packets age out
-                if self.ck[i][0] < c[i]:
-                    self._checkpoint(int(i), int(c[i]))
-        # a previous causal estimate (step t-1) is still valid when nothing about steps ≤ t-1 arrived
-        Lm = np.minimum(L, t - 1)
-        valid = ((Lm == self._cache_L).all(axis=1) & (c == self._cache_c) & (self.exact == self._cache_exact)).tolist()
-        if self._cache_step != t - 1:
-            valid = [False] * n
-        cl = c.tolist()
-        ident = [-1] * n if exact_all else np.where(self.exact, -1, np.arange(n)).tolist()
-        Lb = [row.tobytes() for row in L]
-        groups: dict = {}
-        for i in range(n):
-            groups.setdefault((ident[i], cl[i], Lb[i]), []).append(i)
+    def _step_general(self, t, L, valid, groups):
+        """Any step: every group's filter from its checkpoint (or its previous estimate) through ``_advance``."""
         # filter 0 is the centralized chain, column t
         cX, cP = self.central[t - 1]
         sids, starts, Xs, Ps, Ls = [("C", t - 1)], [t - 1], [cX], [cP], [self._full + t]
-        res_of = [0] * n  # robot -> filter whose result is its estimate (0: x̂_{t|t})
+        res_of = [0] * self.n  # robot -> filter whose result is its estimate (0: x̂_{t|t})
         for (_, ci, _), robots in groups.items():
             if ci >= t:
                 continue
             g = len(sids)
-            rb = next((r for r in robots if valid[r]), None)
+            rb = next((r for r in robots if valid[r]), None) if ci < t - 1 else None
             if rb is not None:  # extend the previous causal estimate by one column
                 sids.append(("R", rb, t - 1))
                 starts.append(t - 1)
@@ -207,15 +215,142 @@ class Estimators:
             for r in robots:
                 res_of[r] = g
         X, P = self._advance(t, sids, starts, Xs, Ps, Ls)
-        self.central[t] = (X[0], P[0])
-        self.X = np.array(X)[res_of]
-        self.P = np.array(P)[res_of]
-        self._cache_step, self._cache_c, self._cache_exact, self._cache_L = t, c.copy(), self.exact.copy(), L
+        return X, P, res_of
+
+    def _step_recent(self, t, L, valid, groups):
+        """Every robot exact: the same column steps as ``_advance``, in a fixed short sequence of batched calls.
+
+        Each group's causal estimate is one of: x̂_{t|t} itself (c ≥ t); one column from x̂_{t-1|t-1} (c = t-1:
+        it shares the central prior of column t, as it holds everyone's odometry of t-1); its previous causal
+        estimate extended by one column (valid: nothing about steps ≤ t-1 arrived); or a restart from x̂_{c|c}
+        (c ≤ t-2): column c+1 updates the central chain's prior of c+1 (kept, ``lin``) with the rows it holds,
+        later columns propagate with its last available odometry (§IV). All filters of a column share its calls.
+        Returns ``None`` when the central prior a restart needs is no longer kept (``_step_general`` then).
+        """
+        n, W, lin = self.n, self.W, self.lin
+        res_of = [0] * n
+        rows_a, rows_r, rows_e, src_e, c_r = [], [], [], [], []
+        for (_, ci, _), robots in groups.items():
+            if ci >= t:
+                continue
+            rb = next((r for r in robots if valid[r]), None) if ci < t - 1 else None
+            if rb is not None:
+                rows_e.append(robots)
+                src_e.append(rb)
+            elif ci == t - 1:
+                rows_a.append(robots)
+            elif (ci + 1, ("C", ci), b"") in lin:
+                rows_r.append(robots)
+                c_r.append(ci)
+            else:
+                return None
+        # filters: 0 the central chain, then those with a prior of column t of their own: the groups restarting
+        # at t-2 or earlier (R) and the extended ones (E); last the groups restarting at t-1 (A)
+        order = rows_r + rows_e + rows_a
+        nr, nown = len(rows_r), len(rows_r) + len(rows_e)
+        for g, robots in enumerate(order, start=1):
+            for r in robots:
+                res_of[r] = g
+        Lx = np.empty((len(order) + 1, n), dtype=np.int64)  # holdings of each filter (the central: everything)
+        Lx[0] = t
+        np.take(L, [r[0] for r in order], axis=0, out=Lx[1:])  # a group's robots share their row of L
+        ar = self._ar
+        cX, cP = self.central[t - 1]
+        Xs, Ps = [cX[None]], [cP[None]]
+        if rows_r:  # columns c+1 … t-1 of the restarting groups, oldest first
+            running, Xc, Pc = [], None, None
+            for k in range(min(c_r) + 1, t):
+                parts = []
+                if running:  # their prior of column k: last available odometry of step k-1
+                    Lr = Lx[[1 + g for g in running]]
+                    Xp, Pp = ekf.propagate(Xc, Pc, self.uq_ring[self._slots(np.minimum(Lr, k - 1)), ar], self.dt)
+                    J, beta = self._linearize(Xp, self.packets[k])
+                    parts.append(ekf.update(Xp, ekf.inv(Pp), J, beta, (Lr >= k).astype(float)))
+                start = [g for g, ci in enumerate(c_r) if ci + 1 == k]
+                if start:  # first column: the central prior of column k with the rows they hold
+                    Ls = Lx[1:1 + nr] if len(start) == nr else Lx[[1 + g for g in start]]
+                    parts.append(ekf.update(*lin[(k, ("C", k - 1), b"")], (Ls >= k).astype(float)))
+                    running = running + start
+                if len(parts) == 1:
+                    Xc, Pc = parts[0]
+                elif parts:
+                    Xc, Pc = np.concatenate([parts[0][0], parts[1][0]]), np.concatenate([parts[0][1], parts[1][1]])
+            if running != sorted(running):  # back in the order of rows_r
+                pos = np.argsort(running)
+                Xc, Pc = Xc[pos], Pc[pos]
+            Xs.append(Xc)
+            Ps.append(Pc)
+        if rows_e:
+            Xs.append(self.X[src_e])
+            Ps.append(self.P[src_e])
+        if nown:  # the central row of Lx gives the odometry of t-1 of everyone
+            uq = self.uq_ring[self._slots(np.minimum(Lx[:1 + nown], t - 1)), ar]
+            Xp, Pp = np.concatenate(Xs), np.concatenate(Ps)
+        else:
+            uq = self.uq_ring[(t - 1) % W][None]
+            Xp, Pp = Xs[0], Ps[0]
+        Xp, Pp = ekf.propagate(Xp, Pp, uq, self.dt)
+        J, beta = self._linearize(Xp, self.packets[t])
+        Yp = ekf.inv(Pp)
+        lin[(t, ("C", t - 1), b"")] = (Xp[0], Yp[0], J[0], beta[0])
+        M = (Lx >= t).astype(float)  # a filter holds measurement (a, b) of column t iff it holds a's packet
+        if nown:
+            pr = list(range(1 + nown)) + [0] * len(rows_a)
+            Xn, Pn = ekf.update(Xp[pr], Yp[pr], J[pr], beta[pr], M)
+        else:
+            Xn, Pn = ekf.update(Xp[0], Yp[0], J[0], beta[0], M)
+        return Xn, Pn, res_of
+
+    def step(self, t: int, c: np.ndarray, latest: np.ndarray) -> None:
+        """Central column t and the causal estimates x̂_{t|t} of every robot after the exchange of step t."""
+        n = self.n
+        L = np.minimum(latest, t)
+        exact_all = self._all_exact
+        if not exact_all:
+            for i in np.nonzero(~self.exact)[0]:  # own checkpoints follow the frontier before packets age out
+                if self.ck[i][0] < c[i]:
+                    self._checkpoint(int(i), int(c[i]))
+        cl = c.tolist()
+        # a previous causal estimate (step t-1) is still valid when nothing about steps ≤ t-1 arrived; it is
+        # only worth extending for a robot whose checkpoint is older than t-1 (from t-1 the restart is as cheap)
+        Ll = L.tolist()
+        valid = [False] * n
+        if self._cache_step == t - 1 and min(cl) < t - 1:
+            ex = None if exact_all else self.exact.tolist()
+            for i in range(n):
+                if cl[i] < t - 1 and cl[i] == self._cache_c[i] and (ex is None or ex[i] == self._cache_exact[i]):
+                    valid[i] = [min(x, t - 1) for x in Ll[i]] == self._cache_L[i]
+        ident = [-1] * n if exact_all else np.where(self.exact, -1, np.arange(n)).tolist()
+        groups: dict = {}
+        for i in range(n):
+            groups.setdefault((ident[i], cl[i], tuple(Ll[i])), []).append(i)
+        self._sources_known = min(cl) >= 0
+        fast = self._step_recent(t, L, valid, groups) if exact_all and t >= 1 else None
+        if fast is not None:
+            Xn, Pn, res_of = fast
+            self.central[t] = (Xn[0], Pn[0])
+            self.X, self.P = Xn[res_of], Pn[res_of]
+        else:
+            X, P, res_of = self._step_general(t, L, valid, groups)
+            self.central[t] = (X[0], P[0])
+            self.X = np.array(X)[res_of]
+            self.P = np.array(P)[res_of]
+        # what the validity test of the next step compares with (robots' frontiers, exactness, holdings ≤ t)
+        self._cache_step, self._cache_c, self._cache_exact, self._cache_L = t, cl, self.exact.tolist(), Ll
         # keep central estimates some exact robot may still start from, and this step's linearisations
         lo = min(min(cl) if exact_all else int(c[self.exact].min(initial=t)), t)
         if lo > self._central_lo:
             for k in [k for k in self.central if k < lo]:
                 del self.central[k]
             self._central_lo = lo
-        for key in [key for key in self.lin if key[0] < t]:
-            del self.lin[key]
+        # the central chain's recent priors stay while a robot may restart from x̂_{k-1|k-1} (its first column
+        # needs no new propagation then); every other filter's prior is used within this step only
+        keep = max(lo, t - self.keep_priors)
+        if self._lin_dirty:
+            for key in [key for key in self.lin if key[0] < t and (key[1][0] != "C" or key[0] <= keep)]:
+                del self.lin[key]
+            self._lin_dirty = False
+        else:  # only the central chain's priors are stored: drop those that fell out
+            for k in range(self._kept_lo + 1, keep + 1):
+                self.lin.pop((k, ("C", k - 1), b""), None)
+        self._kept_lo = keep

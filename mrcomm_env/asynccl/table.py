@@ -36,12 +36,16 @@ from mrcomm_env.core.comm import fit_to_budget
 
 SILENT, SCHEME1, QINF = -1, 0, 1 << 40  # mode codes: -1 silent, 0 Scheme 1, q ≥ 1 Scheme 2 (QINF = ∞)
 DENSE_MAX_N = 24  # up to this team size the exchange runs on dense (sender, receiver, row) arrays
+# ufunc reductions called directly: ndarray.sum/min/max/any add two Python frames per call, as much as the
+# reduction itself on these tiny arrays (same numpy routine, same result)
+_sum, _min, _max, _any = np.add.reduce, np.minimum.reduce, np.maximum.reduce, np.logical_or.reduce
 
 
 class InfoTables:
     def __init__(self, n: int, history: int, q_rule: str = "paper"):
         self.n, self.history, self.q_rule = n, history, q_rule
         self._rows = np.arange(n)[None, :]  # row index for gathers of cumulative bits
+        self._diag = np.arange(n) * (n + 1)  # flat index of the diagonal of an (N, N) matrix
         self.W = history + 3  # ring of cumulative packet bits, indexed by step + 1 (step -1 ↦ 0 bits)
 
     def reset(self, first_bits: np.ndarray) -> None:
@@ -70,7 +74,7 @@ class InfoTables:
         self.t += 1
         t = self.t
         self._push_bits(t, bits)
-        np.fill_diagonal(self.latest, t)
+        self.latest.reshape(-1)[self._diag] = t
         # bounded memory: columns older than the ring are gone for everyone
         floor = t - self.history
         lagging = np.nonzero(self.c < floor)[0]
@@ -110,29 +114,29 @@ class InfoTables:
         """Same exchange as ``_exchange_pairs`` on dense (sender, receiver, row) arrays: faster for small N."""
         n, t, W = self.n, self.t, self.W
         latest, disc = self.latest, self.disc
-        sending = modes != SILENT
-        T = adj & sending[:, None]  # T[j, i]: j transmits to i
-        links = T.sum(axis=1).astype(float)
-        if not links.any():
+        all_qinf = _min(modes, axis=None) >= QINF  # q = ∞ everywhere (the default): everyone sends its whole table
+        T = adj if all_qinf else adj & (modes != SILENT)[:, None]  # T[j, i]: j transmits to i
+        links = _sum(T, axis=1, dtype=float)
+        if not _any(links, axis=None):
             return np.zeros(n), links
-        hi_s = self._offers(modes)
-        gain = (hi_s[:, None, :] > latest[None, :, :]) & T[:, :, None]
+        hi_s = latest if all_qinf else self._offers(modes)
         rows = self._rows
-        cum_hi = self.cum_bits[rows, (hi_s + 1) % W]
         cum_lo = self.cum_bits[rows, (latest + 1) % W]
-        payload = np.where(gain, cum_hi[:, None, :] - cum_lo[None, :, :], 0.0).sum(axis=(1, 2))
-        header = np.where(modes >= QINF, HEADER_BITS + LIST_ENTRY_BITS * np.sum(latest > disc[:, None], axis=1),
-                          HEADER_BITS)
+        cum_hi = cum_lo if all_qinf else self.cum_bits[rows, (hi_s + 1) % W]
+        gain = (hi_s[:, None, :] > latest[None, :, :]) & T[:, :, None]
+        payload = _sum(np.where(gain, cum_hi[:, None, :] - cum_lo[None, :, :], 0.0), axis=(1, 2))
+        list_bits = HEADER_BITS + LIST_ENTRY_BITS * _sum(latest > disc[:, None], axis=1)
+        header = list_bits if all_qinf else np.where(modes >= QINF, list_bits, HEADER_BITS)
         bits = payload + header * links
-        D = delivered & T
-        if D.any():
+        D = T if delivered is adj and T is adj else delivered & T  # (no packet loss: delivered is adj)
+        if _any(D, axis=None):
             c_pre = self.c
             h = np.where(D[:, :, None], hi_s[:, None, :], -1)  # (j, i, v)
-            self.latest = np.maximum(latest, h.max(axis=0))
+            self.latest = np.maximum(latest, _max(h, axis=0))
             DT = D.T
             known = np.maximum(self.known, np.where(DT, c_pre[None, :], -1))
-            known = np.maximum(known, np.where(DT, disc[None, :], -1).max(axis=1)[:, None])
-            after = np.maximum(latest[None, :, :], h).min(axis=2)  # (j, i): what j knows i now holds
+            known = np.maximum(known, _max(np.where(DT, disc[None, :], -1), axis=1)[:, None])
+            after = _min(np.maximum(latest[None, :, :], h), axis=2)  # (j, i): what j knows i now holds
             self.known = np.maximum(known, np.where(D, after, -1))
         self._settle(t)
         return bits, links
@@ -225,28 +229,36 @@ class InfoTables:
 
     def _settle(self, t: int) -> None:
         """New complete frontiers (delay bookkeeping, eq. (7)) and the discard rule."""
-        c_new = np.minimum(self.latest.min(axis=1), t)
+        c_new = np.minimum(_min(self.latest, axis=1), t)
         grew = c_new > self.c
-        if grew.any():
+        if _any(grew, axis=None):
             a, b = self.c[grew], c_new[grew]
-            cnt = b - a
-            # steps a+1 … b become computable now: delays t − k
-            self.delay_sum += float(np.sum(cnt * t - (a + b + 1) * cnt / 2.0))
-            self.delay_count += int(cnt.sum())
-            # histogram of delays: the range t-b … t-a-1, kept as a difference array
-            np.add.at(self._hist_diff, t - b, 1)
-            np.add.at(self._hist_diff, t - a, -1)
+            # steps a+1 … b become computable now: delays t − k; the histogram of delays gets the range
+            # t-b … t-a-1, kept as a difference array
+            if len(a) <= 8:  # a few robots (the usual case): plain Python beats a dozen tiny numpy calls
+                hist = self._hist_diff
+                for ai, bi in zip(a.tolist(), b.tolist()):
+                    self.delay_sum += (bi - ai) * t - (ai + bi + 1) * (bi - ai) / 2.0  # halves: exact in any order
+                    self.delay_count += bi - ai
+                    hist[t - bi] += 1
+                    hist[t - ai] -= 1
+            else:
+                cnt = b - a
+                self.delay_sum += float(np.sum(cnt * t - (a + b + 1) * cnt / 2.0))
+                self.delay_count += int(cnt.sum())
+                np.add.at(self._hist_diff, t - b, 1)
+                np.add.at(self._hist_diff, t - a, -1)
             self.c = c_new
-        np.fill_diagonal(self.known, self.c)
+        self.known.reshape(-1)[self._diag] = self.c  # what robot i itself has complete
         if self.q_rule == "oracle":  # variant: a column is dropped as soon as every robot has it
             self.disc[:] = self.c.min()
         else:
-            self.disc = np.maximum(self.disc, self.known.min(axis=1))
+            self.disc = np.maximum(self.disc, _min(self.known, axis=1))
 
     # ------------------------------------------------------------------ views
     def table_size(self) -> np.ndarray:
         """Packets each robot holds in its non-discarded columns."""
-        return np.sum(np.maximum(self.latest - self.disc[:, None], 0), axis=1)
+        return _sum(np.maximum(self.latest - self.disc[:, None], 0), axis=1)
 
     def delay_histogram(self) -> np.ndarray:
         """counts[d]: robot-steps whose centralized estimate became computable d steps late."""

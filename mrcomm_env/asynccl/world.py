@@ -45,7 +45,7 @@ def wrap(angle):
 class Packets:
     """The measurement packets of one time step (a column of the information table)."""
 
-    __slots__ = ("u", "a", "b", "z", "n_meas", "bits", "hidx")
+    __slots__ = ("u", "a", "b", "z", "n_meas", "bits", "hidx", "wobs")
 
     def __init__(self, u, a, b, z, n_meas):
         self.u = u  # (N, 2) measured [v, ω]
@@ -54,7 +54,8 @@ class Packets:
         self.z = z  # (m, 2) measured [d, θ] (None when estimation is off)
         self.n_meas = n_meas  # (N,) measurements per robot
         self.bits = PACKET_BASE_BITS + MEAS_BITS * n_meas  # (N,) bits of M_k^i
-        self.hidx = None  # flat indices of the Jacobian entries (filled by the EKF on first use)
+        self.hidx = None  # index tables of the sensing graph, ``ekf.Geometry`` (filled by the EKF on first use)
+        self.wobs = None  # weights 1/R of the measurements and their grouping by observer (likewise)
 
 
 class World:
