@@ -35,14 +35,27 @@ class BernoulliPolicy(Policy):
     PARAMS = {"p": Param(0.5, "probability of emitting a message pair each step",
                          Real(0.0, 1.0, lo_open=True, hi_open=True, fuzz=(0.05, 0.95)))}
 
+    #: uniform draws taken from the generator at once (for several steps of a small team). The generator
+    #: fills doubles in order, so the coins are exactly those of one ``random(len(agents))`` per step.
+    BLOCK = 1024
+
     def reset(self, env, seed=None):
         super().reset(env, seed)
-        self._p = self.params["p"]
+        self._start(self.params["p"])
+
+    def _start(self, p: float) -> None:
+        self._p = p
+        self._coins, self._at = [], 0                       # drawn coins (0/1 ints) and the next unused one
 
     def act(self, observations, env):
         agents = list(observations)
-        emit = self.rng.random(len(agents)) < self._p
-        return dict(zip(agents, emit.view(np.int8).tolist(), strict=True))
+        k, at = len(agents), self._at
+        if at + k > len(self._coins):                       # refill, keeping the unused coins first
+            fresh = self.rng.random(max(k, self.BLOCK)) < self._p
+            self._coins = self._coins[at:] + fresh.view(np.int8).tolist()
+            at = 0
+        self._at = at + k
+        return dict(zip(agents, self._coins[at:at + k], strict=True))
 
 
 class CoinFlipPolicy(BernoulliPolicy):
@@ -53,7 +66,7 @@ class CoinFlipPolicy(BernoulliPolicy):
 
     def reset(self, env, seed=None):
         Policy.reset(self, env, seed)
-        self._p = 0.5
+        self._start(0.5)
 
 
 class IdBitsPolicy(Policy):

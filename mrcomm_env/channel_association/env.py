@@ -39,7 +39,8 @@ number of emissions per robot this step. Units: robot diameters and time steps. 
 Implementation. Populations up to 64 robots keep one ``uint64`` candidate set per (observer, visual ID)
 (:class:`BitsetFilter`; the literal w×v matrix :class:`DenseFilter` when `miss_tolerance` > 0); larger
 fields use a k-d tree (stationary pairs found once per episode, mobile robots queried each step) and
-an edge list (:class:`SparseFilter`). The tests check all three agree step by step. `drop_time`
+an edge list (:class:`SparseFilter`). The tests check all three agree step by step. A step recomputes
+only the mobile robots' ranges, and the per-robot statistics only when the i-states changed. `drop_time`
 defaults to 20: the paper gives no value; a robot in range stays silent 20 steps with probability 2⁻²⁰.
 `completion_time` is −1 until every observer is final and always in mobile scenes.
 """
@@ -47,11 +48,12 @@ defaults to 20: the paper gives no value; a robot in range stays silent 20 steps
 from __future__ import annotations
 
 import math
+from itertools import chain
 
 import numpy as np
 from gymnasium import spaces
 
-from mrcomm_env.channel_association.filters import _POW2, BitsetFilter, DenseFilter, SparseFilter, pack_rows
+from mrcomm_env.channel_association.filters import _POW2, BitsetFilter, DenseFilter, SparseFilter
 from mrcomm_env.core.base import MrcommParallelEnv
 from mrcomm_env.core.comm import BitLedger
 from mrcomm_env.core.config import Choice, Int, Param, Real
@@ -148,6 +150,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         n = self.n_agents
         self._id_bits = max(1, int(math.ceil(math.log2(n))))
         self._msg_bits = self._id_bits + 1
+        self._msg_bits_f = float(self._msg_bits)
         ids = np.arange(n)
         self._id_code = ((ids[:, None] >> np.arange(self._id_bits)[None, :]) & 1).astype(np.float32)
         self._obs_dim = self._id_bits + 1 + HISTORY + 5
@@ -155,6 +158,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         self._act_space = spaces.Discrete(2)
         self._ledger = BitLedger(n)
         self._max_steps, self._cost = c.max_steps, c.emission_cost    # plain attributes: hot path
+        self._wrange, self._vrange = c.wireless_range, c.visual_range
         self._neigh = c.scene == "neighborhood"
         small = n <= self.DENSE_MAX_N                       # slot-per-robot backends need (N, N) helpers
         self._self_inf = np.where(np.eye(n, dtype=bool), np.inf, 0.0) if small else None
@@ -163,6 +167,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         observer[0] = 1.0
         # observation = [static: own ID bits, observer flag | dynamic: step, 4 emissions, 4 i-state stats]
         self._static_obs = np.concatenate((self._id_code, observer[:, None]), axis=1)
+        self._n_static = self._static_obs.shape[1]
         k = np.arange(2 * n + 2, dtype=np.float64)           # counts are at most 2N (new W + new V IDs)
         self._squash8, self._squash4 = k / (k + 8.0), k / (k + 4.0)
 
@@ -179,7 +184,13 @@ class ChannelAssociationEnv(MrcommParallelEnv):
     def _reset_world(self) -> None:
         c, n, rng = self.cfg, self.n_agents, self.np_random
         self._ledger.reset()
-        self._dyn = np.zeros((n, 1 + HISTORY + 4), dtype=np.float32)   # dynamic part of the observation
+        # the observation rows: the static part is written once per episode, the dynamic part (columns
+        # _n_static:) in place; that part is sliced where used, not kept as a view, so a pickled copy
+        # of the env stays consistent
+        self._obs = np.zeros((n, self._obs_dim), dtype=np.float32)
+        self._obs[:, : self._n_static] = self._static_obs
+        self._stats_key = None                              # i-state statistics not yet computed
+        self._rows_key = None                               # mobile robots' in-range rows not yet known
         self._emit = np.zeros(n, dtype=bool)
         self._completion = -1
         self._q = c.miss_probability
@@ -235,21 +246,42 @@ class ChannelAssociationEnv(MrcommParallelEnv):
     def _move(self) -> None:
         p = self.positions[self._n_stat:]                   # mobile robots are stored last (a view)
         p += self.vel
-        out = (p < 0.0) | (p > self.size)
+        out = p < 0.0
+        out |= p > self.size
         if np.count_nonzero(out):                          # bounce off the boundary (§5.4)
             np.abs(p, out=p)
             np.subtract(self.size, np.abs(self.size - p), out=p)
             self.vel[out] *= -1.0
 
-    def _update_ranges(self) -> None:
-        c = self.cfg
+    def _update_ranges(self, first: int = 0) -> None:
+        """In-range matrices ``_wr``, ``_vr`` (and ``_wr_bits``) from the positions.
+
+        ``first`` > 0 recomputes only the rows of robots ``first`` … N−1 (the mobile ones, stored last)
+        and mirrors them into their columns: distances between stationary robots never change, and
+        |a − b| equals |b − a| exactly in floating point, so the result is the full computation's.
+        """
         z = self.positions.view(np.complex128).ravel()      # positions viewed as complex numbers
-        d = np.abs(z[:, None] - z)
-        d += self._self_inf                                 # a robot is not its own neighbour
-        self._wr = d <= c.wireless_range
-        self._vr = d <= c.visual_range if c.visual_range < c.wireless_range else self._wr
+        d = np.abs(z[first:, None] - z)
+        d += self._self_inf[first:]                         # a robot is not its own neighbour
+        wr, vr = self._wrange, self._vrange
+        if first == 0:
+            self._wr = d <= wr
+            self._vr = d <= vr if vr < wr else self._wr     # the same array when the ranges are equal
+        else:
+            w = d <= wr
+            v = d <= vr if vr < wr else None
+            # a robot moves a small part of the range per step: usually nobody entered or left it
+            key = w.tobytes() if v is None else w.tobytes() + v.tobytes()
+            if key == self._rows_key:
+                return
+            self._rows_key = key
+            self._wr[first:] = w
+            self._wr[:, first:] = w.T
+            if v is not None:
+                self._vr[first:] = v
+                self._vr[:, first:] = v.T
         if self.backend == "bitset":
-            self._wr_bits = pack_rows(self._wr)
+            self._wr_bits = self._wr @ self._pow            # pack_rows, inlined: hot path
 
     def _update_pairs(self) -> None:
         """Directed in-range pairs as sorted keys o*n + x (k-d tree).
@@ -269,7 +301,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         if ns < n:
             lists = self._tree(pos).query_ball_point(pos[ns:], c.wireless_range)
             cnt = np.fromiter(map(len, lists), dtype=np.int64, count=len(lists))
-            x = np.fromiter((j for row in lists for j in row), dtype=np.int64, count=int(cnt.sum()))
+            x = np.fromiter(chain.from_iterable(lists), dtype=np.int64, count=int(cnt.sum()))
             m = np.repeat(np.arange(ns, n), cnt)
             keep = x != m
             m, x = m[keep], x[keep]
@@ -286,7 +318,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
     def _visual_in_range(self, keys: np.ndarray) -> np.ndarray:
         """Still in visual range? Only pairs involving a mobile robot can have left."""
         n = self.n_agents
-        o, x = keys // n, keys % n
+        o, x = np.divmod(keys, n)
         inside = np.ones(len(keys), dtype=bool)
         mov = np.nonzero(self.moving[o] | self.moving[x])[0]
         d = self.positions[o[mov]] - self.positions[x[mov]]
@@ -298,12 +330,12 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         n = self.n_agents
         emit = np.array(actions, dtype=bool)
         self._emit = emit
-        dyn = self._dyn
+        dyn = self._obs[:, self._n_static:]                 # dynamic part of the observation (a view)
         dyn[:, 2: 1 + HISTORY] = dyn[:, 1:HISTORY]       # shift own emission history, newest first
         dyn[:, 1] = emit
         n_emit = int(np.count_nonzero(emit))
         ledger = self._ledger
-        ledger.step_bits = emit * float(self._msg_bits)
+        ledger.step_bits = emit * self._msg_bits_f
         if n_emit:
             ledger.total_bits += ledger.step_bits
             ledger.messages += n_emit
@@ -318,11 +350,13 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         elif self.backend != "sparse":
             if self.mobile:
                 self._move()
-                self._update_ranges()
+                self._update_ranges(self._n_stat)           # only the mobile robots' rows and columns
             if q > 0.0:
                 recv = self._wr & emit & (rng.random((n, n)) >= q)
                 vact = self._vr & emit & (rng.random((n, n)) >= q)
                 self.filter.step(recv, vact, self._vr, self.mobile)
+            elif not (n_emit or self.mobile):
+                pass                                        # known neighbourhoods, nobody lit: no change
             elif self.backend == "bitset":
                 self.filter.step(None, self._vr & emit, self._vr, self.mobile,
                                  recv_bits=self._wr_bits & (emit @ self._pow))
@@ -343,7 +377,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
                 vact = vact[_uniform_hash(vact, salt[1]) >= q]
 
             def w_active(keys):
-                o, x = keys // n, keys % n
+                o, x = np.divmod(keys, n)
                 on = emit[x]
                 mov = np.nonzero(on & (self.moving[o] | self.moving[x]))[0]
                 if len(mov):                                # stationary pairs tracked ⇒ in range
@@ -374,7 +408,15 @@ class ChannelAssociationEnv(MrcommParallelEnv):
     # ------------------------------------------------------------------ per-robot statistics
     def _refresh(self) -> None:
         """Cache (matched, visual IDs, edges, unresolved, new IDs) per robot and the fractions matched."""
-        matched, nv, ne, unres = self.filter.stats()
+        f = self.filter
+        if self.backend != "sparse":
+            # the statistics are functions of (candidates per visual ID, tracked visual IDs, new IDs):
+            # most steps change none of them (everything matched), so compare raw bytes and skip
+            key = (f.deg.tobytes(), f.vt.tobytes(), f.new_ids.tobytes())
+            if key == self._stats_key:
+                return
+            self._stats_key = key
+        matched, nv, ne, unres = f.stats()
         new = self.filter.new_ids
         if self._neigh:                                    # only robot_0 runs a filter
             cols = np.zeros((5, self.n_agents), dtype=np.int64)
@@ -386,16 +428,16 @@ class ChannelAssociationEnv(MrcommParallelEnv):
             self._frac = matched / np.maximum(nv, 1)
             self._team_score = float(np.add.reduce(self._frac)) / self.n_agents
         self._stats = (matched, nv, ne, unres, new)
-        j, dyn = 1 + HISTORY, self._dyn                     # i-state statistics for the observation
+        j, dyn = 1 + HISTORY, self._obs[:, self._n_static:]   # i-state statistics for the observation
         dyn[:, j] = self._frac
         dyn[:, j + 1] = (np.maximum(ne, nv) - nv) / np.maximum(ne, 1)   # unsigned-safe (ne − nv)⁺ / ne
         dyn[:, j + 2] = self._squash8[unres]                # u / (u + 8), tabulated
         dyn[:, j + 3] = self._squash4[new]                  # n / (n + 4), tabulated
 
     def _observe(self) -> np.ndarray:
-        dyn = self._dyn
-        dyn[:, 0] = min(self.step_count / self._max_steps, 1.0)
-        return np.concatenate((self._static_obs, dyn), axis=1)
+        obs = self._obs
+        obs[:, self._n_static] = min(self.step_count / self._max_steps, 1.0)
+        return obs.copy()                                   # the caller's rows must not change later
 
     def _agent_infos(self):
         return {"bits_sent": self._ledger.step_bits}

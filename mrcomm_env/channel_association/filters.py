@@ -153,6 +153,19 @@ def _isin_sorted(sorted_keys: np.ndarray, queries: np.ndarray) -> np.ndarray:
     return sorted_keys[idx] == queries
 
 
+def _search_grouped(sorted_keys: np.ndarray, queries: np.ndarray, side: str = "left") -> np.ndarray:
+    """``np.searchsorted(sorted_keys, queries, side)`` for sorted ``queries`` with long runs of equal
+    values (edges grouped by visual key): each distinct value is searched once and its index repeated."""
+    if len(queries) == 0:
+        return np.searchsorted(sorted_keys, queries, side)
+    first = np.empty(len(queries), dtype=bool)
+    first[0] = True
+    np.not_equal(queries[1:], queries[:-1], out=first[1:])
+    start = np.flatnonzero(first)
+    idx = np.searchsorted(sorted_keys, queries[start], side)
+    return np.repeat(idx, np.diff(np.append(start, len(queries))))
+
+
 def _cross_by_group(gid_a: np.ndarray, gid_b: np.ndarray, n_groups: int):
     """All pairs (i, j) with gid_a[i] == gid_b[j]; both inputs sorted by group id."""
     if len(gid_a) == 0 or len(gid_b) == 0:
@@ -167,7 +180,7 @@ def _cross_by_group(gid_a: np.ndarray, gid_b: np.ndarray, n_groups: int):
         return e, e
     i = np.repeat(np.arange(len(gid_a)), reps)
     first = np.cumsum(reps) - reps                      # ragged arange: offset within each run
-    j = start_b[gid_a[i]] + (np.arange(total) - first[i])
+    j = np.arange(total) + np.repeat(start_b[gid_a] - first, reps)   # start_b[gid_a[i]] + (k − first[i])
     return i, j
 
 
@@ -210,7 +223,7 @@ class SparseFilter:
         order = np.lexsort((ew, ev))                    # edges grouped by visual key
         self.ew, self.ev = ew[order], ev[order]
         self.ed = np.zeros(len(self.ew), dtype=np.uint8)
-        self.vidx = np.searchsorted(self.vk, self.ev)
+        self.vidx = _search_grouped(self.vk, self.ev)
         self.vdeg = np.bincount(self.vidx, minlength=len(self.vk))
 
     def _keep_edges(self, keep):
@@ -251,7 +264,7 @@ class SparseFilter:
                 add_v, add_w = [newv[i]], [neww[j]]
                 if self.extra_edges and len(self.wk):
                     # §5.2: old, active, not yet associated wireless IDs also get an edge to new visual IDs
-                    vidx = np.searchsorted(self.vk, self.ev)
+                    vidx = _search_grouped(self.vk, self.ev)
                     deg_now = np.bincount(vidx, minlength=len(self.vk))
                     sole = self.ew[deg_now[vidx] == 1]
                     free = wact & ~_isin_sorted(np.unique(sole), self.wk)
@@ -269,7 +282,7 @@ class SparseFilter:
                 self.wk = np.insert(self.wk, at, neww)
                 self.idle = np.insert(self.idle, at, np.zeros(len(neww), dtype=np.int32))
         # observation update: keep edges whose wireless and visual IDs had the same activity
-        vidx = np.searchsorted(self.vk, self.ev)
+        vidx = _search_grouped(self.vk, self.ev)
         v_on = _isin_sorted(vact_keys, self.vk) if v_active is None else v_active(self.vk)
         mismatch = w_active(self.ew) != v_on[vidx]
         if self.tolerance == 0:
@@ -287,19 +300,24 @@ class SparseFilter:
             ok = w_active(self.wk[j])
             self.conflicts += int(empty.sum())
             self._append_edges(self.wk[j[ok]], ek[i[ok]])
-            vidx = np.searchsorted(self.vk, self.ev)
+            vidx = _search_grouped(self.vk, self.ev)
             deg = np.bincount(vidx, minlength=len(self.vk))
         self.vidx = vidx
         self.vdeg = deg
 
     def _append_edges(self, ew, ev):
         """Insert new edges keeping the list grouped (sorted) by visual key — a merge, not a re-sort."""
-        order = np.argsort(ev, kind="stable")
-        ew, ev = ew[order], ev[order]
-        at = np.searchsorted(self.ev, ev, side="right")
-        self.ew = np.insert(self.ew, at, ew)
-        self.ev = np.insert(self.ev, at, ev)
-        self.ed = np.insert(self.ed, at, np.zeros(len(ev), dtype=np.uint8))
+        if len(ev) > 1 and not (ev[1:] >= ev[:-1]).all():   # often sorted already (new W × new V)
+            order = np.argsort(ev, kind="stable")
+            ew, ev = ew[order], ev[order]
+        # each new edge goes after the old edges of its visual key and the new ones before it (what
+        # np.insert at searchsorted(side="right") does); the positions serve all three arrays
+        at = _search_grouped(self.ev, ev, side="right") + np.arange(len(ev))
+        old = np.ones(len(self.ev) + len(ev), dtype=bool)
+        old[at] = False
+        self.ew = _merged(self.ew, old, at, ew)
+        self.ev = _merged(self.ev, old, at, ev)
+        self.ed = _merged(self.ed, old, at, 0)
 
     # ------------------------------------------------------------------ statistics per observer
     def stats(self):
@@ -313,9 +331,17 @@ class SparseFilter:
     def matches(self):
         """(observer, wireless robot, visual robot) of every unique match."""
         n = self.n
-        vidx = np.searchsorted(self.vk, self.ev)
+        vidx = _search_grouped(self.vk, self.ev)
         sel = self.vdeg[vidx] == 1
         return self.ev[sel] // n, self.ew[sel] % n, self.ev[sel] % n
+
+
+def _merged(old_values: np.ndarray, old: np.ndarray, at: np.ndarray, new_values) -> np.ndarray:
+    """The array with ``old_values`` where ``old`` is set and ``new_values`` at positions ``at``."""
+    out = np.empty(len(old), dtype=old_values.dtype)
+    out[old] = old_values
+    out[at] = new_values
+    return out
 
 
 # ====================================================================== bit-set backend
@@ -381,41 +407,51 @@ class BitsetFilter:
     def step(self, recv: np.ndarray, vact: np.ndarray, v_in: np.ndarray | None = None,
              lists: bool = False, recv_bits: np.ndarray | None = None) -> None:
         """As :meth:`DenseFilter.step`; ``recv_bits`` may give ``recv`` already packed (then ``recv``
-        is not used and may be None)."""
+        is not used and may be None).
+
+        The arrays are tiny in the environment (N ≤ 64), so the cost is the number of numpy calls:
+        the code keeps that low (one-call comparisons, tests that skip rare work). Invariant: the
+        column of an untracked visual ID is 0."""
         R = pack_rows(recv) if recv_bits is None else recv_bits
-        C = self.C
+        C, vt = self.C, self.vt
         if lists:
-            # removeVisIDs: a visual ID out of range loses its column (folded into the update below)
-            self.vt &= v_in
+            lost = np.greater(vt, v_in)                        # tracked but out of range
+            if np.count_nonzero(lost):                         # removeVisIDs: the column goes
+                vt &= v_in
+                C[lost] = 0
             self.heard[self.t % self.drop_time] = R
             self.t += 1
             D = self.wt & ~np.bitwise_or.reduce(self.heard, axis=0)
             if np.count_nonzero(D):                                    # removeWifiIDs
                 self.wt &= ~D
                 C &= ~D[:, None]
-            newv = vact & ~self.vt
+            newv = np.greater(vact, vt)                        # lit, not tracked: addNewVisIDs
             NW = R & ~self.wt
             if np.count_nonzero(newv):
                 add = NW
                 if self.extra_edges:                        # §5.2: + old, active, unassociated wireless IDs
                     deg = np.bitwise_count(C)
-                    assoc = np.bitwise_or.reduce(np.where((deg == 1) & self.vt, C, _ZERO), axis=1)
+                    assoc = np.bitwise_or.reduce(np.where((deg == 1) & vt, C, _ZERO), axis=1)
                     add = add | (R & self.wt & ~assoc)
                 C |= np.where(newv, add[:, None], 0)
-                self.vt |= newv
+                vt |= newv
                 self.vlabel[newv] = self.rng.integers(0, 2**31, size=int(newv.sum()))
                 self.new_ids = newv.sum(1) + np.bitwise_count(NW)
             else:
                 self.new_ids = np.bitwise_count(NW)
             self.wt |= NW
-        # Algorithm 1: element-wise product (an untracked / lost visual ID keeps no candidate)
-        C &= np.where(vact, R[:, None], np.where(self.vt, ~R[:, None], _ZERO))
+        # Algorithm 1: element-wise product. Untracked columns are 0 and stay 0; a tracked one keeps the
+        # received wireless IDs if it was lit, the silent ones if it was dark.
+        C &= np.where(vact, R[:, None], ~R[:, None])
         deg = np.bitwise_count(C)
-        empty = (deg == 0) & vact                          # lit ⇒ tracked, so no vt term needed
-        if np.count_nonzero(empty):                                    # detected contradiction: re-open when lit
-            C |= np.where(empty, (self.wt & R)[:, None], 0)
-            self.conflicts += int(empty.sum())
-            deg = np.bitwise_count(C)
+        # a tracked visual ID without candidates is rare: while every tracked one has some (untracked
+        # ones have none), the two counts agree and there is nothing to look for
+        if np.count_nonzero(deg) < np.count_nonzero(vt):
+            empty = (deg == 0) & vact                      # lit ⇒ tracked, so no vt term needed
+            if np.count_nonzero(empty):                                # detected contradiction: re-open when lit
+                C |= np.where(empty, (self.wt & R)[:, None], 0)
+                self.conflicts += int(empty.sum())
+                deg = np.bitwise_count(C)
         self.deg = deg
 
     def stats(self):
