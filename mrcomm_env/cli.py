@@ -110,6 +110,8 @@ def cmd_reproduce(args) -> int:
         print(f"== reproducing {env_id} ({'quick' if args.quick else 'full'}) ==", flush=True)
         start = time.perf_counter()
         section = reproduction_module(env_id).run(out / name, quick=args.quick)
+        # the report gives each env an H2; the section's own headings move one level down beneath it
+        section = "\n".join("#" + line if line.startswith("#") else line for line in section.splitlines())
         elapsed = time.perf_counter() - start
         sections.append(f"## {env_id}\n\n_{'quick' if args.quick else 'full'} run, {elapsed:.0f} s_\n\n{section}\n")
     header = (
