@@ -193,7 +193,8 @@ def update(Xp, Yp, J, beta, M):
     Y = (Mr @ J).reshape(G, n3, n3)
     Y += Yp
     Pn = inv(Y)
-    Pn = 0.5 * (Pn + Pn.transpose(0, 2, 1))
+    Pn += Pn.transpose(0, 2, 1)  # symmetrise: 0.5 (P + Pᵀ) (numpy buffers the overlapping operand)
+    Pn *= 0.5
     Xn = (Pn @ (Mr @ beta).reshape(G, n3, 1)).reshape(G, n3)
     Xn += Xp
     th = Xn[:, 2::3]  # wrap the headings into (-π, π] in place (``world.wrap``)

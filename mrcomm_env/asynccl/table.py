@@ -129,7 +129,7 @@ class InfoTables:
         header = list_bits if all_qinf else np.where(modes >= QINF, list_bits, HEADER_BITS)
         bits = payload + header * links
         D = T if delivered is adj and T is adj else delivered & T  # (no packet loss: delivered is adj)
-        if _any(D, axis=None):
+        if D is T or _any(D, axis=None):  # (D is T: some link is used, checked above)
             c_pre = self.c
             h = np.where(D[:, :, None], hi_s[:, None, :], -1)  # (j, i, v)
             self.latest = np.maximum(latest, _max(h, axis=0))
