@@ -104,6 +104,9 @@ def test_bit_ledger_accumulates_exactly():
     ledger.add(1, 7.0)
     assert ledger.step_bits.tolist() == [0.0, 7.0, 0.0]
     assert ledger.total_bits.tolist() == [11.0, 7.0, 5.0] and ledger.messages == 4
+    ledger.record(np.array([1.0, 2.0, 3.0]), messages=2)  # a whole step at once replaces the step's bits
+    assert ledger.step_bits.tolist() == [1.0, 2.0, 3.0]
+    assert ledger.total_bits.tolist() == [12.0, 9.0, 8.0] and ledger.messages == 6
 
 
 def test_validators_name_argument_and_range():

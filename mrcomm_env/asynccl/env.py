@@ -170,9 +170,7 @@ class AsyncCLEnv(MrcommParallelEnv):
         # flat index of P_i[3i+d, 3i+d] in robot i's covariance: the diagonal of its own-pose block
         self._own_rows = np.arange(n)[:, None]
         self._own_flat = (np.arange(n)[:, None] * 3 + np.arange(3)[None, :]) * (3 * n + 1)
-        self._all_robots = np.arange(n)
         self._obs_scale = np.array([AGE_SCALE] * (n + 1) + [1.0, 1.0, BITS_SCALE])
-        self._upper = np.triu(np.ones((n, n), dtype=bool), k=1)
 
     # ------------------------------------------------------------------ episode
     def _reset_world(self) -> None:
@@ -202,10 +200,8 @@ class AsyncCLEnv(MrcommParallelEnv):
     def _draw_links(self) -> None:
         cfg, rng = self.cfg, self.np_random
         model = cfg["link_model"]
-        if model == "bernoulli":  # = core.bernoulli_links (same draw), with the upper-triangle mask kept
-            upper = rng.random((self.n_agents, self.n_agents)) < cfg["link_probability"]
-            upper &= self._upper
-            adj = upper | upper.T
+        if model == "bernoulli":
+            adj = bernoulli_links(rng, self.n_agents, cfg["link_probability"])
         else:
             adj = disk_links(self.world.x[:, :2], cfg["comm_radius"])
             if model == "combined":
@@ -218,10 +214,9 @@ class AsyncCLEnv(MrcommParallelEnv):
         cfg, rng, tab = self.cfg, self.np_random, self.tables
         modes = self._codes[actions]
         t = tab.t
-        self.ledger.begin_step()
         bits, links = tab.exchange(modes, self.adj, self.delivered, cfg["bit_budget"])
         n_links = float(_sum(links, axis=None))
-        self.ledger.add(self._all_robots, bits, messages=int(n_links))
+        self.ledger.record(bits, messages=int(n_links))
         self._links_used += n_links
         self._ema += EMA * (bits - self._ema)
         if cfg["estimation"]:

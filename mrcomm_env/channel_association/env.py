@@ -52,10 +52,11 @@ from itertools import chain
 
 import numpy as np
 from gymnasium import spaces
+from scipy.spatial import cKDTree
 
 from mrcomm_env.channel_association.filters import _POW2, BitsetFilter, DenseFilter, SparseFilter
 from mrcomm_env.core.base import MrcommParallelEnv
-from mrcomm_env.core.comm import BitLedger
+from mrcomm_env.core.comm import BitLedger, disk_pairs
 from mrcomm_env.core.config import Choice, Int, Param, Real
 
 HISTORY = 4  # own past emissions in the observation
@@ -232,12 +233,9 @@ class ChannelAssociationEnv(MrcommParallelEnv):
             if not self.mobile:
                 self.filter.init_known(self._wr, self._vr)
         else:
-            from scipy.spatial import cKDTree
-
             self.backend = "sparse"
             self.filter = SparseFilter(n, c.drop_time, c.miss_tolerance, extra)
             self.filter.rng = rng
-            self._tree = cKDTree
             self._update_pairs()
             if not self.mobile:
                 self.filter.init_known(self._wkeys, self._vkeys)
@@ -293,13 +291,13 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         ns = self._n_stat
         if not hasattr(self, "_static_keys") or self._static_for is not pos:
             stat = pos[:ns]
-            pairs = self._tree(stat).query_pairs(c.wireless_range, output_type="ndarray").astype(np.int64)
+            pairs = disk_pairs(stat, c.wireless_range).astype(np.int64)
             a, b = pairs[:, 0], pairs[:, 1]
             self._static_keys = np.sort(np.concatenate((a * n + b, b * n + a)))
             self._static_for = pos
         keys = self._static_keys
         if ns < n:
-            lists = self._tree(pos).query_ball_point(pos[ns:], c.wireless_range)
+            lists = cKDTree(pos).query_ball_point(pos[ns:], c.wireless_range)
             cnt = np.fromiter(map(len, lists), dtype=np.int64, count=len(lists))
             x = np.fromiter(chain.from_iterable(lists), dtype=np.int64, count=int(cnt.sum()))
             m = np.repeat(np.arange(ns, n), cnt)
@@ -334,11 +332,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         dyn[:, 2: 1 + HISTORY] = dyn[:, 1:HISTORY]       # shift own emission history, newest first
         dyn[:, 1] = emit
         n_emit = int(np.count_nonzero(emit))
-        ledger = self._ledger
-        ledger.step_bits = emit * self._msg_bits_f
-        if n_emit:
-            ledger.total_bits += ledger.step_bits
-            ledger.messages += n_emit
+        self._ledger.record(emit * self._msg_bits_f, n_emit)
         q, rng = self._q, self.np_random
         if self._neigh:
             recv = emit[None, 1:]

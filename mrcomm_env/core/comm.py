@@ -9,13 +9,27 @@ dense matrix.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from scipy.spatial import cKDTree
 
 
+@lru_cache(maxsize=32)
+def _strict_upper(n: int) -> np.ndarray:
+    mask = np.triu(np.ones((n, n), dtype=bool), k=1)
+    mask.flags.writeable = False
+    return mask
+
+
 def bernoulli_links(rng: np.random.Generator, n: int, p: float) -> np.ndarray:
-    """Independent bidirectional links, each pair up with probability ``p`` this step."""
-    upper = np.triu(rng.random((n, n)) < p, k=1)
+    """Independent bidirectional links, each pair up with probability ``p`` this step.
+
+    One ``(n, n)`` draw per step whose strict upper triangle decides each pair (the mask is cached: this
+    runs every step of every env that uses it).
+    """
+    upper = rng.random((n, n)) < p
+    upper &= _strict_upper(n)
     return upper | upper.T
 
 
@@ -102,6 +116,12 @@ class BitLedger:
         """Charge ``bits`` to ``agent`` (an index or an index array with matching ``bits``)."""
         np.add.at(self.step_bits, agent, bits)
         np.add.at(self.total_bits, agent, bits)
+        self.messages += messages
+
+    def record(self, bits: np.ndarray, messages: int) -> None:
+        """This step's bits of every agent at once (replaces ``begin_step`` + ``add`` for all agents)."""
+        np.copyto(self.step_bits, bits)
+        self.total_bits += self.step_bits
         self.messages += messages
 
     def reset(self) -> None:

@@ -238,8 +238,7 @@ class MultiHopEnv(MrcommParallelEnv):
         if not self._all_known:
             self._all_known = bool(np.isfinite(self.first_known).all())
         self._step_bits = sent_counts * b
-        self.ledger.begin_step()
-        self.ledger.add(np.arange(n), self._step_bits, messages=n)
+        self.ledger.record(self._step_bits, messages=n)
         return self._frame_end()
 
     def _move(self, duration: float) -> None:
