@@ -53,24 +53,29 @@ def scheme1_expected_delay(n: int, p: float, tol: float = 1e-13) -> float:
             return total
 
 
-def scheme2_qinf_n3_tail(t: int, p: float) -> float:
-    """eq. (15): I_t = P(delay > t) for N = 3, q = ∞; I_0 = 1 − p²."""
+def scheme2_qinf_n3_tails(p: float, tmax: int = 2000):
+    """eq. (15): I_0, I_1, … with I_t = P(delay > t) for N = 3, q = ∞; I_0 = 1 − p²."""
     it = 1.0 - p * p
-    for s in range(1, t + 1):
+    yield it
+    for s in range(1, tmax):
         it = it * (1.0 - p) ** 2 + 2.0 * p * (1.0 - p) ** (2 * s + 1)
-    return it
+        yield it
+        if it < 1e-15:
+            return
+
+
+def scheme2_qinf_n3_tail(t: int, p: float) -> float:
+    """I_t of eq. (15)."""
+    for s, it in enumerate(scheme2_qinf_n3_tails(p, t + 1)):
+        if s == t:
+            return it
+    return 0.0  # below 1e-15: the recursion stopped early
 
 
 def scheme2_qinf_n3_expected_delay(p: float, tmax: int = 2000) -> float:
     """eq. (16): E(delay) = Σ_{t≥1} t (I_{t-1} − I_t)."""
-    total, prev = 0.0, 1.0 - p * p
-    for t in range(1, tmax):
-        cur = prev * (1.0 - p) ** 2 + 2.0 * p * (1.0 - p) ** (2 * t + 1)
-        total += t * (prev - cur)
-        prev = cur
-        if cur < 1e-15:
-            break
-    return total
+    tails = list(scheme2_qinf_n3_tails(p, tmax))
+    return sum(t * (tails[t - 1] - tails[t]) for t in range(1, len(tails)))
 
 
 def p_delay_gt1_as_printed(n: int, p: float) -> float:

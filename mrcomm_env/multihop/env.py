@@ -277,12 +277,6 @@ class MultiHopEnv(MrcommParallelEnv):
         return -wage
 
     # ----------------------------------------------------------------- views
-    def knowledge(self, i: int | None = None):
-        """What robot(s) know: own positions, estimated positions, time stamps (-inf unknown), now."""
-        if i is None:
-            return self.pos, self.est, self.stamps, self.t
-        return self.pos[i], self.est[i], self.stamps[i], self.t
-
     def estimated_distances(self) -> np.ndarray:
         """(n, n) distance from each robot's own position to its estimate of each other robot."""
         return np.linalg.norm(self.est - self.pos[:, None, :], axis=-1)
