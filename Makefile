@@ -15,7 +15,7 @@ export MPLBACKEND := Agg
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet -e ".[train,dev,bench]"
+	$(BIN)/python -m pip install --quiet -e ".[train,dev,bench,fast]"
 	touch $(STAMP)
 
 install: $(STAMP)

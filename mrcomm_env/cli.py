@@ -126,7 +126,10 @@ def cmd_reproduce(args) -> int:
 
 
 def cmd_bench(args) -> int:
+    import os
+
     from baselines import default_policy, make_policy
+    from mrcomm_env.core import backend
     from mrcomm_env.evaluation import limit_threads, steps_per_second
 
     limit_threads()
@@ -137,6 +140,10 @@ def cmd_bench(args) -> int:
     from tqdm.auto import tqdm
 
     def median_of(measure, label):
+        # one untimed warm-up run first: caches, lazily built tables and compiled kernels are then loaded,
+        # as they are in any run longer than a few seconds
+        if args.warmup > 0:
+            measure(-1, args.warmup)
         samples = [measure(k) for k in tqdm(range(runs), desc=label, leave=False)]
         return statistics.median(s[0] for s in samples), statistics.median(s[1] for s in samples)
 
@@ -146,17 +153,22 @@ def cmd_bench(args) -> int:
     space = ref_env.action_space(ref_env.possible_agents[0])
     space.seed(0)
     ref = median_of(
-        lambda k: steps_per_second(ref_env, lambda obs: {a: space.sample() for a in obs}, args.seconds, seed=k),
+        lambda k, s=args.seconds: steps_per_second(ref_env, lambda obs: {a: space.sample() for a in obs}, s,
+                                                   seed=k % 10_000),
         "simple_spread_v3",
     )
     print(f"reference {BENCH_REFERENCE}: {ref[0]:,.0f} env-steps/s, {ref[1]:,.0f} agent-steps/s")
     results = {"reference": {"name": BENCH_REFERENCE, "env_steps_per_s": ref[0], "agent_steps_per_s": ref[1]}}
+    results["backend"] = backend.name()
+    print(f"compiled twins of hot loops: {results['backend']} ({backend.VARIABLE}="
+          f"{os.environ.get(backend.VARIABLE, 'auto')})")
     results["envs"] = {}
     for env_id in targets:
         env = make(env_id, **params)
         policy_name = default_policy(env_id)
         policy = make_policy(env_id, policy_name)
-        eps, aps = median_of(lambda k, env=env, policy=policy: _policy_speed(env, policy, args.seconds, k), env_id)
+        eps, aps = median_of(lambda k, s=args.seconds, env=env, policy=policy: _policy_speed(env, policy, s, k % 10_000),
+                             env_id)
         ratio = eps / ref[0]
         unit, per = env.STEP_UNIT[0], env.substeps_per_step()
         results["envs"][env_id] = {
@@ -178,6 +190,7 @@ def cmd_bench(args) -> int:
         env.close()
     results["runs"] = runs
     results["seconds_per_run"] = args.seconds
+    results["warmup_seconds"] = args.warmup
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(results, indent=2))
@@ -234,6 +247,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--param", action="append", metavar="KEY=VALUE")
     p.add_argument("--runs", type=int, default=3)
     p.add_argument("--seconds", type=float, default=3.0, help="length of each run")
+    p.add_argument("--warmup", type=float, default=1.0, help="length of one untimed run before them (0: none)")
     p.add_argument("--out", default="results/bench.json")
     p.set_defaults(func=cmd_bench)
 

@@ -12,166 +12,154 @@ estimates of several robots, each with its own subset of measurements, cost one 
 The update is written in information form (Y = P⁻⁻¹ + Hᵀ W H, algebraically the Kalman update):
 a measurement a filter does not hold gets weight W = 0, so it has exactly no effect, and filters that
 share a prior share its linearisation. A filter holds a measurement exactly when it holds its
-observer's packet, so Hᵀ W H and Hᵀ W r are sums of per-observer terms (``info_terms``), computed once
-per linearisation; each filter's update is then a small product with its (N,) observer mask (``update``).
+observer's packet, so its rows are masked by observer (``Geometry.obs_of_row``).
 
 Every call on these small arrays costs about a microsecond whatever its size, so the functions are
-written for few calls: index tables are cached per sensing graph (``Geometry``) and batch size
-(``_prop_index``), and propagation is a single product with an augmented Jacobian.
+written for few calls:
+
+* the whitened rows [√W H | √W r] of a column are ten numbers per measurement scattered into a
+  constant template (``Geometry``, per sensing graph), and one Gram product over the rows a filter
+  holds, ``[[Hᵀ W H, Hᵀ W r], [·, ·]]``, gives its information matrix *and* vector (``update``);
+* propagation is one product with an augmented Jacobian [F | Γ √Q] (``_prop_templates``);
+* headings are wrapped into (-π, π] once per column, after the update: the prior's heading only
+  enters through cos, sin and the wrapped bearing residual, so leaving it unwrapped changes nothing.
 """
 
 from __future__ import annotations
 
+import sys
+import types
 from functools import cache
 
 import numpy as np
 from numpy.linalg import _umath_linalg
 
-# which of [u_x, u_y, Δx/d², Δy/d², 1] fills each of the 9 Jacobian entries of a measurement, and its sign
-# (order of ``jacobian_index``: range row at a, at b, then bearing row at a, at b)
-JAC_PICK = np.array([0, 1, 0, 1, 3, 2, 4, 3, 2])
-JAC_SIGN = np.array([-1.0, -1.0, 1.0, 1.0, 1.0, -1.0, -1.0, -1.0, 1.0])
+from mrcomm_env.core.backend import name as backend_name
+
+TWO_PI = 2.0 * np.pi
+MIN_DISTANCE = 1e-6  # guards the Jacobian of two estimates at the same place (the sensor gives d ≥ 5 cm)
 
 
 @cache
-def _prop_index(n: int, dt: float, G: int):
-    """Templates of the augmented propagation for G filters: [F | Γ] (G, 3N, 5N) with its constant entries, the
-    flat positions of its state-dependent entries and of Q in diag(P, Q) (G, 5N, 5N)."""
-    n3, n5 = 3 * n, 5 * n
+def _prop_templates(n: int, G: int):
+    """Templates of the augmented propagation for G filters, and where the state-dependent entries go.
+
+    Fa = [F | Γ√Q | 0] is (3N, 5N+1) and Pa = diag(P, I_2N, 0), so Fa Pa Faᵀ = F P Fᵀ + Γ Q Γᵀ. Per robot,
+    ``propagate`` forms the 12 products (v dt, σ_v dt, σ_ω dt) ⊗ (cos φ, −sin φ, sin φ, 1) in one call and
+    scatters them in one call; the 7 products the Jacobian does not use all land on the spare last column
+    of row 0, which meets a zero row and column of Pa and so contributes exactly nothing.
+    """
+    n3, na = 3 * n, 5 * n + 1
     v = np.arange(n)
-    fa = np.zeros((n3, n5))
+    fa = np.zeros((n3, na))
     fa[:, :n3] = np.eye(n3)
-    fa[3 * v + 2, n3 + 2 * v + 1] = dt  # ∂φ/∂ω
-    # per robot: ∂x/∂φ, ∂y/∂φ (F), ∂x/∂v, ∂y/∂v (Γ)
-    fidx = np.stack([3 * v * n5 + 3 * v + 2, (3 * v + 1) * n5 + 3 * v + 2,
-                     3 * v * n5 + n3 + 2 * v, (3 * v + 1) * n5 + n3 + 2 * v], axis=1).ravel()
-    qidx = np.stack([(n3 + 2 * v) * (n5 + 1), (n3 + 2 * v + 1) * (n5 + 1)], axis=1).ravel()  # σ_v², σ_ω²
-    g = np.arange(G)[:, None]
-    return np.repeat(fa[None], G, axis=0), (g * n3 * n5 + fidx).ravel(), (g * n5 * n5 + qidx).ravel()
+    pa = np.zeros((na, na))
+    pa[n3:5 * n, n3:5 * n] = np.eye(2 * n)
+    tgt = np.full((n, 3, 4), 5 * n)  # (row 0, spare column)
+    tgt[:, 0, 0] = (3 * v + 1) * na + 3 * v + 2  # ∂y/∂φ = v dt cos φ
+    tgt[:, 0, 1] = 3 * v * na + 3 * v + 2  # ∂x/∂φ = −v dt sin φ
+    tgt[:, 1, 0] = 3 * v * na + n3 + 2 * v  # Γ√Q, velocity noise: σ_v dt (cos φ, sin φ, 0)
+    tgt[:, 1, 2] = (3 * v + 1) * na + n3 + 2 * v
+    tgt[:, 2, 3] = (3 * v + 2) * na + n3 + 2 * v + 1  # Γ√Q, turn-rate noise: σ_ω dt on φ
+    idx = (np.arange(G)[:, None] * (n3 * na) + tgt.reshape(1, -1)).ravel()
+    return np.repeat(fa[None], G, axis=0), np.repeat(pa[None], G, axis=0), idx
 
 
-def propagate(X, P, uq, dt):
-    """Batched unicycle propagation, eq. (1). uq: (G, N, 4) odometry [v, ω] and its variances [σ_v², σ_ω²].
+def propagate(X, P, ud):
+    """Batched unicycle propagation, eq. (1). ud: (G, N, 4) odometry per robot as [v dt, σ_v dt, σ_ω dt, ω dt].
 
-    P⁺ = F P Fᵀ + Γ Q Γᵀ is computed as one product [F | Γ] diag(P, Q) [F | Γ]ᵀ, with the per-robot
-    Jacobians F = ∂f/∂x (∂x/∂φ = −v dt sin φ, ∂y/∂φ = v dt cos φ) and Γ = ∂f/∂(v, ω) = [[c dt, 0], [s dt, 0], [0, dt]].
+    x⁺ = x + v dt cos φ, y⁺ = y + v dt sin φ, φ⁺ = φ + ω dt (left unwrapped, see the module doc), and
+    P⁺ = F P Fᵀ + Γ Q Γᵀ with F = ∂f/∂x (∂x/∂φ = −v dt sin φ, ∂y/∂φ = v dt cos φ) and
+    Γ = ∂f/∂(v, ω) = [[c dt, 0], [s dt, 0], [0, dt]], computed as one product Fa Pa Faᵀ (``_prop_templates``).
     """
     G, n3 = X.shape
     n = n3 // 3
-    fa, fidx, qidx = _prop_index(n, float(dt), G)
-    Xr = X.reshape(G, n, 3)
-    phi = Xr[:, :, 2]
-    e = np.empty((G, n, 4))  # per robot: −v s dt, v c dt, c dt, s dt
-    np.multiply(np.cos(phi), dt, out=e[:, :, 2])
-    np.multiply(np.sin(phi), dt, out=e[:, :, 3])
-    np.multiply(e[:, :, 2:], uq[:, :, :1], out=e[:, :, 1::-1])
-    e[:, :, 0] *= -1.0
+    fa, pa, idx = _prop_templates(n, G)
+    k = np.empty((G, n, 4))
+    phi = X[:, 2::3]
+    np.cos(phi, out=k[:, :, 0])
+    np.sin(phi, out=k[:, :, 2])
+    np.negative(k[:, :, 2], out=k[:, :, 1])
+    k[:, :, 3] = 1.0
+    prod = k[:, :, None, :] * ud[:, :, :3, None]  # (G, N, 3, 4)
     Xn = X.copy()
-    Xnr = Xn.reshape(G, n, 3)
-    Xnr[:, :, 0] += e[:, :, 1]
-    Xnr[:, :, 1] -= e[:, :, 0]
-    th = phi + uq[:, :, 1] * dt
-    th += np.pi  # wrap into (-π, π] (``world.wrap``)
-    np.remainder(th, 2.0 * np.pi, out=th)
-    np.subtract(th, np.pi, out=Xnr[:, :, 2])
+    Xr = Xn.reshape(G, n, 3)
+    Xr[:, :, :2] += prod[:, :, 0, ::2]  # v dt (cos φ, sin φ)
+    Xr[:, :, 2] += ud[:, :, 3]
     Fa = fa.copy()
-    Fa.reshape(-1)[fidx] = e.reshape(-1)
-    Pa = np.zeros((G, 5 * n, 5 * n))
+    Fa.reshape(-1)[idx] = prod.reshape(-1)
+    Pa = pa.copy()
     Pa[:, :n3, :n3] = P
-    Pa.reshape(-1)[qidx] = uq[:, :, 2:].reshape(-1)
     return Xn, Fa @ Pa @ Fa.transpose(0, 2, 1)
 
 
-def jacobian_index(a, b, n3):
-    """Flat positions of the 9 non-zero Jacobian entries of every measurement (range row, bearing row).
-
-    Measurement-major: entries e of measurement j sit at 9 j + e, in the order of ``JAC_PICK``.
-    """
-    rr = np.arange(len(a)) * (2 * n3)
-    ia, ib = 3 * a, 3 * b
-    return np.stack([rr + ia, rr + ia + 1, rr + ib, rr + ib + 1,
-                     rr + n3 + ia, rr + n3 + ia + 1, rr + n3 + ia + 2, rr + n3 + ib, rr + n3 + ib + 1], axis=1).ravel()
-
-
 class Geometry:
-    """Index tables of one sensing graph (observer ids ``a``, target ids ``b``), which recurs over many steps."""
+    """Constant tables of one sensing graph (observer ids ``a``, target ids ``b``), which recurs over many steps.
 
-    def __init__(self, a, b, n):
+    Rows 2j and 2j+1 of the whitened measurement matrix are the range and bearing rows of measurement j
+    (eq. (2)): range ∓(Δx, Δy)/d at a / b; bearing (Δy, −Δx)/d², −1 at a and (−Δy, Δx)/d² at b, each times
+    √w (√w = 1/(σ_d z_d) for a range row, 1/σ_θ for a bearing row), with the whitened residual in column 3N.
+    """
+
+    def __init__(self, a, b, n, inv_sth):
         m = len(a)
         self.a, self.b, self.n, self.m = a, b, n, m
+        rows = np.arange(m)
         # S @ poses: rows < m give x_b − x_a (relative positions), rows ≥ m give x_a (the observer's heading)
         self.S = np.zeros((2 * m, n))
-        self.S[np.arange(m), b] = 1.0
-        self.S[np.arange(m), a] -= 1.0
-        self.S[m + np.arange(m), a] = 1.0
-        self.idx = jacobian_index(a, b, 3 * n)
-        self.full = m == n * (n - 1)  # every robot sees every other: rows come in n equal blocks per observer
+        self.S[rows, b] = 1.0
+        self.S[rows, a] -= 1.0
+        self.S[m + rows, a] = 1.0
+        self.obs_of_row = np.repeat(a, 2)  # a filter holds a row iff it holds its observer's packet
+        K = 3 * n + 1
+        self.template = np.zeros((2 * m, K))
+        self.template[2 * rows + 1, 3 * a + 2] = -inv_sth  # bearing row: −1 on the observer's heading
+        rng_row, brg_row = 2 * rows * K, (2 * rows + 1) * K
+        # where ``information``'s ten numbers per measurement go (its buffer ``B``, shape (m, 2, 5))
+        self._pos = np.stack([rng_row + 3 * b, rng_row + 3 * b + 1, brg_row + 3 * a, brg_row + 3 * a + 1,
+                              rng_row + 3 * n,
+                              rng_row + 3 * a, rng_row + 3 * a + 1, brg_row + 3 * b, brg_row + 3 * b + 1,
+                              brg_row + 3 * n], axis=1).ravel()
         self._flat: dict = {}
 
-    def flat(self, G):
-        """Flat Jacobian positions for G filters at once."""
+    def positions(self, G):
+        """Flat positions of ``information``'s numbers for G filters at once."""
         f = self._flat.get(G)
         if f is None:
-            f = self._flat[G] = (np.arange(G)[:, None] * (6 * self.m * self.n) + self.idx[None]).ravel()
+            f = self._flat[G] = (np.arange(G)[:, None] * self.template.size + self._pos[None]).ravel()
         return f
 
-    def weights(self, z, sd_frac, s_theta):
-        """w = 1/R of eq. (2) per measurement row (R = diag((σ_d d)², σ_θ²)) and, unless every robot sees every
-        other, the (N, 2m) matrix A with A[v, row] = w_row for the rows robot v measured."""
-        m = self.m
-        w = np.empty(2 * m)
-        w[0::2] = 1.0 / (sd_frac * z[:, 0]) ** 2
-        w[1::2] = 1.0 / s_theta**2
-        if self.full:
-            return w, None
-        A = np.zeros((self.n, 2 * m))
-        A[np.repeat(self.a, 2), np.arange(2 * m)] = w
-        return w, A
 
+def information(X, geo, zc, inv_sd, inv_sth):
+    """Whitened measurement rows [√W H | √W r] of column k linearised at the priors X (eq. (2)): (G, 2m, 3N+1).
 
-def linearize(X, geo, z):
-    """Range/bearing Jacobians H (G, 2m, 3N) and residuals r (G, 2m) at X (eq. (2))."""
-    G, n3 = X.shape
-    m = geo.m
-    V = geo.S @ X.reshape(G, n3 // 3, 3)
-    D = V[:, :m, :2]  # (G, m, [Δx, Δy])
-    d2 = np.einsum("gmk,gmk->gm", D, D)
-    np.maximum(d2, 1e-12, out=d2)
-    d = np.sqrt(d2)
-    r = np.empty((G, m, 2))
-    np.subtract(z[:, 0], d, out=r[:, :, 0])
-    br = np.arctan2(D[:, :, 1], D[:, :, 0])
-    br -= V[:, m:, 2]
-    np.subtract(z[:, 1], br, out=br)
-    # wrap into (-π, π] in place (``world.wrap``)
-    br += np.pi
-    np.remainder(br, 2.0 * np.pi, out=br)
-    np.subtract(br, np.pi, out=r[:, :, 1])
-    # range row: ∓(Δx, Δy)/d at a / b; bearing row: (Δy, −Δx)/d², −1 at a and (−Δy, Δx)/d² at b
-    q = np.empty((G, m, 5))
-    q[:, :, 4] = 1.0
-    np.divide(D, d[:, :, None], out=q[:, :, :2])
-    np.divide(D, d2[:, :, None], out=q[:, :, 2:4])
-    H = np.zeros((G, 2 * m, n3))
-    H.reshape(-1)[geo.flat(G)] = (q[:, :, JAC_PICK] * JAC_SIGN).reshape(-1)
-    return H, r.reshape(G, 2 * m)
-
-
-def info_terms(H, r, w, A):
-    """Per-observer information of G linearisations: J_v = Σ_rows(v) w h hᵀ (G, N, 9N²), β_v = Σ_rows(v) w h r (G, N, 3N).
-
-    With these, the update of eq. (2) for a filter holding the packets of the robots in mask M is
-    Y = Y⁻ + Σ_v M_v J_v and b = Σ_v M_v β_v (the information form of the batch EKF update). A filter holds a
-    measurement exactly when it holds its observer's packet, so the sums run over observers; ``A`` (or, when
-    every robot sees every other, the equal blocks of rows) groups the rows by observer.
+    ``zc`` = (1/(σ_d z_d), z_θ + π) per measurement, computed once per packet. With these rows ā, a
+    filter's information matrix and vector are the Gram matrix Σ ā āᵀ over the rows it holds (``update``).
     """
-    G, m2, n3 = H.shape
-    if A is None:
-        n = n3 // 3
-        HW = (H * w[:, None]).reshape(G, n, m2 // n, n3).transpose(0, 1, 3, 2)
-        return (HW @ H.reshape(G, n, m2 // n, n3)).reshape(G, n, n3 * n3), (HW @ r.reshape(G, n, m2 // n, 1))[..., 0]
-    HH = (H[:, :, :, None] * H[:, :, None, :]).reshape(G, m2, n3 * n3)
-    return A @ HH, A @ (H * r[:, :, None])
+    G, n3 = X.shape
+    n, m = n3 // 3, geo.m
+    sr, z1pi = zc
+    V = geo.S @ X.reshape(G, n, 3)
+    D = V[:, :m, :2]  # (G, m, [Δx, Δy])
+    d = np.hypot(D[:, :, 0], D[:, :, 1])
+    np.maximum(d, MIN_DISTANCE, out=d)
+    B = np.empty((G, m, 2, 5))  # per measurement [u, (p_0, −p_1), r_range], then [−u, (−p_0, p_1), r_bearing]
+    np.multiply(D, (sr / d)[:, :, None], out=B[:, :, 0, :2])  # u = √w (Δx, Δy)/d
+    np.multiply(D[:, :, ::-1], (inv_sth / (d * d))[:, :, None], out=B[:, :, 0, 2:4])  # p = √w (Δy, Δx)/d²
+    B[:, :, 0, 3] *= -1.0
+    np.negative(B[:, :, 0, :4], out=B[:, :, 1, :4])
+    rr = B[:, :, 0, 4]  # whitened range residual (z_d − d)/(σ_d z_d)
+    np.multiply(d, sr, out=rr)
+    np.subtract(inv_sd, rr, out=rr)
+    br = np.arctan2(D[:, :, 1], D[:, :, 0])  # bearing residual z_θ − (atan2(Δy, Δx) − φ_a), wrapped, whitened
+    np.subtract(V[:, m:, 2], br, out=br)
+    br += z1pi
+    np.remainder(br, TWO_PI, out=br)
+    br -= np.pi
+    np.multiply(br, inv_sth, out=B[:, :, 1, 4])
+    A = np.repeat(geo.template[None], G, axis=0)
+    A.reshape(-1)[geo.positions(G)] = B.reshape(-1)
+    return A
 
 
 def inv(A):
@@ -179,26 +167,41 @@ def inv(A):
     return _umath_linalg.inv(A, signature="d->d")
 
 
-def update(Xp, Yp, J, beta, M):
-    """EKF update in information form for G filters with priors (Xp, Yp = P⁻⁻¹) and observer masks M (G, N).
+def update(Xp, Yp, A, hold, prior=None, geo=None):
+    """EKF update in information form for G filters with priors (Xp, Yp = P⁻⁻¹, rows A) and row masks ``hold`` (G, 2m).
 
-    Y = Yp + Σ_v M_v J_v, P = Y⁻¹, x = x⁻ + P Σ_v M_v β_v — algebraically the Kalman update of eq. (2) with
-    W = diag(1/R) on the filter's own measurements and 0 on the ones it does not hold (they have exactly
-    no effect). ``J`` and ``beta`` are ``info_terms`` of each filter's prior, so filters sharing a prior
-    may pass the same arrays (broadcast): one small matrix product per update.
+    Y = Yp + Hᵀ W_f H, P = Y⁻¹, x = x⁻ + P Hᵀ W_f r — algebraically the Kalman update of eq. (2) with
+    W_f = diag(1/R) on the rows the filter holds and 0 on the others (they have exactly no effect). Both
+    terms come from one Gram product of the whitened rows ``A`` (``information``) of the filter's prior;
+    filters sharing a prior may pass the same (Xp, Yp, A) (broadcast), or ``prior[g]``, the index of filter g's
+    prior among several. (``geo``, the column's ``Geometry``, is used by the compiled twin only.)
     """
-    G = len(M)
+    if prior is not None:
+        Xp, Yp, A = Xp[prior], Yp[prior], A[prior]
+    G, m2 = hold.shape
     n3 = Xp.shape[-1]
-    Mr = M[:, None, :]
-    Y = (Mr @ J).reshape(G, n3, n3)
-    Y += Yp
-    Pn = inv(Y)
+    YA = A.swapaxes(-1, -2) @ (A * hold[:, :, None])  # (G, 3N+1, 3N+1): [[Hᵀ W H, Hᵀ W r], [·, ·]]
+    Pn = inv(YA[:, :n3, :n3] + Yp)
     Pn += Pn.transpose(0, 2, 1)  # symmetrise: 0.5 (P + Pᵀ) (numpy buffers the overlapping operand)
     Pn *= 0.5
-    Xn = (Pn @ (Mr @ beta).reshape(G, n3, 1)).reshape(G, n3)
+    Xn = (Pn @ YA[:, :n3, n3:]).reshape(G, n3)
     Xn += Xp
     th = Xn[:, 2::3]  # wrap the headings into (-π, π] in place (``world.wrap``)
     th += np.pi
-    np.remainder(th, 2.0 * np.pi, out=th)
+    np.remainder(th, TWO_PI, out=th)
     th -= np.pi
     return Xn, Pn
+
+
+
+@cache
+def backend(name: str | None = None) -> types.SimpleNamespace:
+    """The EKF kernels (``propagate``, ``information``, ``inv``, ``update``): the numba twins of ``ekf_numba.py``
+    when ``core.backend`` says compiled code runs (or ``name="numba"``), this module's otherwise."""
+    name = name or backend_name()
+    if name == "numba":
+        from mrcomm_env.asynccl import ekf_numba as module
+    else:
+        module = sys.modules[__name__]
+    return types.SimpleNamespace(name=name, propagate=module.propagate, information=module.information,
+                                 inv=module.inv, update=module.update)

@@ -16,11 +16,12 @@ holds. Which packets a filter holds is read from the robot's information table.
   checkpoint only when data about old steps arrived; otherwise it extends its previous causal estimate
   by one column. Filters that share a prior (same state, same odometry) share its propagation and
   linearisation; all filters of a step are batched into the same numpy calls.
-* **Cost.** A step is a handful of small numpy calls, so their number is what counts. While every robot
-  is exact (always, unless memory ran out), ``_step_recent`` runs the step as a fixed sequence of batched
-  calls: the central prior of column t is shared by every robot with c = t-1, a restart from an older
-  x̂_{c|c} starts from the central chain's kept prior of column c+1 (``lin``), and each update is one
-  small product with per-observer information terms (``ekf.info_terms``). ``_step_general`` (through
+* **Cost.** A step is a handful of batched kernel calls (``ekf.backend()``: numpy, or their compiled
+  twins when numba is installed), so their number is what counts. While every robot is exact (always,
+  unless memory ran out), ``_step_recent`` runs the step as a fixed sequence of batched calls: the central
+  prior of column t is shared by every robot with c = t-1, a restart from an older x̂_{c|c} starts from the
+  central chain's kept prior of column c+1 (``lin``: its state, information and whitened measurement rows),
+  and each update is one Gram product over the rows a filter holds. ``_step_general`` (through
   ``_advance``) handles every other case; both run the same column steps.
 * **Bounded memory.** When the shared packet ring drops a column that some robot never completed, that
   robot adopts its causal estimate of the column as its new checkpoint (no longer centralized-exact).
@@ -42,16 +43,28 @@ class Estimators:
         self.sv, self.sw, self.sd, self.sth = sigma_v_frac, sigma_omega, sigma_d_frac, sigma_theta
         self.W = history + 3
         n3 = 3 * n
+        self.k = ekf.backend()  # the EKF kernels: compiled when numba is installed, numpy otherwise
         self.keep_priors = int(np.clip(KEPT_PRIOR_BYTES // (8 * (n + 1) * (n3 * n3 + n3)), 2, 64))  # columns
+
+    def __getstate__(self):  # the kernels are looked up again on unpickling (compiled functions stay local)
+        state = self.__dict__.copy()
+        state["k"] = self.k.name
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self.k = ekf.backend(state["k"])
 
     def reset(self, x0, P0, packets0) -> None:
         n = self.n
         self.packets = {0: packets0}
-        # odometry ring: [v, ω, σ_v², σ_ω²] of every robot per step (Q of eq. (1)); the extra last slot is the
-        # standstill with a large noise used before any odometry of a robot is known
-        self.uq_ring = np.zeros((self.W + 1, n, 4))
-        self.uq_ring[:, :, 3] = self.sw**2
-        self.uq_ring[self.W, :, 2:] = (NO_ODOMETRY_SIGMA_V**2, NO_ODOMETRY_SIGMA_W**2)
+        # odometry ring: [v dt, σ_v dt, σ_ω dt, ω dt] of every robot per step (u and √Q of eq. (1), as
+        # ``ekf.propagate`` takes them); the extra last slot is the standstill with a large noise used before
+        # any odometry of a robot is known
+        self.ud_ring = np.zeros((self.W + 1, n, 4))
+        self.ud_ring[:, :, 2] = self.sw * self.dt
+        self.ud_ring[self.W, :, 1:3] = (NO_ODOMETRY_SIGMA_V * self.dt, NO_ODOMETRY_SIGMA_W * self.dt)
+        self._inv_sd, self._inv_sth = 1.0 / self.sd, 1.0 / self.sth
         self._set_odometry(0, packets0.u)
         self.central = {-1: (x0, P0)}  # x̂_{k|k}, P_{k|k}; -1 is the prior
         self.lin = {}  # (k, state id, odometry source) -> prior X, Y = P⁻¹ and information terms J, β of column k
@@ -76,9 +89,9 @@ class Estimators:
         self.packets.pop(floor - 2, None)
 
     def _set_odometry(self, t: int, u) -> None:
-        row = self.uq_ring[t % self.W]
-        row[:, :2] = u
-        row[:, 2] = (self.sv * u[:, 0]) ** 2  # (σ_ω² is constant: set once in reset)
+        row = self.ud_ring[t % self.W]
+        np.multiply(u, self.dt, out=row[:, ::3])  # v dt, ω dt
+        np.multiply(np.abs(row[:, 0]), self.sv, out=row[:, 1])  # σ_v |v| dt (σ_ω dt is constant: set in reset)
 
     def _slots(self, src):
         """Ring slots of the odometry of steps ``src``; step -1 (none of that robot yet) is the standstill slot.
@@ -86,18 +99,17 @@ class Estimators:
         Sources are min(L, k-1) ≥ min(c, k-1), so once every robot has a complete column (c ≥ 0) none is -1."""
         return src % self.W if self._sources_known else np.where(src < 0, self.W, src % self.W)
 
-    def _linearize(self, X, pk):
-        """Per-observer information terms (J, β) of column ``pk`` linearised at the priors X (eq. (2))."""
+    def _information(self, X, pk):
+        """Per-observer augmented information of column ``pk`` linearised at the priors X (eq. (2))."""
         if pk.hidx is None:  # the same sensing graph recurs: one index table per distinct (a, b)
             gkey = pk.a.tobytes() + pk.b.tobytes()
             pk.hidx = self._jidx.get(gkey)
             if pk.hidx is None:
                 if len(self._jidx) > 64:
                     self._jidx.clear()
-                pk.hidx = self._jidx[gkey] = ekf.Geometry(pk.a, pk.b, self.n)
-            pk.wobs = pk.hidx.weights(pk.z, self.sd, self.sth)
-        H, r = ekf.linearize(X, pk.hidx, pk.z)
-        return ekf.info_terms(H, r, *pk.wobs)
+                pk.hidx = self._jidx[gkey] = ekf.Geometry(pk.a, pk.b, self.n, self._inv_sth)
+            pk.zc = (1.0 / (self.sd * pk.z[:, 0]), pk.z[:, 1] + np.pi)
+        return self.k.information(X, pk.hidx, pk.zc, self._inv_sd, self._inv_sth)
 
     # ------------------------------------------------------------------ batched column steps
     def _advance(self, end, sids, starts, Xs, Ps, Ls):
@@ -132,23 +144,25 @@ class Estimators:
                 if k >= 1:
                     gs = [g for _, g in new]
                     if min(Lmin[g] for g in gs) >= k - 1:  # every robot's odometry of step k-1 is held
-                        uq = np.broadcast_to(self.uq_ring[(k - 1) % W], (len(gs), n, 4))
+                        ud = np.broadcast_to(self.ud_ring[(k - 1) % W], (len(gs), n, 4))
                     else:  # its last available odometry otherwise (§IV); slot -1 of the ring: none yet
                         src = np.minimum(Larr[gs], k - 1)
-                        uq = self.uq_ring[np.where(src < 0, W, src % W), ar[None, :]]
-                    Xp, Pp = ekf.propagate(Xp, Pp, uq, self.dt)
-                J, beta = self._linearize(Xp, pk)
-                Yp = ekf.inv(Pp)
+                        ud = self.ud_ring[np.where(src < 0, W, src % W), ar[None, :]]
+                    Xp, Pp = self.k.propagate(Xp, Pp, ud)
+                JA = self._information(Xp, pk)
+                Yp = self.k.inv(Pp)
                 for j, (key, _) in enumerate(new):
-                    self.lin[key] = (Xp[j], Yp[j], J[j], beta[j])
+                    self.lin[key] = (Xp[j], Yp[j], JA[j])
             # a filter holds measurement (a, b) of column k iff it holds robot a's packet of k
-            M = ((Larr if len(act) == len(Larr) else Larr[act]) >= k).astype(float)
+            La = Larr if len(act) == len(Larr) else Larr[act]
+            M = La >= k
+            hold = La[:, pk.hidx.obs_of_row] >= k
             if len(keys) == 1:  # one shared prior (the common case): its terms broadcast over the filters
-                Xn, Pn = ekf.update(*self.lin[next(iter(keys))], M)
+                Xn, Pn = self.k.update(*self.lin[next(iter(keys))], hold, geo=pk.hidx)
             else:
                 lins = [self.lin[key] for key in keys]
                 pr = np.array(prior_of)
-                Xn, Pn = ekf.update(*(np.array([v[q] for v in lins])[pr] for q in range(4)), M)
+                Xn, Pn = self.k.update(*(np.array([v[q] for v in lins])[pr] for q in range(3)), hold, geo=pk.hidx)
             if k == end:  # last column: no later prior to share, state ids are not needed
                 for j, g in enumerate(act.tolist()):
                     X[g], P[g] = Xn[j], Pn[j]
@@ -263,13 +277,15 @@ class Estimators:
                 parts = []
                 if running:  # their prior of column k: last available odometry of step k-1
                     Lr = Lx[[1 + g for g in running]]
-                    Xp, Pp = ekf.propagate(Xc, Pc, self.uq_ring[self._slots(np.minimum(Lr, k - 1)), ar], self.dt)
-                    J, beta = self._linearize(Xp, self.packets[k])
-                    parts.append(ekf.update(Xp, ekf.inv(Pp), J, beta, (Lr >= k).astype(float)))
+                    Xp, Pp = self.k.propagate(Xc, Pc, self.ud_ring[self._slots(np.minimum(Lr, k - 1)), ar])
+                    JA = self._information(Xp, self.packets[k])
+                    geo = self.packets[k].hidx
+                    parts.append(self.k.update(Xp, self.k.inv(Pp), JA, Lr[:, geo.obs_of_row] >= k, geo=geo))
                 start = [g for g, ci in enumerate(c_r) if ci + 1 == k]
                 if start:  # first column: the central prior of column k with the rows they hold
                     Ls = Lx[1:1 + nr] if len(start) == nr else Lx[[1 + g for g in start]]
-                    parts.append(ekf.update(*lin[(k, ("C", k - 1), b"")], (Ls >= k).astype(float)))
+                    geo = self.packets[k].hidx
+                    parts.append(self.k.update(*lin[(k, ("C", k - 1), b"")], Ls[:, geo.obs_of_row] >= k, geo=geo))
                     running = running + start
                 if len(parts) == 1:
                     Xc, Pc = parts[0]
@@ -284,21 +300,22 @@ class Estimators:
             Xs.append(self.X[src_e])
             Ps.append(self.P[src_e])
         if nown:  # the central row of Lx gives the odometry of t-1 of everyone
-            uq = self.uq_ring[self._slots(np.minimum(Lx[:1 + nown], t - 1)), ar]
+            ud = self.ud_ring[self._slots(np.minimum(Lx[:1 + nown], t - 1)), ar]
             Xp, Pp = np.concatenate(Xs), np.concatenate(Ps)
         else:
-            uq = self.uq_ring[(t - 1) % W][None]
+            ud = self.ud_ring[(t - 1) % W][None]
             Xp, Pp = Xs[0], Ps[0]
-        Xp, Pp = ekf.propagate(Xp, Pp, uq, self.dt)
-        J, beta = self._linearize(Xp, self.packets[t])
-        Yp = ekf.inv(Pp)
-        lin[(t, ("C", t - 1), b"")] = (Xp[0], Yp[0], J[0], beta[0])
-        M = (Lx >= t).astype(float)  # a filter holds measurement (a, b) of column t iff it holds a's packet
+        Xp, Pp = self.k.propagate(Xp, Pp, ud)
+        JA = self._information(Xp, self.packets[t])
+        Yp = self.k.inv(Pp)
+        lin[(t, ("C", t - 1), b"")] = (Xp[0], Yp[0], JA[0])
+        geo = self.packets[t].hidx
+        hold = Lx[:, geo.obs_of_row] >= t  # a filter holds the rows of column t of the packets it holds
         if nown:
-            pr = list(range(1 + nown)) + [0] * len(rows_a)
-            Xn, Pn = ekf.update(Xp[pr], Yp[pr], J[pr], beta[pr], M)
+            pr = np.array(list(range(1 + nown)) + [0] * len(rows_a))  # the restarts at t-1 share the central prior
+            Xn, Pn = self.k.update(Xp, Yp, JA, hold, pr, geo)
         else:
-            Xn, Pn = ekf.update(Xp[0], Yp[0], J[0], beta[0], M)
+            Xn, Pn = self.k.update(Xp[0], Yp[0], JA[0], hold, geo=geo)
         return Xn, Pn, res_of
 
     def step(self, t: int, c: np.ndarray, latest: np.ndarray) -> None:

@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from mrcomm_env.asynccl.world import HEADER_BITS, LIST_ENTRY_BITS
+from mrcomm_env.core import backend
 from mrcomm_env.core.comm import fit_to_budget
 
 SILENT, SCHEME1, QINF = -1, 0, 1 << 40  # mode codes: -1 silent, 0 Scheme 1, q ≥ 1 Scheme 2 (QINF = ∞)
@@ -94,6 +95,8 @@ class InfoTables:
         Returns (bits sent per robot, number of links used per robot).
         """
         if self.n <= DENSE_MAX_N and budget is None and self.q_rule != "receiver":
+            if backend.compiled():
+                return self._exchange_dense_compiled(modes, adj, delivered)
             return self._exchange_dense(modes, adj, delivered)
         return self._exchange_pairs(modes, adj, delivered, budget)
 
@@ -139,6 +142,19 @@ class InfoTables:
             after = _min(np.maximum(latest[None, :, :], h), axis=2)  # (j, i): what j knows i now holds
             self.known = np.maximum(known, np.where(D, after, -1))
         self._settle(t)
+        return bits, links
+
+    def _exchange_dense_compiled(self, modes, adj, delivered):
+        """``_exchange_dense`` through its numba twin (``table_numba.py``)."""
+        from mrcomm_env.asynccl.table_numba import exchange_dense
+
+        hi_s = self.latest if _min(modes, axis=None) >= QINF else self._offers(modes)
+        bits, links, latest, known, any_link = exchange_dense(
+            np.asarray(modes, dtype=np.int64), adj, delivered, hi_s, self.latest, self.disc, self.known, self.c,
+            self.cum_bits, self.W, SILENT, QINF, float(HEADER_BITS), float(LIST_ENTRY_BITS))
+        if any_link:
+            self.latest, self.known = latest, known
+            self._settle(self.t)
         return bits, links
 
     def _exchange_pairs(self, modes, adj, delivered, budget):

@@ -1,0 +1,205 @@
+"""Compiled twins of the EKF kernels of ``ekf.py`` (numba), used when numba is installed.
+
+Same functions, same arguments, same mathematics: the column step of §IV (eq. (1) propagation, one
+batch update with the range/bearing rows of eq. (2) in information form). ``ekf.py`` is the reference;
+``tests/test_asynccl_backends.py`` checks that both agree to round-off, kernel by kernel and over whole
+episodes. What differs is only how the arithmetic is organised, because at these sizes (3N = 15) the
+cost of numpy is its per-call overhead, not the arithmetic:
+
+* propagation applies F = I + E (E has two entries per robot, ∂(x, y)/∂φ) as row and column operations
+  instead of dense products;
+* the update adds each held row's outer product on the row's ≤ 5 non-zero columns only;
+* the inverse of the (symmetric positive definite) information matrix goes through its Cholesky factor,
+  P = L⁻ᵀ L⁻¹, which is about four times cheaper than the LU inverse and exactly symmetric. A matrix that
+  is not numerically positive definite falls back to the LU inverse.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+TWO_PI = 2.0 * math.pi
+MIN_DISTANCE = 1e-6  # as ``ekf.MIN_DISTANCE``
+
+
+@njit(cache=True)
+def _inv_spd_into(Y, out, L):
+    """out = Y⁻¹ for a symmetric positive definite Y, through its Cholesky factor: Y = L Lᵀ, Y⁻¹ = L⁻ᵀ L⁻¹.
+
+    ``L`` (n, n) is scratch: its lower triangle receives L, its upper triangle U = (L⁻¹)ᵀ, so that every inner
+    loop runs along a row.
+    """
+    n = Y.shape[0]
+    for j in range(n):
+        s = Y[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not s > 0.0:  # not numerically positive definite: LU inverse, symmetrised like ``ekf.update``
+            P = np.linalg.inv(Y)
+            for r in range(n):
+                for c in range(n):
+                    out[r, c] = 0.5 * (P[r, c] + P[c, r])
+            return
+        d = math.sqrt(s)
+        L[j, j] = d
+        for i in range(j + 1, n):
+            s = Y[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / d
+    # U[j, i] = (L⁻¹)[i, j] for i ≥ j, row by row of L⁻¹: (L⁻¹)[i, j] = −Σ_{j≤k<i} L[i, k] (L⁻¹)[k, j] / L[i, i]
+    for i in range(n):
+        inv_d = 1.0 / L[i, i]
+        for j in range(i):
+            s = 0.0
+            for k in range(j, i):
+                s -= L[i, k] * L[j, k]
+            L[j, i] = s * inv_d
+        L[i, i] = inv_d
+    # out[i, j] = Σ_{k ≥ max(i, j)} (L⁻¹)[k, i] (L⁻¹)[k, j] = Σ_k U[i, k] U[j, k]
+    for i in range(n):
+        for j in range(i + 1):
+            s = 0.0
+            for k in range(i, n):
+                s += L[i, k] * L[j, k]
+            out[i, j] = s
+            out[j, i] = s
+
+
+@njit(cache=True)
+def inv(A):
+    """Batched inverse of symmetric positive definite matrices (G, n, n)."""
+    G, n, _ = A.shape
+    out = np.empty((G, n, n))
+    L = np.zeros((n, n))
+    for g in range(G):
+        _inv_spd_into(A[g], out[g], L)
+    return out
+
+
+@njit(cache=True)
+def propagate(X, P, ud):
+    """``ekf.propagate``: x⁺ = f(x, u) and P⁺ = F P Fᵀ + Γ Q Γᵀ (eq. (1)); ud = [v dt, σ_v dt, σ_ω dt, ω dt]."""
+    G, n3 = X.shape
+    n = n3 // 3
+    Xn = X.copy()
+    Pn = np.empty((G, n3, n3))
+    fx = np.empty(n)
+    fy = np.empty(n)
+    for g in range(G):
+        T = Pn[g]
+        T[:, :] = P[g]
+        for i in range(n):
+            phi = X[g, 3 * i + 2]
+            c, s = math.cos(phi), math.sin(phi)
+            vdt = ud[g, i, 0]
+            fx[i], fy[i] = -vdt * s, vdt * c  # ∂x/∂φ, ∂y/∂φ
+            Xn[g, 3 * i] += vdt * c
+            Xn[g, 3 * i + 1] += vdt * s
+            Xn[g, 3 * i + 2] += ud[g, i, 3]
+        for i in range(n):  # F P: rows x_i, y_i gain ∂/∂φ times row φ_i (which E leaves as it is)
+            for j in range(n3):
+                T[3 * i, j] += fx[i] * P[g, 3 * i + 2, j]
+                T[3 * i + 1, j] += fy[i] * P[g, 3 * i + 2, j]
+        for i in range(n):  # (F P) Fᵀ: the same on the columns
+            for j in range(n3):
+                T[j, 3 * i] += fx[i] * T[j, 3 * i + 2]
+                T[j, 3 * i + 1] += fy[i] * T[j, 3 * i + 2]
+        for i in range(n):  # Γ Q Γᵀ: σ_v² dt² (c, s)(c, s)ᵀ on (x_i, y_i), σ_ω² dt² on φ_i
+            phi = X[g, 3 * i + 2]
+            gx, gy = ud[g, i, 1] * math.cos(phi), ud[g, i, 1] * math.sin(phi)
+            T[3 * i, 3 * i] += gx * gx
+            T[3 * i, 3 * i + 1] += gx * gy
+            T[3 * i + 1, 3 * i] += gx * gy
+            T[3 * i + 1, 3 * i + 1] += gy * gy
+            T[3 * i + 2, 3 * i + 2] += ud[g, i, 2] * ud[g, i, 2]
+    return Xn, Pn
+
+
+@njit(cache=True)
+def _information(X, a, b, sr, z1pi, inv_sd, inv_sth):
+    G, n3 = X.shape
+    m = len(a)
+    A = np.zeros((G, 2 * m, n3 + 1))
+    for g in range(G):
+        for j in range(m):
+            ia, ib = 3 * a[j], 3 * b[j]
+            dx, dy = X[g, ib] - X[g, ia], X[g, ib + 1] - X[g, ia + 1]
+            d = max(math.hypot(dx, dy), MIN_DISTANCE)
+            f = sr[j] / d
+            u0, u1 = dx * f, dy * f
+            f = inv_sth / (d * d)
+            p0, p1 = dy * f, dx * f
+            r = A[g, 2 * j]  # range row: ∓(Δx, Δy)/d at a / b, times 1/(σ_d z_d)
+            r[ia], r[ia + 1], r[ib], r[ib + 1] = -u0, -u1, u0, u1
+            r[n3] = inv_sd - d * sr[j]
+            r = A[g, 2 * j + 1]  # bearing row: (Δy, −Δx)/d², −1 at a and (−Δy, Δx)/d² at b, times 1/σ_θ
+            r[ia], r[ia + 1], r[ia + 2], r[ib], r[ib + 1] = p0, -p1, -inv_sth, -p0, p1
+            br = ((X[g, ia + 2] - math.atan2(dy, dx)) + z1pi[j]) % TWO_PI - math.pi
+            r[n3] = br * inv_sth
+    return A
+
+
+def information(X, geo, zc, inv_sd, inv_sth):
+    """``ekf.information``: whitened rows [√W H | √W r] of a column at the priors X, (G, 2m, 3N+1)."""
+    return _information(X, geo.a, geo.b, zc[0], zc[1], inv_sd, inv_sth)
+
+
+@njit(cache=True)
+def _update(Xp, Yp, A, hold, prior, a, b):
+    G, m2 = hold.shape
+    n3 = Xp.shape[1]
+    Xn = np.empty((G, n3))
+    Pn = np.empty((G, n3, n3))
+    Y = np.empty((n3, n3))
+    L = np.zeros((n3, n3))
+    bvec = np.empty(n3)
+    cols = np.empty(5, dtype=np.int64)
+    for g in range(G):
+        p = prior[g]
+        Y[:, :] = Yp[p]
+        bvec[:] = 0.0
+        for r in range(m2):
+            if not hold[g, r]:
+                continue
+            # the row's non-zero columns: x, y (and φ for a bearing row) of the observer, x, y of the target
+            j = r >> 1
+            cols[0], cols[1], cols[2], cols[3], cols[4] = 3 * b[j], 3 * b[j] + 1, 3 * a[j], 3 * a[j] + 1, 3 * a[j] + 2
+            k = 5 if r & 1 else 4
+            row = A[p, r]
+            res = row[n3]
+            for x in range(k):
+                cx = cols[x]
+                hx = row[cx]
+                bvec[cx] += hx * res
+                for y in range(k):
+                    Y[cx, cols[y]] += hx * row[cols[y]]
+        _inv_spd_into(Y, Pn[g], L)
+        for i in range(n3):
+            s = 0.0
+            for j in range(n3):
+                s += Pn[g, i, j] * bvec[j]
+            Xn[g, i] = Xp[p, i] + s
+        for i in range(2, n3, 3):  # wrap the headings into (-π, π]
+            Xn[g, i] = (Xn[g, i] + math.pi) % TWO_PI - math.pi
+    return Xn, Pn
+
+
+_FIRST = np.zeros(256, dtype=np.int64)  # prior indices "all the first prior" and "each its own", sliced per call
+_OWN = np.arange(256, dtype=np.int64)
+
+
+def update(Xp, Yp, A, hold, prior=None, geo=None):
+    """``ekf.update``: information-form update of G filters; ``prior[g]`` picks filter g's prior (default: its own,
+    or the single prior when Xp is one state). ``geo`` (the column's ``ekf.Geometry``) gives the rows' columns."""
+    G = len(hold)
+    if Xp.ndim == 1:
+        Xp, Yp, A = Xp[None], Yp[None], A[None]
+        if prior is None:
+            prior = _FIRST[:G] if G <= 256 else np.zeros(G, dtype=np.int64)
+    elif prior is None:
+        prior = _OWN[:G] if G <= 256 else np.arange(G)
+    return _update(Xp, Yp, A, hold, prior, geo.a, geo.b)
