@@ -130,15 +130,16 @@ class Geometry:
         return f
 
 
-def information(X, geo, zc, inv_sd, inv_sth):
+def information(X, geo, z, inv_sd, inv_sth):
     """Whitened measurement rows [√W H | √W r] of column k linearised at the priors X (eq. (2)): (G, 2m, 3N+1).
 
-    ``zc`` = (1/(σ_d z_d), z_θ + π) per measurement, computed once per packet. With these rows ā, a
-    filter's information matrix and vector are the Gram matrix Σ ā āᵀ over the rows it holds (``update``).
+    ``z`` holds the column's measurements [d, θ] (m, 2). With these rows ā, a filter's information matrix
+    and vector are the Gram matrix Σ ā āᵀ over the rows it holds (``update``).
     """
     G, n3 = X.shape
     n, m = n3 // 3, geo.m
-    sr, z1pi = zc
+    sr = inv_sd / z[:, 0]  # √w of the range rows, 1/(σ_d z_d)
+    z1pi = z[:, 1] + np.pi
     V = geo.S @ X.reshape(G, n, 3)
     D = V[:, :m, :2]  # (G, m, [Δx, Δy])
     d = np.hypot(D[:, :, 0], D[:, :, 1])
@@ -160,6 +161,17 @@ def information(X, geo, zc, inv_sd, inv_sth):
     A = np.repeat(geo.template[None], G, axis=0)
     A.reshape(-1)[geo.positions(G)] = B.reshape(-1)
     return A
+
+
+def column(Xs, Ps, ud, geo, z, inv_sd, inv_sth, hold, prior):
+    """One column step for several filters: propagate the priors (Xs, Ps) with odometry ``ud`` (eq. (1)),
+    linearise the column's measurements ``z`` at them (eq. (2)), and update filter g from prior ``prior[g]``
+    with the rows ``hold[g]``. Returns the priors' (X⁻, Y⁻ = P⁻⁻¹, rows A) and the filters' (X, P)."""
+    Xp, Pp = propagate(Xs, Ps, ud)
+    A = information(Xp, geo, z, inv_sd, inv_sth)
+    Yp = inv(Pp)
+    Xn, Pn = update(Xp, Yp, A, hold, prior)
+    return Xp, Yp, A, Xn, Pn
 
 
 def inv(A):
@@ -196,7 +208,7 @@ def update(Xp, Yp, A, hold, prior=None, geo=None):
 
 @cache
 def backend(name: str | None = None) -> types.SimpleNamespace:
-    """The EKF kernels (``propagate``, ``information``, ``inv``, ``update``): the numba twins of ``ekf_numba.py``
+    """The EKF kernels (``propagate``, ``information``, ``inv``, ``update``, ``column``): the numba twins of ``ekf_numba.py``
     when ``core.backend`` says compiled code runs (or ``name="numba"``), this module's otherwise."""
     name = name or backend_name()
     if name == "numba":
@@ -204,4 +216,4 @@ def backend(name: str | None = None) -> types.SimpleNamespace:
     else:
         module = sys.modules[__name__]
     return types.SimpleNamespace(name=name, propagate=module.propagate, information=module.information,
-                                 inv=module.inv, update=module.update)
+                                 inv=module.inv, update=module.update, column=module.column)

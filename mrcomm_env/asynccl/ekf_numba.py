@@ -120,7 +120,7 @@ def propagate(X, P, ud):
 
 
 @njit(cache=True)
-def _information(X, a, b, sr, z1pi, inv_sd, inv_sth):
+def _information(X, a, b, z, inv_sd, inv_sth):
     G, n3 = X.shape
     m = len(a)
     A = np.zeros((G, 2 * m, n3 + 1))
@@ -129,23 +129,24 @@ def _information(X, a, b, sr, z1pi, inv_sd, inv_sth):
             ia, ib = 3 * a[j], 3 * b[j]
             dx, dy = X[g, ib] - X[g, ia], X[g, ib + 1] - X[g, ia + 1]
             d = max(math.hypot(dx, dy), MIN_DISTANCE)
-            f = sr[j] / d
+            sr = inv_sd / z[j, 0]  # √w of the range row, 1/(σ_d z_d)
+            f = sr / d
             u0, u1 = dx * f, dy * f
             f = inv_sth / (d * d)
             p0, p1 = dy * f, dx * f
             r = A[g, 2 * j]  # range row: ∓(Δx, Δy)/d at a / b, times 1/(σ_d z_d)
             r[ia], r[ia + 1], r[ib], r[ib + 1] = -u0, -u1, u0, u1
-            r[n3] = inv_sd - d * sr[j]
+            r[n3] = inv_sd - d * sr
             r = A[g, 2 * j + 1]  # bearing row: (Δy, −Δx)/d², −1 at a and (−Δy, Δx)/d² at b, times 1/σ_θ
             r[ia], r[ia + 1], r[ia + 2], r[ib], r[ib + 1] = p0, -p1, -inv_sth, -p0, p1
-            br = ((X[g, ia + 2] - math.atan2(dy, dx)) + z1pi[j]) % TWO_PI - math.pi
+            br = ((X[g, ia + 2] - math.atan2(dy, dx)) + (z[j, 1] + math.pi)) % TWO_PI - math.pi
             r[n3] = br * inv_sth
     return A
 
 
-def information(X, geo, zc, inv_sd, inv_sth):
+def information(X, geo, z, inv_sd, inv_sth):
     """``ekf.information``: whitened rows [√W H | √W r] of a column at the priors X, (G, 2m, 3N+1)."""
-    return _information(X, geo.a, geo.b, zc[0], zc[1], inv_sd, inv_sth)
+    return _information(X, geo.a, geo.b, z, inv_sd, inv_sth)
 
 
 @njit(cache=True)
@@ -203,3 +204,17 @@ def update(Xp, Yp, A, hold, prior=None, geo=None):
     elif prior is None:
         prior = _OWN[:G] if G <= 256 else np.arange(G)
     return _update(Xp, Yp, A, hold, prior, geo.a, geo.b)
+
+
+@njit(cache=True)
+def _column(Xs, Ps, ud, a, b, z, inv_sd, inv_sth, hold, prior):
+    Xp, Pp = propagate(Xs, Ps, ud)
+    A = _information(Xp, a, b, z, inv_sd, inv_sth)
+    Yp = inv(Pp)
+    Xn, Pn = _update(Xp, Yp, A, hold, prior, a, b)
+    return Xp, Yp, A, Xn, Pn
+
+
+def column(Xs, Ps, ud, geo, z, inv_sd, inv_sth, hold, prior):
+    """``ekf.column``: propagate, linearise, invert and update in one compiled call."""
+    return _column(Xs, Ps, ud, geo.a, geo.b, z, inv_sd, inv_sth, hold, prior)

@@ -80,6 +80,7 @@ class Estimators:
         self._kept_lo = -2
         self._lin_dirty = False
         self._jidx: dict = {}
+        self._last_ab = (None, None, None)
         self._ar = np.arange(n)[None, :]
         self._sources_known = False  # every robot has some complete column (no odometry source is -1)
 
@@ -99,17 +100,24 @@ class Estimators:
         Sources are min(L, k-1) ≥ min(c, k-1), so once every robot has a complete column (c ≥ 0) none is -1."""
         return src % self.W if self._sources_known else np.where(src < 0, self.W, src % self.W)
 
-    def _information(self, X, pk):
-        """Per-observer augmented information of column ``pk`` linearised at the priors X (eq. (2))."""
-        if pk.hidx is None:  # the same sensing graph recurs: one index table per distinct (a, b)
+    def _geometry(self, pk):
+        """The index tables of column ``pk``'s sensing graph (``ekf.Geometry``): one per distinct (a, b)."""
+        if pk.hidx is None:
+            if pk.a is self._last_ab[0] and pk.b is self._last_ab[1]:  # the world reuses its pair arrays
+                pk.hidx = self._last_ab[2]
+                return pk.hidx
             gkey = pk.a.tobytes() + pk.b.tobytes()
             pk.hidx = self._jidx.get(gkey)
             if pk.hidx is None:
                 if len(self._jidx) > 64:
                     self._jidx.clear()
                 pk.hidx = self._jidx[gkey] = ekf.Geometry(pk.a, pk.b, self.n, self._inv_sth)
-            pk.zc = (1.0 / (self.sd * pk.z[:, 0]), pk.z[:, 1] + np.pi)
-        return self.k.information(X, pk.hidx, pk.zc, self._inv_sd, self._inv_sth)
+            self._last_ab = (pk.a, pk.b, pk.hidx)
+        return pk.hidx
+
+    def _information(self, X, pk):
+        """Whitened measurement rows of column ``pk`` linearised at the priors X (eq. (2))."""
+        return self.k.information(X, self._geometry(pk), pk.z, self._inv_sd, self._inv_sth)
 
     # ------------------------------------------------------------------ batched column steps
     def _advance(self, end, sids, starts, Xs, Ps, Ls):
@@ -244,9 +252,11 @@ class Estimators:
         n, W, lin = self.n, self.W, self.lin
         res_of = [0] * n
         rows_a, rows_r, rows_e, src_e, c_r = [], [], [], [], []
-        for (_, ci, _), robots in groups.items():
+        held = {}  # a group's row of L (its key), shared by its robots
+        for (_, ci, Lrow), robots in groups.items():
             if ci >= t:
                 continue
+            held[robots[0]] = Lrow
             rb = next((r for r in robots if valid[r]), None) if ci < t - 1 else None
             if rb is not None:
                 rows_e.append(robots)
@@ -265,9 +275,7 @@ class Estimators:
         for g, robots in enumerate(order, start=1):
             for r in robots:
                 res_of[r] = g
-        Lx = np.empty((len(order) + 1, n), dtype=np.int64)  # holdings of each filter (the central: everything)
-        Lx[0] = t
-        np.take(L, [r[0] for r in order], axis=0, out=Lx[1:])  # a group's robots share their row of L
+        Lx = np.array([(t,) * n] + [held[r[0]] for r in order], dtype=np.int64)  # holdings of each filter
         ar = self._ar
         cX, cP = self.central[t - 1]
         Xs, Ps = [cX[None]], [cP[None]]
@@ -277,14 +285,15 @@ class Estimators:
                 parts = []
                 if running:  # their prior of column k: last available odometry of step k-1
                     Lr = Lx[[1 + g for g in running]]
-                    Xp, Pp = self.k.propagate(Xc, Pc, self.ud_ring[self._slots(np.minimum(Lr, k - 1)), ar])
-                    JA = self._information(Xp, self.packets[k])
-                    geo = self.packets[k].hidx
-                    parts.append(self.k.update(Xp, self.k.inv(Pp), JA, Lr[:, geo.obs_of_row] >= k, geo=geo))
+                    pk = self.packets[k]
+                    geo = self._geometry(pk)
+                    parts.append(self.k.column(Xc, Pc, self.ud_ring[self._slots(np.minimum(Lr, k - 1)), ar], geo,
+                                               pk.z, self._inv_sd, self._inv_sth, Lr[:, geo.obs_of_row] >= k,
+                                               np.arange(len(running)))[3:])
                 start = [g for g, ci in enumerate(c_r) if ci + 1 == k]
                 if start:  # first column: the central prior of column k with the rows they hold
                     Ls = Lx[1:1 + nr] if len(start) == nr else Lx[[1 + g for g in start]]
-                    geo = self.packets[k].hidx
+                    geo = self._geometry(self.packets[k])
                     parts.append(self.k.update(*lin[(k, ("C", k - 1), b"")], Ls[:, geo.obs_of_row] >= k, geo=geo))
                     running = running + start
                 if len(parts) == 1:
@@ -305,17 +314,12 @@ class Estimators:
         else:
             ud = self.ud_ring[(t - 1) % W][None]
             Xp, Pp = Xs[0], Ps[0]
-        Xp, Pp = self.k.propagate(Xp, Pp, ud)
-        JA = self._information(Xp, self.packets[t])
-        Yp = self.k.inv(Pp)
-        lin[(t, ("C", t - 1), b"")] = (Xp[0], Yp[0], JA[0])
-        geo = self.packets[t].hidx
+        pk = self.packets[t]
+        geo = self._geometry(pk)
         hold = Lx[:, geo.obs_of_row] >= t  # a filter holds the rows of column t of the packets it holds
-        if nown:
-            pr = np.array(list(range(1 + nown)) + [0] * len(rows_a))  # the restarts at t-1 share the central prior
-            Xn, Pn = self.k.update(Xp, Yp, JA, hold, pr, geo)
-        else:
-            Xn, Pn = self.k.update(Xp[0], Yp[0], JA[0], hold, geo=geo)
+        pr = np.array(list(range(1 + nown)) + [0] * len(rows_a))  # the restarts at t-1 share the central prior
+        Xp, Yp, JA, Xn, Pn = self.k.column(Xp, Pp, ud, geo, pk.z, self._inv_sd, self._inv_sth, hold, pr)
+        lin[(t, ("C", t - 1), b"")] = (Xp[0], Yp[0], JA[0])
         return Xn, Pn, res_of
 
     def step(self, t: int, c: np.ndarray, latest: np.ndarray) -> None:

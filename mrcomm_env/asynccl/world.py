@@ -45,7 +45,7 @@ def wrap(angle):
 class Packets:
     """The measurement packets of one time step (a column of the information table)."""
 
-    __slots__ = ("u", "a", "b", "z", "n_meas", "bits", "hidx", "zc")
+    __slots__ = ("u", "a", "b", "z", "n_meas", "bits", "hidx")
 
     def __init__(self, u, a, b, z, n_meas):
         self.u = u  # (N, 2) measured [v, ω]
@@ -55,7 +55,6 @@ class Packets:
         self.n_meas = n_meas  # (N,) measurements per robot
         self.bits = PACKET_BASE_BITS + MEAS_BITS * n_meas  # (N,) bits of M_k^i
         self.hidx = None  # index tables of the sensing graph, ``ekf.Geometry`` (filled by the EKF on first use)
-        self.zc = None  # per measurement 1/(σ_d z_d) and z_θ + π (likewise)
 
 
 class World:
