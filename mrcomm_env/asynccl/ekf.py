@@ -102,6 +102,7 @@ class Geometry:
     """
 
     def __init__(self, a, b, n, inv_sth):
+        a, b = np.ascontiguousarray(a, dtype=np.int64), np.ascontiguousarray(b, dtype=np.int64)
         m = len(a)
         self.a, self.b, self.n, self.m = a, b, n, m
         rows = np.arange(m)

@@ -25,6 +25,15 @@ TWO_PI = 2.0 * math.pi
 MIN_DISTANCE = 1e-6  # as ``ekf.MIN_DISTANCE``
 
 
+def _c(array):
+    """The array as a writable C-contiguous one (a copy only when it is not): every kernel then has one compiled
+    signature, instead of one per memory layout met at run time (fancy indexing may give Fortran order,
+    ``np.broadcast_to`` read-only views), each compiled or loaded when first met."""
+    if array.flags.c_contiguous and array.flags.writeable:
+        return array
+    return np.array(array, order="C")
+
+
 @njit(cache=True)
 def _inv_spd_into(Y, out, L):
     """out = Y⁻¹ for a symmetric positive definite Y, through its Cholesky factor: Y = L Lᵀ, Y⁻¹ = L⁻ᵀ L⁻¹.
@@ -70,7 +79,7 @@ def _inv_spd_into(Y, out, L):
 
 
 @njit(cache=True)
-def inv(A):
+def _inv(A):
     """Batched inverse of symmetric positive definite matrices (G, n, n)."""
     G, n, _ = A.shape
     out = np.empty((G, n, n))
@@ -81,7 +90,7 @@ def inv(A):
 
 
 @njit(cache=True)
-def propagate(X, P, ud):
+def _propagate(X, P, ud):
     """``ekf.propagate``: x⁺ = f(x, u) and P⁺ = F P Fᵀ + Γ Q Γᵀ (eq. (1)); ud = [v dt, σ_v dt, σ_ω dt, ω dt]."""
     G, n3 = X.shape
     n = n3 // 3
@@ -144,9 +153,19 @@ def _information(X, a, b, z, inv_sd, inv_sth):
     return A
 
 
+def inv(A):
+    """``ekf.inv``: batched inverse of symmetric positive definite matrices."""
+    return _inv(_c(A))
+
+
+def propagate(X, P, ud):
+    """``ekf.propagate``: x⁺ = f(x, u), P⁺ = F P Fᵀ + Γ Q Γᵀ (eq. (1))."""
+    return _propagate(_c(X), _c(P), _c(ud))
+
+
 def information(X, geo, z, inv_sd, inv_sth):
     """``ekf.information``: whitened rows [√W H | √W r] of a column at the priors X, (G, 2m, 3N+1)."""
-    return _information(X, geo.a, geo.b, z, inv_sd, inv_sth)
+    return _information(_c(X), geo.a, geo.b, _c(z), inv_sd, inv_sth)
 
 
 @njit(cache=True)
@@ -203,18 +222,18 @@ def update(Xp, Yp, A, hold, prior=None, geo=None):
             prior = _FIRST[:G] if G <= 256 else np.zeros(G, dtype=np.int64)
     elif prior is None:
         prior = _OWN[:G] if G <= 256 else np.arange(G)
-    return _update(Xp, Yp, A, hold, prior, geo.a, geo.b)
+    return _update(_c(Xp), _c(Yp), _c(A), _c(hold), _c(prior), geo.a, geo.b)
 
 
 @njit(cache=True)
 def _column(Xs, Ps, ud, a, b, z, inv_sd, inv_sth, hold, prior):
-    Xp, Pp = propagate(Xs, Ps, ud)
+    Xp, Pp = _propagate(Xs, Ps, ud)
     A = _information(Xp, a, b, z, inv_sd, inv_sth)
-    Yp = inv(Pp)
+    Yp = _inv(Pp)
     Xn, Pn = _update(Xp, Yp, A, hold, prior, a, b)
     return Xp, Yp, A, Xn, Pn
 
 
 def column(Xs, Ps, ud, geo, z, inv_sd, inv_sth, hold, prior):
     """``ekf.column``: propagate, linearise, invert and update in one compiled call."""
-    return _column(Xs, Ps, ud, geo.a, geo.b, z, inv_sd, inv_sth, hold, prior)
+    return _column(_c(Xs), _c(Ps), _c(ud), geo.a, geo.b, _c(z), inv_sd, inv_sth, _c(hold), _c(prior))
