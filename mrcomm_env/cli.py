@@ -96,6 +96,7 @@ def cmd_evaluate(args) -> int:
 
 
 def cmd_reproduce(args) -> int:
+    from mrcomm_env.core import backend
     from mrcomm_env.evaluation import limit_threads
 
     limit_threads()
@@ -117,7 +118,8 @@ def cmd_reproduce(args) -> int:
     header = (
         "# mrcomm-env reproduction report\n\n"
         f"Command: `mrcomm reproduce {' '.join(sys.argv[2:])}`. Scripted baselines only. "
-        "Each section puts the paper's numbers beside ours.\n\n"
+        "Each section puts the paper's numbers beside ours. "
+        f"Compiled twins of hot loops: {backend.name()} (`{backend.VARIABLE}`; see docs/architecture.md).\n\n"
     )
     report = out / "REPORT.md"
     report.write_text(header + "\n".join(sections))
