@@ -149,12 +149,13 @@ class InfoTables:
         from mrcomm_env.asynccl.table_numba import exchange_dense
 
         hi_s = self.latest if _min(modes, axis=None) >= QINF else self._offers(modes)
-        bits, links, latest, known, any_link = exchange_dense(
+        bits, links, latest, known, c, disc, self.delay_sum, added, any_link = exchange_dense(
             np.asarray(modes, dtype=np.int64), adj, delivered, hi_s, self.latest, self.disc, self.known, self.c,
-            self.cum_bits, self.W, SILENT, QINF, float(HEADER_BITS), float(LIST_ENTRY_BITS))
-        if any_link:
-            self.latest, self.known = latest, known
-            self._settle(self.t)
+            self.cum_bits, self.W, SILENT, QINF, float(HEADER_BITS), float(LIST_ENTRY_BITS), self.t, self._hist_diff,
+            self.delay_sum, self.q_rule == "oracle")
+        if any_link:  # (with no link nothing changes, and ``_exchange_dense`` does not settle either)
+            self.latest, self.known, self.c, self.disc = latest, known, c, disc
+            self.delay_count += added
         return bits, links
 
     def _exchange_pairs(self, modes, adj, delivered, budget):

@@ -1,4 +1,5 @@
-"""Compiled twin (numba) of ``InfoTables._exchange_dense``: one exchange of eq. (4)-(5) over all links.
+"""Compiled twin (numba) of ``InfoTables._exchange_dense`` and the ``_settle`` that follows it: one exchange of
+eq. (4)-(5) over all links, then the new complete frontiers, delay statistics (eq. (7)) and discard rule.
 
 Same inputs, same integer bookkeeping, same bit counts (sums of whole bits, exact in float64), written
 as loops over (sender j, receiver i, row v) instead of ~40 numpy calls on (N, N, N) arrays. The numpy
@@ -15,10 +16,11 @@ NO_ROW_LIMIT = 2**62  # larger than any step index (a plain constant: numba free
 
 @njit(cache=True)
 def exchange_dense(modes, adj, delivered, hi_s, latest, disc, known, c, cum_bits, W, silent, qinf,
-                   header_bits, entry_bits):
-    """Bits and links per sender, and the receivers' new ``latest`` and everyone's new ``known``.
+                   header_bits, entry_bits, t, hist_diff, delay_sum, oracle):
+    """Bits and links per sender, the new ``latest``, ``known``, ``c`` and ``disc``, and the delay statistics.
 
-    Returns (bits, links, latest, known, any_link); with no link at all nothing changes (``any_link`` False).
+    Returns (bits, links, latest, known, c, disc, delay_sum, added delay count, any_link); ``hist_diff`` is
+    updated in place. With no link at all nothing changes (``any_link`` False).
     """
     n = latest.shape[0]
     bits = np.zeros(n)
@@ -34,7 +36,7 @@ def exchange_dense(modes, adj, delivered, hi_s, latest, disc, known, c, cum_bits
     new_latest = latest.copy()
     new_known = known.copy()
     if not any_link:
-        return bits, links, new_latest, new_known, False
+        return bits, links, latest, known, c, disc, delay_sum, 0, False
     for j in range(n):
         if links[j] == 0.0:
             continue
@@ -67,4 +69,30 @@ def exchange_dense(modes, adj, delivered, hi_s, latest, disc, known, c, cum_bits
                 new_known[i, j] = c[j]
             if after > new_known[j, i]:
                 new_known[j, i] = after
-    return bits, links, new_latest, new_known, True
+    # ``_settle``: steps c+1 … c_new become computable at t, delays t − k (eq. (7)); histogram as differences
+    new_c = c.copy()
+    added = 0
+    for i in range(n):
+        frontier = t
+        for v in range(n):
+            frontier = min(frontier, new_latest[i, v])
+        if frontier > c[i]:
+            ai, bi = c[i], frontier
+            delay_sum += (bi - ai) * t - (ai + bi + 1) * (bi - ai) / 2.0
+            added += bi - ai
+            hist_diff[t - bi] += 1
+            hist_diff[t - ai] -= 1
+            new_c[i] = frontier
+    new_disc = disc.copy()
+    lowest = new_c.min()
+    for i in range(n):
+        new_known[i, i] = new_c[i]  # what robot i itself has complete
+    for i in range(n):
+        if oracle:  # variant: a column is dropped as soon as every robot has it
+            new_disc[i] = lowest
+        else:  # discard rule of §III-A.3 / §III-B.3: complete here and known complete everywhere
+            m = new_known[i, 0]
+            for v in range(1, n):
+                m = min(m, new_known[i, v])
+            new_disc[i] = max(disc[i], m)
+    return bits, links, new_latest, new_known, new_c, new_disc, delay_sum, added, True
