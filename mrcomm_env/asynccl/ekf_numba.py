@@ -222,7 +222,7 @@ def update(Xp, Yp, A, hold, prior=None, geo=None):
             prior = _FIRST[:G] if G <= 256 else np.zeros(G, dtype=np.int64)
     elif prior is None:
         prior = _OWN[:G] if G <= 256 else np.arange(G)
-    return _update(_c(Xp), _c(Yp), _c(A), _c(hold), _c(prior), geo.a, geo.b)
+    return _update(_c(Xp), _c(Yp), _c(A), _c(hold), _c(np.asarray(prior, dtype=np.int64)), geo.a, geo.b)
 
 
 @njit(cache=True)
@@ -236,4 +236,5 @@ def _column(Xs, Ps, ud, a, b, z, inv_sd, inv_sth, hold, prior):
 
 def column(Xs, Ps, ud, geo, z, inv_sd, inv_sth, hold, prior):
     """``ekf.column``: propagate, linearise, invert and update in one compiled call."""
-    return _column(_c(Xs), _c(Ps), _c(ud), geo.a, geo.b, _c(z), inv_sd, inv_sth, _c(hold), _c(prior))
+    return _column(_c(Xs), _c(Ps), _c(ud), geo.a, geo.b, _c(z), inv_sd, inv_sth, _c(hold),
+                   _c(np.asarray(prior, dtype=np.int64)))
