@@ -67,7 +67,7 @@ class Estimators:
         self._inv_sd, self._inv_sth = 1.0 / self.sd, 1.0 / self.sth
         self._set_odometry(0, packets0.u)
         self.central = {-1: (x0, P0)}  # x̂_{k|k}, P_{k|k}; -1 is the prior
-        self.lin = {}  # (k, state id, odometry source) -> prior X, Y = P⁻¹ and information terms J, β of column k
+        self.lin = {}  # (k, state id, odometry source) -> prior X, Y = P⁻¹ and whitened rows A of column k
         self.exact = np.ones(n, dtype=bool)
         self._all_exact = True
         self.ck = [None] * n  # own checkpoints (c, X, P) of robots that are no longer exact
@@ -164,13 +164,13 @@ class Estimators:
             # a filter holds measurement (a, b) of column k iff it holds robot a's packet of k
             La = Larr if len(act) == len(Larr) else Larr[act]
             M = La >= k
-            hold = La[:, pk.hidx.obs_of_row] >= k
+            geo = self._geometry(pk)
+            hold = La[:, geo.obs_of_row] >= k
             if len(keys) == 1:  # one shared prior (the common case): its terms broadcast over the filters
-                Xn, Pn = self.k.update(*self.lin[next(iter(keys))], hold, geo=pk.hidx)
+                Xn, Pn = self.k.update(*self.lin[next(iter(keys))], hold, geo=geo)
             else:
                 lins = [self.lin[key] for key in keys]
-                pr = np.array(prior_of)
-                Xn, Pn = self.k.update(*(np.array([v[q] for v in lins])[pr] for q in range(3)), hold, geo=pk.hidx)
+                Xn, Pn = self.k.update(*(np.array([v[q] for v in lins]) for q in range(3)), hold, prior_of, geo)
             if k == end:  # last column: no later prior to share, state ids are not needed
                 for j, g in enumerate(act.tolist()):
                     X[g], P[g] = Xn[j], Pn[j]
