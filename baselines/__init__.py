@@ -1,40 +1,39 @@
-"""Scripted baseline policies: the papers' own decision algorithms, one module per environment."""
+"""Scripted baseline policies: the papers' own decision algorithms, one module per environment.
+
+Which module belongs to which environment is the registry's ``EnvEntry.policies``
+(``mrcomm_env/registry.py``); each module defines ``ENV_ID``, ``DEFAULT_POLICY`` and ``POLICIES``.
+"""
 
 from __future__ import annotations
 
 import importlib
 
-from baselines.common import Policy, RandomPolicy
-
-#: environment id -> module holding its policies (each defines ENV_ID, DEFAULT_POLICY and POLICIES)
-_MODULES = {
-    "mrcomm/AsyncCL-v0": "baselines.asynccl",
-    "mrcomm/ChannelAssociation-v0": "baselines.channel_association",
-    "mrcomm/MultiHop-v0": "baselines.multihop",
-}
+from baselines.common import RandomPolicy
+from mrcomm_env.core.policy import LocalViews, Policy
+from mrcomm_env.registry import canonical_id, entry
 
 
-def _module(env_id: str):
-    from mrcomm_env.registry import canonical_id
-
-    env_id = canonical_id(env_id)
-    return importlib.import_module(_MODULES[env_id])
+def policy_module(env_id: str):
+    """The module holding ``env_id``'s scripted policies."""
+    return importlib.import_module(entry(env_id).policies)
 
 
 def policy_names(env_id: str) -> list[str]:
-    return list(_module(env_id).POLICIES)
+    return list(policy_module(env_id).POLICIES)
 
 
 def default_policy(env_id: str) -> str:
-    return _module(env_id).DEFAULT_POLICY
+    return policy_module(env_id).DEFAULT_POLICY
 
 
 def make_policy(env_id: str, name: str, **params) -> Policy:
     """Build policy ``name`` for ``env_id``; unknown names raise ``ValueError`` listing the valid ones."""
-    policies = _module(env_id).POLICIES
+    policies = policy_module(env_id).POLICIES
     if name not in policies:
-        raise ValueError(f"unknown policy {name!r} for {env_id}; valid policies are: {', '.join(policies)}")
+        raise ValueError(
+            f"unknown policy {name!r} for {canonical_id(env_id)}; valid policies are: {', '.join(policies)}"
+        )
     return policies[name](**params)
 
 
-__all__ = ["Policy", "RandomPolicy", "policy_names", "default_policy", "make_policy"]
+__all__ = ["LocalViews", "Policy", "RandomPolicy", "policy_module", "policy_names", "default_policy", "make_policy"]

@@ -11,7 +11,8 @@
 
 from __future__ import annotations
 
-from baselines.common import Policy, RandomPolicy
+from baselines.common import RandomPolicy
+from mrcomm_env.core.policy import Policy
 
 ENV_ID = "mrcomm/AsyncCL-v0"
 DEFAULT_POLICY = "scheme2_qinf"
@@ -22,14 +23,14 @@ class FixedMode(Policy):
 
     mode = "silent"
 
-    def reset(self, env, seed=None) -> None:
-        super().reset(env, seed)
-        names = (env.unwrapped if hasattr(env, "unwrapped") else env).mode_names
+    def reset(self, views, seed=None) -> None:
+        super().reset(views, seed)
+        names = tuple(views.params["modes"])
         if self.mode not in names:
             raise ValueError(f"policy '{self.name}' needs mode {self.mode!r} in the env's argument 'modes' {names}")
         self._action = int(names.index(self.mode))
 
-    def act(self, observations, env):
+    def act(self, observations, views):
         return dict.fromkeys(observations, self._action)
 
 

@@ -21,7 +21,8 @@ import math
 
 import numpy as np
 
-from baselines.common import Policy, RandomPolicy
+from baselines.common import RandomPolicy
+from mrcomm_env.core.policy import Policy
 from mrcomm_env.core.config import Int, Param, Real
 
 ENV_ID = "mrcomm/ChannelAssociation-v0"
@@ -39,15 +40,15 @@ class BernoulliPolicy(Policy):
     #: fills doubles in order, so the coins are exactly those of one ``random(len(agents))`` per step.
     BLOCK = 1024
 
-    def reset(self, env, seed=None):
-        super().reset(env, seed)
+    def reset(self, views, seed=None):
+        super().reset(views, seed)
         self._start(self.params["p"])
 
     def _start(self, p: float) -> None:
         self._p = p
         self._coins, self._at = [], 0                       # drawn coins (0/1 ints) and the next unused one
 
-    def act(self, observations, env):
+    def act(self, observations, views):
         agents = list(observations)
         k, at = len(agents), self._at
         if at + k > len(self._coins):                       # refill, keeping the unused coins first
@@ -64,8 +65,8 @@ class CoinFlipPolicy(BernoulliPolicy):
     name = "coin_flip"
     PARAMS = {}
 
-    def reset(self, env, seed=None):
-        Policy.reset(self, env, seed)
+    def reset(self, views, seed=None):
+        Policy.reset(self, views, seed)
         self._start(0.5)
 
 
@@ -75,9 +76,9 @@ class IdBitsPolicy(Policy):
     name = "id_bits"
     PARAMS = {"bits": Param(0, "ID length B in bits (0 = ⌈log2 N⌉)", Int(0, 64, fuzz=(0, 16)))}
 
-    def reset(self, env, seed=None):
-        super().reset(env, seed)
-        n = len(env.possible_agents)
+    def reset(self, views, seed=None):
+        super().reset(views, seed)
+        n = views.n_agents
         dense = max(1, int(math.ceil(math.log2(n))))
         b = self.params["bits"] or dense
         if b < dense:
@@ -96,12 +97,11 @@ class IdBitsPolicy(Policy):
         #: (B + 1, N) schedule: row t = emissions in step t of each cycle; the last row is the beacon
         self.table = np.vstack((((ids[None, :] >> shifts[:, None]) & np.uint64(1)).astype(np.int64),
                                 np.ones((1, n), dtype=np.int64)))
-        self._index = {a: i for i, a in enumerate(env.possible_agents)}
+        self._index = {a: views.index(a) for a in views.possible_agents}
 
-    def act(self, observations, env):
-        row = self.table[env.step_count % (self.B + 1)]
+    def act(self, observations, views):
+        row = self.table[views.step % (self.B + 1)]
         return {a: int(row[self._index[a]]) for a in observations}
-
 
 
 POLICIES = {

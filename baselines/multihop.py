@@ -20,23 +20,28 @@ from __future__ import annotations
 
 import numpy as np
 
-from baselines.common import Policy, RandomPolicy
+from baselines.common import RandomPolicy
 from mrcomm_env.core.config import Choice, Param
+from mrcomm_env.core.policy import Policy
 from mrcomm_env.multihop import protocol as proto
 
 ENV_ID = "mrcomm/MultiHop-v0"
 DEFAULT_POLICY = "location_based"
 
 
-def _as_actions(env, prio: np.ndarray, observations) -> dict:
+def _as_actions(views, prio: np.ndarray, observations) -> dict:
     prio = prio.astype(np.float32)
-    return {a: prio[env._agent_index[a]] for a in observations}
+    return {a: prio[views.index(a)] for a in observations}
 
 
-def _importance(env) -> tuple[np.ndarray, np.ndarray]:
-    """Each robot's eq. (1) importances of its own estimates and which estimates it holds."""
-    known = env.stamps > proto.UNKNOWN
-    return proto.importance(env.estimated_distances(), known, env.cfg.alpha), known
+def _importance(views) -> tuple[np.ndarray, np.ndarray]:
+    """Each robot's eq. (1) importances of its own estimates and which estimates it holds (row i: robot i's)."""
+    known = views.team("stamps") > proto.UNKNOWN
+    return proto.importance(views.team("estimated_distances"), known, views.params["alpha"]), known
+
+
+def _slot_size(views) -> int:
+    return int(views.team("slot_size")[0])
 
 
 def _rank_priorities(order: np.ndarray, n: int, base: np.ndarray) -> np.ndarray:
@@ -65,15 +70,15 @@ class LocationBased(Policy):
     PARAMS = {"rule": Param("text", "`text`: take the lowest counter (§3.2); `listing`: argmax as printed in "
                             "Algorithm 1", Choice(("text", "listing")))}
 
-    def reset(self, env, seed=None):
-        super().reset(env, seed)
-        self.counters = np.ones((env.n_agents, env.n_agents))
+    def reset(self, views, seed=None):
+        super().reset(views, seed)
+        self.counters = np.ones((views.n_agents, views.n_agents))
 
-    def act(self, observations, env):
-        n = env.n_agents
-        f, known = _importance(env)
-        order = proto.location_based_select(self.counters, f, known, np.arange(n), env.m, self.params.rule)
-        return _as_actions(env, _rank_priorities(order, n, _fill(f)), observations)
+    def act(self, observations, views):
+        n = views.n_agents
+        f, known = _importance(views)
+        order = proto.location_based_select(self.counters, f, known, np.arange(n), _slot_size(views), self.params.rule)
+        return _as_actions(views, _rank_priorities(order, n, _fill(f)), observations)
 
 
 class AgeAware(Policy):
@@ -82,11 +87,13 @@ class AgeAware(Policy):
 
     name = "age_aware"
 
-    def act(self, observations, env):
-        n = env.n_agents
-        f, known = _importance(env)
-        order = proto.age_aware_select(f, env.stamps, env.sent_stamp, known, np.arange(n), env.m)
-        return _as_actions(env, _rank_priorities(order, n, _fill(f)), observations)
+    def act(self, observations, views):
+        n = views.n_agents
+        f, known = _importance(views)
+        order = proto.age_aware_select(
+            f, views.team("stamps"), views.team("sent_stamp"), known, np.arange(n), _slot_size(views)
+        )
+        return _as_actions(views, _rank_priorities(order, n, _fill(f)), observations)
 
 
 class Probabilistic(Policy):
@@ -94,11 +101,11 @@ class Probabilistic(Policy):
 
     name = "probabilistic"
 
-    def act(self, observations, env):
-        n = env.n_agents
-        f, known = _importance(env)
-        order = proto.probabilistic_select(self.rng, f, known, np.arange(n), env.m)
-        return _as_actions(env, _rank_priorities(order, n, _fill(f)), observations)
+    def act(self, observations, views):
+        n = views.n_agents
+        f, known = _importance(views)
+        order = proto.probabilistic_select(self.rng, f, known, np.arange(n), _slot_size(views))
+        return _as_actions(views, _rank_priorities(order, n, _fill(f)), observations)
 
 
 class Flooding(Policy):
@@ -106,17 +113,17 @@ class Flooding(Policy):
 
     name = "flooding"
 
-    def reset(self, env, seed=None):
-        super().reset(env, seed)
+    def reset(self, views, seed=None):
+        super().reset(views, seed)
         self.frame = 0
 
-    def act(self, observations, env):
-        n, m = env.n_agents, env.m
+    def act(self, observations, views):
+        n, m = views.n_agents, _slot_size(views)
         offset = self.frame * max(m - 1, 1)
         self.frame += 1
         j = np.arange(n)
         prio = 1.0 - ((j[None, :] - j[:, None] - 1 - offset) % n) / n
-        return _as_actions(env, prio, observations)
+        return _as_actions(views, prio, observations)
 
 
 class NoHop(Policy):
@@ -124,8 +131,8 @@ class NoHop(Policy):
 
     name = "no_hop"
 
-    def act(self, observations, env):
-        return _as_actions(env, np.zeros((env.n_agents, env.n_agents)), observations)
+    def act(self, observations, views):
+        return _as_actions(views, np.zeros((views.n_agents, views.n_agents)), observations)
 
 
 POLICIES = {

@@ -1,35 +1,72 @@
-"""Environment ids: normalisation, construction and registration with PettingZoo's own registry."""
+"""The one list of every environment, and construction and registration with PettingZoo's own registry.
+
+Each entry names, as module paths (nothing is imported here), the three pieces of one environment, one per
+layer: its versioned env shim (``mrcomm_env``), its scripted baselines (``baselines``) and its
+reproduction (``mrcomm_env.experiments.reproductions``). ``import mrcomm_env`` stays light, and the env
+layer never imports the layers above it: those resolve their own entries (``baselines.policy_module``,
+``mrcomm_env.experiments.reproductions.module``). ``tests/test_architecture.py`` compares the entries with
+the files on disk.
+"""
 
 from __future__ import annotations
 
 import importlib
-
-from mrcomm_env.all_modules import ENV_MODULES
+from dataclasses import dataclass
 
 NAMESPACE = "mrcomm/"
 
 
+@dataclass(frozen=True)
+class EnvEntry:
+    env: str  #: versioned shim module: ``parallel_env``, ``env`` (AEC), ``raw_env``
+    policies: str  #: scripted baselines: ``ENV_ID``, ``DEFAULT_POLICY``, ``POLICIES``
+    reproduction: str  #: ``EXPERIMENTS`` and ``run(out_dir, quick)``
+
+
+ENTRIES: dict[str, EnvEntry] = {
+    "mrcomm/AsyncCL-v0": EnvEntry(
+        "mrcomm_env.asynccl_v0", "baselines.asynccl", "mrcomm_env.experiments.reproductions.asynccl"
+    ),
+    "mrcomm/ChannelAssociation-v0": EnvEntry(
+        "mrcomm_env.channel_association_v0",
+        "baselines.channel_association",
+        "mrcomm_env.experiments.reproductions.channel_association",
+    ),
+    "mrcomm/MultiHop-v0": EnvEntry(
+        "mrcomm_env.multihop_v0", "baselines.multihop", "mrcomm_env.experiments.reproductions.multihop"
+    ),
+}
+
+
 def env_ids() -> list[str]:
-    return list(ENV_MODULES)
+    return list(ENTRIES)
 
 
 def canonical_id(env_id: str) -> str:
     """``"MapSync-v0"`` and ``"mrcomm/MapSync-v0"`` name the same env; unknown ids raise ``ValueError``."""
-    ids = ENV_MODULES
     name = env_id if isinstance(env_id, str) and env_id.startswith(NAMESPACE) else f"{NAMESPACE}{env_id}"
-    if name not in ids:
-        raise ValueError(f"unknown environment id {env_id!r}; valid ids are: {', '.join(ids)}")
+    if name not in ENTRIES:
+        raise ValueError(f"unknown environment id {env_id!r}; valid ids are: {', '.join(ENTRIES)}")
     return name
+
+
+def short_name(env_id: str) -> str:
+    """``"mrcomm/AsyncCL-v0"`` → ``"AsyncCL-v0"``."""
+    return canonical_id(env_id)[len(NAMESPACE) :]
+
+
+def entry(env_id: str) -> EnvEntry:
+    return ENTRIES[canonical_id(env_id)]
 
 
 def env_module(env_id: str):
     """The versioned shim module (``parallel_env``, ``env``, ``raw_env``) of ``env_id``."""
-    return importlib.import_module(ENV_MODULES[canonical_id(env_id)])
+    return importlib.import_module(entry(env_id).env)
 
 
 def env_class(env_id: str):
     """The environment class behind ``env_id`` (its PARAMS, METRICS, … describe it)."""
-    return env_module(env_id).parallel_env.env_cls
+    return env_module(env_id).parallel_env
 
 
 def make(env_id: str, **kwargs):
@@ -47,9 +84,9 @@ def register_all() -> None:
     """
     import pettingzoo
 
-    for env_id, module_name in ENV_MODULES.items():
+    for env_id, item in ENTRIES.items():
         if env_id in _registered:
             continue
-        pettingzoo.register("parallel", env_id, entry_point=f"{module_name}:parallel_env")
-        pettingzoo.register("aec", env_id, entry_point=f"{module_name}:env")
+        pettingzoo.register("parallel", env_id, entry_point=f"{item.env}:parallel_env")
+        pettingzoo.register("aec", env_id, entry_point=f"{item.env}:env")
         _registered.add(env_id)

@@ -145,7 +145,7 @@ def test_bit_budget_truncates_oldest_first():
 
 # ------------------------------------------------------------------------------------------ delays
 def delay_run(n, mode, steps, seed):
-    env = parallel_env(n_robots=n, estimation=False, max_steps=steps, max_history=steps + 5, modes=[mode])
+    env = parallel_env(n_robots=n, estimation=False, max_cycles=steps, max_history=steps + 5, modes=[mode])
     env.reset(seed=seed)
     act = {a: 0 for a in env.possible_agents}
     while env.agents:
@@ -186,7 +186,7 @@ def test_theory_reproduces_the_papers_scheme1_column_and_eq_18_is_exact():
 def test_schemes_order_delay_and_bits_as_in_the_paper():
     res = {}
     for mode in ("scheme2_qinf", "scheme1", "scheme2_q1"):
-        env = parallel_env(n_robots=5, estimation=False, max_steps=400, modes=[mode])
+        env = parallel_env(n_robots=5, estimation=False, max_cycles=400, modes=[mode])
         env.reset(seed=2)
         while env.agents:
             env.step({a: 0 for a in env.agents})
@@ -197,7 +197,7 @@ def test_schemes_order_delay_and_bits_as_in_the_paper():
 
 # ------------------------------------------------------------------------------------------ memory, API
 def test_memory_stays_bounded_when_nobody_talks():
-    env = parallel_env(n_robots=3, max_history=20, max_steps=150, modes=["silent"])
+    env = parallel_env(n_robots=3, max_history=20, max_cycles=150, modes=["silent"])
     env.reset(seed=0)
     while env.agents:
         env.step({a: 0 for a in env.agents})
@@ -209,7 +209,7 @@ def test_memory_stays_bounded_when_nobody_talks():
 
 def test_random_modes_with_a_tiny_memory_stay_finite():
     """Columns leave memory while robots still need them: robots abandon them and carry on."""
-    env = parallel_env(n_robots=4, max_history=3, max_steps=120, link_probability=0.3)
+    env = parallel_env(n_robots=4, max_history=3, max_cycles=120, link_probability=0.3)
     space = env.action_space("robot_0")
     space.seed(1)
     env.reset(seed=1)
@@ -223,17 +223,17 @@ def test_random_modes_with_a_tiny_memory_stay_finite():
 def test_baselines_run_and_use_their_mode():
     for name in ("scheme1", "scheme2_q1", "scheme2_q2", "scheme2_q4", "scheme2_q8", "scheme2_qinf", "silent",
                  "random"):
-        env = parallel_env(max_steps=15)
+        env = parallel_env(max_cycles=15)
         pol = make_policy("mrcomm/AsyncCL-v0", name)
         obs, _ = env.reset(seed=1)
-        pol.reset(env, 1)
+        pol.reset(env.local_views(), 1)
         while env.agents:
-            acts = pol.act(obs, env)
+            acts = pol.act(obs, env.local_views())
             if name != "random":
                 assert set(acts.values()) == {env.mode_names.index(name)}
             obs, *_ = env.step(acts)
     with pytest.raises(ValueError, match="modes"):
-        make_policy("mrcomm/AsyncCL-v0", "scheme1").reset(parallel_env(modes=["silent"]), 0)
+        make_policy("mrcomm/AsyncCL-v0", "scheme1").reset(parallel_env(modes=["silent"]).local_views(), 0)
 
 
 @pytest.mark.parametrize("arg,bad", [("n_robots", 1), ("link_probability", 1.5), ("link_probability", -0.1),
@@ -245,7 +245,7 @@ def test_bad_input_names_the_argument(arg, bad):
 
 
 def test_observations_and_infos():
-    env = parallel_env(max_steps=30)
+    env = parallel_env(max_cycles=30)
     obs, infos = env.reset(seed=0)
     space = env.observation_space("robot_0")
     for _ in range(30):

@@ -107,14 +107,14 @@ def _episode(seed, kw, compiled, monkeypatch):
         return record, env.metrics()
 
 
-@pytest.mark.parametrize("seed,kw", [(0, {"max_steps": 150}),
-                                     (1, {"max_steps": 120, "link_probability": 0.3, "packet_loss": 0.2}),
+@pytest.mark.parametrize("seed,kw", [(0, {"max_cycles": 150}),
+                                     (1, {"max_cycles": 120, "link_probability": 0.3, "packet_loss": 0.2}),
                                      (2, {"n_robots": 3, "trajectory": "waypoint", "sensing_radius": 3.0,
-                                          "max_steps": 120, "max_history": 12})])
+                                          "max_cycles": 120, "max_history": 12})])
 def test_whole_episodes_agree_across_backends(seed, kw, monkeypatch):
     fast, m_fast = _episode(seed, kw, True, monkeypatch)
     ref, m_ref = _episode(seed, kw, False, monkeypatch)
-    assert len(fast) == len(ref) == kw["max_steps"]
+    assert len(fast) == len(ref) == kw["max_cycles"]
     for (x1, p1, l1, k1, r1, b1), (x2, p2, l2, k2, r2, b2) in zip(fast, ref, strict=True):
         np.testing.assert_allclose(x1, x2, rtol=0, atol=1e-8)
         np.testing.assert_allclose(p1, p2, rtol=1e-7, atol=1e-12)

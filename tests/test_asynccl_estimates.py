@@ -74,7 +74,7 @@ def all_meas(pk, rows=None, k=None):
 
 def run_recorded(seed, steps, n=4, policy_modes=None, **kw):
     """Play an episode with random modes; record packets, tables and estimates after every step."""
-    env = parallel_env(n_robots=n, max_steps=steps, **kw)
+    env = parallel_env(n_robots=n, max_cycles=steps, **kw)
     env.reset(seed=seed)
     x0, P0 = env.est.central[-1]
     packets = {0: env.est.packets[0]}
@@ -155,7 +155,7 @@ def test_more_information_gives_better_causal_estimates():
     """Scheme 2 (q = ∞) ≈ Scheme 1 for N = 5 and both far better than silence (§IV, Figs. 7–8)."""
     res = {}
     for mode in ("scheme2_qinf", "scheme1", "silent"):
-        env = parallel_env(modes=[mode], max_steps=150)
+        env = parallel_env(modes=[mode], max_cycles=150)
         env.reset(seed=5)
         while env.agents:
             env.step({a: 0 for a in env.agents})

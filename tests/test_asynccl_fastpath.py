@@ -31,7 +31,7 @@ def test_fast_step_equals_general_step(seed, kw, monkeypatch):
         return out
 
     monkeypatch.setattr(est_mod.Estimators, "_step_recent", checked)
-    env = parallel_env(max_steps=120, **kw)
+    env = parallel_env(max_cycles=120, **kw)
     env.reset(seed=seed)
     rng = np.random.default_rng(seed)
     n_modes = env.action_space("robot_0").n

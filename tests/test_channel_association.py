@@ -22,10 +22,10 @@ from mrcomm_env.channel_association_v0 import parallel_env
 
 def run_episode(env, policy, seed):
     obs, _ = env.reset(seed=seed)
-    policy.reset(env, seed)
+    policy.reset(env.local_views(), seed)
     rewards = []
     while env.agents:
-        obs, r, *_ = env.step(policy.act(obs, env))
+        obs, r, *_ = env.step(policy.act(obs, env.local_views()))
         rewards.append(next(iter(r.values())))
     return rewards
 
@@ -57,16 +57,16 @@ def test_bad_arguments_raise(kwargs):
 
 
 def test_observation_contents_and_bounds():
-    env = parallel_env(n_robots=20, max_steps=30)
+    env = parallel_env(n_robots=20, max_cycles=30)
     obs, _ = env.reset(seed=3)
     nb = math.ceil(math.log2(20))
     for i, agent in enumerate(env.possible_agents):      # own wireless ID as bits
         bits = obs[agent][:nb]
         assert int(sum(int(b) << k for k, b in enumerate(bits))) == i
     pol = POLICIES["coin_flip"]()
-    pol.reset(env, 3)
+    pol.reset(env.local_views(), 3)
     while env.agents:
-        acts = pol.act(obs, env)
+        acts = pol.act(obs, env.local_views())
         obs, *_ = env.step(acts)
         for agent, o in obs.items():
             assert env.observation_space(agent).contains(o)
@@ -90,7 +90,7 @@ def reference_algorithm1(w, v, vis_robot, emissions):
 @pytest.mark.parametrize("tol", [0, 1])
 def test_neighborhood_matches_reference_algorithm1(tol):
     w, v = 9, 6
-    env = parallel_env(scene="neighborhood", w=w, v=v, max_steps=40, miss_tolerance=tol)
+    env = parallel_env(scene="neighborhood", w=w, v=v, max_cycles=40, miss_tolerance=tol)
     env.reset(seed=11)
     rng = np.random.default_rng(5)
     emissions = []
@@ -135,7 +135,7 @@ def test_tolerance_and_conflict_repair():
 def test_misses_are_reported_not_silent():
     wrong = conflicts = 0
     for seed in range(30):
-        env = parallel_env(scene="neighborhood", w=10, v=9, miss_probability=0.2, max_steps=60)
+        env = parallel_env(scene="neighborhood", w=10, v=9, miss_probability=0.2, max_cycles=60)
         run_episode(env, POLICIES["coin_flip"](), seed)
         m = env.metrics()
         wrong += m["fraction_wrong"] > 0
@@ -181,7 +181,7 @@ def test_dense_bitset_sparse_agree(extra):
 
 def test_env_backends_agree_and_batch_driver_matches_env():
     kw = dict(n_robots=48, separation=4.0, mobile_fraction=0.25, wireless_range=12.0, visual_range=12.0,
-              max_steps=40)
+              max_cycles=40)
 
     class SparseEnv(ChannelAssociationEnv):
         DENSE_MAX_N = 0
@@ -299,10 +299,10 @@ def test_two_region_steady_state_eq9():
 # ----------------------------------------------------------------------------- baselines, reward
 def test_id_bits_solves_in_exactly_log2_id_space_steps():
     for w, v in [(7, 3), (12, 12), (30, 17)]:
-        env = parallel_env(scene="neighborhood", w=w, v=v, max_steps=200)
+        env = parallel_env(scene="neighborhood", w=w, v=v, max_cycles=200)
         run_episode(env, POLICIES["id_bits"](), 0)
         assert env.metrics()["completion_time"] == math.ceil(math.log2(w + 1))
-        env = parallel_env(scene="neighborhood", w=w, v=v, max_steps=200)
+        env = parallel_env(scene="neighborhood", w=w, v=v, max_cycles=200)
         pol = POLICIES["id_bits"](bits=16)                   # sparse random 16-bit addresses
         run_episode(env, pol, 0)
         addr = pol.addresses.astype(np.int64)
@@ -317,14 +317,14 @@ def test_id_bits_solves_in_exactly_log2_id_space_steps():
 
 
 def test_reward_telescopes_and_bits_are_counted():
-    env = parallel_env(n_robots=20, emission_cost=0.3, max_steps=25)
+    env = parallel_env(n_robots=20, emission_cost=0.3, max_cycles=25)
     obs, infos = env.reset(seed=8)
     pol = POLICIES["bernoulli"](p=0.3)
-    pol.reset(env, 8)
+    pol.reset(env.local_views(), 8)
     start = env._team_score
     total, emissions, bits = 0.0, 0, 0.0
     while env.agents:
-        acts = pol.act(obs, env)
+        acts = pol.act(obs, env.local_views())
         obs, r, _, _, infos = env.step(acts)
         total += r["robot_0"]
         emissions += sum(acts.values())
@@ -336,16 +336,16 @@ def test_reward_telescopes_and_bits_are_counted():
 
 
 def test_local_visual_labels_are_per_observer_and_stable():
-    env = parallel_env(n_robots=25, mobile_fraction=0.0, max_steps=50)
+    env = parallel_env(n_robots=25, mobile_fraction=0.0, max_cycles=50)
     env.reset(seed=5)
     first = {a: env.associations(a) for a in ("robot_0", "robot_1")}
     assert set(first["robot_0"]).isdisjoint(first["robot_1"])     # labels are drawn by each observer
     pol = POLICIES["coin_flip"]()
     obs, _ = env.reset(seed=5)
     labels0 = set(env.associations("robot_0"))
-    pol.reset(env, 5)
+    pol.reset(env.local_views(), 5)
     for _ in range(5):
-        obs, *_ = env.step(pol.act(obs, env))
+        obs, *_ = env.step(pol.act(obs, env.local_views()))
         assert set(env.associations("robot_0")) == labels0        # stationary: same tracks, same labels
     # candidates shrink but always contain the true robot (perfect channel)
     cands = env.associations("robot_0")
@@ -357,7 +357,7 @@ def test_sparse_backend_with_misses_is_deterministic_and_tolerance_helps():
         DENSE_MAX_N = 0
 
     def run(seed, tol):
-        e = SparseEnv(n_robots=30, mobile_fraction=0.0, miss_probability=0.1, miss_tolerance=tol, max_steps=30)
+        e = SparseEnv(n_robots=30, mobile_fraction=0.0, miss_probability=0.1, miss_tolerance=tol, max_cycles=30)
         run_episode(e, POLICIES["coin_flip"](), seed)
         return e.metrics()
 

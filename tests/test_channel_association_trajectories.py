@@ -17,12 +17,12 @@ def test_pickled_env_continues_identically():
     for kwargs in ({"mobile_fraction": 0.5}, {"n_robots": 90, "mobile_fraction": 0.2}):
         env, policy = ChannelAssociationEnv(**kwargs), POLICIES["coin_flip"]()
         obs, _ = env.reset(seed=1)
-        policy.reset(env, 1)
+        policy.reset(env.local_views(), 1)
         for _ in range(5):
-            obs, *_ = env.step(policy.act(obs, env))
+            obs, *_ = env.step(policy.act(obs, env.local_views()))
         clone = pickle.loads(pickle.dumps(env))
         for _ in range(20):
-            actions = policy.act(obs, env)
+            actions = policy.act(obs, env.local_views())
             a, b = env.step(actions), clone.step(actions)
             assert all(np.array_equal(a[0][k], b[0][k]) for k in a[0]) and a[1:] == b[1:]
             obs = a[0]

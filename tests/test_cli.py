@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from baselines import default_policy, policy_names
-from mrcomm_env.cli import main, parse_params
+from mrcomm_env.experiments.cli import main, parse_params
 from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.registry import env_class, env_ids
 
@@ -37,13 +37,13 @@ def test_evaluate_writes_json_of_stable_shape(env_id, tmp_path, capsys):
     short = env_id.split("/", 1)[1]  # ids work without the namespace
     code = main(
         ["evaluate", short, "--policy", default_policy(env_id), "--episodes", "3", "--seed", "5",
-         "--param", "max_steps=15", "--json", str(path), "--quiet"]
+         "--param", "max_cycles=15", "--json", str(path), "--quiet"]
     )
     assert code == 0
     record = json.loads(path.read_text())
     assert set(record) == {"env", "policy", "episodes", "seed", "params", "policy_params", "metrics"}
     assert record["env"] == env_id and record["episodes"] == 3 and record["seed"] == 5
-    assert record["params"] == {"max_steps": 15}
+    assert record["params"] == {"max_cycles": 15}
     assert set(env_class(env_id).METRICS) <= set(record["metrics"])
     for m in record["metrics"].values():
         assert set(m) == {"mean", "ci95", "values"} and len(m["values"]) == 3
@@ -71,7 +71,7 @@ def test_bad_input_exits_nonzero_listing_valid_choices(argv, message, capsys):
 
 def test_console_script_exit_code_on_unknown_id():
     proc = subprocess.run(
-        [sys.executable, "-m", "mrcomm_env.cli", "evaluate", "Nope-v0", "--policy", "x"],
+        [sys.executable, "-m", "mrcomm_env.experiments.cli", "evaluate", "Nope-v0", "--policy", "x"],
         capture_output=True, text=True,
     )
     assert proc.returncode != 0 and "valid ids are" in proc.stderr

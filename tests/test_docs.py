@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from mrcomm_env.docs import expected_docs
+from mrcomm_env.experiments.docs import expected_docs
 
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 

@@ -138,12 +138,12 @@ def flooding_reference(side, order, frames):
 
 def test_flooding_cold_start_matches_set_based_reference():
     side = 4
-    env = MultiHopEnv(grid_side=side, slot_size=side * side, max_steps=20)
+    env = MultiHopEnv(grid_side=side, slot_size=side * side, max_cycles=20)
     obs, _ = env.reset(seed=3)
     pol = POLICIES["flooding"]()
-    pol.reset(env, 3)
+    pol.reset(env.local_views(), 3)
     for _ in range(8):
-        obs, *_ = env.step(pol.act(obs, env))
+        obs, *_ = env.step(pol.act(obs, env.local_views()))
     first = flooding_reference(side, env.tdma.order.tolist(), 8)
     slot = env.slot_dur
     np.testing.assert_allclose(env.first_known, first * slot)
@@ -168,26 +168,26 @@ def test_batched_sweep_core_floods_like_the_reference():
 
 
 def test_no_hop_only_neighbours_ever_known():
-    env = MultiHopEnv(grid_side=5, slot_size=3, max_steps=10)
+    env = MultiHopEnv(grid_side=5, slot_size=3, max_cycles=10)
     obs, _ = env.reset(seed=0)
     pol = POLICIES["no_hop"]()
-    pol.reset(env, 0)
+    pol.reset(env.local_views(), 0)
     while env.agents:
-        obs, _, _, _, infos = env.step(pol.act(obs, env))
+        obs, _, _, _, infos = env.step(pol.act(obs, env.local_views()))
     known = env.stamps > proto.UNKNOWN
     np.testing.assert_array_equal(known & ~np.eye(25, dtype=bool), env.adj)
     assert all(v["bits_sent"] == 192 for v in infos.values())  # own estimate only
 
 
 def test_stamps_monotone_bounded_and_bits_counted():
-    env = MultiHopEnv(scene="field", n_robots=10, speed=3.0, comm_range=40.0, slot_size=4, max_steps=15)
+    env = MultiHopEnv(scene="field", n_robots=10, speed=3.0, comm_range=40.0, slot_size=4, max_cycles=15)
     obs, _ = env.reset(seed=2)
     pol = POLICIES["location_based"]()
-    pol.reset(env, 2)
+    pol.reset(env.local_views(), 2)
     prev = env.stamps.copy()
     total = 0.0
     while env.agents:
-        obs, rew, _, _, infos = env.step(pol.act(obs, env))
+        obs, rew, _, _, infos = env.step(pol.act(obs, env.local_views()))
         assert np.all(env.stamps >= prev)
         assert np.all(env.stamps <= env.t)
         np.testing.assert_allclose(np.diag(env.stamps), env.t)
@@ -244,7 +244,7 @@ def test_bad_arguments_raise(bad):
 
 
 def test_action_priorities_select_top_m_with_own_always():
-    env = MultiHopEnv(grid_side=3, slot_size=3, max_steps=5)
+    env = MultiHopEnv(grid_side=3, slot_size=3, max_cycles=5)
     env.reset(seed=0)
     env.stamps[:] = 0.0  # everyone knows everyone
     prio = np.tile(np.linspace(0.1, 0.9, 9, dtype=np.float32), (9, 1))
@@ -259,13 +259,13 @@ def test_action_priorities_select_top_m_with_own_always():
 def test_age_aware_beats_location_based_at_equal_m():
     res = {}
     for name in ("location_based", "age_aware"):
-        env = MultiHopEnv(grid_side=6, slot_size=4, max_steps=160)
+        env = MultiHopEnv(grid_side=6, slot_size=4, max_cycles=160)
         obs, _ = env.reset(seed=0)
         pol = POLICIES[name]()
-        pol.reset(env, 0)
+        pol.reset(env.local_views(), 0)
         rewards = []
         while env.agents:
-            obs, r, *_ = env.step(pol.act(obs, env))
+            obs, r, *_ = env.step(pol.act(obs, env.local_views()))
             rewards.append(r["robot_0"])
         res[name] = -np.mean(rewards[80:])
     assert res["age_aware"] < res["location_based"]
@@ -278,12 +278,12 @@ def test_coverage_cost_of_3x3_grid_and_controller_reaches_it():
     pts = (np.mgrid[0:300, 0:300].reshape(2, -1).T + 0.5) * (L / 300)
     # centroidal 3×3 configuration: each cell a square of side L/3, mean squared distance 2 (L/3)² / 12
     assert theory.coverage_cost(pos, pts) == pytest.approx(L**2 / 54, rel=1e-3)
-    env = MultiHopEnv(scene="coverage", slot_size=9, max_steps=10**6)
+    env = MultiHopEnv(scene="coverage", slot_size=9, max_cycles=10**6)
     obs, _ = env.reset(seed=0)
     pol = POLICIES["flooding"]()
-    pol.reset(env, 0)
+    pol.reset(env.local_views(), 0)
     while env.t < 250:
-        obs, *_ = env.step(pol.act(obs, env))
+        obs, *_ = env.step(pol.act(obs, env.local_views()))
     assert env.coverage_cost() < 1.05 * L**2 / 54
 
 

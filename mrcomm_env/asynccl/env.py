@@ -6,7 +6,7 @@
 | Actions | `Discrete(len(modes))` per robot: the transfer mode it uses on all its links this step, an index into `modes` (default `silent`, `scheme1`, `scheme2_q1`, `scheme2_q2`, `scheme2_q4`, `scheme2_q8`, `scheme2_qinf`) |
 | Observations | `Box(0, 1, (N + 4,))`: age a of the oldest incomplete column as `a/(a+10)`; for every robot v how many steps behind its row is, `b/(b+10)`; trace of the own-pose covariance `tr/(tr+1)`; neighbours now `/(N−1)`; bits sent recently (EMA) `e/(e+10⁴)` |
 | Reward | team reward `−mean_i RMS_pos(causal team estimate of robot i) − lam · (bits sent by the team this step)` |
-| Arguments | `n_robots`, `link_model`, `link_probability`, `comm_radius`, `sensing_radius`, `packet_loss`, `bit_budget`, `modes`, `lam`, `estimation`, `max_steps`, `max_history`, `trajectory`, `dt`, `sigma_v`, `sigma_omega_deg`, `sigma_d`, `sigma_theta_deg`, `q_rule`, `initial_sigma` |
+| Arguments | `n_robots`, `link_model`, `link_probability`, `comm_radius`, `sensing_radius`, `packet_loss`, `bit_budget`, `modes`, `lam`, `estimation`, `max_cycles`, `max_history`, `trajectory`, `dt`, `sigma_v`, `sigma_omega_deg`, `sigma_d`, `sigma_theta_deg`, `q_rule`, `initial_sigma` |
 
 N robots move in 2D on unicycle paths (phase-shifted sinusoids of §IV, or random waypoints), measure
 their odometry and the range and bearing to every robot within ``sensing_radius``, and communicate over
@@ -54,7 +54,14 @@ from gymnasium import spaces
 from mrcomm_env.asynccl.estimator import Estimators
 from mrcomm_env.asynccl.table import QINF, SCHEME1, SILENT, InfoTables
 from mrcomm_env.asynccl.world import World, wrap
-from mrcomm_env.core import BitLedger, MrcommParallelEnv, apply_packet_loss, bernoulli_links, disk_links
+from mrcomm_env.core import (
+    BitLedger,
+    MrcommParallelEnv,
+    apply_packet_loss,
+    bernoulli_links,
+    combined_links,
+    disk_links,
+)
 from mrcomm_env.core.config import Bool, Choice, Int, ListOf, Optional, Param, Real, Validator
 
 ALL_MODES = ("silent", "scheme1", "scheme2_q1", "scheme2_q2", "scheme2_q4", "scheme2_q8", "scheme2_qinf")
@@ -113,7 +120,7 @@ class AsyncCLEnv(MrcommParallelEnv):
         "modes": Param(ALL_MODES, "the transfer modes an action indexes", ListOf(ModeName())),
         "lam": Param(1e-6, "λ: reward cost per bit sent", Real(0.0, fuzz=(0.0, 1e-4))),
         "estimation": Param(True, "run the EKFs (false: delay-only bookkeeping, as for Table I)", Bool()),
-        "max_steps": Param(500, "episode length in time steps", Int(lo=1, fuzz=(1, 60))),
+        "max_cycles": Param(500, "episode length in time steps", Int(lo=1, fuzz=(1, 60))),
         "max_history": Param(500, "time steps of packets kept in memory; a robot still missing a column that "
                              "leaves memory abandons it", Int(lo=2, hi=100_000, fuzz=(2, 50))),
         "trajectory": Param("sinusoid", "`sinusoid` (phase-shifted figure-eights, §IV) or `waypoint`",
@@ -148,11 +155,17 @@ class AsyncCLEnv(MrcommParallelEnv):
         "table_size": "packets this robot holds",
         "neighbours": "robots it can reach in the coming exchange",
     }
+    LOCAL_VIEW = {
+        "links": "(N,) bool: the robots this robot can reach in the coming exchange",
+        "complete_frontier": "c_i: newest step up to which this robot's table is complete (its delayed estimate)",
+        "latest": "(N,) newest step of each robot's row that this robot holds",
+        "table_size": "packets this robot holds",
+    }
     DOCUMENTED_CONFIGS = {
         "default": {},
-        "delay_only_n20": {"n_robots": 20, "estimation": False, "max_steps": 200},
+        "delay_only_n20": {"n_robots": 20, "estimation": False, "max_cycles": 200},
         "disk_budget": {"n_robots": 4, "link_model": "combined", "comm_radius": 3.0, "bit_budget": 3000.0,
-                        "packet_loss": 0.1, "trajectory": "waypoint", "max_steps": 100},
+                        "packet_loss": 0.1, "trajectory": "waypoint", "max_cycles": 100},
     }
     VERSION_HISTORY = [("v0", "first version: Scheme 1, Scheme 2 (q ≥ 1 and ∞) and silence as per-step actions")]
 
@@ -206,10 +219,10 @@ class AsyncCLEnv(MrcommParallelEnv):
         model = cfg["link_model"]
         if model == "bernoulli":
             adj = bernoulli_links(rng, self.n_agents, cfg["link_probability"])
-        else:
+        elif model == "disk":
             adj = disk_links(self.world.x[:, :2], cfg["comm_radius"])
-            if model == "combined":
-                adj &= bernoulli_links(rng, self.n_agents, cfg["link_probability"])
+        else:
+            adj = combined_links(rng, self.world.x[:, :2], cfg["comm_radius"], cfg["link_probability"])
         self.adj = adj
         self.delivered = apply_packet_loss(rng, adj, cfg["packet_loss"])
         self.neighbours = _sum(adj, axis=1)
@@ -289,6 +302,10 @@ class AsyncCLEnv(MrcommParallelEnv):
         raw /= raw + self._obs_scale
         raw[:, n + 2] = self.neighbours / (n - 1)
         return raw.astype(np.float32)
+
+    def _local_view(self) -> dict:
+        tab = self.tables
+        return {"links": self.adj, "complete_frontier": tab.c, "latest": tab.latest, "table_size": self._table}
 
     def _agent_infos(self) -> dict:
         tab = self.tables

@@ -23,8 +23,8 @@ from mrcomm_env.channel_association.filters import BitsetFilter, DenseFilter, Sp
 
 
 def neighborhood_trials(w: int, v: int, trials: int, rng: np.random.Generator, p: float = 0.5,
-                        max_steps: int = 400, track_fraction: int = 0):
-    """Completion times of ``trials`` neighbourhoods (−1 if not final within ``max_steps``).
+                        max_cycles: int = 400, track_fraction: int = 0):
+    """Completion times of ``trials`` neighbourhoods (−1 if not final within ``max_cycles``).
 
     With ``track_fraction`` = T > 0 also returns the mean fraction matched at steps 0 … T.
     """
@@ -38,7 +38,7 @@ def neighborhood_trials(w: int, v: int, trials: int, rng: np.random.Generator, p
     if track_fraction:
         frac.append(float((matched / nv).mean()))
     t = 0
-    while t < max(max_steps if (done < 0).any() else 0, track_fraction):
+    while t < max(max_cycles if (done < 0).any() else 0, track_fraction):
         emit = rng.random((trials, w)) < p
         f.step(emit, emit[:, :v])
         t += 1

@@ -4,8 +4,8 @@
 | --- | --- |
 | Agents | `neighborhood`: w + 1 (`robot_0` observes, `robot_1 … robot_w` are its neighbours); `field`: `n_robots` |
 | Actions | `Discrete(2)`: 1 = emit a message pair (light on + wireless broadcast of the own ID), 0 = stay silent |
-| Observations | `Box(0, 1, (⌈log2 N⌉ + 10,), float32)`: own ID bits, observer flag, step/max_steps, last 4 emissions (newest first), own i-state: fraction matched, ambiguity (edges − v)/edges, unresolved u/(u+8), new IDs this step n/(n+4) |
-| Arguments | `scene`, `w`, `v`, `n_robots`, `separation`, `mobile_fraction`, `speed`, `wireless_range`, `visual_range`, `drop_time`, `miss_probability`, `miss_tolerance`, `max_steps`, `emission_cost` |
+| Observations | `Box(0, 1, (⌈log2 N⌉ + 10,), float32)`: own ID bits, observer flag, step/max_cycles, last 4 emissions (newest first), own i-state: fraction matched, ambiguity (edges − v)/edges, unresolved u/(u+8), new IDs this step n/(n+4) |
+| Arguments | `scene`, `w`, `v`, `n_robots`, `separation`, `mobile_fraction`, `speed`, `wireless_range`, `visual_range`, `drop_time`, `miss_probability`, `miss_tolerance`, `max_cycles`, `emission_cost` |
 
 Every robot has a global wireless ID (its index) and sees its neighbours only as anonymous blobs to
 which it gives its *own* local visual labels. Emitting a message pair — light and wireless at once —
@@ -108,7 +108,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
                                   Real(0.0, 1.0, hi_open=True, fuzz=(0.0, 0.5))),
         "miss_tolerance": Param(0, "disagreements an edge survives before elimination (0 = Algorithm 1)",
                                 Int(0, 200, fuzz=(0, 3))),
-        "max_steps": Param(100, "episode length limit", Int(1, 10_000_000, fuzz=(1, 60))),
+        "max_cycles": Param(100, "episode length limit", Int(1, 10_000_000, fuzz=(1, 60))),
         "emission_cost": Param(0.0, "reward cost per emission (team-averaged)", Real(0.0, 1e6, fuzz=(0.0, 1.0))),
     }
     METRICS = {
@@ -121,6 +121,12 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         "bits_sent": "bits emitted so far (⌈log2 N⌉-bit wireless ID + 1 light bit per message pair)",
     }
     INFO_KEYS = {"bits_sent": "bits this robot emitted this step (its fraction matched is in the observation)"}
+    LOCAL_VIEW = {
+        "matched": "visual IDs in this robot's i-state with exactly one wireless candidate",
+        "visual_ids": "visual IDs this robot tracks",
+        "edges": "candidate edges (wireless ID, visual ID) left in this robot's i-state",
+        "unresolved": "visual IDs of this robot with more than one candidate",
+    }
     DOCUMENTED_CONFIGS = {
         "default": {},
         "neighborhood": {"scene": "neighborhood", "w": 8, "v": 6},
@@ -158,7 +164,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         self._obs_space = spaces.Box(0.0, 1.0, shape=(self._obs_dim,), dtype=np.float32)
         self._act_space = spaces.Discrete(2)
         self._ledger = BitLedger(n)
-        self._max_steps, self._cost = c.max_steps, c.emission_cost    # plain attributes: hot path
+        self._max_cycles, self._cost = c.max_cycles, c.emission_cost    # plain attributes: hot path
         self._wrange, self._vrange = c.wireless_range, c.visual_range
         self._neigh = c.scene == "neighborhood"
         small = n <= self.DENSE_MAX_N                       # slot-per-robot backends need (N, N) helpers
@@ -430,8 +436,12 @@ class ChannelAssociationEnv(MrcommParallelEnv):
 
     def _observe(self) -> np.ndarray:
         obs = self._obs
-        obs[:, self._n_static] = min(self.step_count / self._max_steps, 1.0)
+        obs[:, self._n_static] = min(self.step_count / self._max_cycles, 1.0)
         return obs.copy()                                   # the caller's rows must not change later
+
+    def _local_view(self) -> dict:
+        matched, nv, ne, unres, _ = self._stats
+        return {"matched": matched, "visual_ids": nv, "edges": ne, "unresolved": unres}
 
     def _agent_infos(self):
         return {"bits_sent": self._ledger.step_bits}

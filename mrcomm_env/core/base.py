@@ -1,12 +1,16 @@
 """The parallel environment every mrcomm environment derives from.
 
 It owns what is the same everywhere: argument validation, seeding, agent names, the shared (cached)
-spaces, action validation, ``max_steps`` truncation, infos with identical keys at reset and at every
-step, and rendering. A subclass supplies only its paper's world; see ``docs/architecture.md``.
+spaces, action validation, ``max_cycles`` truncation, infos with identical keys at reset and at every
+step, the global ``state()``, the policies' read-only local views, and rendering. A subclass supplies
+only its paper's world; see ``docs/architecture.md``.
 """
 
 from __future__ import annotations
 
+import warnings
+from collections.abc import Mapping
+from numbers import Integral
 from typing import Any, ClassVar
 
 import numpy as np
@@ -15,6 +19,10 @@ from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
 from mrcomm_env.core.config import Config, Param, validate_config
+from mrcomm_env.core.policy import LocalViews
+
+#: the horizon argument was called ``max_steps`` before PettingZoo's name ``max_cycles`` was adopted
+DEPRECATED_HORIZON = "max_steps"
 
 
 class MrcommParallelEnv(ParallelEnv):
@@ -23,6 +31,9 @@ class MrcommParallelEnv(ParallelEnv):
     PARAMS: ClassVar[dict[str, Param]] = {}
     METRICS: ClassVar[dict[str, str]] = {}
     INFO_KEYS: ClassVar[dict[str, str]] = {}
+    #: per-robot knowledge a policy may read through ``local_views()``: field name → description. Row i of
+    #: every field returned by ``_local_view()`` is what robot i itself knows.
+    LOCAL_VIEW: ClassVar[dict[str, str]] = {}
     DOCUMENTED_CONFIGS: ClassVar[dict[str, dict[str, Any]]] = {"default": {}}
     VERSION_HISTORY: ClassVar[list[tuple[str, str]]] = []
     #: what one env step stands for in the paper's own time unit, for the benchmark: an env whose step is a
@@ -41,6 +52,12 @@ class MrcommParallelEnv(ParallelEnv):
                 f"argument 'render_mode' must be one of {self.metadata['render_modes']} or None, got {render_mode!r}"
             )
         self.render_mode = render_mode
+        if DEPRECATED_HORIZON in kwargs:
+            if "max_cycles" in kwargs:
+                raise ValueError(f"pass the horizon as 'max_cycles' only ('{DEPRECATED_HORIZON}' is its old name)")
+            warnings.warn(f"argument '{DEPRECATED_HORIZON}' is deprecated; use 'max_cycles' (PettingZoo's name)",
+                          DeprecationWarning, stacklevel=2)
+            kwargs["max_cycles"] = kwargs.pop(DEPRECATED_HORIZON)
         self.cfg: Config = validate_config(self.PARAMS, kwargs, owner=self.ENV_ID or type(self).__name__)
         self._setup()
         self.possible_agents = [f"robot_{i}" for i in range(self.n_agents)]
@@ -71,6 +88,14 @@ class MrcommParallelEnv(ParallelEnv):
     def _terminated(self) -> bool:
         return False
 
+    def _local_view(self) -> dict[str, Any]:
+        """Field → array whose row i is what robot i knows (keys as in ``LOCAL_VIEW``)."""
+        return {}
+
+    def _state(self) -> np.ndarray:
+        """The global state for centralised critics; by default every robot's observation, concatenated."""
+        return self._observe().reshape(-1)
+
     def metrics(self) -> dict[str, float]:
         raise NotImplementedError
 
@@ -90,9 +115,34 @@ class MrcommParallelEnv(ParallelEnv):
         self._index_of(agent)
         return self._act_space
 
+    @property
+    def state_space(self) -> spaces.Space:
+        space = self.__dict__.get("_state_space")
+        if space is None:
+            obs = self._obs_space
+            space = self._state_space = spaces.Box(
+                np.repeat(obs.low[None], self.n_agents, 0).ravel(), np.repeat(obs.high[None], self.n_agents, 0).ravel(),
+                dtype=obs.dtype,
+            )
+        return space
+
+    def state(self) -> np.ndarray:
+        """The global state (``state_space``), as PettingZoo's ``state()`` for MAPPO-style centralised critics."""
+        return np.asarray(self._state(), dtype=self.state_space.dtype)
+
+    def local_views(self) -> LocalViews:
+        """Read-only per-robot knowledge for policies (see ``mrcomm_env.core.policy``)."""
+        return LocalViews(self)
+
+    def local_view(self, agent: str):
+        """What ``agent``'s own robot knows: a read-only mapping of the ``LOCAL_VIEW`` fields."""
+        return self.local_views()[agent]
+
     def reset(self, seed: int | None = None, options: dict | None = None):
         if seed is not None:
-            self.np_random, self.np_random_seed = seeding.np_random(seed)
+            if isinstance(seed, bool) or not isinstance(seed, Integral) or seed < 0:
+                raise ValueError(f"argument 'seed' must be None or an integer ≥ 0, got {seed!r}")
+            self.np_random, self.np_random_seed = seeding.np_random(int(seed))
         self.agents = list(self.possible_agents)
         self._live = dict.fromkeys(self.agents)  # key view compared with each step's actions in C
         self.step_count = 0
@@ -102,6 +152,11 @@ class MrcommParallelEnv(ParallelEnv):
     def step(self, actions: dict[str, Any]):
         if not self.agents:
             raise RuntimeError("step() called on a finished episode; call reset() first")
+        if not isinstance(actions, Mapping):
+            raise ValueError(
+                f"argument 'actions' must be a dict keyed by agent ({self.agents[0]} … {self.agents[-1]}), "
+                f"got {type(actions).__name__}"
+            )
         if actions.keys() != self._live.keys():
             unknown = sorted(set(actions) - set(self.agents))
             missing = sorted(set(self.agents) - set(actions))
@@ -112,7 +167,7 @@ class MrcommParallelEnv(ParallelEnv):
         acts = self._check_action(self.agents, [actions[agent] for agent in self.agents])
         rewards = self._step_world(acts)
         self.step_count += 1
-        truncated = self.step_count >= self.cfg["max_steps"]
+        truncated = self.step_count >= self.cfg["max_cycles"]
         terminated = bool(self._terminated())
         observations = self._observations()
         infos = self._infos()
@@ -177,10 +232,18 @@ class MrcommParallelEnv(ParallelEnv):
         return {a: dict(zip(keys, row)) for a, row in zip(self.agents, zip(*values))}
 
 
+def _is_int_action(action: Any) -> bool:
+    """gymnasium's ``Discrete.contains`` rule: a Python int or a numpy integer scalar; not a float like 1.0."""
+    if isinstance(action, int):
+        return True
+    return isinstance(action, (np.generic, np.ndarray)) and action.shape == () and action.dtype.kind in "iu"
+
+
 def _action_checker(space: spaces.Space):
     """A validator for all agents' actions at once; raises ``ValueError`` naming the agent and the allowed set.
 
-    Checks are vectorised over agents (a per-agent check cost a third of a 100-robot step).
+    Checks are vectorised over agents (a per-agent check cost a third of a 100-robot step); only when the
+    batch fails is each agent checked alone, so the error names the right one.
     """
     if isinstance(space, spaces.Discrete):
         lo, n = int(space.start), int(space.n)
@@ -191,46 +254,39 @@ def _action_checker(space: spaces.Space):
         def check(agents, actions):
             if all(type(a) is int for a in actions) and lo <= min(actions) and max(actions) < lo + n:
                 return actions  # plain ints, the common case: no numpy round trip
-            arr = np.asarray(actions)
-            if arr.shape == (len(agents),) and (arr.dtype.kind in "iub" or (arr.dtype.kind == "f" and np.all(arr == np.floor(arr)))):
-                ok = (arr >= lo) & (arr < lo + n)
-                if ok.all():
-                    return arr.astype(np.int64).tolist()
-                bad = int(np.argmin(ok))
-                fail(agents[bad], actions[bad])
-            for agent, action in zip(agents, actions):  # mixed or odd types: find the culprit
-                try:
-                    value = int(action)
-                except (TypeError, ValueError):
+            for agent, action in zip(agents, actions):
+                if not _is_int_action(action) or not lo <= int(action) < lo + n:
                     fail(agent, action)
-                if value != action or not lo <= value < lo + n:
-                    fail(agent, action)
-            fail(agents[0], actions[0])  # pragma: no cover - unreachable
+            return [int(a) for a in actions]
 
         return check
     if isinstance(space, spaces.Box):
         low, high, shape = space.low, space.high, space.shape
 
+        def check_one(agent, action):
+            raw = np.asarray(action) if not isinstance(action, (str, bytes)) else None
+            if raw is None or raw.dtype.kind not in "iuf" or raw.shape != shape:
+                what = "not a real array" if raw is None or raw.dtype.kind not in "iuf" else f"shape {raw.shape}"
+                raise ValueError(f"action of {agent} must be a real array of shape {shape} ({what}), got {action!r}")
+            arr = raw.astype(space.dtype)
+            if not (np.isfinite(arr) & (arr >= low) & (arr <= high)).all():
+                raise ValueError(
+                    f"action of {agent} must be finite and within [{float(np.min(low)):g}, {float(np.max(high)):g}], "
+                    f"got {action!r}"
+                )
+
         def check(agents, actions):
             try:
-                arr = np.asarray(actions, dtype=space.dtype)
-            except (TypeError, ValueError):
-                arr = None
-            if arr is not None and arr.shape == (len(agents), *shape):
-                ok = np.isfinite(arr) & (arr >= low) & (arr <= high)
-                ok = ok.reshape(len(agents), -1).all(axis=1)
-                if ok.all():
+                raw = np.asarray(actions)
+            except ValueError:  # ragged: numpy cannot stack it; find the agent below
+                raw = None
+            if raw is not None and raw.dtype.kind in "iuf" and raw.shape == (len(agents), *shape):
+                arr = raw.astype(space.dtype, copy=False)
+                if (np.isfinite(arr) & (arr >= low) & (arr <= high)).all():
                     return arr
-                bad = int(np.argmin(ok))
-            else:
-                bad = next(
-                    (i for i, a in enumerate(actions) if np.shape(a) != shape),
-                    0,
-                )
-            raise ValueError(
-                f"action of {agents[bad]} must be a finite array of shape {shape} within "
-                f"[{float(np.min(low)):g}, {float(np.max(high)):g}], got {actions[bad]!r}"
-            )
+            for agent, action in zip(agents, actions):
+                check_one(agent, action)
+            raise AssertionError("unreachable: a batch that fails has a failing agent")  # pragma: no cover
 
         return check
 

@@ -6,7 +6,7 @@
 | Actions | `Box(0, 1, (N,))` per robot: a priority for each robot's estimate; the env sends the robot's own estimate plus the `slot_size − 1` known estimates of highest priority (ties: lower index); priority `0` withholds an estimate |
 | Observations | `Box(0, 1, (3N + 2,))`: per robot j the age of my estimate of j `a/(a + T_frame)` (1 = unknown), the estimated distance to j over the arena diagonal (1 = unknown), j's slot position after mine `((s_j − s_i) mod N)/N`; then my slot `s_i/N` and `m/N` |
 | Reward | team reward `−Σ_{i≠j} w_ij a_ij / Σ w_ij`, the age of information (seconds) weighted by the importance `w_ij = d_ij^-α` of eq. (1) at frame end |
-| Arguments | `scene`, `n_robots`, `grid_side`, `slot_size`, `alpha`, `bits_per_estimate`, `baud`, `max_steps`, `arena_size`, `comm_range`, `speed`, `max_speed`, `control_gain` |
+| Arguments | `scene`, `n_robots`, `grid_side`, `slot_size`, `alpha`, `bits_per_estimate`, `baud`, `max_cycles`, `arena_size`, `comm_range`, `speed`, `max_speed`, `control_gain` |
 
 Every robot knows its own current state and keeps a list of the others' estimates, each with the time
 stamp at which it was valid; at the start it knows only its own (unknown = "infinite", §2.1). TDMA gives
@@ -64,7 +64,7 @@ class MultiHopEnv(MrcommParallelEnv):
         "bits_per_estimate": Param(192, "b: bits per estimate incl. time stamp (six 32-bit integers, §4)",
                                    Int(lo=1, fuzz=(8, 256))),
         "baud": Param(3000.0, "r_b: channel bit rate (bits/s, §4)", Real(lo=0.0, lo_open=True, fuzz=(300.0, 1e5))),
-        "max_steps": Param(400, "episode length in TDMA frames (400 lets the 8×8 cold start finish at m = 7)",
+        "max_cycles": Param(400, "episode length in TDMA frames (400 lets the 8×8 cold start finish at m = 7)",
                            Int(lo=1, fuzz=(1, 30))),
         "arena_size": Param(100.0, "side of the square (m), field and coverage scenes",
                             Real(lo=0.0, lo_open=True, fuzz=(10.0, 200.0))),
@@ -99,12 +99,19 @@ class MultiHopEnv(MrcommParallelEnv):
         "known_fraction": "fraction of the others this robot holds an estimate of",
         "slot": "this robot's slot index within the frame",
     }
+    LOCAL_VIEW = {
+        "stamps": "(N,) time stamp (s) of this robot's estimate of each robot (−inf: none yet; own entry = now)",
+        "estimated_distances": "(N,) distance from this robot's own position to its estimate of each robot",
+        "sent_stamp": "(N,) the stamp of each estimate this robot last broadcast (one frame before start: never)",
+        "slot": "this robot's slot index within the frame",
+        "slot_size": "m: estimates per slot (the same for every robot)",
+    }
     DOCUMENTED_CONFIGS = {
         "default": {},
-        "small_grid": {"grid_side": 4, "slot_size": 3, "max_steps": 40},
-        "flooding_grid": {"grid_side": 4, "slot_size": 16, "max_steps": 40},
-        "field_moving": {"scene": "field", "n_robots": 12, "speed": 2.0, "comm_range": 35.0, "max_steps": 40},
-        "coverage": {"scene": "coverage", "slot_size": 3, "max_steps": 40},
+        "small_grid": {"grid_side": 4, "slot_size": 3, "max_cycles": 40},
+        "flooding_grid": {"grid_side": 4, "slot_size": 16, "max_cycles": 40},
+        "field_moving": {"scene": "field", "n_robots": 12, "speed": 2.0, "comm_range": 35.0, "max_cycles": 40},
+        "coverage": {"scene": "coverage", "slot_size": 3, "max_cycles": 40},
     }
     VERSION_HISTORY = [("v0", "first version: grid, field and coverage scenes; one step = one TDMA frame")]
 
@@ -280,6 +287,15 @@ class MultiHopEnv(MrcommParallelEnv):
     def estimated_distances(self) -> np.ndarray:
         """(n, n) distance from each robot's own position to its estimate of each other robot."""
         return np.linalg.norm(self.est - self.pos[:, None, :], axis=-1)
+
+    def _local_view(self) -> dict:
+        return {
+            "stamps": self.stamps,
+            "estimated_distances": self.estimated_distances(),
+            "sent_stamp": self.sent_stamp,
+            "slot": self.tdma.slot_of,
+            "slot_size": np.full(self.n_agents, self.m),
+        }
 
     def _observe(self) -> np.ndarray:
         n = self.n_agents

@@ -25,10 +25,11 @@ def limit_threads() -> None:
 def run_episode(env, policy, seed: int | None) -> dict[str, float]:
     """Play one episode of ``policy`` from ``reset(seed)``; returns the env's metrics plus ``episode_return``."""
     observations, _ = env.reset(seed=seed)
-    policy.reset(env, seed)
+    views = env.local_views()
+    policy.reset(views, seed)
     episode_return = 0.0
     while env.agents:
-        actions = policy.act(observations, env)
+        actions = policy.act(observations, views)
         observations, rewards, _, _, _ = env.step(actions)
         if rewards:
             episode_return += float(np.mean(list(rewards.values())))

@@ -28,9 +28,9 @@ def _cell(text: str) -> str:
 
 
 def env_page(env_id: str) -> str:
-    from baselines import _module as policy_module
-    from mrcomm_env.cli import reproduction_module, short_name
-    from mrcomm_env.registry import env_class, env_module, make
+    from baselines import policy_module
+    from mrcomm_env.experiments.reproductions import module as reproduction_module
+    from mrcomm_env.registry import env_class, env_module, make, short_name
 
     cls = env_class(env_id)
     shim = env_module(env_id).__name__
@@ -73,13 +73,27 @@ def env_page(env_id: str) -> str:
     lines += [f"| `{m}` | {_cell(doc)} |" for m, doc in cls.METRICS.items()]
     lines += ["", "## Infos (per agent, every step and at reset)", "", "| key | meaning |", "| --- | --- |"]
     lines += [f"| `{k}` | {_cell(doc)} |" for k, doc in cls.INFO_KEYS.items()]
+    lines += ["", "## Local view (what a policy may read of each robot, `env.local_view(agent)`)", ""]
+    if cls.LOCAL_VIEW:
+        lines += ["| field | what the robot knows |", "| --- | --- |"]
+        lines += [f"| `{k}` | {_cell(doc)} |" for k, doc in cls.LOCAL_VIEW.items()]
+    else:
+        lines += ["Nothing beyond the observation."]
+    lines += ["", "Common knowledge besides: agent names, spaces, the env's arguments and the step clock."]
     module = policy_module(env_id)
-    lines += ["", "## Baselines (`baselines/`)", "", "| policy | parameters | what it does |", "| --- | --- | --- |"]
+    lines += [
+        "",
+        "## Baselines (`baselines/`)",
+        "",
+        "| policy | parameters | what it does | global knowledge it reads |",
+        "| --- | --- | --- | --- |",
+    ]
     for pname, factory in module.POLICIES.items():
         params = ", ".join(f"`{k}`={_fmt(p.default)}" for k, p in getattr(factory, "PARAMS", {}).items()) or "—"
         doc = (inspect.getdoc(factory) or "").split("\n\n")[0]
         default = " (default)" if pname == module.DEFAULT_POLICY else ""
-        lines.append(f"| `{pname}`{default} | {params} | {_cell(doc)} |")
+        reads = _cell(getattr(factory, "GLOBAL_KNOWLEDGE", "")) or "none (own local view only)"
+        lines.append(f"| `{pname}`{default} | {params} | {_cell(doc)} | {reads} |")
     lines += [
         "",
         f"## Reproduction (`mrcomm reproduce {name}`)",
@@ -98,8 +112,7 @@ def env_page(env_id: str) -> str:
 
 def index_page() -> str:
     from baselines import default_policy
-    from mrcomm_env.cli import short_name
-    from mrcomm_env.registry import env_class, env_ids
+    from mrcomm_env.registry import env_class, env_ids, short_name
 
     lines = [
         "# mrcomm-env environments",
@@ -119,8 +132,7 @@ def index_page() -> str:
 
 
 def expected_docs(out: Path) -> dict[Path, str]:
-    from mrcomm_env.cli import short_name
-    from mrcomm_env.registry import env_ids
+    from mrcomm_env.registry import env_ids, short_name
 
     pages = {out / "index.md": index_page()}
     for env_id in env_ids():

@@ -175,13 +175,13 @@ def fig3(out: Path, quick: bool, progress) -> tuple[str, dict]:
     for m, pol_name, label in progress(configs, desc="Fig 3: coverage"):
         runs = []
         for seed in range(seeds):
-            env = _make(scene="coverage", slot_size=m, max_steps=10**7)
+            env = _make(scene="coverage", slot_size=m, max_cycles=10**7)
             pol = _policy(pol_name)
             obs, _ = env.reset(seed=seed)
-            pol.reset(env, seed)
+            pol.reset(env.local_views(), seed)
             ts, cs = [0.0], [env.coverage_cost()]
             while env.t < horizon:
-                obs, *_ = env.step(pol.act(obs, env))
+                obs, *_ = env.step(pol.act(obs, env.local_views()))
                 ts.append(env.t)
                 cs.append(env.coverage_cost())
             runs.append(np.interp(grid_t, ts, cs))
@@ -242,13 +242,13 @@ def fig5(out: Path, quick: bool, progress) -> str:
     lines = ["| scheme | mean age of estimates at distance ≤ 2 (s) | 2–6 | > 6 | corner robot: unknown estimates |",
              "| --- | --- | --- | --- | --- |"]
     for m, pol_name, label in progress(configs, desc="Fig 5: staleness"):
-        env = _make(scene="grid", slot_size=m, max_steps=warm + sample)
+        env = _make(scene="grid", slot_size=m, max_cycles=warm + sample)
         pol = _policy(pol_name)
         obs, _ = env.reset(seed=5)
-        pol.reset(env, 5)
+        pol.reset(env.local_views(), 5)
         ages = []
         for k in range(warm + sample):
-            obs, *_ = env.step(pol.act(obs, env))
+            obs, *_ = env.step(pol.act(obs, env.local_views()))
             if k >= warm:
                 ages.append(env._ages[0].copy())  # robot 0: a corner, the most remote receiver
         ages = np.array(ages)
@@ -283,13 +283,13 @@ def policies_m7(quick: bool, progress) -> tuple[str, dict]:
     lines = ["| policy (grid, m=7) | steady weighted age = −reward (s) | mean age (s) | 8×8 cold propagation (s) |",
              "| --- | --- | --- | --- |"]
     for name in progress(names, desc="policies at m=7"):
-        env = _make(scene="grid", slot_size=7, max_steps=frames)
+        env = _make(scene="grid", slot_size=7, max_cycles=frames)
         pol = _policy(name)
         obs, _ = env.reset(seed=11)
-        pol.reset(env, 11)
+        pol.reset(env.local_views(), 11)
         rewards = []
         while env.agents:
-            obs, r, *_ = env.step(pol.act(obs, env))
+            obs, r, *_ = env.step(pol.act(obs, env.local_views()))
             rewards.append(next(iter(r.values())))
         met = env.metrics()
         res[name] = {"weighted_age": -float(np.mean(rewards[frames // 2:])), "mean_age": met["mean_age"],

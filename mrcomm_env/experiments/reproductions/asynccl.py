@@ -28,7 +28,7 @@ SCHEMES = ("scheme1", "scheme2_qinf", "scheme2_q1")
 
 def delay_run(n: int, mode: str, steps: int, seed: int, q_rule: str = "paper", p: float = 0.5):
     """One delay-only episode (no EKF); returns (mean delay, delay histogram, bits per link)."""
-    env = AsyncCLEnv(n_robots=n, link_probability=p, estimation=False, max_steps=steps, max_history=steps + 5,
+    env = AsyncCLEnv(n_robots=n, link_probability=p, estimation=False, max_cycles=steps, max_history=steps + 5,
                      modes=[mode], q_rule=q_rule)
     env.reset(seed=seed)
     act = dict.fromkeys(env.possible_agents, 0)
@@ -110,7 +110,7 @@ def figs7_8(out: Path, quick: bool):
         steps = 500  # q = 1 re-runs its causal EKF over a backlog of hundreds of steps (6 s with numba, 14 s without)
         pos, ori, bpl = [], [], []
         for s in range(runs):
-            env = AsyncCLEnv(n_robots=5, max_steps=steps, modes=[mode], max_history=steps + 5)
+            env = AsyncCLEnv(n_robots=5, max_cycles=steps, modes=[mode], max_history=steps + 5)
             env.reset(seed=70 + s)
             act = dict.fromkeys(env.possible_agents, 0)
             p_err, o_err = [], []

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import math
 import statistics
@@ -11,7 +10,8 @@ import sys
 import time
 from pathlib import Path
 
-from mrcomm_env.registry import canonical_id, env_class, env_ids, make
+from mrcomm_env.experiments.reproductions import module as reproduction_module
+from mrcomm_env.registry import canonical_id, env_class, env_ids, make, short_name
 
 BENCH_REFERENCE = "mpe2 simple_spread_v3 (N=3, discrete actions, random actions)"
 
@@ -40,16 +40,6 @@ def _json_safe(obj):
     return obj
 
 
-def reproduction_module(env_id: str):
-    """``mrcomm_env/<name>/reproduce.py`` of the env's package."""
-    package = env_class(env_id).__module__.rsplit(".", 1)[0]
-    return importlib.import_module(f"{package}.reproduce")
-
-
-def short_name(env_id: str) -> str:
-    return canonical_id(env_id).split("/", 1)[1]
-
-
 # ---------------------------------------------------------------------------------------------- commands
 def cmd_list(args) -> int:
     from baselines import default_policy, policy_names
@@ -65,7 +55,7 @@ def cmd_list(args) -> int:
 
 def cmd_evaluate(args) -> int:
     from baselines import make_policy
-    from mrcomm_env.evaluation import evaluate, limit_threads
+    from mrcomm_env.experiments.evaluation import evaluate, limit_threads
 
     limit_threads()
     env_id = canonical_id(args.env_id)
@@ -97,7 +87,7 @@ def cmd_evaluate(args) -> int:
 
 def cmd_reproduce(args) -> int:
     from mrcomm_env.core import backend
-    from mrcomm_env.evaluation import limit_threads
+    from mrcomm_env.experiments.evaluation import limit_threads
 
     limit_threads()
     if args.all == bool(args.env_ids):
@@ -132,7 +122,7 @@ def cmd_bench(args) -> int:
 
     from baselines import default_policy, make_policy
     from mrcomm_env.core import backend
-    from mrcomm_env.evaluation import limit_threads, steps_per_second
+    from mrcomm_env.experiments.evaluation import limit_threads, steps_per_second
 
     limit_threads()
     targets = [canonical_id(e) for e in args.env_ids] or env_ids()
@@ -201,15 +191,16 @@ def cmd_bench(args) -> int:
 
 
 def _policy_speed(env, policy, seconds: float, seed: int) -> tuple[float, float]:
-    from mrcomm_env.evaluation import steps_per_second
+    from mrcomm_env.experiments.evaluation import steps_per_second
 
+    views = env.local_views()
     return steps_per_second(
-        env, lambda obs: policy.act(obs, env), seconds, seed=seed, on_reset=lambda s: policy.reset(env, s)
+        env, lambda obs: policy.act(obs, views), seconds, seed=seed, on_reset=lambda s: policy.reset(views, s)
     )
 
 
 def cmd_docs(args) -> int:
-    from mrcomm_env.docs import write_docs
+    from mrcomm_env.experiments.docs import write_docs
 
     changed = write_docs(Path(args.out), check=args.check)
     if args.check and changed:

@@ -371,13 +371,13 @@ def _id_bits(out: Path, quick: bool, rng) -> tuple[str, dict]:
     # mobile field through the environment itself: steady fraction matched, coin flip vs id_bits
     env_rows = []
     for pol_name in ("coin_flip", "id_bits"):
-        env = parallel_env(n_robots=400, separation=5.0, max_steps=60 if quick else 150)
+        env = parallel_env(n_robots=400, separation=5.0, max_cycles=60 if quick else 150)
         pol = POLICIES[pol_name]()
         obs, _ = env.reset(seed=1)
-        pol.reset(env, 1)
+        pol.reset(env.local_views(), 1)
         fm = []
         while env.agents:
-            obs, *_ = env.step(pol.act(obs, env))
+            obs, *_ = env.step(pol.act(obs, env.local_views()))
             fm.append(env.metrics()["fraction_matched"])
         env_rows.append((pol_name, float(np.mean(fm[len(fm) // 2:])), env.metrics()["edge_ratio"]))
     np.savetxt(out / "id_bits_vs_coin.csv", np.array(out_rows), delimiter=",", fmt="%.5g",

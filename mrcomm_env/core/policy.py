@@ -1,0 +1,102 @@
+"""What a policy may see of an environment, and the interface every policy implements.
+
+Scripted baselines (``baselines/``) and learned policies (``agents/``) are compared on the same metrics,
+so what each reads has to be visible. A policy gets two things:
+
+* the **observations** the env returns (what a learned policy is trained on), and
+* a read-only :class:`LocalViews`: for every robot, what that robot legitimately knows (its own filter,
+  table or estimate list), as declared by the env's ``LOCAL_VIEW`` and listed in ``docs/envs/*.md``.
+
+It never gets the env itself. A policy that needs knowledge no single robot has says so in
+``GLOBAL_KNOWLEDGE`` (a sentence); the docs list it beside the policy.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from types import MappingProxyType
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+
+from mrcomm_env.core.config import Param, validate_config
+
+if TYPE_CHECKING:  # pragma: no cover
+    from mrcomm_env.core.base import MrcommParallelEnv
+
+
+def _read_only(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        view = value.view()
+        view.flags.writeable = False
+        return view
+    return value
+
+
+class LocalViews:
+    """Per-robot knowledge of a live env, read-only.
+
+    ``views.team(name)`` is an array whose row i is robot i's own copy of ``name`` (a policy that computes
+    row i of its output from row i alone is decentralised); ``views[agent]`` maps every field to that
+    robot's row. Common knowledge: the agent names, the spaces, the env's arguments (``params``) and the
+    shared step clock (``step``). Each access reads the env's current state; nothing can be written back.
+    """
+
+    def __init__(self, env: MrcommParallelEnv):
+        self._env = env
+        self.possible_agents: tuple[str, ...] = tuple(env.possible_agents)
+        self.n_agents: int = env.n_agents
+        self.params: Mapping[str, Any] = MappingProxyType(dict(env.cfg))
+        self.fields: Mapping[str, str] = MappingProxyType(dict(env.LOCAL_VIEW))
+        first = self.possible_agents[0]
+        self.action_space = env.action_space(first)
+        self.observation_space = env.observation_space(first)
+        self._index = {a: i for i, a in enumerate(self.possible_agents)}
+
+    @property
+    def agents(self) -> list[str]:
+        """The agents alive now."""
+        return list(self._env.agents)
+
+    @property
+    def step(self) -> int:
+        """The shared step clock: env steps since reset."""
+        return self._env.step_count
+
+    def index(self, agent: str) -> int:
+        """The robot's own id (its position in ``possible_agents``)."""
+        return self._index[agent]
+
+    def team(self, name: str) -> Any:
+        """Field ``name`` for every robot at once; row i is what robot i knows."""
+        if name not in self.fields:
+            raise ValueError(f"unknown local-view field {name!r}; {self._env.ENV_ID} offers: {', '.join(self.fields)}")
+        return _read_only(self._env._local_view()[name])
+
+    def __getitem__(self, agent: str) -> Mapping[str, Any]:
+        i = self._env._index_of(agent)
+        return MappingProxyType({k: _read_only(np.asarray(v)[i]) for k, v in self._env._local_view().items()})
+
+
+class Policy:
+    """A team policy: ``act`` returns one action per live agent.
+
+    Subclasses declare ``name``, optional ``PARAMS`` (validated keyword parameters) and, when they read
+    more than each robot's own local view, ``GLOBAL_KNOWLEDGE``.
+    """
+
+    name: ClassVar[str] = "policy"
+    PARAMS: ClassVar[dict[str, Param]] = {}
+    #: empty when the policy reads only observations and each robot's own local view; otherwise a sentence
+    #: naming the global knowledge it uses (listed in the docs beside the policy)
+    GLOBAL_KNOWLEDGE: ClassVar[str] = ""
+
+    def __init__(self, **params: Any):
+        self.params = validate_config(self.PARAMS, params, owner=f"policy '{self.name}'")
+        self.rng = np.random.default_rng()
+
+    def reset(self, views: LocalViews, seed: int | None = None) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def act(self, observations: dict[str, np.ndarray], views: LocalViews) -> dict[str, Any]:
+        raise NotImplementedError(f"{type(self).__name__} must implement act(observations, views)")

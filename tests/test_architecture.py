@@ -1,0 +1,128 @@
+"""The layer rule of docs/architecture.md, read from the source (ast), and the registry against the files.
+
+Layers, bottom to top: the core; the paper envs (with the registry and the shims); the policies (scripted in
+``baselines``, learned in ``agents``, siblings that do not import each other); the experiments. A module may
+import its own layer and the layers below, never above.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib
+from pathlib import Path
+
+import pytest
+
+from mrcomm_env.registry import ENTRIES
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("mrcomm_env", "baselines", "agents")
+
+
+def layer(module: str) -> tuple[int, str]:
+    """(rank, family) of one of our modules: rank orders the layers, family tells siblings apart."""
+    if module == "mrcomm_env.core" or module.startswith("mrcomm_env.core."):
+        return 0, "core"
+    if module == "mrcomm_env.experiments" or module.startswith("mrcomm_env.experiments."):
+        return 3, "experiments"
+    if module.split(".")[0] in ("baselines", "agents"):
+        return 2, module.split(".")[0]
+    return 1, "envs"
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def our_imports(path: Path) -> list[tuple[int, str]]:
+    """(line, module) of every import of one of our packages in ``path``, relative imports resolved."""
+    tree = ast.parse(path.read_text(), str(path))
+    here = module_name(path).split(".")
+    package = here if path.name == "__init__.py" else here[:-1]
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, alias.name) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[: len(package) - node.level + 1]
+                name = ".".join(base + ([node.module] if node.module else []))
+            else:
+                name = node.module or ""
+            found.append((node.lineno, name))
+    return [(line, name) for line, name in found if name.split(".")[0] in PACKAGES]
+
+
+def source_files() -> list[Path]:
+    return [p for pkg in PACKAGES if (ROOT / pkg).is_dir() for p in sorted((ROOT / pkg).rglob("*.py"))]
+
+
+def violations(files: list[Path]) -> list[str]:
+    out = []
+    for path in files:
+        rank, family = layer(module_name(path))
+        for line, name in our_imports(path):
+            other_rank, other_family = layer(name)
+            if other_rank > rank or (other_rank == rank == 2 and other_family != family):
+                out.append(f"{path.relative_to(ROOT)}:{line} imports {name} ({other_family}, above {family})")
+    return out
+
+
+def test_no_module_imports_a_layer_above_its_own():
+    assert source_files(), "no source files found"
+    assert violations(source_files()) == []
+
+
+def test_the_layer_check_catches_an_upward_import(tmp_path, monkeypatch):
+    # a throwaway env module that reaches up into the policies and the experiments must be reported
+    fake_root = tmp_path
+    (fake_root / "mrcomm_env" / "fakeenv").mkdir(parents=True)
+    bad = fake_root / "mrcomm_env" / "fakeenv" / "env.py"
+    bad.write_text("import numpy\nfrom baselines.common import RandomPolicy\nfrom ..experiments import cli\n")
+    monkeypatch.setitem(globals(), "ROOT", fake_root)
+    found = violations([bad])
+    assert len(found) == 2 and "baselines.common" in found[0] and "mrcomm_env.experiments" in found[1]
+
+
+def test_policies_do_not_import_each_other(tmp_path, monkeypatch):
+    (tmp_path / "agents").mkdir()
+    bad = tmp_path / "agents" / "x.py"
+    bad.write_text("from baselines import make_policy\n")
+    monkeypatch.setitem(globals(), "ROOT", tmp_path)
+    assert violations([bad])
+
+
+# ------------------------------------------------------------------------------ registry against the files
+def modules_on_disk(folder: str, skip: tuple[str, ...]) -> set[str]:
+    base = ROOT / folder
+    prefix = folder.replace("/", ".")
+    return {f"{prefix}.{p.stem}" for p in base.glob("*.py") if p.stem not in skip}
+
+
+def test_every_env_shim_is_registered():
+    shims = {f"mrcomm_env.{p.stem}" for p in (ROOT / "mrcomm_env").glob("*_v[0-9]*.py")}
+    assert shims == {e.env for e in ENTRIES.values()}
+
+
+def test_every_policy_module_is_registered():
+    assert modules_on_disk("baselines", ("__init__", "common")) == {e.policies for e in ENTRIES.values()}
+
+
+def test_every_reproduction_is_registered():
+    on_disk = modules_on_disk("mrcomm_env/experiments/reproductions", ("__init__", "common"))
+    assert on_disk == {e.reproduction for e in ENTRIES.values()}
+
+
+@pytest.mark.parametrize("env_id", list(ENTRIES))
+def test_registry_entry_modules_have_their_contract(env_id):
+    item = ENTRIES[env_id]
+    shim = importlib.import_module(item.env)
+    assert {"parallel_env", "env", "raw_env"} <= set(vars(shim))
+    assert shim.parallel_env.ENV_ID == env_id
+    policies = importlib.import_module(item.policies)
+    assert policies.ENV_ID == env_id and policies.DEFAULT_POLICY in policies.POLICIES
+    reproduction = importlib.import_module(item.reproduction)
+    assert reproduction.EXPERIMENTS and callable(reproduction.run)
