@@ -19,7 +19,9 @@ links two real transitions. In the mrcomm environments all agents live and end t
 padding ever occurs.
 
 Episode statistics. ``VecMonitor`` counts episodes per slot, so one episode of a copy is N episodes in
-``ep_info_buffer`` (one per agent, each with that agent's return) — padding stretches count too. The
+``ep_info_buffer`` (one per agent, each with that agent's return; SB3's 100-episode ``ep_rew_mean`` window
+thus spans 100 / N copy episodes) — padding stretches count too, and their zero observations enter
+``VecNormalize``'s statistics. The
 slots of a copy whose episode ends also carry ``info["copy_episode"] = {"r": mean over the N agents of
 their episode returns, "l": env steps}``, which is the per-copy figure.
 
