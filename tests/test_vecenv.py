@@ -27,7 +27,7 @@ from agents import AgentSlotVecEnv, make_vec_env  # noqa: E402
 from agents.vecenv import ACTION_MASK_INFO_KEY  # noqa: E402
 
 #: the base env's episode-length argument; one place to change if it is renamed (e.g. to max_cycles)
-HORIZON_ARG = "max_steps"
+HORIZON_ARG = "max_cycles"
 
 
 def channel_kwargs(n_robots: int = 3, horizon: int = 6) -> dict:

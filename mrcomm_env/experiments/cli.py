@@ -1,4 +1,4 @@
-"""The ``mrcomm`` command: list, evaluate, reproduce, bench and docs."""
+"""The ``mrcomm`` command: list, evaluate, train, reproduce, bench and docs."""
 
 from __future__ import annotations
 
@@ -54,15 +54,15 @@ def cmd_list(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from baselines import make_policy
     from mrcomm_env.experiments.evaluation import evaluate, limit_threads
+    from mrcomm_env.experiments.learning import make_any_policy
 
     limit_threads()
     env_id = canonical_id(args.env_id)
     params = parse_params(args.param)
     policy_params = parse_params(args.policy_param, "--policy-param")
     make(env_id, **params).close()  # validates the params before any episode runs
-    policy = make_policy(env_id, args.policy, **policy_params)
+    policy = make_any_policy(env_id, args.policy, **policy_params)
     metrics = evaluate(lambda: make(env_id, **params), policy, args.episodes, args.seed, progress=not args.quiet)
     width = max(len(name) for name in metrics)
     print(f"{env_id}  policy={args.policy}  episodes={args.episodes}  seed={args.seed}  params={params}")
@@ -243,6 +243,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--warmup", type=float, default=1.0, help="length of one untimed run before them (0: none)")
     p.add_argument("--out", default="results/bench.json")
     p.set_defaults(func=cmd_bench)
+
+    from mrcomm_env.experiments.learning import add_train_parser
+
+    add_train_parser(sub)
 
     p = sub.add_parser("docs", help="generate docs/envs/*.md from the live environments")
     p.add_argument("--out", default="docs")

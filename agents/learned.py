@@ -1,0 +1,118 @@
+"""A trained SB3 model as a team policy: the same interface, metrics and JSON as a scripted baseline.
+
+``mrcomm evaluate ID --policy ppo:runs/NAME`` loads a run folder written by ``mrcomm train``;
+``--policy pretrained`` loads the small model shipped in ``agents/pretrained/<Name>-v0/``. The policy sees
+exactly what it was trained on: each agent's observation (normalised with the run's statistics), and, for
+masked envs, the robot's own ``action_mask`` field of its local view.
+"""
+
+from __future__ import annotations
+
+import json
+import pickle
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agents.training import ALGORITHMS, RunError, algorithm_class
+from mrcomm_env.core.policy import LocalViews, Policy
+from mrcomm_env.registry import canonical_id, short_name
+
+PRETRAINED_DIR = Path(__file__).with_name("pretrained")
+MASK_FIELD = "action_mask"
+
+
+def pretrained_dir(env_id: str) -> Path:
+    return PRETRAINED_DIR / short_name(env_id)
+
+
+def has_pretrained(env_id: str) -> bool:
+    return (pretrained_dir(env_id) / "model.zip").exists()
+
+
+class LearnedPolicy(Policy):
+    """A parameter-shared SB3 policy: one network acts for every agent, deterministically."""
+
+    name = "learned"
+
+    def __init__(self, run: str | Path, env_id: str, algo: str | None = None):
+        super().__init__()
+        run = Path(run)
+        self.run = run
+        config_path = run / "config.json"
+        if not config_path.exists():
+            raise RunError(f"{run} is not a training run (no config.json); train one with 'mrcomm train'")
+        try:
+            record = json.loads(config_path.read_text())
+        except json.JSONDecodeError:
+            raise RunError(f"{config_path} is corrupt (not JSON)") from None
+        trained_on = record.get("env_id")  # stored canonical by TrainConfig.validate
+        if trained_on != canonical_id(env_id):
+            raise RunError(f"the model in {run} was trained on {trained_on}, not {canonical_id(env_id)}")
+        self.env_id = trained_on
+        self.algo = algo or record.get("algo", "ppo")
+        if self.algo not in ALGORITHMS:
+            raise RunError(f"unknown algorithm {self.algo!r} in {run}; known: {', '.join(ALGORITHMS)}")
+        if record.get("algo") and self.algo != record["algo"]:
+            raise RunError(f"the model in {run} was trained with {record['algo']}, not {self.algo}")
+        self.env_kwargs = record.get("env_kwargs", {})
+        model_path = run / "model.zip"
+        if not model_path.exists():
+            raise RunError(f"{run} has no model.zip (the run has not finished; resume it with --resume)")
+        try:
+            self.model = algorithm_class(self.algo).load(str(model_path), device="cpu")
+        except (zipfile.BadZipFile, ValueError, KeyError, EOFError, RuntimeError) as exc:
+            raise RunError(f"cannot load {model_path}: {type(exc).__name__}: {exc}") from None
+        self.normalizer = None
+        stats = run / "vecnormalize.pkl"
+        if record.get("normalize", True):
+            if not stats.exists():
+                raise RunError(f"{run} has no vecnormalize.pkl, which its config says it was trained with")
+            try:
+                with open(stats, "rb") as fh:
+                    self.normalizer = pickle.load(fh)
+            except (pickle.UnpicklingError, EOFError, AttributeError) as exc:
+                raise RunError(f"cannot load {stats}: {type(exc).__name__}") from None
+        self.params = {"run": str(run), "algo": self.algo}
+
+    def reset(self, views: LocalViews, seed: int | None = None) -> None:
+        super().reset(views, seed)
+        model_obs, model_act = self.model.observation_space, self.model.action_space
+        if model_obs.shape != views.observation_space.shape or model_act != views.action_space:
+            raise RunError(
+                f"the model in {self.run} expects observations {model_obs.shape} and actions {model_act}, but "
+                f"this env has {views.observation_space.shape} and {views.action_space} (other env arguments?)"
+            )
+        self._masked = MASK_FIELD in views.fields
+
+    def act(self, observations: dict[str, np.ndarray], views: LocalViews) -> dict[str, Any]:
+        agents = list(observations)
+        obs = np.stack([observations[a] for a in agents])
+        if self.normalizer is not None:
+            obs = self.normalizer.normalize_obs(obs)
+        kwargs = {}
+        if self._masked:
+            masks = views.team(MASK_FIELD)
+            kwargs["action_masks"] = np.stack([masks[views.index(a)] for a in agents])
+        actions, _ = self.model.predict(obs, deterministic=True, **kwargs)
+        if np.ndim(actions) == 1:
+            return {a: int(x) for a, x in zip(agents, actions)}
+        return dict(zip(agents, np.asarray(actions, dtype=np.float32)))
+
+
+def load_policy(spec: str, env_id: str) -> LearnedPolicy:
+    """``ppo:PATH``, ``maskable_ppo:PATH``, ``dqn:PATH`` or ``pretrained``."""
+    if spec == "pretrained":
+        if not has_pretrained(env_id):
+            raise RunError(f"no pretrained model ships for {canonical_id(env_id)}")
+        return LearnedPolicy(pretrained_dir(env_id), env_id)
+    algo, _, path = spec.partition(":")
+    if algo not in ALGORITHMS or not path:
+        raise RunError(f"a learned policy is ALGO:PATH with ALGO one of {', '.join(ALGORITHMS)}, got {spec!r}")
+    return LearnedPolicy(path, env_id, algo)
+
+
+def is_learned(spec: str) -> bool:
+    return spec == "pretrained" or spec.partition(":")[0] in ALGORITHMS and ":" in spec

@@ -1,0 +1,176 @@
+"""``mrcomm train`` / ``agents.training``: run folders, checkpoints, resuming without loss, learned policies
+in ``mrcomm evaluate``, and one-line errors for bad runs."""
+
+from __future__ import annotations
+
+import json
+import pickle
+
+import numpy as np
+import pytest
+import torch
+
+from agents import training
+from agents.learned import LearnedPolicy, load_policy
+from agents.training import RunError, TrainConfig, train
+from mrcomm_env.experiments.cli import main
+
+torch.set_num_threads(1)
+
+ENV = "ChannelAssociation-v0"
+ENV_KWARGS = {"n_robots": 3, "max_cycles": 10}
+N_AGENTS = 3
+#: one rollout = n_steps × (n_envs × N agent slots) agent-steps; PPO then takes n_epochs × rollout/batch steps
+HYPER = {"n_steps": 16, "batch_size": 24, "n_epochs": 2}
+ROLLOUT = HYPER["n_steps"] * N_AGENTS
+
+
+def config(timesteps: int, **kw) -> TrainConfig:
+    settings = dict(env_id=ENV, timesteps=timesteps, seed=3, env_kwargs=dict(ENV_KWARGS), hyperparams=dict(HYPER),
+                    n_envs=1, net_arch=[16], checkpoint_every=ROLLOUT)
+    settings.update(kw)
+    return TrainConfig(**settings)
+
+
+def adam_steps(model) -> int:
+    """Optimizer steps taken so far, from Adam's own state (lost if the optimizer state were not restored)."""
+    state = model.policy.optimizer.state_dict()["state"]
+    return int(max(float(s["step"]) for s in state.values()))
+
+
+def test_a_run_folder_holds_model_statistics_config_and_logs(tmp_path):
+    out = train(config(2 * ROLLOUT), tmp_path / "run", progress=False)
+    for name in ("model.zip", "vecnormalize.pkl", "config.json", "progress.csv", "done.json"):
+        assert (out / name).stat().st_size > 0, name
+    assert list(out.glob("events.out.tfevents.*")), "no TensorBoard event file"
+    record = json.loads((out / "config.json").read_text())
+    assert record["env_id"] == "mrcomm/ChannelAssociation-v0" and record["env_kwargs"] == ENV_KWARGS
+    assert record["algo"] == "ppo" and record["seed"] == 3 and record["hyperparams"] == HYPER
+    assert {"stable-baselines3", "torch", "numpy"} <= set(record["versions"])
+    assert "git_commit" in record
+    rows = (out / "progress.csv").read_text().splitlines()
+    assert len(rows) == 1 + 2  # header + one row per rollout
+
+
+def test_resume_loses_neither_steps_nor_optimizer_nor_statistics(tmp_path, monkeypatch):
+    rollouts = 4
+    target = rollouts * ROLLOUT
+    # interrupt the run right after its second checkpoint, as Ctrl-C would
+    real_save_calls = []
+    original = training._Progress.__init__
+
+    def interrupting(self, total, start, every, save, enabled):
+        def save_then_stop(model):
+            save(model)
+            real_save_calls.append(model.num_timesteps)
+            if len(real_save_calls) == 2:
+                raise KeyboardInterrupt
+
+        original(self, total, start, every, save_then_stop, enabled)
+
+    monkeypatch.setattr(training._Progress, "__init__", interrupting)
+    with pytest.raises(KeyboardInterrupt):
+        train(config(target), tmp_path / "run", progress=False)
+    monkeypatch.undo()
+    assert not (tmp_path / "run" / "done.json").exists()
+    state = json.loads((tmp_path / "run" / "checkpoints" / "state.json").read_text())
+    assert 0 < state["num_timesteps"] < target
+
+    train(None, tmp_path / "run", resume=True, progress=False)
+    policy = LearnedPolicy(tmp_path / "run", ENV)
+    model = policy.model
+    assert model.num_timesteps == target
+    # every rollout took n_epochs × (rollout / batch) optimizer steps; a fresh optimizer would count fewer
+    per_rollout = HYPER["n_epochs"] * (ROLLOUT // HYPER["batch_size"])
+    assert adam_steps(model) == rollouts * per_rollout
+    # VecNormalize saw one observation per agent-step of the whole run, plus the N reset observations of the
+    # start and of the resumption (its count starts at 1e-4); statistics lost on resume would count half
+    with open(tmp_path / "run" / "vecnormalize.pkl", "rb") as fh:
+        stats = pickle.load(fh)
+    assert stats.obs_rms.count == pytest.approx(target + 2 * N_AGENTS, abs=1e-3)
+    rows = (tmp_path / "run" / "progress.csv").read_text().splitlines()
+    assert len(rows) >= 1 + rollouts - 2  # the resumed part appended its rows
+
+
+def test_resume_of_a_finished_run_is_refused(tmp_path, capsys):
+    train(config(ROLLOUT), tmp_path / "run", progress=False)
+    with pytest.raises(RunError, match="finished"):
+        train(None, tmp_path / "run", resume=True)
+    assert main(["train", ENV, "--resume", "--out", str(tmp_path / "run"), "--quiet"]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "finished" in err[0]
+
+
+def test_a_new_run_never_overwrites_an_old_one(tmp_path):
+    train(config(ROLLOUT), tmp_path / "run", progress=False)
+    with pytest.raises(RunError, match="--resume"):
+        train(config(ROLLOUT), tmp_path / "run", progress=False)
+
+
+def test_evaluate_accepts_a_trained_model_with_the_same_json(tmp_path):
+    run = train(config(ROLLOUT), tmp_path / "run", progress=False)
+    out = tmp_path / "eval.json"
+    params = [arg for k, v in ENV_KWARGS.items() for arg in ("--param", f"{k}={v}")]
+    assert main(["evaluate", ENV, "--policy", f"ppo:{run}", "--episodes", "2", "--quiet", *params,
+                 "--json", str(out)]) == 0
+    record = json.loads(out.read_text())
+    assert record["policy"] == f"ppo:{run}" and record["episodes"] == 2
+    assert set(record["metrics"]) >= {"fraction_matched", "bits_sent", "episode_return"}
+    # the policy is deterministic: the same seeds give the same metrics
+    again = tmp_path / "again.json"
+    main(["evaluate", ENV, "--policy", f"ppo:{run}", "--episodes", "2", "--quiet", *params, "--json", str(again)])
+    assert json.loads(again.read_text())["metrics"] == record["metrics"]
+
+
+@pytest.mark.parametrize(
+    "spec,damage,message",
+    [
+        ("ppo:{run}", lambda run: (run / "model.zip").write_bytes(b"not a zip"), "cannot load"),
+        ("ppo:{run}", lambda run: (run / "model.zip").unlink(), "no model.zip"),
+        ("ppo:{run}", lambda run: (run / "config.json").write_text("{"), "corrupt"),
+        ("ppo:{run}/missing", lambda run: None, "not a training run"),
+        ("dqn:{run}", lambda run: None, "trained with ppo"),
+        ("a2c:{run}", lambda run: None, "unknown policy"),
+    ],
+)
+def test_bad_models_give_one_line_errors(tmp_path, capsys, spec, damage, message):
+    run = train(config(ROLLOUT), tmp_path / "run", progress=False)
+    damage(run)
+    code = main(["evaluate", ENV, "--policy", spec.format(run=run), "--episodes", "1", "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0 and len(err) == 1 and message in err[0], err
+
+
+def test_a_model_of_another_env_or_other_spaces_is_refused(tmp_path):
+    run = train(config(ROLLOUT), tmp_path / "run", progress=False)
+    with pytest.raises(RunError, match="trained on mrcomm/ChannelAssociation-v0"):
+        load_policy(f"ppo:{run}", "MultiHop-v0")
+    policy = load_policy(f"ppo:{run}", ENV)
+    import mrcomm_env
+
+    other = mrcomm_env.make(ENV, n_robots=40)  # more robots: a longer ID in the observation
+    with pytest.raises(RunError, match="expects observations"):
+        policy.reset(other.local_views(), 0)
+
+
+def test_unknown_algorithm_is_rejected_before_any_work(tmp_path, capsys):
+    assert main(["train", ENV, "--algo", "a3c", "--out", str(tmp_path / "x"), "--quiet"]) != 0
+    assert "algo" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
+
+
+def test_learned_actions_come_from_the_network(tmp_path):
+    run = train(config(ROLLOUT), tmp_path / "run", progress=False)
+    policy = load_policy(f"ppo:{run}", ENV)
+    import mrcomm_env
+
+    env = mrcomm_env.make(ENV, **ENV_KWARGS)
+    obs, _ = env.reset(seed=0)
+    views = env.local_views()
+    policy.reset(views, 0)
+    actions = policy.act(obs, views)
+    stacked = policy.normalizer.normalize_obs(np.stack([obs[a] for a in env.agents]))
+    with torch.no_grad():
+        dist = policy.model.policy.get_distribution(policy.model.policy.obs_to_tensor(stacked)[0])
+        expected = dist.mode().numpy()
+    assert [actions[a] for a in env.agents] == expected.tolist()
