@@ -15,7 +15,15 @@ import pettingzoo
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from pettingzoo.test import api_test, max_cycles_test, parallel_api_test, parallel_seed_test, render_test
+from pettingzoo.test import (
+    api_test,
+    max_cycles_test,
+    parallel_api_test,
+    parallel_seed_test,
+    render_test,
+    seed_test,
+    state_test,
+)
 
 import mrcomm_env
 from mrcomm_env.core.config import Bool, Choice, Int, Optional, Real
@@ -86,6 +94,24 @@ def test_parallel_seed(env_id, name):
 @pytest.mark.parametrize(("env_id", "name"), CASES)
 def test_aec_api(env_id, name):
     api_test(env_module(env_id).env(**short_config(env_id, name, steps=30)), num_cycles=30)
+
+
+@pytest.mark.parametrize(("env_id", "name"), CASES)
+def test_aec_seed(env_id, name):
+    shim = env_module(env_id)
+    seed_test(lambda: shim.env(**short_config(env_id, name)), num_cycles=20)
+
+
+@pytest.mark.parametrize(("env_id", "name"), CASES)
+def test_state(env_id, name):
+    # PettingZoo's state_test drives the AEC form; the parallel form's state() must lie in state_space too
+    shim = env_module(env_id)
+    state_test(shim.env(**short_config(env_id, name)), shim.parallel_env(**short_config(env_id, name)))
+    env = mrcomm_env.make(env_id, **short_config(env_id, name))
+    env.reset(seed=1)
+    while env.agents:
+        assert env.state_space.contains(env.state())
+        env.step({a: env.action_space(a).sample() for a in env.agents})
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)

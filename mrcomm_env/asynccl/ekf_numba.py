@@ -21,6 +21,10 @@ import math
 import numpy as np
 from numba import njit
 
+from mrcomm_env.core.backend import configure_numba_cache
+
+configure_numba_cache()  # before the @njit(cache=True) below: never cache into the package
+
 TWO_PI = 2.0 * math.pi
 MIN_DISTANCE = 1e-6  # as ``ekf.MIN_DISTANCE``
 

@@ -11,6 +11,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from mrcomm_env.core.backend import configure_numba_cache
+
+configure_numba_cache()  # before the @njit(cache=True) below: never cache into the package
+
 NO_ROW_LIMIT = 2**62  # larger than any step index (a plain constant: numba freezes it at compile time)
 
 

@@ -7,12 +7,18 @@ interpreter round trips, and tests check that both agree. numba is optional
 
 ``MRCOMM_BACKEND=numpy`` forces the reference even when numba is installed, ``MRCOMM_BACKEND=numba``
 requires numba. The choice is made once per process.
+
+Compiled kernels are cached on disk (``cache=True``) so that only the first process compiles them. numba's
+own default writes the cache beside the source, into the installed package: that fails on a read-only
+install and dirties a source tree. Unless ``NUMBA_CACHE_DIR`` is set, the cache goes to the user's cache
+folder instead: ``$XDG_CACHE_HOME/mrcomm-env/numba`` (``~/.cache/mrcomm-env/numba``).
 """
 
 from __future__ import annotations
 
 import os
 from functools import cache
+from pathlib import Path
 
 VARIABLE = "MRCOMM_BACKEND"
 CHOICES = ("auto", "numba", "numpy")
@@ -32,7 +38,21 @@ def compiled() -> bool:
         if choice == "numba":
             raise ValueError(f"{VARIABLE}=numba needs numba: pip install mrcomm-env[fast]") from None
         return False
+    configure_numba_cache()
     return True
+
+
+def configure_numba_cache() -> None:
+    """Point numba's on-disk cache at ``NUMBA_CACHE_DIR`` or the user cache folder; call before ``@njit``."""
+    import numba
+
+    numba.config.CACHE_DIR = os.environ.get("NUMBA_CACHE_DIR") or str(user_cache_dir())
+
+
+def user_cache_dir() -> Path:
+    """Where compiled kernels are cached when ``NUMBA_CACHE_DIR`` is not set (never inside the package)."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "mrcomm-env" / "numba"
 
 
 def name() -> str:
