@@ -244,9 +244,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="results/bench.json")
     p.set_defaults(func=cmd_bench)
 
-    from mrcomm_env.experiments.learning import add_train_parser
+    from mrcomm_env.experiments.learning import add_learning_parsers
 
-    add_train_parser(sub)
+    add_learning_parsers(sub)
 
     p = sub.add_parser("docs", help="generate docs/envs/*.md from the live environments")
     p.add_argument("--out", default="docs")

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
+
+import numpy as np
 
 from mrcomm_env.registry import canonical_id
 
@@ -78,3 +81,329 @@ def cmd_train(args: argparse.Namespace) -> int:
     train(config, out, progress=not args.quiet)
     print(f"wrote {out}/model.zip, {out}/config.json, {out}/progress.csv")
     return 0
+
+
+# ------------------------------------------------------------------------------------ learned vs scripted
+COMPARISON_KEY = "comparison"
+
+
+def comparison_spec(env_id: str) -> dict:
+    """The env's comparison settings from ``agents/configs/<Name>-v0.json``: the cost argument swept (λ or the
+    bit price), its values, the task metric and whether lower is better, the baselines, seeds and episodes."""
+    from agents.training import CONFIG_DIR
+
+    path = CONFIG_DIR / f"{short_name_of(env_id)}.json"
+    if not path.exists():
+        raise ValueError(f"{canonical_id(env_id)} has no learning configuration ({path.name})")
+    spec = json.loads(path.read_text())
+    if COMPARISON_KEY not in spec:
+        raise ValueError(f"{path.name} has no '{COMPARISON_KEY}' section")
+    return {"algo": "ppo", **spec[COMPARISON_KEY], "settings": spec}
+
+
+def short_name_of(env_id: str) -> str:
+    from mrcomm_env.registry import short_name
+
+    return short_name(env_id)
+
+
+def bits_per_agent_step(env, metrics: dict) -> float:
+    steps = max(env.step_count, 1)
+    return float(metrics["bits_sent"]) / (env.n_agents * steps)
+
+
+def evaluate_policy(env_id: str, env_kwargs: dict, policy, seeds: list[int], metric: str) -> dict[str, list[float]]:
+    """Per episode: the task metric, bits per agent per step and the return."""
+    from mrcomm_env.experiments.evaluation import run_episode
+    from mrcomm_env.registry import make
+
+    env = make(env_id, **env_kwargs)
+    out = {"metric": [], "bits": [], "return": []}
+    for seed in seeds:
+        metrics = run_episode(env, policy, seed)
+        out["metric"].append(float(metrics[metric]))
+        out["bits"].append(bits_per_agent_step(env, metrics))
+        out["return"].append(float(metrics["episode_return"]))
+    env.close()
+    return out
+
+
+def _train_task(task: dict) -> str:
+    """One training run of the comparison (a process of its own: one torch thread)."""
+    from agents.training import TrainConfig, train
+    from mrcomm_env.experiments.evaluation import limit_threads
+
+    limit_threads()
+    out = Path(task["out"])
+    if (out / "done.json").exists():
+        return str(out)  # a rerun skips what is done
+    if (out / "checkpoints" / "state.json").exists():
+        train(None, out, resume=True, progress=False)
+    else:
+        if out.exists():
+            import shutil
+
+            shutil.rmtree(out)  # started but never checkpointed: start again
+        train(TrainConfig(**task["config"]), out, progress=False)
+    return str(out)
+
+
+def reproduce_learning(env_id: str, out_dir: Path, workers: int = 1, quick: bool = False, progress: bool = True):
+    """Train ``seeds`` policies per cost value, evaluate them and every baseline on held-out seeds, and return
+    (rows, markdown). Rows: policy, cost, metric mean ± CI, bits per agent per step mean ± CI."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from tqdm.auto import tqdm
+
+    from agents.learned import LearnedPolicy
+    from agents.training import split_settings
+    from baselines import make_policy
+    from mrcomm_env.core.stats import mean_ci95
+
+    env_id = canonical_id(env_id)
+    spec = comparison_spec(env_id)
+    algo = spec["algo"]
+    run_settings, hyper = split_settings(spec["settings"].get(algo, {}))
+    env_kwargs = dict(run_settings.pop("env_kwargs", {}))
+    timesteps = run_settings.pop("timesteps", 200_000)
+    if quick:
+        timesteps = spec.get("quick_timesteps", max(timesteps // 10, 1))
+    seeds = list(range(spec.get("seeds", 3)))
+    eval_seeds = [10_000 + k for k in range(spec.get("eval_episodes", 10))]
+    cost_param, metric = spec["cost_param"], spec["metric"]
+    tasks = []
+    for cost in spec["costs"]:
+        for seed in seeds:
+            config = dict(env_id=env_id, algo=algo, timesteps=timesteps, seed=seed, hyperparams=hyper,
+                          env_kwargs={**env_kwargs, cost_param: cost}, **run_settings)
+            tasks.append({"out": str(out_dir / "runs" / f"{cost_param}={cost}" / f"s{seed}"), "config": config,
+                          "cost": cost, "seed": seed})
+    bar = tqdm(total=len(tasks), desc=f"training {short_name_of(env_id)}", disable=not progress)
+    if workers > 1:
+        with ProcessPoolExecutor(workers) as pool:
+            for _ in pool.map(_train_task, tasks):
+                bar.update()
+    else:
+        for task in tasks:
+            _train_task(task)
+            bar.update()
+    bar.close()
+
+    rows = []
+    learned: dict[float, list[dict]] = {}
+    for task in tqdm(tasks, desc="evaluating learned", disable=not progress, leave=False):
+        policy = LearnedPolicy(task["out"], env_id, algo)
+        result = evaluate_policy(env_id, {**env_kwargs, cost_param: task["cost"]}, policy, eval_seeds, metric)
+        learned.setdefault(task["cost"], []).append(result)
+    for cost, results in learned.items():
+        # one point per training seed (its mean over the evaluation episodes): the CI is over training seeds
+        per_seed_metric = [float(np.nanmean(r["metric"])) for r in results]
+        per_seed_bits = [float(np.mean(r["bits"])) for r in results]
+        rows.append(_row(f"learned ({algo})", cost, per_seed_metric, per_seed_bits, len(results), mean_ci95))
+    for name, params in tqdm(spec["baselines"], desc="evaluating baselines", disable=not progress, leave=False):
+        policy = make_policy(env_id, name, **params)
+        result = evaluate_policy(env_id, env_kwargs, policy, eval_seeds, metric)
+        label = name + (" " + ", ".join(f"{k}={v}" for k, v in params.items()) if params else "")
+        rows.append(_row(label, None, result["metric"], result["bits"], len(eval_seeds), mean_ci95))
+    return rows, spec
+
+
+def _row(policy, cost, metric_values, bits_values, n, mean_ci95) -> dict:
+    m, mh = mean_ci95(metric_values)
+    b, bh = mean_ci95(bits_values)
+    return {"policy": policy, "cost": cost, "metric": m, "metric_ci95": mh, "bits": b, "bits_ci95": bh, "n": n}
+
+
+def dominates(learned: dict, baseline: dict, lower_is_better: bool) -> bool:
+    """The learned point sends no more bits than the baseline (5 % slack for the bits' own noise) and its task
+    metric is at least as good, beyond the two 95 % intervals when it claims to be better."""
+    if learned["bits"] > baseline["bits"] * 1.05 + 1e-9:
+        return False
+    sign = -1.0 if lower_is_better else 1.0
+    return sign * (learned["metric"] - baseline["metric"]) >= -(learned["metric_ci95"] + baseline["metric_ci95"])
+
+
+def plot_comparison(rows: list[dict], spec: dict, title: str, path: Path) -> None:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6.4, 4.2))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    learned = [r for r in rows if r["cost"] is not None]
+    ax.errorbar([r["bits"] for r in learned], [r["metric"] for r in learned],
+                xerr=[r["bits_ci95"] for r in learned], yerr=[r["metric_ci95"] for r in learned],
+                fmt="o-", color="tab:red", label=f"learned ({spec['algo']}), one point per {spec['cost_param']}")
+    for r in learned:
+        ax.annotate(f"{spec['cost_param']}={r['cost']:g}", (r["bits"], r["metric"]), fontsize=7,
+                    xytext=(4, 4), textcoords="offset points")
+    for k, r in enumerate(r for r in rows if r["cost"] is None):
+        ax.errorbar([r["bits"]], [r["metric"]], xerr=[r["bits_ci95"]], yerr=[r["metric_ci95"]], fmt="s",
+                    color=f"C{k % 10}", label=r["policy"])
+    ax.set_xlabel("bits sent per agent per step")
+    ax.set_ylabel(spec["metric"] + (" (lower is better)" if spec.get("lower_is_better") else " (higher is better)"))
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    fig.savefig(tmp, dpi=90)
+    tmp.replace(path)
+
+
+def learning_section(env_id: str, rows: list[dict], spec: dict, figure: str) -> str:
+    lower = bool(spec.get("lower_is_better"))
+    learned = [r for r in rows if r["cost"] is not None]
+    baselines = [r for r in rows if r["cost"] is None]
+    lines = [
+        f"## `{env_id}`",
+        "",
+        spec.get("setting", ""),
+        "",
+        f"![{spec['metric']} against bits]({figure})",
+        "",
+        f"| policy | {spec['cost_param']} | {spec['metric']} (mean ± 95 % CI) | bits / agent / step | n |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for r in rows:
+        cost = "—" if r["cost"] is None else f"{r['cost']:g}"
+        lines.append(f"| {r['policy']} | {cost} | {r['metric']:.4g} ± {r['metric_ci95']:.2g} "
+                     f"| {r['bits']:.4g} ± {r['bits_ci95']:.2g} | {r['n']} |")
+    def verdict(text: str, baseline: dict) -> str:
+        beats = [r for r in learned if dominates(r, baseline, lower)]
+        where = ", ".join(f"{r['cost']:g}" for r in beats)
+        return f"- {text}: **{'yes' if beats else 'no'}**" + (f" ({spec['cost_param']} = {where})" if beats else "")
+
+    verdicts = []
+    for b in baselines:
+        if b["policy"] == "random":
+            verdicts.insert(0, verdict("Beats random at equal or fewer bits", b))
+        else:
+            verdicts.append(verdict(f"Matches or beats `{b['policy']}` at equal or fewer bits", b))
+    lines += ["", "Outcome (computed from the table: a learned point counts when it sends at most 5 % more bits "
+              "and its metric is not worse beyond the two confidence intervals):", "", *verdicts]
+    if spec.get("notes"):
+        lines += ["", spec["notes"]]
+    return "\n".join(lines) + "\n"
+
+
+def cmd_reproduce_learning(args: argparse.Namespace) -> int:
+    import csv
+
+    from mrcomm_env.experiments.evaluation import limit_threads
+    from mrcomm_env.registry import env_ids
+
+    limit_threads()
+    from agents.training import CONFIG_DIR
+
+    targets = [canonical_id(e) for e in args.env_ids] or [
+        e for e in env_ids() if (CONFIG_DIR / f"{short_name_of(e)}.json").exists()
+    ]
+    out = Path(args.out)
+    docs = Path(args.docs)
+    (docs / "learning").mkdir(parents=True, exist_ok=True)
+    sections = []
+    for env_id in targets:
+        name = short_name_of(env_id)
+        rows, spec = reproduce_learning(env_id, out / name, workers=args.workers, quick=args.quick,
+                                        progress=not args.quiet)
+        csv_path = docs / "learning" / f"{name}.csv"
+        tmp = csv_path.with_name(f".{csv_path.name}.tmp")
+        with open(tmp, "w", newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+        tmp.replace(csv_path)
+        figure = docs / "learning" / f"{name}.png"
+        plot_comparison(rows, spec, f"{env_id}: learned vs scripted at equal bits", figure)
+        sections.append(learning_section(env_id, rows, spec, f"learning/{name}.png"))
+    header = LEARNING_HEADER.format(command="mrcomm reproduce-learning" + (" --quick" if args.quick else ""))
+    page = docs / "learning.md"
+    tmp = page.with_name(".learning.md.tmp")
+    tmp.write_text(header + "\n".join(sections) + LEARNING_FOOTER)
+    tmp.replace(page)
+    print(f"wrote {page}")
+    return 0
+
+
+LEARNING_HEADER = """# Learned communication against the papers' algorithms, at equal bits
+
+_Generated by `{command}` (`make learn`); do not edit by hand. Settings: `agents/configs/<Name>-v0.json`._
+
+One PPO policy is shared by every agent (parameter sharing, `agents/vecenv.py`). For each env, the price of a
+bit in the reward (the cost argument) is swept; each value is trained with several seeds and each trained
+policy is evaluated deterministically on held-out episode seeds. A learned point's interval is over training
+seeds; a baseline's over episodes. The scripted baselines see more than the learned policy where the env's
+page says so (`docs/envs/<Name>-v0.md`, column "global knowledge"), and their own per-robot memory: see
+"What the baselines read" below.
+
+"""
+
+LEARNING_FOOTER = """
+## What the baselines read beyond the observation
+
+A learned policy sees only its observation. The scripted baselines read their robot's local view (the env's
+`LOCAL_VIEW`, listed on each env page) and keep memory across steps; a comparison favours them by that much.
+
+| env | baseline | reads beyond the observation |
+| --- | --- | --- |
+| AsyncCL-v0 | `scheme*`, `silent` | nothing (a fixed mode every step) |
+| ChannelAssociation-v0 | `coin_flip`, `bernoulli` | nothing |
+| ChannelAssociation-v0 | `id_bits` | its own ID and the step clock modulo B + 1 (both also in the observation since v0 rev 2) |
+| MultiHop-v0 | `location_based` | its estimate list (stamps, estimated distances) and Algorithm 1's counters, kept across frames |
+| MultiHop-v0 | `age_aware` | its estimate list and the stamp it last broadcast for each robot (`sent_stamp`) |
+| MultiHop-v0 | `probabilistic` | its estimate list |
+| MultiHop-v0 | `flooding` | a frame counter |
+"""
+
+
+def add_learning_parsers(sub) -> None:
+    add_train_parser(sub)
+    p = sub.add_parser("reproduce-learning", help="learned policies against every baseline at equal bits")
+    p.add_argument("env_ids", nargs="*", help="default: every env with a learning configuration")
+    p.add_argument("--out", default="results/learning", help="training runs and evaluations")
+    p.add_argument("--docs", default="docs", help="where learning.md and its figures go")
+    p.add_argument("--workers", type=int, default=1, help="training runs at once (one core each)")
+    p.add_argument("--quick", action="store_true", help="a tenth of the training budget (a smoke run)")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_reproduce_learning)
+
+
+# ------------------------------------------------------------------------------------ training throughput
+#: the PPO settings every env (and the reference) trains with in ``mrcomm bench --train``: the same work per
+#: agent-step everywhere, so the figures compare the envs and not the settings
+BENCH_PPO = {"n_steps": 64, "n_epochs": 4, "policy_kwargs": {"net_arch": [64, 64]}}
+
+
+def train_throughput(env_fns, timesteps: int, seed: int = 0) -> dict[str, float]:
+    """PPO agent-steps/s through ``AgentSlotVecEnv`` over ``env_fns`` and the share of wall time in ``env.step``."""
+    import time
+
+    import torch
+    from stable_baselines3 import PPO
+
+    from agents.vecenv import AgentSlotVecEnv
+
+    torch.set_num_threads(1)
+    venv = AgentSlotVecEnv(env_fns)
+    in_step = [0.0]
+    for env in venv.envs:
+        step = env.step
+
+        def timed(actions, _step=step):
+            start = time.perf_counter()
+            try:
+                return _step(actions)
+            finally:
+                in_step[0] += time.perf_counter() - start
+
+        env.step = timed
+    # one minibatch per epoch: the gradient work per agent-step is then the same whatever the slot count
+    batch = BENCH_PPO["n_steps"] * venv.num_envs
+    model = PPO("MlpPolicy", venv, seed=seed, device="cpu", verbose=0, batch_size=batch, **BENCH_PPO)
+    start = time.perf_counter()
+    model.learn(total_timesteps=timesteps)
+    wall = time.perf_counter() - start
+    venv.close()
+    return {"agent_steps_per_s": model.num_timesteps / wall, "env_step_share": in_step[0] / wall,
+            "agent_steps": model.num_timesteps, "seconds": wall, "slots": venv.num_envs}
