@@ -1,8 +1,11 @@
 """Scripted slot-filling policies for MultiHop-v0 (Julian et al., paper 003).
 
-The action of robot i is a priority per estimate; the env sends i's own estimate plus the ``m − 1``
-known estimates of highest priority at i's slot (priority 0 withholds). Every policy here reads only
-what robot i knows: its own position, its estimate list (positions, time stamps) and what it sent.
+Each policy ranks robot i's estimates by a priority; in the env's ``absolute`` layout (v0) the priorities
+are the action, and the env sends i's own estimate plus the ``m − 1`` known estimates of highest priority
+at i's slot (priority 0 withholds). In the default ``relative`` layout the policy selects its ``m − 1``
+highest-priority estimates, as select bits over the env's distance-ranked candidates. Every policy here
+reads only what robot i knows: its own position, its estimate list (positions, time stamps) and what it
+sent.
 
 * ``location_based`` — Algorithm 1 with persistent counters, O(mn) per robot and frame, vectorised over
   all robots (``rule="text"``: lowest counter as §3.2 says; ``rule="listing"``: argmax as printed).
@@ -30,8 +33,20 @@ DEFAULT_POLICY = "location_based"
 
 
 def _as_actions(views, prio: np.ndarray, observations) -> dict:
-    prio = prio.astype(np.float32)
-    return {a: prio[views.index(a)] for a in observations}
+    """Each robot's (N,) priorities as the env's action. In the ``absolute`` layout that is the action itself;
+    in the ``relative`` one each robot selects the ``m − 1`` others of highest positive priority, mapped to
+    their candidate ranks (the env then sends those it holds at its slot)."""
+    if views.params["layout"] == "absolute":
+        prio = prio.astype(np.float32)
+        return {a: prio[views.index(a)] for a in observations}
+    n, room = views.n_agents, _slot_size(views) - 1
+    p = np.where(np.eye(n, dtype=bool), -1.0, prio)
+    top = np.argsort(-p, axis=1, kind="stable")[:, :room]
+    chosen = np.zeros((n, n), dtype=bool)
+    rows = np.repeat(np.arange(n), top.shape[1])
+    chosen[rows, top.ravel()] = np.take_along_axis(p, top, axis=1).ravel() > 0.0
+    selected = np.take_along_axis(chosen, views.team("candidates"), axis=1).astype(np.int8)
+    return {a: selected[views.index(a)] for a in observations}
 
 
 def _importance(views) -> tuple[np.ndarray, np.ndarray]:

@@ -13,6 +13,7 @@ import types
 import numpy as np
 import pettingzoo
 import pytest
+from gymnasium import spaces
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pettingzoo.test import (
@@ -183,7 +184,9 @@ def test_observations_in_space_and_pickle_roundtrip(env_id, name):
 
 def batch_sampler(space, rng):
     """Uniform random actions for many agents at once (space.sample() per agent dominates large envs)."""
-    if hasattr(space, "n"):
+    if isinstance(space, spaces.MultiBinary):
+        return lambda agents: dict(zip(agents, rng.integers(0, 2, (len(agents), *space.shape), dtype=np.int8)))
+    if isinstance(space, spaces.Discrete):
         return lambda agents: dict(zip(agents, (rng.integers(0, space.n, len(agents)) + space.start).tolist()))
     if hasattr(space, "high"):
         def sample(agents):
@@ -261,7 +264,9 @@ def test_invalid_actions_and_agents_raise_value_error(env_id):
         env.step({**good, "robot_99999": space.sample()})
     with pytest.raises(ValueError):
         env.step({a: v for a, v in good.items() if a != "robot_0"})
-    if hasattr(space, "n"):
+    if isinstance(space, spaces.MultiBinary):
+        bad_values = [np.full(space.shape, 2), np.zeros(space.shape[0] + 1, dtype=np.int8), 0.5]
+    elif isinstance(space, spaces.Discrete):
         bad_values = [int(space.start + space.n), -1, 0.5]
     elif hasattr(space, "high"):
         bad_values = [space.high + 1.0, np.full(space.shape, np.nan, dtype=space.dtype), np.zeros(space.shape[0] + 1)]

@@ -207,13 +207,80 @@ def test_stamps_monotone_bounded_and_bits_counted():
 
 
 def test_reward_is_importance_weighted_age():
-    env = MultiHopEnv(grid_side=3, slot_size=3, alpha=2.0)
+    env = MultiHopEnv(grid_side=3, slot_size=3, alpha=2.0, layout="absolute")
     env.reset(seed=4)
     _, rew, *_ = env.step({a: np.ones(9, np.float32) for a in env.agents})
     d = np.linalg.norm(env.pos[:, None] - env.pos[None], axis=-1)
     w = np.where(np.eye(9, dtype=bool), 0.0, np.maximum(d, 1e-9) ** -2.0)
     age = np.where(env.stamps > proto.UNKNOWN, env.t - env.stamps, env.t)
-    assert rew["robot_0"] == pytest.approx(-(w * age).sum() / w.sum())
+    # in units of ten frames: a frame is 9 slots of 3 estimates × 192 bits at 3000 bit/s
+    frame = 9 * 3 * 192 / 3000.0
+    assert rew["robot_0"] == pytest.approx(-(w * age).sum() / w.sum() / (10 * frame))
+    assert env.metrics()["weighted_mean_age"] == pytest.approx((w * age).sum() / w.sum())
+
+
+def test_bit_cost_is_the_share_of_slot_capacity_used():
+    kw = dict(grid_side=3, slot_size=3, alpha=1.0, layout="absolute")
+    free, priced = MultiHopEnv(**kw), MultiHopEnv(**kw, lam=2.0)
+    free.reset(seed=1)
+    priced.reset(seed=1)
+    actions = {a: np.ones(9, np.float32) for a in free.agents}
+    r_free = free.step(actions)[1]["robot_0"]
+    r_priced = priced.step(actions)[1]["robot_0"]
+    bits = priced.metrics()["bits_sent"]
+    assert bits == 192 * priced.last_sent.sum()  # 192 bits per estimate sent, its own one included
+    assert r_free - r_priced == pytest.approx(2.0 * bits / (9 * 3 * 192))
+
+
+def test_relative_layout_selects_candidates_nearest_first():
+    env = MultiHopEnv(grid_side=3, slot_size=3, max_cycles=5)
+    env.reset(seed=0)
+    env.stamps[:] = 0.0  # everyone holds everyone: the candidates are ranked by distance alone
+    env._rank_candidates()
+    views = env.local_views()
+    for i in range(9):
+        cand = views["robot_%d" % i]["candidates"]
+        assert i not in cand and sorted(cand) == [j for j in range(9) if j != i]
+        d = np.linalg.norm(env.pos[cand] - env.pos[i], axis=1)
+        assert np.all(np.diff(d) >= 0)  # nearest first
+    # select ranks 1, 4 and 6: only the first two fit the slot (m − 1 = 2), in rank order; own always sent
+    bits = np.zeros(8, dtype=np.int8)
+    bits[[1, 4, 6]] = 1
+    candidates = env._candidates.copy()
+    env.step({a: bits for a in env.agents})
+    for i in range(9):
+        assert set(np.flatnonzero(env.last_sent[i])) == {i, candidates[i, 1], candidates[i, 4]}
+    env.step({a: np.zeros(8, dtype=np.int8) for a in env.agents})
+    np.testing.assert_array_equal(env.last_sent, np.eye(9, dtype=bool))  # nothing selected: only its own
+
+
+def test_relative_observation_is_ranked_candidate_features():
+    env = MultiHopEnv(grid_side=3, slot_size=3, max_cycles=5)
+    obs, _ = env.reset(seed=2)
+    for _ in range(3):
+        obs, *_ = env.step({a: np.ones(8, dtype=np.int8) for a in env.agents})
+    i = 4
+    row = obs[f"robot_{i}"][: 5 * 8].reshape(8, 5)
+    cand = env._candidates[i]
+    known = env.stamps[i, cand] > proto.UNKNOWN
+    np.testing.assert_array_equal(row[:, 0], known.astype(np.float32))
+    gain = np.maximum(env.stamps[i, cand] - env.sent_stamp[i, cand], 0.0)
+    expect = np.where(known, gain / (gain + env.frame_dur), 0.0)
+    np.testing.assert_allclose(row[:, 3], expect, rtol=1e-6)  # float32 observation
+    assert 0.0 <= row.min() and row.max() <= 1.0
+
+
+def test_neighbourhood_reward_is_what_the_neighbours_hold():
+    env = MultiHopEnv(grid_side=3, slot_size=3, reward_mode="neighbourhood", layout="absolute")
+    env.reset(seed=3)
+    _, rew, *_ = env.step({a: np.ones(9, np.float32) for a in env.agents})
+    age = np.where(env.stamps > proto.UNKNOWN, env.t - env.stamps, env.t)
+    w = env._w
+    own = (w * age).sum(axis=1) / w.sum(axis=1)
+    frame = 9 * 3 * 192 / 3000.0
+    for i in range(9):
+        nbrs = np.flatnonzero(env.adj[i])
+        assert rew[f"robot_{i}"] == pytest.approx(-own[nbrs].mean() / (10 * frame))
 
 
 def test_grid_with_partial_last_row():
@@ -244,7 +311,7 @@ def test_bad_arguments_raise(bad):
 
 
 def test_action_priorities_select_top_m_with_own_always():
-    env = MultiHopEnv(grid_side=3, slot_size=3, max_cycles=5)
+    env = MultiHopEnv(grid_side=3, slot_size=3, max_cycles=5, layout="absolute")
     env.reset(seed=0)
     env.stamps[:] = 0.0  # everyone knows everyone
     prio = np.tile(np.linspace(0.1, 0.9, 9, dtype=np.float32), (9, 1))

@@ -290,6 +290,28 @@ def _action_checker(space: spaces.Space):
 
         return check
 
+    if isinstance(space, spaces.MultiBinary):
+        shape = space.shape
+
+        def check_bits(agent, action):
+            raw = np.asarray(action) if not isinstance(action, (str, bytes)) else None
+            if raw is None or raw.dtype.kind not in "iub" or raw.shape != shape or not np.isin(raw, (0, 1)).all():
+                raise ValueError(f"action of {agent} must be an array of 0/1 integers of shape {shape}, got {action!r}")
+
+        def check(agents, actions):
+            try:
+                raw = np.asarray(actions)
+            except ValueError:  # ragged
+                raw = None
+            if raw is not None and raw.dtype.kind in "iub" and raw.shape == (len(agents), *shape):
+                if ((raw == 0) | (raw == 1)).all():
+                    return raw.astype(np.int8, copy=False)
+            for agent, action in zip(agents, actions):
+                check_bits(agent, action)
+            raise AssertionError("unreachable: a batch that fails has a failing agent")  # pragma: no cover
+
+        return check
+
     def check(agents, actions):
         for agent, action in zip(agents, actions):
             if not space.contains(action):

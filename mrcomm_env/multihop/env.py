@@ -3,9 +3,9 @@
 | | |
 | --- | --- |
 | Agents | `n_robots` robots `robot_0 … robot_{N-1}` (grid: `grid_side²`, field: 20, coverage: 9 by default) |
-| Actions | `Box(0, 1, (N,))` per robot: a priority for each robot's estimate; the env sends the robot's own estimate plus the `slot_size − 1` known estimates of highest priority (ties: lower index); priority `0` withholds an estimate |
-| Observations | `Box(0, 1, (3N + 2,))`: per robot j the age of my estimate of j `a/(a + T_frame)` (1 = unknown), the estimated distance to j over the arena diagonal (1 = unknown), j's slot position after mine `((s_j − s_i) mod N)/N`; then my slot `s_i/N` and `m/N` |
-| Reward | team reward `−Σ_{i≠j} w_ij a_ij / Σ w_ij`, the age of information (seconds) weighted by the importance `w_ij = d_ij^-α` of eq. (1) at frame end |
+| Actions | `layout="relative"` (default): `MultiBinary(N − 1)` per robot, one bit per *candidate*: the other robots ranked by my estimated distance to them (nearest first; estimates I do not hold last, by slot order after mine). The env sends my own estimate plus the first `slot_size − 1` selected candidates I hold at my slot; unselected ones are withheld, so a robot may send fewer than `m` and save bits. `layout="absolute"` (v0): `Box(0, 1, (N,))`, a priority per robot index (ties: lower index; 0 withholds) |
+| Observations | `relative`: `Box(0, 1, (5(N − 1) + 3,))`, per candidate rank: held (0/1), estimated distance over the arena diagonal, age `a/(a + T_frame)`, freshness gained since I last broadcast it `g/(g + T_frame)`, its slot position after mine; then my slot `s_i/N`, `m/N` and the fraction of robots I hold. `absolute` (v0): `Box(0, 1, (3N + 2,))` by robot index |
+| Reward | `−(Σ w_ij a_ij / Σ w_ij) / (10 T_frame) − lam · bits / (N m b)`: the importance-weighted age of information (eq. (1) weights `w_ij = d_ij^-α`) in units of ten frames, and the share of the slots' capacity used; `reward_mode="neighbourhood"` gives each robot the weighted age held by its neighbours (what its broadcast refreshes) and its own bits instead |
 | Arguments | `scene`, `n_robots`, `grid_side`, `slot_size`, `alpha`, `bits_per_estimate`, `baud`, `max_cycles`, `arena_size`, `comm_range`, `speed`, `max_speed`, `control_gain` |
 
 Every robot knows its own current state and keeps a list of the others' estimates, each with the time
@@ -43,6 +43,8 @@ from mrcomm_env.multihop import protocol as proto
 from mrcomm_env.multihop import theory
 
 SUBGRAPHS = (2, 4, 6, 8)
+RELATIVE_FEATURES = 5  # per candidate: held, distance, age, freshness gained, slot position
+AGE_SCALE_FRAMES = 10.0  # the reward's age unit: ten frames keep it O(1) per step
 HOP_BUCKETS = ("1", "2", "3", "4plus")
 
 
@@ -75,6 +77,13 @@ class MultiHopEnv(MrcommParallelEnv):
                            Real(lo=0.0, lo_open=True, fuzz=(0.5, 5.0))),
         "control_gain": Param(1.0, "coverage scene: k of ṗ = k (C_i − p_i) (1/s)",
                               Real(lo=0.0, lo_open=True, fuzz=(0.1, 2.0))),
+        "layout": Param("relative", "`relative`: agent-relative candidates ranked by estimated distance, one "
+                        "select bit each (MultiBinary); `absolute`: v0's priority per robot index (Box)",
+                        Choice(("relative", "absolute"))),
+        "lam": Param(0.0, "λ: reward cost of the share of slot capacity used (bits / (N m b) per frame)",
+                     Real(lo=0.0, hi=100.0, fuzz=(0.0, 2.0))),
+        "reward_mode": Param("team", "`team`: one team reward; `neighbourhood`: each robot gets the weighted age "
+                             "its neighbours hold and its own bit cost", Choice(("team", "neighbourhood"))),
     }
     METRICS = {
         **{f"propagation_time_{k}x{k}": f"cold start: seconds until every member of the centred {k}×{k} subgraph "
@@ -82,7 +91,7 @@ class MultiHopEnv(MrcommParallelEnv):
            for k in SUBGRAPHS},
         "mean_age": "time-average over frame ends of the mean age (s) of the estimates of all pairs i≠j "
                     "(unknown = age since the start)",
-        "weighted_mean_age": "time-average of the d^-α-weighted mean age (s), minus the mean reward",
+        "weighted_mean_age": "time-average over frame ends of the d^-α-weighted mean age (s) of eq. (1)",
         **{f"mean_age_hop{h}": f"time-average over frame ends of the mean age (s) of estimates of robots at hop "
            f"distance {h.replace('plus', ' or more')}" for h in HOP_BUCKETS},
         **{f"max_age_hop{h}": f"largest age (s) of an estimate of a robot at hop distance "
@@ -105,6 +114,7 @@ class MultiHopEnv(MrcommParallelEnv):
         "sent_stamp": "(N,) the stamp of each estimate this robot last broadcast (one frame before start: never)",
         "slot": "this robot's slot index within the frame",
         "slot_size": "m: estimates per slot (the same for every robot)",
+        "candidates": "(N − 1,) robot index at each candidate rank of the `relative` layout (this frame)",
     }
     DOCUMENTED_CONFIGS = {
         "default": {},
@@ -112,8 +122,18 @@ class MultiHopEnv(MrcommParallelEnv):
         "flooding_grid": {"grid_side": 4, "slot_size": 16, "max_cycles": 40},
         "field_moving": {"scene": "field", "n_robots": 12, "speed": 2.0, "comm_range": 35.0, "max_cycles": 40},
         "coverage": {"scene": "coverage", "slot_size": 3, "max_cycles": 40},
+        "absolute_layout": {"grid_side": 4, "slot_size": 3, "max_cycles": 30, "layout": "absolute"},
+        "neighbourhood_reward": {"grid_side": 5, "slot_size": 4, "max_cycles": 30, "lam": 0.5,
+                                 "reward_mode": "neighbourhood"},
     }
-    VERSION_HISTORY = [("v0", "first version: grid, field and coverage scenes; one step = one TDMA frame")]
+    VERSION_HISTORY = [
+        ("v0", "first version: grid, field and coverage scenes; one step = one TDMA frame"),
+        ("v0 rev 2", "learnable by a shared policy: default `layout=relative` (MultiBinary select bits over "
+         "candidates ranked by estimated distance, agent-relative observation with the freshness gained since "
+         "the last broadcast, so sending fewer estimates saves bits); reward in units of ten frames plus "
+         "`lam` × share of slot capacity used (was seconds, −40 to −1470 per step); `reward_mode` "
+         "`neighbourhood`; v0's layout stays as `layout=absolute`"),
+    ]
 
     # ----------------------------------------------------------------- setup
     def _setup(self) -> None:
@@ -146,15 +166,26 @@ class MultiHopEnv(MrcommParallelEnv):
         if c.scene != "grid":
             self._cost_points = cov.sample_points(self.side, 40)
             self._ctrl_points = cov.sample_points(self.side, 30)
-        self._obs_space = spaces.Box(0.0, 1.0, shape=(3 * n + 2,), dtype=np.float32)
-        self._act_space = spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float32)
+        self._relative = c.layout == "relative"
+        if self._relative:
+            self._obs_space = spaces.Box(0.0, 1.0, shape=(RELATIVE_FEATURES * (n - 1) + 3,), dtype=np.float32)
+            self._act_space = spaces.MultiBinary(n - 1)
+        else:
+            self._obs_space = spaces.Box(0.0, 1.0, shape=(3 * n + 2,), dtype=np.float32)
+            self._act_space = spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float32)
         self._eye = np.eye(n, dtype=bool)
+        self._others = ~self._eye
+        #: priority of the candidate at rank k when selected: above 0 and decreasing with the rank
+        self._rank_priority = 1.0 - np.arange(n - 1) / (2.0 * n)
+        self._capacity = n * self.m * c.bits_per_estimate  # bits one frame can carry
         self.ledger = BitLedger(n)
 
     # ----------------------------------------------------------------- episode
     def _reset_world(self) -> None:
         c, n, rng = self.cfg, self.n_agents, self.np_random
         self.tdma = TDMASchedule(n, rng)  # random slot order per episode (§4)
+        slot = self.tdma.slot_of
+        self._phase = ((slot[None, :] - slot[:, None]) % n) / n  # j's slot position after i's
         if c.scene == "grid":
             self.pos = self._grid_pos.copy()
         elif c.scene == "field":
@@ -182,6 +213,8 @@ class MultiHopEnv(MrcommParallelEnv):
         self._sum_age_hop = np.zeros(len(HOP_BUCKETS))
         self._reward_weights()
         self._ages = np.zeros((n, n))
+        if self._relative:
+            self._rank_candidates()
 
     def _links(self) -> None:
         if self.cfg.scene == "grid":
@@ -208,7 +241,7 @@ class MultiHopEnv(MrcommParallelEnv):
         stamps, est, t = self.stamps, self.est, self.t
         # a robot's priorities are fixed for the frame; its candidate list is ranked once, filtered to the
         # estimates it holds at its own slot (protocol.priority_select, vectorised over the frame)
-        rank, count = proto.priority_ranking(np.asarray(actions, dtype=np.float64))
+        rank, count = proto.priority_ranking(self._priorities(actions))
         sent_counts = np.zeros(n)
         last_sent, sent_stamp = self.last_sent, self.sent_stamp
         last_sent[:] = False
@@ -248,6 +281,31 @@ class MultiHopEnv(MrcommParallelEnv):
         self.ledger.record(self._step_bits, messages=n)
         return self._frame_end()
 
+    def _priorities(self, actions) -> np.ndarray:
+        """(N, N) priorities of the frame: the v0 action itself, or the selected candidates by rank."""
+        if not self._relative:
+            return np.asarray(actions, dtype=np.float64)
+        n = self.n_agents
+        selected = np.asarray(actions, dtype=bool)
+        prio = np.zeros((n, n))
+        rows = np.repeat(np.arange(n), n - 1)
+        prio[rows, self._candidates.ravel()] = np.where(selected, self._rank_priority, 0.0).ravel()
+        return prio
+
+    def _rank_candidates(self) -> None:
+        """Each robot's others, nearest estimated first; estimates it lacks last, by slot order after its own.
+
+        Agent-relative: nothing in the ranking depends on absolute robot indices (slot phases are distinct).
+        """
+        n = self.n_agents
+        known = self.stamps > proto.UNKNOWN
+        self._dist = self.estimated_distances()  # reused by this frame's observation
+        key = np.where(known, self._dist / self.diag, 2.0 + self._phase)
+        key[self._eye] = np.inf
+        self._candidates = np.argsort(key, axis=1, kind="stable")[:, : n - 1]
+        #: flat (robot, candidate) indices into an (N·N,) array: one gather per feature block
+        self._cand_flat = (self._candidates + np.arange(n)[:, None] * n).ravel()
+
     def _move(self, duration: float) -> None:
         c = self.cfg
         if c.scene == "field":
@@ -274,19 +332,31 @@ class MultiHopEnv(MrcommParallelEnv):
         off = ~self._eye
         self._frames += 1
         self._sum_age += float(ages[off].mean())
-        wage = float((self._w * ages).sum()) / self._wsum
+        weighted = self._w * ages
+        wage = float(weighted.sum()) / self._wsum
         self._sum_wage += wage
         for k, mask in enumerate(self._hop_masks):
             if mask.any():
                 sel = ages[mask]
                 self._max_age[k] = max(self._max_age[k], float(sel.max()))
                 self._sum_age_hop[k] += float(sel.mean())
-        return -wage
+        if self._relative:
+            self._rank_candidates()
+        age_unit = AGE_SCALE_FRAMES * self.frame_dur
+        bit_unit = self.m * self.cfg.bits_per_estimate
+        if self.cfg.reward_mode == "team":
+            return -wage / age_unit - self.cfg.lam * float(self._step_bits.sum()) / self._capacity
+        # neighbourhood: robot k's own weighted staleness, averaged over the neighbours i's broadcast reaches
+        own = weighted.sum(axis=1) / np.maximum(self._w.sum(axis=1), 1e-300)
+        deg = self.adj.sum(axis=1)
+        near = np.where(deg > 0, (self.adj @ own) / np.maximum(deg, 1), own)
+        return -near / age_unit - self.cfg.lam * self._step_bits / bit_unit
 
     # ----------------------------------------------------------------- views
     def estimated_distances(self) -> np.ndarray:
         """(n, n) distance from each robot's own position to its estimate of each other robot."""
-        return np.linalg.norm(self.est - self.pos[:, None, :], axis=-1)
+        delta = self.est - self.pos[:, None, :]
+        return np.sqrt(np.einsum("ijk,ijk->ij", delta, delta))
 
     def _local_view(self) -> dict:
         return {
@@ -295,6 +365,7 @@ class MultiHopEnv(MrcommParallelEnv):
             "sent_stamp": self.sent_stamp,
             "slot": self.tdma.slot_of,
             "slot_size": np.full(self.n_agents, self.m),
+            "candidates": self._candidates if self._relative else np.zeros((self.n_agents, 0), dtype=np.int64),
         }
 
     def _observe(self) -> np.ndarray:
@@ -302,11 +373,24 @@ class MultiHopEnv(MrcommParallelEnv):
         known = self.stamps > proto.UNKNOWN
         age = np.where(known, self.t - self.stamps, 0.0)
         age_n = np.where(known, age / (age + self.frame_dur), 1.0)
-        dist_n = np.where(known, np.minimum(self.estimated_distances() / self.diag, 1.0), 1.0)
+        dist = self._dist if self._relative else self.estimated_distances()
+        dist_n = np.where(known, np.minimum(dist / self.diag, 1.0), 1.0)
         slot = self.tdma.slot_of
-        phase = ((slot[None, :] - slot[:, None]) % n) / n
-        extra = np.column_stack([slot / n, np.full(n, self.m / n)])
-        return np.concatenate([age_n, dist_n, phase, extra], axis=1).astype(np.float32)
+        if not self._relative:
+            extra = np.column_stack([slot / n, np.full(n, self.m / n)])
+            return np.concatenate([age_n, dist_n, self._phase, extra], axis=1).astype(np.float32)
+        # freshness gained since this robot last broadcast each estimate: what resending it would add
+        gain = np.where(known, np.maximum(self.stamps - self.sent_stamp, 0.0), 0.0)
+        gain_n = gain / (gain + self.frame_dur)
+        out = np.empty((n, RELATIVE_FEATURES * (n - 1) + 3), dtype=np.float32)
+        ranked = out[:, : RELATIVE_FEATURES * (n - 1)].reshape(n, n - 1, RELATIVE_FEATURES)
+        flat = self._cand_flat
+        for k, feature in enumerate((known, dist_n, age_n, gain_n, self._phase)):
+            ranked[:, :, k] = feature.reshape(-1)[flat].reshape(n, n - 1)
+        out[:, -3] = slot / n
+        out[:, -2] = self.m / n
+        out[:, -1] = (known & self._others).sum(axis=1) / (n - 1)
+        return out
 
     def _agent_infos(self) -> dict:
         n = self.n_agents
