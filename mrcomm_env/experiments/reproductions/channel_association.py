@@ -2,20 +2,34 @@
 
 Sweeps drive the environment's own filters in batch (:mod:`.batch`; the tests check that these
 drivers give the environment's i-states), compare with the paper's models (:mod:`.theory`) and with
-exact results, and check the paper's qualitative claims one by one.
+exact results, and check the paper's qualitative claims one by one. The scripted baselines run in the
+environment itself through the shared episode loop (:func:`.common.run_episode`).
+``run(out_dir, quick, tiny=False)`` writes CSV/JSON and PNGs into ``out_dir`` and returns a markdown section.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from pathlib import Path
 
 import numpy as np
 
+from baselines import make_policy
 from mrcomm_env.channel_association import theory
 from mrcomm_env.channel_association.batch import MobileField, neighborhood_trials
+from mrcomm_env.experiments.reproductions.common import (
+    atomic_open,
+    atomic_write_json,
+    figure,
+    label_axes,
+    pick,
+    progress,
+    run_episode,
+    size_of,
+)
+
+ENV_ID = "mrcomm/ChannelAssociation-v0"
 
 EXPERIMENTS = {
     "fig5": "mean completion time over w ∈ [2, 40], v ∈ [1, w−1] vs the exact expectation",
@@ -27,33 +41,23 @@ EXPERIMENTS = {
     "models": "Figs 20–25: §5.7 fraction-matched model and two-/multi-region BP models vs simulation",
     "id_bits": "beyond the paper: deterministic ID-bit blinking vs the coin flip",
 }
+ARTIFACTS = ("fig5_completion.csv", "fig5_completion_grid.png", "fig6_distributions.png", "fig7_8_bp_model.png",
+             "fig9_fraction_matched.png", "markov_exact.json", "mobile_steady.csv", "mobile_timeseries.csv",
+             "fig10_17_mobile_sweeps.png", "fig20_25_models.png", "id_bits_vs_coin.csv", "summary.json")
 
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _progress(it, desc):
-    try:
-        from tqdm import tqdm
-
-        return tqdm(it, desc=desc, leave=False)
-    except ImportError:  # pragma: no cover
-        return it
+def _savetxt(path: Path, array, **kwargs) -> None:
+    with atomic_open(path, "wb") as fh:
+        np.savetxt(fh, array, **kwargs)
 
 
 # ====================================================================== stationary
-def _fig5(out: Path, quick: bool, rng) -> tuple[str, dict]:
-    ws = [2, 3, 4, 6, 8, 12, 16, 20, 24, 28, 32, 36, 40] if quick else list(range(2, 41))
-    trials = 3000 if quick else 20000
+def _fig5(out: Path, size: str, rng) -> tuple[str, dict]:
+    ws = pick(size, full=list(range(2, 41)), quick=[2, 3, 4, 6, 8, 12, 16, 20, 24, 28, 32, 36, 40], tiny=[2, 3, 4])
+    trials = pick(size, full=20000, quick=3000, tiny=200)
     rows, grid_sim, grid_ex = [], np.full((41, 41), np.nan), np.full((41, 41), np.nan)
     store = {}
-    for w in _progress(ws, "fig5"):
+    for w in progress(ws, "fig5"):
         for v in range(1, w):
             done = neighborhood_trials(w, v, trials, rng)
             ex = theory.exact_completion_time(w, v)
@@ -62,19 +66,16 @@ def _fig5(out: Path, quick: bool, rng) -> tuple[str, dict]:
             grid_sim[w, v], grid_ex[w, v] = mean, ex
             store[(w, v)] = done
     arr = np.array(rows)
-    np.savetxt(out / "fig5_completion.csv", arr, delimiter=",", fmt="%.6g",
-               header="w,v,sim_mean,sim_std,exact,bp_eq1,sim_min", comments="")
+    _savetxt(out / "fig5_completion.csv", arr, delimiter=",", fmt="%.6g",
+             header="w,v,sim_mean,sim_std,exact,bp_eq1,sim_min", comments="")
     z = (arr[:, 2] - arr[:, 4]) / (arr[:, 3] / math.sqrt(trials) + 1e-12)
-    plt = _plt()
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for ax, g, title in ((axes[0], grid_sim, f"simulation ({trials} trials/cell)"), (axes[1], grid_ex, "exact E[T]")):
-        im = ax.imshow(g[2:, 1:40].T, origin="lower", extent=(1.5, 40.5, 0.5, 39.5), aspect="auto", vmin=0, vmax=12)
-        ax.set_xlabel("w (wireless IDs)")
-        ax.set_ylabel("v (visual IDs)")
-        ax.set_title(title)
-    fig.colorbar(im, ax=axes, label="mean steps to completion")
-    fig.savefig(out / "fig5_completion_grid.png", dpi=90)
-    plt.close(fig)
+    with figure(out / "fig5_completion_grid.png", figsize=(10, 4), ncols=2, dpi=90, tight=False) as (fig, axes):
+        for ax, g, title in ((axes[0], grid_sim, f"simulation ({trials} trials/cell)"),
+                             (axes[1], grid_ex, "exact E[T]")):
+            im = ax.imshow(g[2:, 1:40].T, origin="lower", extent=(1.5, 40.5, 0.5, 39.5), aspect="auto", vmin=0,
+                           vmax=12)
+            label_axes(ax, xlabel="w (wireless IDs)", ylabel="v (visual IDs)", title=title)
+        fig.colorbar(im, ax=axes, label="mean steps to completion")
     below = int(np.sum(arr[:, 6] < np.ceil(np.log2(arr[:, 1]))))
     stats = {"cells": len(arr), "trials": trials, "max_abs_z": float(np.abs(z).max()),
              "frac_within_3se": float(np.mean(np.abs(z) < 3)), "max_abs_diff": float(np.abs(arr[:, 2] - arr[:, 4]).max()),
@@ -88,15 +89,20 @@ def _fig5(out: Path, quick: bool, rng) -> tuple[str, dict]:
     return md, {"stats": stats, "store": store, "rows": arr}
 
 
-def _fig6(out: Path, store, rng) -> str:
-    plt = _plt()
+def _fig6(out: Path, store, rng, size: str) -> str:
     combos = [(4, 3), (10, 5), (20, 10), (40, 39)]
-    fig, axes = plt.subplots(1, 4, figsize=(14, 3.2))
+    with figure(out / "fig6_distributions.png", figsize=(14, 3.2), ncols=4, dpi=90) as (_, axes):
+        lines = _fig6_panels(axes, combos, store, rng, pick(size, full=4000, quick=4000, tiny=200))
+    return ("**Fig. 6** distributions of completion times:\n\n" + "\n".join(lines)
+            + "\n\n![fig6](ChannelAssociation-v0/fig6_distributions.png)\n")
+
+
+def _fig6_panels(axes, combos, store, rng, trials: int) -> list[str]:
     lines = ["| w | v | sim mean | exact E[T] | BP eq. (1) | max \\|pmf diff\\| |", "|---|---|---|---|---|---|"]
     for ax, (w, v) in zip(axes, combos, strict=True):
         done = store.get((w, v))
         if done is None:
-            done = neighborhood_trials(w, v, 4000, rng)
+            done = neighborhood_trials(w, v, trials, rng)
         tmax = int(done.max()) + 2
         pmf = theory.completion_pmf(w, v, tmax)
         emp = np.bincount(done, minlength=tmax + 1)[: tmax + 1] / len(done)
@@ -109,17 +115,20 @@ def _fig6(out: Path, store, rng) -> str:
         lines.append(f"| {w} | {v} | {done.mean():.3f} | {theory.exact_completion_time(w, v):.3f} | "
                      f"{theory.bp_completion_time(w, v):.3f} | {np.abs(pmf - emp).max():.4f} |")
     axes[0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "fig6_distributions.png", dpi=90)
-    plt.close(fig)
-    return ("**Fig. 6** distributions of completion times:\n\n" + "\n".join(lines)
-            + "\n\n![fig6](ChannelAssociation-v0/fig6_distributions.png)\n")
+    return lines
 
 
-def _fig7_8(out: Path, quick: bool, rng) -> tuple[str, dict]:
-    plt = _plt()
-    trials = 1000 if quick else 20000
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+def _fig7_8(out: Path, size: str, rng) -> tuple[str, dict]:
+    trials = pick(size, full=20000, quick=1000, tiny=50)
+    with figure(out / "fig7_8_bp_model.png", figsize=(10, 3.8), ncols=2, dpi=90) as (_, axes):
+        lines, gaps = _fig7_8_panels(axes, trials, rng)
+    under = all(g < 0 for gg in gaps.values() for g in gg)
+    closer = all(abs(gg[-1]) < abs(gg[0]) for gg in gaps.values())
+    return ("**Figs 7–8** BP model vs simulation:\n\n" + "\n".join(lines)
+            + "\n\n![fig7_8](ChannelAssociation-v0/fig7_8_bp_model.png)\n"), {"under": under, "closer_high_v": closer, "gaps": gaps}
+
+
+def _fig7_8_panels(axes, trials: int, rng) -> tuple[list[str], dict]:
     lines = ["| w | v | sim mean ± sd | exact | BP eq. (1) | BP − exact |", "|---|---|---|---|---|---|"]
     gaps = {}
     for ax, w in zip(axes, (20, 40), strict=True):
@@ -133,26 +142,27 @@ def _fig7_8(out: Path, quick: bool, rng) -> tuple[str, dict]:
         ax.errorbar(vs, m, yerr=s, fmt="o", ms=3, label="simulation ± 1 sd")
         ax.plot(vs, ex, "k-", label="exact")
         ax.plot(vs, bp, "r--", label="BP eq. (1)")
-        ax.set_title(f"w = {w}")
-        ax.set_xlabel("v")
-        ax.set_ylabel("steps to completion")
+        label_axes(ax, title=f"w = {w}", xlabel="v", ylabel="steps to completion")
         for i in (0, len(vs) // 2, len(vs) - 1):
             lines.append(f"| {w} | {vs[i]} | {m[i]:.2f} ± {s[i]:.2f} | {ex[i]:.2f} | {bp[i]:.2f} | {bp[i] - ex[i]:+.2f} |")
     axes[0].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "fig7_8_bp_model.png", dpi=90)
-    plt.close(fig)
-    under = all(g < 0 for gg in gaps.values() for g in gg)
-    closer = all(abs(gg[-1]) < abs(gg[0]) for gg in gaps.values())
-    return ("**Figs 7–8** BP model vs simulation:\n\n" + "\n".join(lines)
-            + "\n\n![fig7_8](ChannelAssociation-v0/fig7_8_bp_model.png)\n"), {"under": under, "closer_high_v": closer, "gaps": gaps}
+    return lines, gaps
 
 
-def _fig9(out: Path, quick: bool, rng) -> tuple[str, dict]:
-    plt = _plt()
-    trials = 1000 if quick else 20000
+def _fig9(out: Path, size: str, rng) -> tuple[str, dict]:
+    trials = pick(size, full=20000, quick=1000, tiny=50)
     T = 16
-    fig, ax = plt.subplots(figsize=(6, 4))
+    with figure(out / "fig9_fraction_matched.png", figsize=(6, 4), dpi=90) as (_, ax):
+        lines, errs = _fig9_curves(ax, trials, T, rng)
+        label_axes(ax, xlabel="time step", ylabel="fraction matched",
+                   title="dots: simulation, dashed: eq. (3), solid: exact", legend=7)
+    return ("**Fig. 9** fraction matched (simulation uses v = w − 1, the model w = v as in the paper):\n\n"
+            + "\n".join(lines) + f"\n\nMax |eq. (3) − simulation| over t ≤ {T}: "
+            + ", ".join(f"{e:.3f}" for e in errs) + " for w = 5, 10, 20, 40.\n\n"
+            "![fig9](ChannelAssociation-v0/fig9_fraction_matched.png)\n"), {"max_err": max(errs)}
+
+
+def _fig9_curves(ax, trials: int, T: int, rng) -> tuple[list[str], list[float]]:
     lines = ["| w | t | sim (v = w−1) | exact | eq. (3) (w = v) |", "|---|---|---|---|---|"]
     errs = []
     for w, c in zip((5, 10, 20, 40), ("C0", "C1", "C2", "C3"), strict=True):
@@ -166,20 +176,10 @@ def _fig9(out: Path, quick: bool, rng) -> tuple[str, dict]:
         ax.plot(t, ex, "-", color=c, lw=0.8)
         for tt in (3, 6, 9):
             lines.append(f"| {w} | {tt} | {frac[tt]:.3f} | {ex[tt]:.3f} | {mod[tt]:.3f} |")
-    ax.set_xlabel("time step")
-    ax.set_ylabel("fraction matched")
-    ax.set_title("dots: simulation, dashed: eq. (3), solid: exact")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "fig9_fraction_matched.png", dpi=90)
-    plt.close(fig)
-    return ("**Fig. 9** fraction matched (simulation uses v = w − 1, the model w = v as in the paper):\n\n"
-            + "\n".join(lines) + f"\n\nMax |eq. (3) − simulation| over t ≤ {T}: "
-            + ", ".join(f"{e:.3f}" for e in errs) + " for w = 5, 10, 20, 40.\n\n"
-            "![fig9](ChannelAssociation-v0/fig9_fraction_matched.png)\n"), {"max_err": max(errs)}
+    return lines, errs
 
 
-def _markov(out: Path, quick: bool) -> tuple[str, dict]:
+def _markov(out: Path) -> tuple[str, dict]:
     lines = ["| w | v | closed form (p = ½) | Markov chain (p = ½) | chain p = 0.3 | chain p = 0.1 | BP eq. (1) |",
              "|---|---|---|---|---|---|---|"]
     maxdiff = 0.0
@@ -195,8 +195,8 @@ def _markov(out: Path, quick: bool) -> tuple[str, dict]:
     elapsed = time.perf_counter() - t0
     ps = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9]
     curve = [theory.markov_completion_time(8, 7, p) for p in ps]
-    with open(out / "markov_exact.json", "w") as fh:
-        json.dump({"max_abs_diff_closed_vs_chain": maxdiff, "p": ps, "E_T_w8_v7": curve}, fh, indent=1)
+    atomic_write_json(out / "markov_exact.json",
+                      {"max_abs_diff_closed_vs_chain": maxdiff, "p": ps, "E_T_w8_v7": curve}, indent=1)
     best = ps[int(np.argmin(curve))]
     md = ("**Exact E[T] for w ≤ 8** (the paper computed these with the absorbing chain over Bell(w) i-states, "
           "calling the approach O(w!³)). Our lumped chain (states = multisets of (visible, invisible) class "
@@ -207,8 +207,7 @@ def _markov(out: Path, quick: bool) -> tuple[str, dict]:
 
 
 # ====================================================================== mobile
-def _mobile_run(rng, quick, seeds, steps, **kw):
-    side = 40 if quick else 60
+def _mobile_run(rng, side, seeds, steps, **kw):
     sep = kw.get("separation", 5.0)
     series = []
     new_samples, in_range = [], []
@@ -232,10 +231,10 @@ def _mobile_run(rng, quick, seeds, steps, **kw):
             "new_mean": float(new.mean()), "new_var": float(new.var()), "in_range": float(np.mean(in_range)), "rho": rho}
 
 
-def _mobile(out: Path, quick: bool, rng) -> tuple[str, dict]:
-    plt = _plt()
-    steps = 100 if quick else 250
-    seeds = 1 if quick else 3
+def _mobile(out: Path, size: str, rng) -> tuple[str, dict]:
+    steps = pick(size, full=250, quick=100, tiny=12)
+    seeds = pick(size, full=3, quick=1)
+    side = pick(size, full=60, quick=40, tiny=16)
     sweeps = {
         "mix (Figs 10–11)": ("mobile_fraction", [0.1, 0.5, 0.9], "mobile fraction"),
         "range (Figs 12–13)": ("range", [10.0, 16.0, 22.0], "range"),
@@ -243,38 +242,32 @@ def _mobile(out: Path, quick: bool, rng) -> tuple[str, dict]:
         "speed (Figs 16–17)": ("speed", [16 / 20, 16 / 11, 16 / 8], "speed"),
     }
     results = {}
-    fig, axes = plt.subplots(2, 4, figsize=(16, 7))
     lines = ["| sweep | value | robots in range | steady fraction matched | steady edge ratio | E[v_new] | Var[v_new] |",
              "|---|---|---|---|---|---|---|"]
     h = steps // 2
-    for col, (name, (key, vals, label)) in enumerate(_progress(list(sweeps.items()), "mobile")):
-        for val in vals:
-            res = _mobile_run(rng, quick, seeds, steps, **{key: val})
-            results[(key, val)] = res
-            axes[0, col].plot(res["fm"], label=f"{label} {val:.3g}")
-            axes[1, col].plot(res["er"], label=f"{label} {val:.3g}")
-            lines.append(f"| {name} | {val:.3g} | {res['in_range']:.1f} | {res['fm'][h:].mean():.3f} | "
-                         f"{res['er'][h:].mean():.3f} | {res['new_mean']:.2f} | {res['new_var']:.2f} |")
-        axes[0, col].set_title(name)
-        axes[0, col].legend(fontsize=7)
-        axes[1, col].set_xlabel("time step")
-        axes[1, col].set_yscale("log")
-    axes[0, 0].set_ylabel("fraction matched")
-    axes[1, 0].set_ylabel("ratio total / true edges")
+    with figure(out / "fig10_17_mobile_sweeps.png", figsize=(16, 7), nrows=2, ncols=4, dpi=80) as (_, axes):
+        for col, (name, (key, vals, label)) in enumerate(progress(list(sweeps.items()), "mobile")):
+            for val in vals:
+                res = _mobile_run(rng, side, seeds, steps, **{key: val})
+                results[(key, val)] = res
+                axes[0, col].plot(res["fm"], label=f"{label} {val:.3g}")
+                axes[1, col].plot(res["er"], label=f"{label} {val:.3g}")
+                lines.append(f"| {name} | {val:.3g} | {res['in_range']:.1f} | {res['fm'][h:].mean():.3f} | "
+                             f"{res['er'][h:].mean():.3f} | {res['new_mean']:.2f} | {res['new_var']:.2f} |")
+            label_axes(axes[0, col], title=name, legend=7)
+            label_axes(axes[1, col], xlabel="time step", yscale="log")
+        axes[0, 0].set_ylabel("fraction matched")
+        axes[1, 0].set_ylabel("ratio total / true edges")
     keys = list(results)
-    np.savetxt(out / "mobile_steady.csv",
+    _savetxt(out / "mobile_steady.csv",
                np.array([[i, k[1], results[k]["in_range"], results[k]["fm"][h:].mean(), results[k]["er"][h:].mean(),
                           results[k]["new_mean"], results[k]["new_var"]] for i, k in enumerate(keys)]),
                delimiter=",", fmt="%.6g", header="config,value,in_range,fraction_matched,edge_ratio,new_mean,new_var",
                comments="")
-    np.savetxt(out / "mobile_timeseries.csv",
+    _savetxt(out / "mobile_timeseries.csv",
                np.column_stack([results[k][m] for k in keys for m in ("fm", "er")]), delimiter=",", fmt="%.5g",
                header=",".join(f"{k[0]}={k[1]:.3g}:{m}" for k in keys for m in ("fraction_matched", "edge_ratio")),
                comments="")
-    fig.tight_layout()
-    fig.savefig(out / "fig10_17_mobile_sweeps.png", dpi=80)
-    plt.close(fig)
-    side = 40 if quick else 60
     md = (f"**Figs 10–17** mobile sweeps: a {side}×{side} field (separation 5 unless swept, range 16, speed 16/11, "
           f"10 % mobile), only the mobile robots measured (§5.4), {seeds} seed(s), {steps} steps; steady state = "
           f"mean over the second half.\n\n" + "\n".join(lines)
@@ -283,10 +276,26 @@ def _mobile(out: Path, quick: bool, rng) -> tuple[str, dict]:
 
 
 def _models(out: Path, results) -> tuple[str, dict]:
-    plt = _plt()
+    with figure(out / "fig20_25_models.png", figsize=(13, 7), nrows=2, ncols=3, dpi=80) as (_, axes):
+        lines, cmp = _models_panels(axes, results)
+    vals = np.array(list(cmp.values()))
+    under = bool(np.all(vals[:, 1] < vals[:, 0]))
+    over = int(np.sum(vals[:, 1] > vals[:, 0]))
+    rel2 = float(np.mean(np.abs(vals[:, 3] - vals[:, 2]) / vals[:, 2]))
+    relm = float(np.mean(np.abs(vals[:, 4] - vals[:, 2]) / vals[:, 2]))
+    relf = float(np.mean(np.abs(vals[:, 5] - vals[:, 2]) / vals[:, 2]))
+    md = ("**Figs 20–25** models vs simulation (steady state; Var[v_new] for eq. (10) measured in the simulation "
+          "as the paper did; ρ = robots per unit area):\n\n" + "\n".join(lines)
+          + f"\n\nMean relative error of the edge ratio: two-region {100 * rel2:.1f} % (as printed), "
+          f"{100 * relf:.1f} % with the true-edge exit corrected, multi-region {100 * relm:.1f} %. The paper judges its "
+          "models against ±1 standard deviation of the simulation; we compare means only.\n\n"
+          "![models](ChannelAssociation-v0/fig20_25_models.png)\n")
+    return md, {"fm_under": under, "fm_over": over, "fm_n": len(vals), "relf": relf, "rel2": rel2, "relm": relm, "cmp": cmp}
+
+
+def _models_panels(axes, results) -> tuple[list[str], dict]:
     lines = ["| sweep value | E[v_new] sim / ρA_F | fraction matched sim | §5.7 model | edge ratio sim | two-region | two-region, p_T− = v_exit/v_rest | multi-region |",
              "|---|---|---|---|---|---|---|---|"]
-    fig, axes = plt.subplots(2, 3, figsize=(13, 7))
     cmp = {}
     for col, key in enumerate(("range", "separation", "speed")):
         for (k, val), res in results.items():
@@ -315,22 +324,7 @@ def _models(out: Path, results) -> tuple[str, dict]:
         axes[1, col].set_title(f"{key}: edge ratio (dotted: 2-region, dashed: multi)")
         axes[1, col].set_yscale("log")
         axes[0, col].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "fig20_25_models.png", dpi=80)
-    plt.close(fig)
-    vals = np.array(list(cmp.values()))
-    under = bool(np.all(vals[:, 1] < vals[:, 0]))
-    over = int(np.sum(vals[:, 1] > vals[:, 0]))
-    rel2 = float(np.mean(np.abs(vals[:, 3] - vals[:, 2]) / vals[:, 2]))
-    relm = float(np.mean(np.abs(vals[:, 4] - vals[:, 2]) / vals[:, 2]))
-    relf = float(np.mean(np.abs(vals[:, 5] - vals[:, 2]) / vals[:, 2]))
-    md = ("**Figs 20–25** models vs simulation (steady state; Var[v_new] for eq. (10) measured in the simulation "
-          "as the paper did; ρ = robots per unit area):\n\n" + "\n".join(lines)
-          + f"\n\nMean relative error of the edge ratio: two-region {100 * rel2:.1f} % (as printed), "
-          f"{100 * relf:.1f} % with the true-edge exit corrected, multi-region {100 * relm:.1f} %. The paper judges its "
-          "models against ±1 standard deviation of the simulation; we compare means only.\n\n"
-          "![models](ChannelAssociation-v0/fig20_25_models.png)\n")
-    return md, {"fm_under": under, "fm_over": over, "fm_n": len(vals), "relf": relf, "rel2": rel2, "relm": relm, "cmp": cmp}
+    return lines, cmp
 
 
 # ====================================================================== beyond the paper
@@ -341,13 +335,12 @@ def _solve_time(ctz: np.ndarray) -> int:
     return int(c.max(axis=1).max()) + 1
 
 
-def _id_bits(out: Path, quick: bool, rng) -> tuple[str, dict]:
-    from baselines.channel_association import POLICIES
+def _id_bits(out: Path, size: str, rng) -> tuple[str, dict]:
     from mrcomm_env.channel_association_v0 import parallel_env
 
     lines = ["| w (v = w−1) | coin flip exact E[T] | id_bits, IDs 0…w (B = ⌈log2(w+1)⌉) | id_bits, random 14-bit IDs (10k robots) | id_bits, random 32-bit IDs |",
              "|---|---|---|---|---|"]
-    trials = 300 if quick else 3000
+    trials = pick(size, full=3000, quick=300, tiny=10)
     out_rows = []
     for w in (4, 8, 16, 27, 40, 74, 200):
         v = w - 1
@@ -371,16 +364,15 @@ def _id_bits(out: Path, quick: bool, rng) -> tuple[str, dict]:
     # mobile field through the environment itself: steady fraction matched, coin flip vs id_bits
     env_rows = []
     for pol_name in ("coin_flip", "id_bits"):
-        env = parallel_env(n_robots=400, separation=5.0, max_cycles=60 if quick else 150)
-        pol = POLICIES[pol_name]()
-        obs, _ = env.reset(seed=1)
-        pol.reset(env.local_views(), 1)
+        env = parallel_env(n_robots=400, separation=5.0, max_cycles=pick(size, full=150, quick=60, tiny=6))
         fm = []
-        while env.agents:
-            obs, *_ = env.step(pol.act(obs, env.local_views()))
+
+        def record(*_, env=env, fm=fm):
             fm.append(env.metrics()["fraction_matched"])
-        env_rows.append((pol_name, float(np.mean(fm[len(fm) // 2:])), env.metrics()["edge_ratio"]))
-    np.savetxt(out / "id_bits_vs_coin.csv", np.array(out_rows), delimiter=",", fmt="%.5g",
+
+        metrics = run_episode(env, make_policy(ENV_ID, pol_name), 1, on_step=record)
+        env_rows.append((pol_name, float(np.mean(fm[len(fm) // 2:])), metrics["edge_ratio"]))
+    _savetxt(out / "id_bits_vs_coin.csv", np.array(out_rows), delimiter=",", fmt="%.5g",
                header="w,coin_exact,idbits_dense,idbits_rand14,idbits_rand32", comments="")
     md = ("**Beyond the paper — `id_bits` vs `coin_flip`** (stationary neighbourhood, mean steps to completion):\n\n"
           + "\n".join(lines)
@@ -396,19 +388,20 @@ def _id_bits(out: Path, quick: bool, rng) -> tuple[str, dict]:
 
 
 # ====================================================================== entry point
-def run(out_dir: Path, quick: bool) -> str:
+def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    size = size_of(quick, tiny)
     rng = np.random.default_rng(2016)
     t0 = time.perf_counter()
-    md5, r5 = _fig5(out, quick, rng)
-    md6 = _fig6(out, r5["store"], rng)
-    md78, r78 = _fig7_8(out, quick, rng)
-    md9, r9 = _fig9(out, quick, rng)
-    mdm, rm = _markov(out, quick)
-    mdmob, rmob = _mobile(out, quick, rng)
+    md5, r5 = _fig5(out, size, rng)
+    md6 = _fig6(out, r5["store"], rng, size)
+    md78, r78 = _fig7_8(out, size, rng)
+    md9, r9 = _fig9(out, size, rng)
+    mdm, rm = _markov(out)
+    mdmob, rmob = _mobile(out, size, rng)
     mdmod, rmod = _models(out, rmob)
-    mdid, rid = _id_bits(out, quick, rng)
+    mdid, rid = _id_bits(out, size, rng)
     h = lambda res: len(res["fm"]) // 2  # noqa: E731
     steady = {k: (float(v["fm"][h(v):].mean()), float(v["er"][h(v):].mean())) for k, v in rmob.items()}
 
@@ -462,11 +455,11 @@ def run(out_dir: Path, quick: bool) -> str:
         "robots are mobile, while Figs 10–11 use 10/50/90 %. (5) §4.3.1 calls the exact chain O(w!³); lumping "
         "i-states by class sizes makes it cheap, and for p = ½ a closed form exists (theory.py).")
     claim_md += slips
-    with open(out / "summary.json", "w") as fh:
-        json.dump({"fig5": r5["stats"], "claims": [(c, str(b), e) for c, b, e in claims],
-                   "seconds": time.perf_counter() - t0, "quick": quick}, fh, indent=1, default=float)
+    atomic_write_json(out / "summary.json",
+                      {"fig5": r5["stats"], "claims": [(c, str(b), e) for c, b, e in claims],
+                       "seconds": time.perf_counter() - t0, "quick": quick}, indent=1, default=float)
     return ("## ChannelAssociation-v0 (Ivanov & Shell, *Hark! Who goes there?*)\n\n"
-            f"{'Quick run (subsets, fewer trials)' if quick else 'Full run'}; {time.perf_counter() - t0:.0f} s. "
+            f"{'Tiny run (smoke-test sizes; the numbers mean nothing)' if tiny else 'Quick run (subsets, fewer trials)' if quick else 'Full run'}; {time.perf_counter() - t0:.0f} s. "
             "All sweeps drive the environment's own filter classes in batch.\n\n"
             "### The paper's claims, one by one\n\n" + claim_md + "\n\n### Stationary neighbourhoods (§4)\n\n"
             + md5 + "\n" + md6 + "\n" + md78 + "\n" + md9 + "\n" + mdm
