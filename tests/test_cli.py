@@ -36,8 +36,21 @@ def test_evaluate_writes_json_of_stable_shape(env_id, tmp_path, capsys):
     path = tmp_path / "eval.json"
     short = env_id.split("/", 1)[1]  # ids work without the namespace
     code = main(
-        ["evaluate", short, "--policy", default_policy(env_id), "--episodes", "3", "--seed", "5",
-         "--param", "max_cycles=15", "--json", str(path), "--quiet"]
+        [
+            "evaluate",
+            short,
+            "--policy",
+            default_policy(env_id),
+            "--episodes",
+            "3",
+            "--seed",
+            "5",
+            "--param",
+            "max_cycles=15",
+            "--json",
+            str(path),
+            "--quiet",
+        ]
     )
     assert code == 0
     record = json.loads(path.read_text())
@@ -60,7 +73,10 @@ def test_evaluate_writes_json_of_stable_shape(env_id, tmp_path, capsys):
     [
         (["evaluate", "Nope-v0", "--policy", "x"], "valid ids are"),
         (["evaluate", env_ids()[0], "--policy", "no_such_policy"], "valid policies are"),
-        (["evaluate", env_ids()[0], "--policy", default_policy(env_ids()[0]), "--param", "bogus=1"], "valid arguments are"),
+        (
+            ["evaluate", env_ids()[0], "--policy", default_policy(env_ids()[0]), "--param", "bogus=1"],
+            "valid arguments are",
+        ),
         (["reproduce"], "--all"),
     ],
 )
@@ -72,7 +88,8 @@ def test_bad_input_exits_nonzero_listing_valid_choices(argv, message, capsys):
 def test_console_script_exit_code_on_unknown_id():
     proc = subprocess.run(
         [sys.executable, "-m", "mrcomm_env.experiments.cli", "evaluate", "Nope-v0", "--policy", "x"],
-        capture_output=True, text=True,
+        capture_output=True,
+        text=True,
     )
     assert proc.returncode != 0 and "valid ids are" in proc.stderr
 
@@ -198,8 +215,19 @@ def test_policy_that_does_not_fit_the_env_is_reported_before_any_episode(capsys,
 
 def test_huge_mode_number_is_one_line(capsys):
     # issue 11: "scheme2_q" followed by 25 nines overflowed an integer conversion deep inside the env
-    argv = ["evaluate", "AsyncCL-v0", "--policy", "random", "--episodes", "1", "--quiet", "--param", "max_cycles=2",
-            "--param", 'modes=["scheme2_q' + "9" * 25 + '"]']
+    argv = [
+        "evaluate",
+        "AsyncCL-v0",
+        "--policy",
+        "random",
+        "--episodes",
+        "1",
+        "--quiet",
+        "--param",
+        "max_cycles=2",
+        "--param",
+        'modes=["scheme2_q' + "9" * 25 + '"]',
+    ]
     assert main(argv) == 2
     assert _one_error_line(capsys.readouterr().err).startswith("mrcomm: error: ")
 
@@ -236,7 +264,8 @@ def test_debug_shows_the_traceback(where, monkeypatch):
 def test_console_script_bad_seed_has_no_traceback():
     proc = subprocess.run(
         [sys.executable, "-m", "mrcomm_env.experiments.cli", *_evaluate_argv("--seed", "-1")],
-        capture_output=True, text=True,
+        capture_output=True,
+        text=True,
     )
     assert proc.returncode == 2
     assert "--seed" in _one_error_line(proc.stderr)

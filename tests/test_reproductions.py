@@ -31,8 +31,11 @@ def paper_numbers(env_id: str) -> list[str]:
         from mrcomm_env.asynccl import theory
 
         # Table I (theory, simulation and q = 1 columns) and Table II for N = 3, the smallest team
-        return [f"{theory.PAPER_TABLE1[3][0]:.4f}/{theory.PAPER_TABLE1[3][1]:.4f}", f"{theory.PAPER_TABLE1[3][3]:.4f}",
-                f"{theory.PAPER_TABLE2[3]:.4f}"]
+        return [
+            f"{theory.PAPER_TABLE1[3][0]:.4f}/{theory.PAPER_TABLE1[3][1]:.4f}",
+            f"{theory.PAPER_TABLE1[3][3]:.4f}",
+            f"{theory.PAPER_TABLE2[3]:.4f}",
+        ]
     if env_id == "mrcomm/MultiHop-v0":
         from mrcomm_env.multihop import theory
 
@@ -169,7 +172,9 @@ def test_reproduce_killed_by_sigint_leaves_no_report(tmp_path):
     (out / "REPORT.md").write_text(STALE_REPORT)
     proc = subprocess.Popen(
         [sys.executable, "-m", "mrcomm_env.experiments.cli", "reproduce", "--all", "--tiny", "--out", str(out)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
     try:
         deadline = time.monotonic() + 300

@@ -33,7 +33,7 @@ from mrcomm_env.multihop.sweep import grid_propagation
 
 EXPERIMENTS = {
     "fig2_propagation": "average propagation time vs slot length m on the 10×10 grid, centred 2×2…8×8 subgraphs, "
-                        "Monte-Carlo random slot orders, cold-start and steady-state readings",
+    "Monte-Carlo random slot orders, cold-start and steady-state readings",
     "claim_m7": "does m = 7 cut every subgraph's propagation time by > 47 % against flooding (m = 100)?",
     "rules_m7": "Algorithm 1 as in the text (lowest counter) vs the listing (argmax), eq. (2) and age_aware at m = 7",
     "fig3_coverage": "coverage cost over time, nine flying robots, m = 1 / 3 / 9 at 3000 baud, 192-bit estimates",
@@ -42,11 +42,22 @@ EXPERIMENTS = {
 }
 
 ENV_ID = "mrcomm/MultiHop-v0"
-ARTIFACTS = ("fig2_propagation.csv", "fig2_propagation.png", "fig3_coverage.csv", "fig3_coverage.png",
-             "fig5_staleness.csv", "fig5_staleness.png", "results.json")
+ARTIFACTS = (
+    "fig2_propagation.csv",
+    "fig2_propagation.png",
+    "fig3_coverage.csv",
+    "fig3_coverage.png",
+    "fig5_staleness.csv",
+    "fig5_staleness.png",
+    "results.json",
+)
 SIZES = (2, 4, 6, 8)
-READINGS = (("cold", 0, "cold start, all pairs (max)"), ("cold", 1, "cold start, mean pair"),
-            ("steady", 0, "fresh stamp in steady state, all pairs (max)"), ("steady", 1, "fresh stamp in steady state, mean pair"))
+READINGS = (
+    ("cold", 0, "cold start, all pairs (max)"),
+    ("cold", 1, "cold start, mean pair"),
+    ("steady", 0, "fresh stamp in steady state, all pairs (max)"),
+    ("steady", 1, "fresh stamp in steady state, mean pair"),
+)
 
 
 def _fmt(x: float, nd: int = 0) -> str:
@@ -63,8 +74,12 @@ def _summ(values: np.ndarray) -> tuple[float, float]:
 def fig2(out: Path, size: str) -> tuple[str, dict]:
     side = 10
     blocks = {k: proto.centred_block(side, k) for k in SIZES}
-    ms, runs, cap = pick(size, full=([2, 3, 4, 5, 6, 7, 8, 9, 10, 12, 14, 17, 20, 25, 30, 40, 50, 70, 100], 50, 1000),
-                         quick=([3, 7, 20, 100], 4, 300), tiny=([7, 100], 2, 20))
+    ms, runs, cap = pick(
+        size,
+        full=([2, 3, 4, 5, 6, 7, 8, 9, 10, 12, 14, 17, 20, 25, 30, 40, 50, 70, 100], 50, 1000),
+        quick=([3, 7, 20, 100], 4, 300),
+        tiny=([7, 100], 1, 8),
+    )
     rows, table = [], {}
     for m in progress(ms, desc="Fig 2: slot lengths"):
         res = grid_propagation(side, m, runs, seed=1000 + m, blocks=blocks, max_frames=cap)
@@ -72,9 +87,18 @@ def fig2(out: Path, size: str) -> tuple[str, dict]:
             for k in SIZES:
                 mean, half = _summ(res[phase][k][stat])
                 table[(m, phase, stat, k)] = mean
-                rows.append({"m": m, "reading": phase, "statistic": ("max", "mean")[stat], "subgraph": f"{k}x{k}",
-                             "mean_s": mean, "ci95_s": half, "runs": runs,
-                             "completed": int(np.isfinite(res[phase][k][stat]).sum())})
+                rows.append(
+                    {
+                        "m": m,
+                        "reading": phase,
+                        "statistic": ("max", "mean")[stat],
+                        "subgraph": f"{k}x{k}",
+                        "mean_s": mean,
+                        "ci95_s": half,
+                        "runs": runs,
+                        "completed": int(np.isfinite(res[phase][k][stat]).sum()),
+                    }
+                )
     with atomic_open(out / "fig2_propagation.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()
@@ -85,21 +109,30 @@ def fig2(out: Path, size: str) -> tuple[str, dict]:
 
 def _plot_fig2(out: Path, ms, table) -> None:
     with figure(out / "fig2_propagation.png", figsize=(11, 4.2), ncols=2, dpi=90) as (_, axes):
-        for ax, (phase, title) in zip(axes, (("cold", "cold start"), ("steady", "fresh stamp, steady state")),
-                                      strict=True):
+        for ax, (phase, title) in zip(
+            axes, (("cold", "cold start"), ("steady", "fresh stamp, steady state")), strict=True
+        ):
             for k in SIZES:
                 y = [table[(m, phase, 0, k)] for m in ms]
                 ax.plot(ms, y, marker="o", ms=3, label=f"{k}×{k}")
             ax.axvline(7, color="0.6", ls=":")
-            label_axes(ax, xscale="log", yscale="log", xlabel="slot length m (estimates)",
-                       ylabel="average propagation time (s), all pairs",
-                       title=f"10×10 grid, location-based (§3.2): {title}", legend=8)
+            label_axes(
+                ax,
+                xscale="log",
+                yscale="log",
+                xlabel="slot length m (estimates)",
+                ylabel="average propagation time (s), all pairs",
+                title=f"10×10 grid, location-based (§3.2): {title}",
+                legend=8,
+            )
 
 
 def best_m(table, ms) -> str:
     """Slot length with the lowest average propagation time, per reading and subgraph (Fig. 2's optimum)."""
-    lines = ["| reading | " + " | ".join(f"{k}×{k}: best m (s; vs m=100)" for k in SIZES) + " |",
-             "| --- |" + " --- |" * len(SIZES)]
+    lines = [
+        "| reading | " + " | ".join(f"{k}×{k}: best m (s; vs m=100)" for k in SIZES) + " |",
+        "| --- |" + " --- |" * len(SIZES),
+    ]
     for phase, stat, label in READINGS:
         cells = []
         for k in SIZES:
@@ -109,41 +142,73 @@ def best_m(table, ms) -> str:
             gain = (vals[m_best] - flood) / flood * 100 if math.isfinite(flood) and flood > 0 else math.nan
             cells.append(f"{m_best} ({_fmt(vals[m_best])}; {gain:+.0f} %)")
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    beats = [label for phase, stat, label in READINGS
-             if min(table[(m, phase, stat, 8)] for m in ms if m != 100) < table[(100, phase, stat, 8)]]
-    lines.append("\nFor the 8×8, some m < 100 beats flooding under: " + (", ".join(beats) or "no reading") +
-                 ". Only there does the 8×8 curve have the paper's shape (fastest at a moderate m, not at flooding).")
+    beats = [
+        label
+        for phase, stat, label in READINGS
+        if min(table[(m, phase, stat, 8)] for m in ms if m != 100) < table[(100, phase, stat, 8)]
+    ]
+    lines.append(
+        "\nFor the 8×8, some m < 100 beats flooding under: "
+        + (", ".join(beats) or "no reading")
+        + ". Only there does the 8×8 curve have the paper's shape (fastest at a moderate m, not at flooding)."
+    )
     return "\n".join(lines)
 
 
 def claim_m7(table) -> tuple[str, list[dict]]:
-    lines = ["| reading | subgraph | flooding m=100 (s) | m=7 (s) | change | > 47 % drop? |", "| --- | --- | --- | --- | --- | --- |"]
+    lines = [
+        "| reading | subgraph | flooding m=100 (s) | m=7 (s) | change | > 47 % drop? |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
     recs = []
     for phase, stat, label in READINGS:
         for k in SIZES:
             flood, lb = table[(100, phase, stat, k)], table[(7, phase, stat, k)]
             change = (lb - flood) / flood * 100 if math.isfinite(lb) and math.isfinite(flood) else math.inf
             holds = change < -47
-            recs.append({"reading": label, "subgraph": f"{k}x{k}", "flooding_s": flood, "m7_s": lb,
-                         "change_pct": change, "holds": bool(holds)})
-            lines.append(f"| {label} | {k}×{k} | {_fmt(flood)} | {_fmt(lb)} | "
-                         f"{'n/c' if not math.isfinite(change) else f'{change:+.0f} %'} | {'yes' if holds else '**no**'} |")
+            recs.append(
+                {
+                    "reading": label,
+                    "subgraph": f"{k}x{k}",
+                    "flooding_s": flood,
+                    "m7_s": lb,
+                    "change_pct": change,
+                    "holds": bool(holds),
+                }
+            )
+            lines.append(
+                f"| {label} | {k}×{k} | {_fmt(flood)} | {_fmt(lb)} | "
+                f"{'n/c' if not math.isfinite(change) else f'{change:+.0f} %'} | {'yes' if holds else '**no**'} |"
+            )
     return "\n".join(lines), recs
 
 
 def rules_m7(size: str, table) -> tuple[str, list[dict]]:
     blocks = {k: proto.centred_block(10, k) for k in SIZES}
-    runs, cap = pick(size, full=(50, 1000), quick=(4, 300), tiny=(2, 15))
-    configs = [("listing (argmax, Alg. 1)", "listing", 1.0),
-               ("eq. (2) probabilistic", "probabilistic", 1.0), ("age_aware (ours)", "age_aware", 1.0)]
+    runs, cap = pick(size, full=(50, 1000), quick=(4, 300), tiny=(1, 8))
+    configs = [
+        ("listing (argmax, Alg. 1)", "listing", 1.0),
+        ("eq. (2) probabilistic", "probabilistic", 1.0),
+        ("age_aware (ours)", "age_aware", 1.0),
+    ]
     if size == "full":
         configs += [("text, α = 0.25", "text", 0.25), ("text, α = 2", "text", 2.0)]
-    recs = [{"rule": "text", "subgraph": f"{k}x{k}", "cold_s": table[(7, "cold", 0, k)],
-             "steady_s": table[(7, "steady", 0, k)]} for k in SIZES]
-    lines = ["| selection at m=7 | " + " | ".join(f"{k}×{k} cold / steady (s)" for k in SIZES) + " |",
-             "| --- |" + " --- |" * len(SIZES),
-             "| text (lowest counter, §3.2; Fig. 2 runs) | " + " | ".join(
-                 f"{_fmt(r['cold_s'])} / {_fmt(r['steady_s'])}" for r in recs) + " |"]
+    recs = [
+        {
+            "rule": "text",
+            "subgraph": f"{k}x{k}",
+            "cold_s": table[(7, "cold", 0, k)],
+            "steady_s": table[(7, "steady", 0, k)],
+        }
+        for k in SIZES
+    ]
+    lines = [
+        "| selection at m=7 | " + " | ".join(f"{k}×{k} cold / steady (s)" for k in SIZES) + " |",
+        "| --- |" + " --- |" * len(SIZES),
+        "| text (lowest counter, §3.2; Fig. 2 runs) | "
+        + " | ".join(f"{_fmt(r['cold_s'])} / {_fmt(r['steady_s'])}" for r in recs)
+        + " |",
+    ]
     for label, sel, alpha in progress(configs, desc="selection rules at m=7"):
         cap_here = min(30, cap) if sel == "listing" else cap  # the listing never completes; do not burn the budget
         res = grid_propagation(10, 7, runs, seed=77, blocks=blocks, selector=sel, alpha=alpha, max_frames=cap_here)
@@ -166,8 +231,12 @@ def _make(**kw):
 def fig3(out: Path, size: str) -> tuple[str, dict]:
     horizon, seeds = pick(size, full=(300.0, 12), quick=(120.0, 2), tiny=(10.0, 1))
     grid_t = np.linspace(0.0, horizon, 301)
-    configs = [(1, "no_hop", "m=1 no hop"), (3, "location_based", "m=3 location-based"), (9, "flooding", "m=9 flooding"),
-               (3, "age_aware", "m=3 age_aware (ours)")]
+    configs = [
+        (1, "no_hop", "m=1 no hop"),
+        (3, "location_based", "m=3 location-based"),
+        (9, "flooding", "m=9 flooding"),
+        (3, "age_aware", "m=3 age_aware (ours)"),
+    ]
     curves, rates, finals = {}, {}, {}
     for m, pol_name, label in progress(configs, desc="Fig 3: coverage"):
         runs = []
@@ -193,36 +262,57 @@ def fig3(out: Path, size: str) -> tuple[str, dict]:
     with figure(out / "fig3_coverage.png", figsize=(6.5, 4), dpi=90) as (_, ax):
         for label, y in curves.items():
             ax.plot(grid_t, y, label=f"{label} ({rates[label]:.2f} Hz)")
-        label_axes(ax, yscale="log", xlabel="time (s)", ylabel="coverage cost H/area (m²)",
-                   title="9 robots, 100 m square, 40 m range, ≤ 5 m/s, 3000 baud, 192 bits", legend=8)
+        label_axes(
+            ax,
+            yscale="log",
+            xlabel="time (s)",
+            ylabel="coverage cost H/area (m²)",
+            title="9 robots, 100 m square, 40 m range, ≤ 5 m/s, 3000 baud, 192 bits",
+            legend=8,
+        )
     marks = [10.0, 30.0, 60.0]
     paper = theory.paper_frame_rates()
-    lines = ["| scheme | frame rate ours / paper (Hz) | " + " | ".join(f"cost at {t:.0f} s" for t in marks)
-             + " | mean cost over first 30 s | final cost (m²) | runs ending > 5 % above the 3×3 optimum |",
-             "| --- |" + " --- |" * (len(marks) + 4)]
+    lines = [
+        "| scheme | frame rate ours / paper (Hz) | "
+        + " | ".join(f"cost at {t:.0f} s" for t in marks)
+        + " | mean cost over first 30 s | final cost (m²) | runs ending > 5 % above the 3×3 optimum |",
+        "| --- |" + " --- |" * (len(marks) + 4),
+    ]
     optimum = 100.0**2 / 54  # centroidal 3×3 grid: each robot's square cell of side L/3, 2 (L/3)²/12
     summary = {}
-    for (m, _, label) in configs:
+    for m, _, label in configs:
         y = curves[label]
         at = [float(np.interp(t, grid_t, y)) for t in marks]
         early = float(y[grid_t <= 30.0].mean())
         final = float(y[grid_t >= horizon - 30.0].mean())
         stuck = sum(f > 1.05 * optimum for f in finals[label])
         summary[label] = {"at": at, "early": early, "final": final, "finals": finals[label], "stuck": stuck}
-        lines.append(f"| {label} | {rates[label]:.2f} / {paper.get(m, float('nan')) if m in paper else '–'} | "
-                     + " | ".join(f"{v:.0f}" for v in at) + f" | {early:.0f} | {final:.1f} | {stuck}/{seeds} |")
+        lines.append(
+            f"| {label} | {rates[label]:.2f} / {paper.get(m, float('nan')) if m in paper else '–'} | "
+            + " | ".join(f"{v:.0f}" for v in at)
+            + f" | {early:.0f} | {final:.1f} | {stuck}/{seeds} |"
+        )
     lines.append(f"\n3×3 optimum: {optimum:.1f} m²; {seeds} take-offs (seeds) per scheme, {horizon:.0f} s each.")
     return "\n".join(lines), summary
 
 
 def fig5(out: Path, size: str) -> str:
-    warm, sample = pick(size, full=(600, 300), quick=(200, 40), tiny=(20, 10))
-    configs = [(7, "location_based", "m=7 location-based"), (7, "age_aware", "m=7 age_aware (ours)"),
-               (100, "flooding", "m=100 flooding")]
+    warm, sample = pick(size, full=(600, 300), quick=(200, 40), tiny=(10, 5))
+    configs = [
+        (7, "location_based", "m=7 location-based"),
+        (7, "age_aware", "m=7 age_aware (ours)"),
+        (100, "flooding", "m=100 flooding"),
+    ]
     with figure(out / "fig5_staleness.png", figsize=(6.5, 4), dpi=90) as (_, ax):
         rows, lines = _fig5_runs(ax, configs, warm, sample)
-        label_axes(ax, xlabel="distance from the corner robot (grid units)", ylabel="mean age of its estimate (s)",
-                   yscale="log", title="Staleness vs distance, corner robot of the 10×10 grid (cf. Fig. 5)", legend=8)
+        label_axes(
+            ax,
+            xlabel="distance from the corner robot (grid units)",
+            ylabel="mean age of its estimate (s)",
+            yscale="log",
+            title="Staleness vs distance, corner robot of the 10×10 grid (cf. Fig. 5)",
+            legend=8,
+        )
     with atomic_open(out / "fig5_staleness.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()
@@ -232,8 +322,10 @@ def fig5(out: Path, size: str) -> str:
 
 def _fig5_runs(ax, configs, warm: int, sample: int) -> tuple[list[dict], list[str]]:
     rows = []
-    lines = ["| scheme | mean age of estimates at distance ≤ 2 (s) | 2–6 | > 6 | corner robot: unknown estimates |",
-             "| --- | --- | --- | --- | --- |"]
+    lines = [
+        "| scheme | mean age of estimates at distance ≤ 2 (s) | 2–6 | > 6 | corner robot: unknown estimates |",
+        "| --- | --- | --- | --- | --- |",
+    ]
     for m, pol_name, label in progress(configs, desc="Fig 5: staleness"):
         env = _make(scene="grid", slot_size=m, max_cycles=warm + sample)
         ages = []
@@ -250,19 +342,28 @@ def _fig5_runs(ax, configs, warm: int, sample: int) -> tuple[list[dict], list[st
         o = np.argsort(dist)[1:]
         ax.plot(dist[o], mean_age[o], ".", ms=5, label=label)
         for j in o:
-            rows.append({"scheme": label, "robot": int(j), "distance": float(dist[j]), "mean_age_s": float(mean_age[j]),
-                         "max_age_s": float(ages[:, j].max())})
+            rows.append(
+                {
+                    "scheme": label,
+                    "robot": int(j),
+                    "distance": float(dist[j]),
+                    "mean_age_s": float(mean_age[j]),
+                    "max_age_s": float(ages[:, j].max()),
+                }
+            )
         bands = [(dist > 0) & (dist <= 2), (dist > 2) & (dist <= 6), dist > 6]
         lines.append(f"| {label} | " + " | ".join(f"{mean_age[b].mean():.0f}" for b in bands) + f" | {unknown} |")
     return rows, lines
 
 
 def policies_m7(size: str) -> tuple[str, dict]:
-    frames = pick(size, full=800, quick=200, tiny=20)
+    frames = pick(size, full=800, quick=200, tiny=10)
     names = ["location_based", "age_aware", "probabilistic", "flooding", "no_hop", "random"]
     res = {}
-    lines = ["| policy (grid, m=7) | steady weighted age = −reward (s) | mean age (s) | 8×8 cold propagation (s) |",
-             "| --- | --- | --- | --- |"]
+    lines = [
+        "| policy (grid, m=7) | steady weighted age = −reward (s) | mean age (s) | 8×8 cold propagation (s) |",
+        "| --- | --- | --- | --- |",
+    ]
     for name in progress(names, desc="policies at m=7"):
         env = _make(scene="grid", slot_size=7, max_cycles=frames)
         rewards = []
@@ -271,12 +372,19 @@ def policies_m7(size: str) -> tuple[str, dict]:
             rewards.append(next(iter(step_rewards.values())))
 
         met = run_episode(env, make_policy(ENV_ID, name), 11, on_step=record)
-        res[name] = {"weighted_age": -float(np.mean(rewards[frames // 2:])), "mean_age": met["mean_age"],
-                     "prop8": met["propagation_time_8x8"]}
+        res[name] = {
+            "weighted_age": -float(np.mean(rewards[frames // 2 :])),
+            "mean_age": met["mean_age"],
+            "prop8": met["propagation_time_8x8"],
+        }
         shown = "flooding (round-robin window at m=7)" if name == "flooding" else name
-        lines.append(f"| {shown} | {res[name]['weighted_age']:.0f} | {met['mean_age']:.0f} | {_fmt(met['propagation_time_8x8'])} |")
-    lines.append(f"\nOne seeded episode of {frames} frames each; weighted age averaged over the second half; "
-                 "n/c = the 8×8 subgraph had not completed within the episode.")
+        lines.append(
+            f"| {shown} | {res[name]['weighted_age']:.0f} | {met['mean_age']:.0f} | {_fmt(met['propagation_time_8x8'])} |"
+        )
+    lines.append(
+        f"\nOne seeded episode of {frames} frames each; weighted age averaged over the second half; "
+        "n/c = the 8×8 subgraph had not completed within the episode."
+    )
     return "\n".join(lines), res
 
 
@@ -301,21 +409,39 @@ def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
     cov_md, cov = timed("fig3", fig3, out, size)
     stale_md = timed("fig5", fig5, out, size)
     pol_md, pols = timed("policies_m7", policies_m7, size)
-    atomic_write_json(out / "results.json",
-                      {"claim_m7": claim, "rules_m7": rules, "fig3": cov, "policies_m7": pols,
-                       "quick": quick, "seconds": time.perf_counter() - start, "timing_s": timing},
-                      indent=2, default=float)
+    atomic_write_json(
+        out / "results.json",
+        {
+            "claim_m7": claim,
+            "rules_m7": rules,
+            "fig3": cov,
+            "policies_m7": pols,
+            "quick": quick,
+            "seconds": time.perf_counter() - start,
+            "timing_s": timing,
+        },
+        indent=2,
+        default=float,
+    )
 
     labels = [lab for _, _, lab in READINGS]
     all_hold = [lab for lab in labels if all(c["holds"] for c in claim if c["reading"] == lab)]
-    fails = "; ".join(f"{lab}: " + ", ".join(c["subgraph"] for c in claim if c["reading"] == lab and not c["holds"])
-                      for lab in labels if lab not in all_hold)
-    slower = [f"{c['subgraph']} ({c['reading']})" for c in claim if math.isfinite(c["change_pct"]) and c["change_pct"] > 0]
-    claim_note = ("Where it fails, m = 7 is even *slower* than flooding for: " + ", ".join(slower) + ". Estimates of "
-                  "distant robots are forwarded with probability ∝ d^-α (eq. 2), so every hop of a long chain waits "
-                  "for its relay's counter; flooding's 14× longer frame loses to that only over short distances. The "
-                  "paper leaves α and the units of Fig. 2 unstated; the α rows below show the sensitivity."
-                  if slower else "")
+    fails = "; ".join(
+        f"{lab}: " + ", ".join(c["subgraph"] for c in claim if c["reading"] == lab and not c["holds"])
+        for lab in labels
+        if lab not in all_hold
+    )
+    slower = [
+        f"{c['subgraph']} ({c['reading']})" for c in claim if math.isfinite(c["change_pct"]) and c["change_pct"] > 0
+    ]
+    claim_note = (
+        "Where it fails, m = 7 is even *slower* than flooding for: " + ", ".join(slower) + ". Estimates of "
+        "distant robots are forwarded with probability ∝ d^-α (eq. 2), so every hop of a long chain waits "
+        "for its relay's counter; flooding's 14× longer frame loses to that only over short distances. The "
+        "paper leaves α and the units of Fig. 2 unstated; the α rows below show the sensitivity."
+        if slower
+        else ""
+    )
     early = min(cov, key=lambda k: cov[k]["early"] if "ours" not in k else math.inf)  # paper's three schemes
     final = min(cov, key=lambda k: cov[k]["final"] if "ours" not in k else math.inf)
     name = out.name
