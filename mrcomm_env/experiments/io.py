@@ -11,6 +11,7 @@ truncated one. On any error the temporary file is removed.
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
 import tempfile
@@ -22,9 +23,10 @@ from typing import IO, Any
 TEMP_SUFFIX = ".partial"
 
 
+@functools.cache
 def _umask() -> int:
-    # os.umask can only be read by setting it; set it straight back (single-threaded CLI at this point)
-    mask = os.umask(0)
+    # os.umask can only be read by setting it; read once per process and set straight back
+    mask = os.umask(0o022)
     os.umask(mask)
     return mask
 
