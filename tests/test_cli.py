@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from baselines import default_policy, policy_names
-from mrcomm_env.experiments.cli import main, parse_params
 from mrcomm_env.core.stats import mean_ci95
+from mrcomm_env.experiments.cli import main, parse_params
 from mrcomm_env.registry import env_class, env_ids
 
 
@@ -36,8 +36,21 @@ def test_evaluate_writes_json_of_stable_shape(env_id, tmp_path, capsys):
     path = tmp_path / "eval.json"
     short = env_id.split("/", 1)[1]  # ids work without the namespace
     code = main(
-        ["evaluate", short, "--policy", default_policy(env_id), "--episodes", "3", "--seed", "5",
-         "--param", "max_cycles=15", "--json", str(path), "--quiet"]
+        [
+            "evaluate",
+            short,
+            "--policy",
+            default_policy(env_id),
+            "--episodes",
+            "3",
+            "--seed",
+            "5",
+            "--param",
+            "max_cycles=15",
+            "--json",
+            str(path),
+            "--quiet",
+        ]
     )
     assert code == 0
     record = json.loads(path.read_text())
@@ -60,7 +73,10 @@ def test_evaluate_writes_json_of_stable_shape(env_id, tmp_path, capsys):
     [
         (["evaluate", "Nope-v0", "--policy", "x"], "valid ids are"),
         (["evaluate", env_ids()[0], "--policy", "no_such_policy"], "valid policies are"),
-        (["evaluate", env_ids()[0], "--policy", default_policy(env_ids()[0]), "--param", "bogus=1"], "valid arguments are"),
+        (
+            ["evaluate", env_ids()[0], "--policy", default_policy(env_ids()[0]), "--param", "bogus=1"],
+            "valid arguments are",
+        ),
         (["reproduce"], "--all"),
     ],
 )
@@ -72,7 +88,8 @@ def test_bad_input_exits_nonzero_listing_valid_choices(argv, message, capsys):
 def test_console_script_exit_code_on_unknown_id():
     proc = subprocess.run(
         [sys.executable, "-m", "mrcomm_env.experiments.cli", "evaluate", "Nope-v0", "--policy", "x"],
-        capture_output=True, text=True,
+        capture_output=True,
+        text=True,
     )
     assert proc.returncode != 0 and "valid ids are" in proc.stderr
 
@@ -86,3 +103,185 @@ def test_bench_writes_json_with_ratio(tmp_path):
     entry = data["envs"][env_id]
     assert data["reference"]["env_steps_per_s"] > 0 and entry["env_steps_per_s"] > 0
     assert entry["ratio_to_reference"] == pytest.approx(entry["env_steps_per_s"] / data["reference"]["env_steps_per_s"])
+
+
+# ---------------------------------------------------------------------------------------------- errors
+def _one_error_line(err: str) -> str:
+    """The CLI's stderr on an error: exactly one line, no traceback."""
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+def _evaluate_argv(*extra: str) -> list[str]:
+    env_id = env_ids()[0]
+    return ["evaluate", env_id, "--policy", default_policy(env_id), "--param", "max_cycles=3", "--quiet", *extra]
+
+
+@pytest.fixture
+def no_episode(monkeypatch):
+    """Fails the test if any episode or timed run starts: input errors must be found before the work."""
+    from mrcomm_env.experiments import evaluation
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("the work started before the bad input was reported")
+
+    monkeypatch.setattr(evaluation, "run_episode", forbidden)
+    monkeypatch.setattr(evaluation, "steps_per_second", forbidden)
+
+
+@pytest.mark.parametrize("seed", ["-1", "1.5", "abc", "1e3"])
+def test_bad_seed_is_one_line(seed, capsys, no_episode):
+    assert main(_evaluate_argv("--seed", seed)) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert "--seed" in line and "integer ≥ 0" in line and repr(seed) in line
+
+
+@pytest.mark.parametrize(
+    ("flag", "value", "allowed"),
+    [("--episodes", "0", "integer ≥ 1"), ("--episodes", "-3", "integer ≥ 1"), ("--episodes", "two", "integer ≥ 1")],
+)
+def test_bad_episode_count_is_one_line(flag, value, allowed, capsys, no_episode):
+    assert main(_evaluate_argv(flag, value)) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert flag in line and allowed in line
+
+
+@pytest.mark.parametrize(
+    ("flag", "value", "allowed"),
+    [
+        ("--runs", "0", "integer ≥ 1"),
+        ("--runs", "2.5", "integer ≥ 1"),
+        ("--seconds", "-1", "> 0"),
+        ("--seconds", "0", "> 0"),
+        ("--seconds", "nan", "finite"),
+        ("--seconds", "inf", "finite"),
+        ("--warmup", "-1", "≥ 0"),
+    ],
+)
+def test_bad_bench_numbers_are_rejected_in_one_line(flag, value, allowed, tmp_path, capsys, no_episode):
+    argv = ["bench", env_ids()[0], flag, value, "--out", str(tmp_path / "bench.json")]
+    assert main(argv) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert flag in line and allowed in line
+    assert not (tmp_path / "bench.json").exists()
+
+
+def test_bench_checks_every_param_before_timing(tmp_path, capsys, no_episode):
+    argv = ["bench", *env_ids(), "--param", "bogus=1", "--runs", "1", "--out", str(tmp_path / "b.json")]
+    assert main(argv) == 2
+    assert "valid arguments are" in _one_error_line(capsys.readouterr().err)
+
+
+@pytest.fixture
+def blocked_dir(tmp_path):
+    """A path nothing can be written under, whoever runs the test (root included): its parent is a file."""
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a directory")
+    return blocker / "sub"
+
+
+def test_unwritable_json_is_reported_before_any_episode(blocked_dir, capsys, no_episode):
+    assert main(_evaluate_argv("--json", str(blocked_dir / "eval.json"))) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert "--json" in line and "not writable" in line
+
+
+def test_json_path_that_is_a_directory_is_rejected(tmp_path, capsys, no_episode):
+    assert main(_evaluate_argv("--json", str(tmp_path))) == 2
+    assert "is a directory" in _one_error_line(capsys.readouterr().err)
+
+
+def test_unwritable_bench_out_is_reported_before_timing(blocked_dir, capsys, no_episode):
+    assert main(["bench", env_ids()[0], "--runs", "1", "--out", str(blocked_dir / "bench.json")]) == 2
+    assert "--out" in _one_error_line(capsys.readouterr().err)
+
+
+def test_unwritable_reproduce_out_is_reported_before_any_reproduction(blocked_dir, capsys, monkeypatch):
+    from mrcomm_env.experiments import cli
+
+    monkeypatch.setattr(cli, "run_reproduction", lambda *a, **k: pytest.fail("reproduction started"))
+    assert main(["reproduce", env_ids()[0], "--tiny", "--out", str(blocked_dir)]) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert "--out" in line and "not writable" in line
+
+
+def test_policy_that_does_not_fit_the_env_is_reported_before_any_episode(capsys, no_episode):
+    # AsyncCL's scheme policies need their mode among the env's 'modes'; found by one reset before the episodes
+    argv = ["evaluate", "AsyncCL-v0", "--policy", "scheme1", "--param", 'modes=["silent"]', "--quiet"]
+    assert main(argv) == 2
+    assert "scheme1" in _one_error_line(capsys.readouterr().err)
+
+
+def test_huge_mode_number_is_one_line(capsys):
+    # issue 11: "scheme2_q" followed by 25 nines overflowed an integer conversion deep inside the env
+    argv = [
+        "evaluate",
+        "AsyncCL-v0",
+        "--policy",
+        "random",
+        "--episodes",
+        "1",
+        "--quiet",
+        "--param",
+        "max_cycles=2",
+        "--param",
+        'modes=["scheme2_q' + "9" * 25 + '"]',
+    ]
+    assert main(argv) == 2
+    assert _one_error_line(capsys.readouterr().err).startswith("mrcomm: error: ")
+
+
+@pytest.mark.parametrize(
+    ("raised", "code", "words"),
+    [
+        (MemoryError("Unable to allocate 7.63 GiB for an array with shape (2000, 2000, 256)"), 1, "out of memory"),
+        (OverflowError("int too large to convert"), 2, "int too large"),
+        (ValueError("first line\nsecond line"), 2, "first line second line"),
+        (KeyboardInterrupt(), 130, "interrupted"),
+        (RuntimeError("something broke"), 1, "--debug"),
+    ],
+)
+def test_failures_during_the_work_are_one_line(raised, code, words, monkeypatch, capsys):
+    from mrcomm_env.experiments import evaluation
+
+    def fail(*args, **kwargs):
+        raise raised
+
+    monkeypatch.setattr(evaluation, "evaluate", fail)
+    assert main(_evaluate_argv()) == code
+    assert words in _one_error_line(capsys.readouterr().err)
+
+
+@pytest.mark.parametrize("where", ["before", "after"])
+def test_debug_shows_the_traceback(where, monkeypatch):
+    argv = ["evaluate", "Nope-v0", "--policy", "x"]
+    argv = ["--debug", *argv] if where == "before" else [*argv, "--debug"]
+    with pytest.raises(ValueError, match="valid ids are"):
+        main(argv)
+
+
+def test_console_script_bad_seed_has_no_traceback():
+    proc = subprocess.run(
+        [sys.executable, "-m", "mrcomm_env.experiments.cli", *_evaluate_argv("--seed", "-1")],
+        capture_output=True,
+        text=True,
+    )
+    assert proc.returncode == 2
+    assert "--seed" in _one_error_line(proc.stderr)
+
+
+def test_json_is_written_atomically(tmp_path, monkeypatch, capsys):
+    """An evaluate run that fails while writing leaves the previous --json file whole and no temporary file."""
+    from mrcomm_env.experiments import io
+
+    path = tmp_path / "eval.json"
+    path.write_text('{"previous": true}')
+
+    def interrupted_sync(fd):  # Ctrl-C after the new bytes are written, before they replace the old file
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(io.os, "fsync", interrupted_sync)
+    assert main(_evaluate_argv("--json", str(path))) == 130
+    assert json.loads(path.read_text()) == {"previous": True}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["eval.json"]

@@ -1,4 +1,10 @@
-"""The ``mrcomm`` command: list, evaluate, train, reproduce, bench and docs."""
+"""The ``mrcomm`` command: list, evaluate, train, reproduce, reproduce-learning, bench and docs.
+
+Errors are one line on stderr and a non-zero exit (2 for bad input, 1 for a failure during the work,
+130 for Ctrl-C); ``--debug`` shows the traceback instead. Arguments, ``--param`` values and output paths
+are all checked before the work starts, and every result file is written atomically
+(:mod:`mrcomm_env.experiments.io`).
+"""
 
 from __future__ import annotations
 
@@ -10,10 +16,21 @@ import sys
 import time
 from pathlib import Path
 
+from mrcomm_env.experiments.io import (
+    atomic_remove,
+    atomic_write_json,
+    atomic_write_text,
+    check_writable_dir,
+    check_writable_file,
+)
 from mrcomm_env.experiments.reproductions import module as reproduction_module
+from mrcomm_env.experiments.reproductions import run_reproduction
 from mrcomm_env.registry import canonical_id, env_class, env_ids, make, short_name
 
 BENCH_REFERENCE = "mpe2 simple_spread_v3 (N=3, discrete actions, random actions)"
+EXIT_BAD_INPUT = 2
+EXIT_FAILURE = 1
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for a program stopped by Ctrl-C
 
 
 def parse_params(pairs: list[str] | None, flag: str = "--param") -> dict:
@@ -40,6 +57,49 @@ def _json_safe(obj):
     return obj
 
 
+# ---------------------------------------------------------------------------------------------- argument types
+def _integer(text: str, allowed: str, minimum: int) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = None
+    if value is None or value < minimum:
+        raise argparse.ArgumentTypeError(f"must be {allowed}, got {text!r}")
+    return value
+
+
+def seed_type(text: str) -> int:
+    return _integer(text, "an integer ≥ 0", 0)
+
+
+def positive_int(text: str) -> int:
+    return _integer(text, "an integer ≥ 1", 1)
+
+
+def _finite(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+    return value
+
+
+def positive_seconds(text: str) -> float:
+    value = _finite(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text!r}")
+    return value
+
+
+def nonnegative_seconds(text: str) -> float:
+    value = _finite(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds ≥ 0, got {text!r}")
+    return value
+
+
 # ---------------------------------------------------------------------------------------------- commands
 def cmd_list(args) -> int:
     from baselines import default_policy, policy_names
@@ -61,14 +121,22 @@ def cmd_evaluate(args) -> int:
     env_id = canonical_id(args.env_id)
     params = parse_params(args.param)
     policy_params = parse_params(args.policy_param, "--policy-param")
-    make(env_id, **params).close()  # validates the params before any episode runs
+    json_path = check_writable_file(args.json, "--json") if args.json else None
+    # everything a bad argument could break is built once before the first episode: the env with its
+    # params, the policy with its params, and the policy's reset against this env (e.g. a mode it needs)
     policy = make_any_policy(env_id, args.policy, **policy_params)
+    probe = make(env_id, **params)
+    try:
+        probe.reset(seed=args.seed)
+        policy.reset(probe.local_views(), args.seed)
+    finally:
+        probe.close()
     metrics = evaluate(lambda: make(env_id, **params), policy, args.episodes, args.seed, progress=not args.quiet)
     width = max(len(name) for name in metrics)
     print(f"{env_id}  policy={args.policy}  episodes={args.episodes}  seed={args.seed}  params={params}")
     for name, m in metrics.items():
         print(f"  {name:<{width}}  {m['mean']:>14.6g} ± {m['ci95']:.3g}")
-    if args.json:
+    if json_path is not None:
         record = {
             "env": env_id,
             "policy": args.policy,
@@ -78,11 +146,13 @@ def cmd_evaluate(args) -> int:
             "policy_params": policy_params,
             "metrics": metrics,
         }
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         # NaN (a metric undefined in an episode, e.g. a subgraph that never completed) becomes null: strict JSON
-        Path(args.json).write_text(json.dumps(_json_safe(record), indent=2, allow_nan=False))
-        print(f"wrote {args.json}")
+        atomic_write_json(json_path, _json_safe(record), indent=2, allow_nan=False)
+        print(f"wrote {json_path}")
     return 0
+
+
+REPORT_NAME = "REPORT.md"
 
 
 def cmd_reproduce(args) -> int:
@@ -93,26 +163,35 @@ def cmd_reproduce(args) -> int:
     if args.all == bool(args.env_ids):
         raise ValueError("name environment ids or pass --all (not both)")
     targets = env_ids() if args.all else [canonical_id(e) for e in args.env_ids]
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = check_writable_dir(args.out, "--out")
+    report = out / REPORT_NAME
+    # a REPORT.md describes the files of the run that wrote it: drop the old one before any file of this run
+    # replaces one of that run's, so an interrupted run leaves no report at all rather than a wrong one
+    atomic_remove(report)
+    size = "tiny" if args.tiny else "quick" if args.quick else "full"
     sections = []
     for env_id in targets:
         name = short_name(env_id)
-        print(f"== reproducing {env_id} ({'quick' if args.quick else 'full'}) ==", flush=True)
+        print(f"== reproducing {env_id} ({size}) ==", flush=True)
         start = time.perf_counter()
-        section = reproduction_module(env_id).run(out / name, quick=args.quick)
+        section = run_reproduction(env_id, out / name, quick=args.quick or args.tiny, tiny=args.tiny)
         # the report gives each env an H2; the section's own headings move one level down beneath it
         section = "\n".join("#" + line if line.startswith("#") else line for line in section.splitlines())
         elapsed = time.perf_counter() - start
-        sections.append(f"## {env_id}\n\n_{'quick' if args.quick else 'full'} run, {elapsed:.0f} s_\n\n{section}\n")
+        sections.append(f"## {env_id}\n\n_{size} run, {elapsed:.0f} s_\n\n{section}\n")
+    command = " ".join(
+        ["mrcomm reproduce", *(["--all"] if args.all else args.env_ids)]
+        + (["--quick"] if args.quick else [])
+        + (["--tiny"] if args.tiny else [])
+        + ["--out", str(args.out)]
+    )
     header = (
         "# mrcomm-env reproduction report\n\n"
-        f"Command: `mrcomm reproduce {' '.join(sys.argv[2:])}`. Scripted baselines only. "
+        f"Command: `{command}`. Scripted baselines only. "
         "Each section puts the paper's numbers beside ours. "
         f"Compiled twins of hot loops: {backend.name()} (`{backend.VARIABLE}`; see docs/architecture.md).\n\n"
     )
-    report = out / "REPORT.md"
-    report.write_text(header + "\n".join(sections))
+    atomic_write_text(report, header + "\n".join(sections))
     print(f"wrote {report}")
     return 0
 
@@ -127,6 +206,9 @@ def cmd_bench(args) -> int:
     limit_threads()
     targets = [canonical_id(e) for e in args.env_ids] or env_ids()
     params = parse_params(args.param)
+    out = check_writable_file(args.out, "--out")
+    for env_id in targets:  # every target accepts the params, before the first timed run
+        make(env_id, **params).close()
     runs = args.runs
 
     from tqdm.auto import tqdm
@@ -145,22 +227,26 @@ def cmd_bench(args) -> int:
     space = ref_env.action_space(ref_env.possible_agents[0])
     space.seed(0)
     ref = median_of(
-        lambda k, s=args.seconds: steps_per_second(ref_env, lambda obs: {a: space.sample() for a in obs}, s,
-                                                   seed=k % 10_000),
+        lambda k, s=args.seconds: steps_per_second(
+            ref_env, lambda obs: {a: space.sample() for a in obs}, s, seed=k % 10_000
+        ),
         "simple_spread_v3",
     )
     print(f"reference {BENCH_REFERENCE}: {ref[0]:,.0f} env-steps/s, {ref[1]:,.0f} agent-steps/s")
     results = {"reference": {"name": BENCH_REFERENCE, "env_steps_per_s": ref[0], "agent_steps_per_s": ref[1]}}
     results["backend"] = backend.name()
-    print(f"compiled twins of hot loops: {results['backend']} ({backend.VARIABLE}="
-          f"{os.environ.get(backend.VARIABLE, 'auto')})")
+    print(
+        f"compiled twins of hot loops: {results['backend']} ({backend.VARIABLE}="
+        f"{os.environ.get(backend.VARIABLE, 'auto')})"
+    )
     results["envs"] = {}
     for env_id in targets:
         env = make(env_id, **params)
         policy_name = default_policy(env_id)
         policy = make_policy(env_id, policy_name)
-        eps, aps = median_of(lambda k, s=args.seconds, env=env, policy=policy: _policy_speed(env, policy, s, k % 10_000),
-                             env_id)
+        eps, aps = median_of(
+            lambda k, s=args.seconds, env=env, policy=policy: _policy_speed(env, policy, s, k % 10_000), env_id
+        )
         ratio = eps / ref[0]
         unit, per = env.STEP_UNIT[0], env.substeps_per_step()
         results["envs"][env_id] = {
@@ -175,7 +261,10 @@ def cmd_bench(args) -> int:
             "units_per_s": eps * per,
             "ratio_per_unit": eps * per / ref[0],
         }
-        line = f"{env_id} [{policy_name}, N={env.n_agents}]: {eps:,.1f} env-steps/s, {aps:,.0f} agent-steps/s, ratio {ratio:.2f}"
+        line = (
+            f"{env_id} [{policy_name}, N={env.n_agents}]: {eps:,.1f} env-steps/s, {aps:,.0f} agent-steps/s, "
+            f"ratio {ratio:.2f}"
+        )
         if per != 1:  # e.g. one env step = one TDMA frame of N slots: compare slots with the reference's steps
             line += f"; {eps * per:,.0f} {unit}s/s, ratio per {unit} {eps * per / ref[0]:.2f}"
         print(line)
@@ -183,9 +272,7 @@ def cmd_bench(args) -> int:
     results["runs"] = runs
     results["seconds_per_run"] = args.seconds
     results["warmup_seconds"] = args.warmup
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(results, indent=2))
+    atomic_write_json(out, results, indent=2)
     print(f"wrote {out} (median of {runs} runs of {args.seconds:g} s each)")
     return 0
 
@@ -211,60 +298,110 @@ def cmd_docs(args) -> int:
 
 
 # ---------------------------------------------------------------------------------------------- parser
+class UsageError(ValueError):
+    """A command line argparse rejects (unknown flag, bad value); reported as one line like any ValueError."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):
+        # argparse would print the usage block and exit; one line, and the caller decides about exiting
+        raise UsageError(f"{message} (see '{self.prog} --help')")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="mrcomm", description="Multi-robot communication environments.")
+    parser = _Parser(prog="mrcomm", description="Multi-robot communication environments.")
+    parser.add_argument("--debug", action="store_true", help="show the full traceback of an error")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    sub.add_parser("list", help="environment ids, policies and reproductions").set_defaults(func=cmd_list)
+    def command(name: str, **kwargs) -> argparse.ArgumentParser:
+        p = sub.add_parser(name, **kwargs)
+        # accepted after the command name too; SUPPRESS keeps a --debug given before it
+        p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+        return p
 
-    p = sub.add_parser("evaluate", help="run a policy for K episodes; mean ± 95%% CI of every metric")
+    command("list", help="environment ids, policies and reproductions").set_defaults(func=cmd_list)
+
+    p = command("evaluate", help="run a policy for K episodes; mean ± 95%% CI of every metric")
     p.add_argument("env_id")
     p.add_argument("--policy", required=True)
-    p.add_argument("--episodes", type=int, default=10)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--episodes", type=positive_int, default=10)
+    p.add_argument("--seed", type=seed_type, default=0, help="seed of the first episode (integer ≥ 0)")
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="environment argument (JSON value)")
     p.add_argument("--policy-param", action="append", metavar="KEY=VALUE", help="policy parameter (JSON value)")
     p.add_argument("--json", metavar="PATH")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_evaluate)
 
-    p = sub.add_parser("reproduce", help="the papers' experiments with the scripted baselines")
+    p = command("reproduce", help="the papers' experiments with the scripted baselines")
     p.add_argument("env_ids", nargs="*")
     p.add_argument("--all", action="store_true")
     p.add_argument("--quick", action="store_true", help="a reduced run that fits in a few minutes")
+    p.add_argument(
+        "--tiny",
+        action="store_true",
+        help="smoke-test sizes (seconds per env): every file is written, the numbers mean nothing",
+    )
     p.add_argument("--out", default="results")
     p.set_defaults(func=cmd_reproduce)
 
-    p = sub.add_parser("bench", help="env-steps/s against mpe2 simple_spread_v3 (a benchmark, not a test)")
+    p = command("bench", help="env-steps/s against mpe2 simple_spread_v3 (a benchmark, not a test)")
     p.add_argument("env_ids", nargs="*")
     p.add_argument("--param", action="append", metavar="KEY=VALUE")
-    p.add_argument("--runs", type=int, default=3)
-    p.add_argument("--seconds", type=float, default=3.0, help="length of each run")
-    p.add_argument("--warmup", type=float, default=1.0, help="length of one untimed run before them (0: none)")
+    p.add_argument("--runs", type=positive_int, default=3)
+    p.add_argument("--seconds", type=positive_seconds, default=3.0, help="length of each run")
+    p.add_argument(
+        "--warmup", type=nonnegative_seconds, default=1.0, help="length of one untimed run before them (0: none)"
+    )
     p.add_argument("--out", default="results/bench.json")
     p.set_defaults(func=cmd_bench)
 
     from mrcomm_env.experiments.learning import add_learning_parsers
 
-    add_learning_parsers(sub)
+    add_learning_parsers(command)
 
-    p = sub.add_parser("docs", help="generate docs/envs/*.md from the live environments")
+    p = command("docs", help="generate docs/envs/*.md from the live environments")
     p.add_argument("--out", default="docs")
     p.add_argument("--check", action="store_true", help="exit 1 when the committed docs differ")
     p.set_defaults(func=cmd_docs)
     return parser
 
 
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())  # numpy and others put newlines into messages
+    return text or type(exc).__name__
+
+
+def _error(message: str) -> None:
+    print(f"mrcomm: error: {message}", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    if getattr(args, "episodes", 1) < 1:
-        print("mrcomm: error: --episodes must be ≥ 1", file=sys.stderr)
-        return 2
+    argv = sys.argv[1:] if argv is None else list(argv)
+    debug = "--debug" in argv  # known before parsing, so that even a parse error can show its traceback
     try:
+        args = build_parser().parse_args(argv)
+        debug = args.debug
         return args.func(args)
-    except ValueError as exc:
-        print(f"mrcomm: error: {exc}", file=sys.stderr)
-        return 2
+    except KeyboardInterrupt:
+        if debug:
+            raise
+        print("mrcomm: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except (ValueError, OverflowError) as exc:  # bad input: argument, --param, seed, path, a value out of range
+        if debug:
+            raise
+        _error(_one_line(exc))
+        return EXIT_BAD_INPUT
+    except MemoryError as exc:
+        if debug:
+            raise
+        _error(f"out of memory: {_one_line(exc)}; try fewer robots or a smaller --param (see the env's limits)")
+        return EXIT_FAILURE
+    except Exception as exc:  # anything else is a failure during the work: one line, traceback with --debug
+        if debug:
+            raise
+        _error(f"{type(exc).__name__}: {_one_line(exc)} (run with --debug for the traceback)")
+        return EXIT_FAILURE
 
 
 if __name__ == "__main__":

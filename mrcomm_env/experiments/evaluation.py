@@ -22,17 +22,36 @@ def limit_threads() -> None:
     torch.set_num_threads(1)
 
 
-def run_episode(env, policy, seed: int | None) -> dict[str, float]:
-    """Play one episode of ``policy`` from ``reset(seed)``; returns the env's metrics plus ``episode_return``."""
+def run_episode(
+    env,
+    policy,
+    seed: int | None,
+    *,
+    on_reset: Callable[[dict], None] | None = None,
+    on_step: Callable[[int, dict, dict, dict], bool | None] | None = None,
+) -> dict[str, float]:
+    """Play one episode of ``policy`` from ``reset(seed)``; returns the env's metrics plus ``episode_return``.
+
+    The one episode loop of the package (evaluation and the reproductions). Hooks for what a caller records
+    along the way: ``on_reset(observations)`` once, after the env and the policy are reset, and
+    ``on_step(step, observations, rewards, infos)`` after every step (``step`` counts from 0). When
+    ``on_step`` returns True the episode ends there, before the env's own horizon (e.g. at a simulated time).
+    """
     observations, _ = env.reset(seed=seed)
     views = env.local_views()
     policy.reset(views, seed)
+    if on_reset is not None:
+        on_reset(observations)
     episode_return = 0.0
+    step = 0
     while env.agents:
         actions = policy.act(observations, views)
-        observations, rewards, _, _, _ = env.step(actions)
+        observations, rewards, _, _, infos = env.step(actions)
         if rewards:
             episode_return += float(np.mean(list(rewards.values())))
+        if on_step is not None and on_step(step, observations, rewards, infos):
+            break
+        step += 1
     metrics = {k: float(v) for k, v in env.metrics().items()}
     metrics["episode_return"] = episode_return
     return metrics

@@ -34,12 +34,14 @@ def make_any_policy(env_id: str, name: str, **params):
     )
 
 
-def add_train_parser(sub) -> None:
-    p = sub.add_parser("train", help="train one shared SB3 policy for every agent of an env")
+def add_train_parser(command) -> None:
+    from mrcomm_env.experiments.cli import positive_int, seed_type
+
+    p = command("train", help="train one shared SB3 policy for every agent of an env")
     p.add_argument("env_id")
     p.add_argument("--algo", default="ppo", help="ppo, maskable_ppo or dqn")
-    p.add_argument("--timesteps", type=int, default=None, help="agent-steps (default: the env's tuned config)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--timesteps", type=positive_int, default=None, help="agent-steps (default: the env's config)")
+    p.add_argument("--seed", type=seed_type, default=0)
     p.add_argument("--out", required=False, help="run folder (default runs/<Name>-<algo>-s<seed>)")
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="environment argument (JSON value)")
     p.add_argument("--config", metavar="FILE", help="JSON settings overriding agents/configs/<Name>-v0.json")
@@ -357,13 +359,16 @@ A learned policy sees only its observation. The scripted baselines read their ro
 """
 
 
-def add_learning_parsers(sub) -> None:
-    add_train_parser(sub)
-    p = sub.add_parser("reproduce-learning", help="learned policies against every baseline at equal bits")
+def add_learning_parsers(command) -> None:
+    """``train`` and ``reproduce-learning``; ``command(name, **kw)`` adds a subcommand parser."""
+    from mrcomm_env.experiments.cli import positive_int
+
+    add_train_parser(command)
+    p = command("reproduce-learning", help="learned policies against every baseline at equal bits")
     p.add_argument("env_ids", nargs="*", help="default: every env with a learning configuration")
     p.add_argument("--out", default="results/learning", help="training runs and evaluations")
     p.add_argument("--docs", default="docs", help="where learning.md and its figures go")
-    p.add_argument("--workers", type=int, default=1, help="training runs at once (one core each)")
+    p.add_argument("--workers", type=positive_int, default=1, help="training runs at once (one core each)")
     p.add_argument("--quick", action="store_true", help="a tenth of the training budget (a smoke run)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_reproduce_learning)

@@ -2,20 +2,34 @@
 
 Sweeps drive the environment's own filters in batch (:mod:`.batch`; the tests check that these
 drivers give the environment's i-states), compare with the paper's models (:mod:`.theory`) and with
-exact results, and check the paper's qualitative claims one by one.
+exact results, and check the paper's qualitative claims one by one. The scripted baselines run in the
+environment itself through the shared episode loop (:func:`.common.run_episode`).
+``run(out_dir, quick, tiny=False)`` writes CSV/JSON and PNGs into ``out_dir`` and returns a markdown section.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from pathlib import Path
 
 import numpy as np
 
+from baselines import make_policy
 from mrcomm_env.channel_association import theory
 from mrcomm_env.channel_association.batch import MobileField, neighborhood_trials
+from mrcomm_env.experiments.reproductions.common import (
+    atomic_open,
+    atomic_write_json,
+    figure,
+    label_axes,
+    pick,
+    progress,
+    run_episode,
+    size_of,
+)
+
+ENV_ID = "mrcomm/ChannelAssociation-v0"
 
 EXPERIMENTS = {
     "fig5": "mean completion time over w ∈ [2, 40], v ∈ [1, w−1] vs the exact expectation",
@@ -27,33 +41,34 @@ EXPERIMENTS = {
     "models": "Figs 20–25: §5.7 fraction-matched model and two-/multi-region BP models vs simulation",
     "id_bits": "beyond the paper: deterministic ID-bit blinking vs the coin flip",
 }
+ARTIFACTS = (
+    "fig5_completion.csv",
+    "fig5_completion_grid.png",
+    "fig6_distributions.png",
+    "fig7_8_bp_model.png",
+    "fig9_fraction_matched.png",
+    "markov_exact.json",
+    "mobile_steady.csv",
+    "mobile_timeseries.csv",
+    "fig10_17_mobile_sweeps.png",
+    "fig20_25_models.png",
+    "id_bits_vs_coin.csv",
+    "summary.json",
+)
 
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _progress(it, desc):
-    try:
-        from tqdm import tqdm
-
-        return tqdm(it, desc=desc, leave=False)
-    except ImportError:  # pragma: no cover
-        return it
+def _savetxt(path: Path, array, **kwargs) -> None:
+    with atomic_open(path, "wb") as fh:
+        np.savetxt(fh, array, **kwargs)
 
 
 # ====================================================================== stationary
-def _fig5(out: Path, quick: bool, rng) -> tuple[str, dict]:
-    ws = [2, 3, 4, 6, 8, 12, 16, 20, 24, 28, 32, 36, 40] if quick else list(range(2, 41))
-    trials = 3000 if quick else 20000
+def _fig5(out: Path, size: str, rng) -> tuple[str, dict]:
+    ws = pick(size, full=list(range(2, 41)), quick=[2, 3, 4, 6, 8, 12, 16, 20, 24, 28, 32, 36, 40], tiny=[2, 3, 4])
+    trials = pick(size, full=20000, quick=3000, tiny=200)
     rows, grid_sim, grid_ex = [], np.full((41, 41), np.nan), np.full((41, 41), np.nan)
     store = {}
-    for w in _progress(ws, "fig5"):
+    for w in progress(ws, "fig5"):
         for v in range(1, w):
             done = neighborhood_trials(w, v, trials, rng)
             ex = theory.exact_completion_time(w, v)
@@ -62,41 +77,62 @@ def _fig5(out: Path, quick: bool, rng) -> tuple[str, dict]:
             grid_sim[w, v], grid_ex[w, v] = mean, ex
             store[(w, v)] = done
     arr = np.array(rows)
-    np.savetxt(out / "fig5_completion.csv", arr, delimiter=",", fmt="%.6g",
-               header="w,v,sim_mean,sim_std,exact,bp_eq1,sim_min", comments="")
+    _savetxt(
+        out / "fig5_completion.csv",
+        arr,
+        delimiter=",",
+        fmt="%.6g",
+        header="w,v,sim_mean,sim_std,exact,bp_eq1,sim_min",
+        comments="",
+    )
     z = (arr[:, 2] - arr[:, 4]) / (arr[:, 3] / math.sqrt(trials) + 1e-12)
-    plt = _plt()
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for ax, g, title in ((axes[0], grid_sim, f"simulation ({trials} trials/cell)"), (axes[1], grid_ex, "exact E[T]")):
-        im = ax.imshow(g[2:, 1:40].T, origin="lower", extent=(1.5, 40.5, 0.5, 39.5), aspect="auto", vmin=0, vmax=12)
-        ax.set_xlabel("w (wireless IDs)")
-        ax.set_ylabel("v (visual IDs)")
-        ax.set_title(title)
-    fig.colorbar(im, ax=axes, label="mean steps to completion")
-    fig.savefig(out / "fig5_completion_grid.png", dpi=90)
-    plt.close(fig)
+    with figure(out / "fig5_completion_grid.png", figsize=(10, 4), ncols=2, dpi=90, tight=False) as (fig, axes):
+        for ax, g, title in (
+            (axes[0], grid_sim, f"simulation ({trials} trials/cell)"),
+            (axes[1], grid_ex, "exact E[T]"),
+        ):
+            im = ax.imshow(g[2:, 1:40].T, origin="lower", extent=(1.5, 40.5, 0.5, 39.5), aspect="auto", vmin=0, vmax=12)
+            label_axes(ax, xlabel="w (wireless IDs)", ylabel="v (visual IDs)", title=title)
+        fig.colorbar(im, ax=axes, label="mean steps to completion")
     below = int(np.sum(arr[:, 6] < np.ceil(np.log2(arr[:, 1]))))
-    stats = {"cells": len(arr), "trials": trials, "max_abs_z": float(np.abs(z).max()),
-             "frac_within_3se": float(np.mean(np.abs(z) < 3)), "max_abs_diff": float(np.abs(arr[:, 2] - arr[:, 4]).max()),
-             "cells_below_log2v": below, "w40v39_sim": grid_sim[40, 39], "w40v39_exact": grid_ex[40, 39]}
-    md = (f"**Fig. 5** ({stats['cells']} (w, v) cells, {trials} trials each; paper: all 780 cells, 50,000 trials). "
-          f"Simulation vs our exact E[T]: max |difference| {stats['max_abs_diff']:.3f} steps, "
-          f"{100 * stats['frac_within_3se']:.1f} % of cells within 3 standard errors (max |z| = {stats['max_abs_z']:.2f}). "
-          f"w = 40, v = 39: simulated {stats['w40v39_sim']:.2f}, exact {stats['w40v39_exact']:.3f} steps. "
-          f"No trial finished before ⌈log2 v⌉ steps ({below} violations).\n\n"
-          f"![fig5](ChannelAssociation-v0/fig5_completion_grid.png)\n")
+    stats = {
+        "cells": len(arr),
+        "trials": trials,
+        "max_abs_z": float(np.abs(z).max()),
+        "frac_within_3se": float(np.mean(np.abs(z) < 3)),
+        "max_abs_diff": float(np.abs(arr[:, 2] - arr[:, 4]).max()),
+        "cells_below_log2v": below,
+        "w40v39_sim": grid_sim[40, 39],
+        "w40v39_exact": grid_ex[40, 39],
+    }
+    md = (
+        f"**Fig. 5** ({stats['cells']} (w, v) cells, {trials} trials each; paper: all 780 cells, 50,000 trials). "
+        f"Simulation vs our exact E[T]: max |difference| {stats['max_abs_diff']:.3f} steps, "
+        f"{100 * stats['frac_within_3se']:.1f} % of cells within 3 standard errors (max |z| = {stats['max_abs_z']:.2f}). "
+        f"w = 40, v = 39: simulated {stats['w40v39_sim']:.2f}, exact {stats['w40v39_exact']:.3f} steps. "
+        f"No trial finished before ⌈log2 v⌉ steps ({below} violations).\n\n"
+        f"![fig5](ChannelAssociation-v0/fig5_completion_grid.png)\n"
+    )
     return md, {"stats": stats, "store": store, "rows": arr}
 
 
-def _fig6(out: Path, store, rng) -> str:
-    plt = _plt()
+def _fig6(out: Path, store, rng, size: str) -> str:
     combos = [(4, 3), (10, 5), (20, 10), (40, 39)]
-    fig, axes = plt.subplots(1, 4, figsize=(14, 3.2))
+    with figure(out / "fig6_distributions.png", figsize=(14, 3.2), ncols=4, dpi=90) as (_, axes):
+        lines = _fig6_panels(axes, combos, store, rng, pick(size, full=4000, quick=4000, tiny=200))
+    return (
+        "**Fig. 6** distributions of completion times:\n\n"
+        + "\n".join(lines)
+        + "\n\n![fig6](ChannelAssociation-v0/fig6_distributions.png)\n"
+    )
+
+
+def _fig6_panels(axes, combos, store, rng, trials: int) -> list[str]:
     lines = ["| w | v | sim mean | exact E[T] | BP eq. (1) | max \\|pmf diff\\| |", "|---|---|---|---|---|---|"]
     for ax, (w, v) in zip(axes, combos, strict=True):
         done = store.get((w, v))
         if done is None:
-            done = neighborhood_trials(w, v, 4000, rng)
+            done = neighborhood_trials(w, v, trials, rng)
         tmax = int(done.max()) + 2
         pmf = theory.completion_pmf(w, v, tmax)
         emp = np.bincount(done, minlength=tmax + 1)[: tmax + 1] / len(done)
@@ -106,20 +142,28 @@ def _fig6(out: Path, store, rng) -> str:
         ax.axvline(theory.bp_completion_time(w, v), color="r", label="BP eq. (1)")
         ax.set_title(f"w={w}, v={v}")
         ax.set_xlabel("steps to completion")
-        lines.append(f"| {w} | {v} | {done.mean():.3f} | {theory.exact_completion_time(w, v):.3f} | "
-                     f"{theory.bp_completion_time(w, v):.3f} | {np.abs(pmf - emp).max():.4f} |")
+        lines.append(
+            f"| {w} | {v} | {done.mean():.3f} | {theory.exact_completion_time(w, v):.3f} | "
+            f"{theory.bp_completion_time(w, v):.3f} | {np.abs(pmf - emp).max():.4f} |"
+        )
     axes[0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "fig6_distributions.png", dpi=90)
-    plt.close(fig)
-    return ("**Fig. 6** distributions of completion times:\n\n" + "\n".join(lines)
-            + "\n\n![fig6](ChannelAssociation-v0/fig6_distributions.png)\n")
+    return lines
 
 
-def _fig7_8(out: Path, quick: bool, rng) -> tuple[str, dict]:
-    plt = _plt()
-    trials = 1000 if quick else 20000
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+def _fig7_8(out: Path, size: str, rng) -> tuple[str, dict]:
+    trials = pick(size, full=20000, quick=1000, tiny=50)
+    with figure(out / "fig7_8_bp_model.png", figsize=(10, 3.8), ncols=2, dpi=90) as (_, axes):
+        lines, gaps = _fig7_8_panels(axes, trials, rng)
+    under = all(g < 0 for gg in gaps.values() for g in gg)
+    closer = all(abs(gg[-1]) < abs(gg[0]) for gg in gaps.values())
+    return (
+        "**Figs 7–8** BP model vs simulation:\n\n"
+        + "\n".join(lines)
+        + "\n\n![fig7_8](ChannelAssociation-v0/fig7_8_bp_model.png)\n"
+    ), {"under": under, "closer_high_v": closer, "gaps": gaps}
+
+
+def _fig7_8_panels(axes, trials: int, rng) -> tuple[list[str], dict]:
     lines = ["| w | v | sim mean ± sd | exact | BP eq. (1) | BP − exact |", "|---|---|---|---|---|---|"]
     gaps = {}
     for ax, w in zip(axes, (20, 40), strict=True):
@@ -133,26 +177,38 @@ def _fig7_8(out: Path, quick: bool, rng) -> tuple[str, dict]:
         ax.errorbar(vs, m, yerr=s, fmt="o", ms=3, label="simulation ± 1 sd")
         ax.plot(vs, ex, "k-", label="exact")
         ax.plot(vs, bp, "r--", label="BP eq. (1)")
-        ax.set_title(f"w = {w}")
-        ax.set_xlabel("v")
-        ax.set_ylabel("steps to completion")
+        label_axes(ax, title=f"w = {w}", xlabel="v", ylabel="steps to completion")
         for i in (0, len(vs) // 2, len(vs) - 1):
-            lines.append(f"| {w} | {vs[i]} | {m[i]:.2f} ± {s[i]:.2f} | {ex[i]:.2f} | {bp[i]:.2f} | {bp[i] - ex[i]:+.2f} |")
+            lines.append(
+                f"| {w} | {vs[i]} | {m[i]:.2f} ± {s[i]:.2f} | {ex[i]:.2f} | {bp[i]:.2f} | {bp[i] - ex[i]:+.2f} |"
+            )
     axes[0].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "fig7_8_bp_model.png", dpi=90)
-    plt.close(fig)
-    under = all(g < 0 for gg in gaps.values() for g in gg)
-    closer = all(abs(gg[-1]) < abs(gg[0]) for gg in gaps.values())
-    return ("**Figs 7–8** BP model vs simulation:\n\n" + "\n".join(lines)
-            + "\n\n![fig7_8](ChannelAssociation-v0/fig7_8_bp_model.png)\n"), {"under": under, "closer_high_v": closer, "gaps": gaps}
+    return lines, gaps
 
 
-def _fig9(out: Path, quick: bool, rng) -> tuple[str, dict]:
-    plt = _plt()
-    trials = 1000 if quick else 20000
+def _fig9(out: Path, size: str, rng) -> tuple[str, dict]:
+    trials = pick(size, full=20000, quick=1000, tiny=50)
     T = 16
-    fig, ax = plt.subplots(figsize=(6, 4))
+    with figure(out / "fig9_fraction_matched.png", figsize=(6, 4), dpi=90) as (_, ax):
+        lines, errs = _fig9_curves(ax, trials, T, rng)
+        label_axes(
+            ax,
+            xlabel="time step",
+            ylabel="fraction matched",
+            title="dots: simulation, dashed: eq. (3), solid: exact",
+            legend=7,
+        )
+    return (
+        "**Fig. 9** fraction matched (simulation uses v = w − 1, the model w = v as in the paper):\n\n"
+        + "\n".join(lines)
+        + f"\n\nMax |eq. (3) − simulation| over t ≤ {T}: "
+        + ", ".join(f"{e:.3f}" for e in errs)
+        + " for w = 5, 10, 20, 40.\n\n"
+        "![fig9](ChannelAssociation-v0/fig9_fraction_matched.png)\n"
+    ), {"max_err": max(errs)}
+
+
+def _fig9_curves(ax, trials: int, T: int, rng) -> tuple[list[str], list[float]]:
     lines = ["| w | t | sim (v = w−1) | exact | eq. (3) (w = v) |", "|---|---|---|---|---|"]
     errs = []
     for w, c in zip((5, 10, 20, 40), ("C0", "C1", "C2", "C3"), strict=True):
@@ -166,22 +222,14 @@ def _fig9(out: Path, quick: bool, rng) -> tuple[str, dict]:
         ax.plot(t, ex, "-", color=c, lw=0.8)
         for tt in (3, 6, 9):
             lines.append(f"| {w} | {tt} | {frac[tt]:.3f} | {ex[tt]:.3f} | {mod[tt]:.3f} |")
-    ax.set_xlabel("time step")
-    ax.set_ylabel("fraction matched")
-    ax.set_title("dots: simulation, dashed: eq. (3), solid: exact")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "fig9_fraction_matched.png", dpi=90)
-    plt.close(fig)
-    return ("**Fig. 9** fraction matched (simulation uses v = w − 1, the model w = v as in the paper):\n\n"
-            + "\n".join(lines) + f"\n\nMax |eq. (3) − simulation| over t ≤ {T}: "
-            + ", ".join(f"{e:.3f}" for e in errs) + " for w = 5, 10, 20, 40.\n\n"
-            "![fig9](ChannelAssociation-v0/fig9_fraction_matched.png)\n"), {"max_err": max(errs)}
+    return lines, errs
 
 
-def _markov(out: Path, quick: bool) -> tuple[str, dict]:
-    lines = ["| w | v | closed form (p = ½) | Markov chain (p = ½) | chain p = 0.3 | chain p = 0.1 | BP eq. (1) |",
-             "|---|---|---|---|---|---|---|"]
+def _markov(out: Path) -> tuple[str, dict]:
+    lines = [
+        "| w | v | closed form (p = ½) | Markov chain (p = ½) | chain p = 0.3 | chain p = 0.1 | BP eq. (1) |",
+        "|---|---|---|---|---|---|---|",
+    ]
     maxdiff = 0.0
     t0 = time.perf_counter()
     for w in range(2, 9):
@@ -190,32 +238,44 @@ def _markov(out: Path, quick: bool) -> tuple[str, dict]:
             mc = theory.markov_completion_time(w, v)
             maxdiff = max(maxdiff, abs(cf - mc))
             if v in (1, w // 2, w - 1) and (w % 2 == 0 or w == 3):
-                lines.append(f"| {w} | {v} | {cf:.4f} | {mc:.4f} | {theory.markov_completion_time(w, v, 0.3):.4f} | "
-                             f"{theory.markov_completion_time(w, v, 0.1):.4f} | {theory.bp_completion_time(w, v):.4f} |")
+                lines.append(
+                    f"| {w} | {v} | {cf:.4f} | {mc:.4f} | {theory.markov_completion_time(w, v, 0.3):.4f} | "
+                    f"{theory.markov_completion_time(w, v, 0.1):.4f} | {theory.bp_completion_time(w, v):.4f} |"
+                )
     elapsed = time.perf_counter() - t0
     ps = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9]
     curve = [theory.markov_completion_time(8, 7, p) for p in ps]
-    with open(out / "markov_exact.json", "w") as fh:
-        json.dump({"max_abs_diff_closed_vs_chain": maxdiff, "p": ps, "E_T_w8_v7": curve}, fh, indent=1)
+    atomic_write_json(
+        out / "markov_exact.json", {"max_abs_diff_closed_vs_chain": maxdiff, "p": ps, "E_T_w8_v7": curve}, indent=1
+    )
     best = ps[int(np.argmin(curve))]
-    md = ("**Exact E[T] for w ≤ 8** (the paper computed these with the absorbing chain over Bell(w) i-states, "
-          "calling the approach O(w!³)). Our lumped chain (states = multisets of (visible, invisible) class "
-          f"sizes) runs all 28 cells in {elapsed:.2f} s and the closed form agrees to {maxdiff:.1e}:\n\n"
-          + "\n".join(lines) + "\n\n§6.5: E[T] for w = 8, v = 7 over the emission probability p: "
-          + ", ".join(f"p={p:g}: {c:.2f}" for p, c in zip(ps, curve, strict=True)) + f" — minimal at p = {best:g}.\n")
+    md = (
+        "**Exact E[T] for w ≤ 8** (the paper computed these with the absorbing chain over Bell(w) i-states, "
+        "calling the approach O(w!³)). Our lumped chain (states = multisets of (visible, invisible) class "
+        f"sizes) runs all 28 cells in {elapsed:.2f} s and the closed form agrees to {maxdiff:.1e}:\n\n"
+        + "\n".join(lines)
+        + "\n\n§6.5: E[T] for w = 8, v = 7 over the emission probability p: "
+        + ", ".join(f"p={p:g}: {c:.2f}" for p, c in zip(ps, curve, strict=True))
+        + f" — minimal at p = {best:g}.\n"
+    )
     return md, {"maxdiff": maxdiff, "best_p": best}
 
 
 # ====================================================================== mobile
-def _mobile_run(rng, quick, seeds, steps, **kw):
-    side = 40 if quick else 60
+def _mobile_run(rng, side, seeds, steps, **kw):
     sep = kw.get("separation", 5.0)
     series = []
     new_samples, in_range = [], []
     rho = None
     for _ in range(seeds):
-        mf = MobileField(np.random.default_rng(rng.integers(2**31)), side * side, sep,
-                         kw.get("mobile_fraction", 0.1), kw.get("speed", 16 / 11), kw.get("range", 16.0))
+        mf = MobileField(
+            np.random.default_rng(rng.integers(2**31)),
+            side * side,
+            sep,
+            kw.get("mobile_fraction", 0.1),
+            kw.get("speed", 16 / 11),
+            kw.get("range", 16.0),
+        )
         rho = mf.n / float(mf.size[0] * mf.size[1])
         fm, er = [], []
         for t in range(steps):
@@ -226,16 +286,23 @@ def _mobile_run(rng, quick, seeds, steps, **kw):
                 new_samples.append(r["new_v"])
                 in_range.append(r["in_range"])
         series.append((fm, er))
-    arr = np.array(series)                                  # (seeds, 2, steps)
+    arr = np.array(series)  # (seeds, 2, steps)
     new = np.concatenate(new_samples)
-    return {"fm": arr[:, 0].mean(0), "er": arr[:, 1].mean(0), "fm_sd": arr[:, 0].std(0),
-            "new_mean": float(new.mean()), "new_var": float(new.var()), "in_range": float(np.mean(in_range)), "rho": rho}
+    return {
+        "fm": arr[:, 0].mean(0),
+        "er": arr[:, 1].mean(0),
+        "fm_sd": arr[:, 0].std(0),
+        "new_mean": float(new.mean()),
+        "new_var": float(new.var()),
+        "in_range": float(np.mean(in_range)),
+        "rho": rho,
+    }
 
 
-def _mobile(out: Path, quick: bool, rng) -> tuple[str, dict]:
-    plt = _plt()
-    steps = 100 if quick else 250
-    seeds = 1 if quick else 3
+def _mobile(out: Path, size: str, rng) -> tuple[str, dict]:
+    steps = pick(size, full=250, quick=100, tiny=12)
+    seeds = pick(size, full=3, quick=1)
+    side = pick(size, full=60, quick=40, tiny=16)
     sweeps = {
         "mix (Figs 10–11)": ("mobile_fraction", [0.1, 0.5, 0.9], "mobile fraction"),
         "range (Figs 12–13)": ("range", [10.0, 16.0, 22.0], "range"),
@@ -243,50 +310,100 @@ def _mobile(out: Path, quick: bool, rng) -> tuple[str, dict]:
         "speed (Figs 16–17)": ("speed", [16 / 20, 16 / 11, 16 / 8], "speed"),
     }
     results = {}
-    fig, axes = plt.subplots(2, 4, figsize=(16, 7))
-    lines = ["| sweep | value | robots in range | steady fraction matched | steady edge ratio | E[v_new] | Var[v_new] |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [
+        "| sweep | value | robots in range | steady fraction matched | steady edge ratio | E[v_new] | Var[v_new] |",
+        "|---|---|---|---|---|---|---|",
+    ]
     h = steps // 2
-    for col, (name, (key, vals, label)) in enumerate(_progress(list(sweeps.items()), "mobile")):
-        for val in vals:
-            res = _mobile_run(rng, quick, seeds, steps, **{key: val})
-            results[(key, val)] = res
-            axes[0, col].plot(res["fm"], label=f"{label} {val:.3g}")
-            axes[1, col].plot(res["er"], label=f"{label} {val:.3g}")
-            lines.append(f"| {name} | {val:.3g} | {res['in_range']:.1f} | {res['fm'][h:].mean():.3f} | "
-                         f"{res['er'][h:].mean():.3f} | {res['new_mean']:.2f} | {res['new_var']:.2f} |")
-        axes[0, col].set_title(name)
-        axes[0, col].legend(fontsize=7)
-        axes[1, col].set_xlabel("time step")
-        axes[1, col].set_yscale("log")
-    axes[0, 0].set_ylabel("fraction matched")
-    axes[1, 0].set_ylabel("ratio total / true edges")
+    with figure(out / "fig10_17_mobile_sweeps.png", figsize=(16, 7), nrows=2, ncols=4, dpi=80) as (_, axes):
+        for col, (name, (key, vals, label)) in enumerate(progress(list(sweeps.items()), "mobile")):
+            for val in vals:
+                res = _mobile_run(rng, side, seeds, steps, **{key: val})
+                results[(key, val)] = res
+                axes[0, col].plot(res["fm"], label=f"{label} {val:.3g}")
+                axes[1, col].plot(res["er"], label=f"{label} {val:.3g}")
+                lines.append(
+                    f"| {name} | {val:.3g} | {res['in_range']:.1f} | {res['fm'][h:].mean():.3f} | "
+                    f"{res['er'][h:].mean():.3f} | {res['new_mean']:.2f} | {res['new_var']:.2f} |"
+                )
+            label_axes(axes[0, col], title=name, legend=7)
+            label_axes(axes[1, col], xlabel="time step", yscale="log")
+        axes[0, 0].set_ylabel("fraction matched")
+        axes[1, 0].set_ylabel("ratio total / true edges")
     keys = list(results)
-    np.savetxt(out / "mobile_steady.csv",
-               np.array([[i, k[1], results[k]["in_range"], results[k]["fm"][h:].mean(), results[k]["er"][h:].mean(),
-                          results[k]["new_mean"], results[k]["new_var"]] for i, k in enumerate(keys)]),
-               delimiter=",", fmt="%.6g", header="config,value,in_range,fraction_matched,edge_ratio,new_mean,new_var",
-               comments="")
-    np.savetxt(out / "mobile_timeseries.csv",
-               np.column_stack([results[k][m] for k in keys for m in ("fm", "er")]), delimiter=",", fmt="%.5g",
-               header=",".join(f"{k[0]}={k[1]:.3g}:{m}" for k in keys for m in ("fraction_matched", "edge_ratio")),
-               comments="")
-    fig.tight_layout()
-    fig.savefig(out / "fig10_17_mobile_sweeps.png", dpi=80)
-    plt.close(fig)
-    side = 40 if quick else 60
-    md = (f"**Figs 10–17** mobile sweeps: a {side}×{side} field (separation 5 unless swept, range 16, speed 16/11, "
-          f"10 % mobile), only the mobile robots measured (§5.4), {seeds} seed(s), {steps} steps; steady state = "
-          f"mean over the second half.\n\n" + "\n".join(lines)
-          + "\n\n![mobile](ChannelAssociation-v0/fig10_17_mobile_sweeps.png)\n")
+    _savetxt(
+        out / "mobile_steady.csv",
+        np.array(
+            [
+                [
+                    i,
+                    k[1],
+                    results[k]["in_range"],
+                    results[k]["fm"][h:].mean(),
+                    results[k]["er"][h:].mean(),
+                    results[k]["new_mean"],
+                    results[k]["new_var"],
+                ]
+                for i, k in enumerate(keys)
+            ]
+        ),
+        delimiter=",",
+        fmt="%.6g",
+        header="config,value,in_range,fraction_matched,edge_ratio,new_mean,new_var",
+        comments="",
+    )
+    _savetxt(
+        out / "mobile_timeseries.csv",
+        np.column_stack([results[k][m] for k in keys for m in ("fm", "er")]),
+        delimiter=",",
+        fmt="%.5g",
+        header=",".join(f"{k[0]}={k[1]:.3g}:{m}" for k in keys for m in ("fraction_matched", "edge_ratio")),
+        comments="",
+    )
+    md = (
+        f"**Figs 10–17** mobile sweeps: a {side}×{side} field (separation 5 unless swept, range 16, speed 16/11, "
+        f"10 % mobile), only the mobile robots measured (§5.4), {seeds} seed(s), {steps} steps; steady state = "
+        f"mean over the second half.\n\n"
+        + "\n".join(lines)
+        + "\n\n![mobile](ChannelAssociation-v0/fig10_17_mobile_sweeps.png)\n"
+    )
     return md, results
 
 
 def _models(out: Path, results) -> tuple[str, dict]:
-    plt = _plt()
-    lines = ["| sweep value | E[v_new] sim / ρA_F | fraction matched sim | §5.7 model | edge ratio sim | two-region | two-region, p_T− = v_exit/v_rest | multi-region |",
-             "|---|---|---|---|---|---|---|---|"]
-    fig, axes = plt.subplots(2, 3, figsize=(13, 7))
+    with figure(out / "fig20_25_models.png", figsize=(13, 7), nrows=2, ncols=3, dpi=80) as (_, axes):
+        lines, cmp = _models_panels(axes, results)
+    vals = np.array(list(cmp.values()))
+    under = bool(np.all(vals[:, 1] < vals[:, 0]))
+    over = int(np.sum(vals[:, 1] > vals[:, 0]))
+    rel2 = float(np.mean(np.abs(vals[:, 3] - vals[:, 2]) / vals[:, 2]))
+    relm = float(np.mean(np.abs(vals[:, 4] - vals[:, 2]) / vals[:, 2]))
+    relf = float(np.mean(np.abs(vals[:, 5] - vals[:, 2]) / vals[:, 2]))
+    md = (
+        "**Figs 20–25** models vs simulation (steady state; Var[v_new] for eq. (10) measured in the simulation "
+        "as the paper did; ρ = robots per unit area):\n\n"
+        + "\n".join(lines)
+        + f"\n\nMean relative error of the edge ratio: two-region {100 * rel2:.1f} % (as printed), "
+        f"{100 * relf:.1f} % with the true-edge exit corrected, multi-region {100 * relm:.1f} %. The paper judges its "
+        "models against ±1 standard deviation of the simulation; we compare means only.\n\n"
+        "![models](ChannelAssociation-v0/fig20_25_models.png)\n"
+    )
+    return md, {
+        "fm_under": under,
+        "fm_over": over,
+        "fm_n": len(vals),
+        "relf": relf,
+        "rel2": rel2,
+        "relm": relm,
+        "cmp": cmp,
+    }
+
+
+def _models_panels(axes, results) -> tuple[list[str], dict]:
+    lines = [
+        "| sweep value | E[v_new] sim / ρA_F | fraction matched sim | §5.7 model | edge ratio sim | two-region | two-region, p_T− = v_exit/v_rest | multi-region |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     cmp = {}
     for col, key in enumerate(("range", "separation", "speed")):
         for (k, val), res in results.items():
@@ -302,10 +419,18 @@ def _models(out: Path, results) -> tuple[str, dict]:
             two_fix = theory.two_region_model(r, d, rho, res["new_var"], true_exit="single")
             multi = theory.multi_region_model(r, d, rho, res["new_var"])
             a_f = math.pi * r * r - float(theory.overlap_area(r, d))
-            cmp[(key, val)] = (fm_sim, fm_mod, er_sim, two["steady_ratio"], multi["steady_ratio"],
-                               two_fix["steady_ratio"])
-            lines.append(f"| {key} {val:.3g} | {res['new_mean']:.2f} / {rho * a_f:.2f} | {fm_sim:.3f} | {fm_mod:.3f} | "
-                         f"{er_sim:.3f} | {two['steady_ratio']:.3f} | {two_fix['steady_ratio']:.3f} | {multi['steady_ratio']:.3f} |")
+            cmp[(key, val)] = (
+                fm_sim,
+                fm_mod,
+                er_sim,
+                two["steady_ratio"],
+                multi["steady_ratio"],
+                two_fix["steady_ratio"],
+            )
+            lines.append(
+                f"| {key} {val:.3g} | {res['new_mean']:.2f} / {rho * a_f:.2f} | {fm_sim:.3f} | {fm_mod:.3f} | "
+                f"{er_sim:.3f} | {two['steady_ratio']:.3f} | {two_fix['steady_ratio']:.3f} | {multi['steady_ratio']:.3f} |"
+            )
             line = axes[0, col].plot(res["fm"], label=f"{val:.3g}")[0]
             axes[0, col].axhline(fm_mod, color=line.get_color(), ls="--")
             line = axes[1, col].plot(res["er"], label=f"{val:.3g}")[0]
@@ -315,22 +440,7 @@ def _models(out: Path, results) -> tuple[str, dict]:
         axes[1, col].set_title(f"{key}: edge ratio (dotted: 2-region, dashed: multi)")
         axes[1, col].set_yscale("log")
         axes[0, col].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "fig20_25_models.png", dpi=80)
-    plt.close(fig)
-    vals = np.array(list(cmp.values()))
-    under = bool(np.all(vals[:, 1] < vals[:, 0]))
-    over = int(np.sum(vals[:, 1] > vals[:, 0]))
-    rel2 = float(np.mean(np.abs(vals[:, 3] - vals[:, 2]) / vals[:, 2]))
-    relm = float(np.mean(np.abs(vals[:, 4] - vals[:, 2]) / vals[:, 2]))
-    relf = float(np.mean(np.abs(vals[:, 5] - vals[:, 2]) / vals[:, 2]))
-    md = ("**Figs 20–25** models vs simulation (steady state; Var[v_new] for eq. (10) measured in the simulation "
-          "as the paper did; ρ = robots per unit area):\n\n" + "\n".join(lines)
-          + f"\n\nMean relative error of the edge ratio: two-region {100 * rel2:.1f} % (as printed), "
-          f"{100 * relf:.1f} % with the true-edge exit corrected, multi-region {100 * relm:.1f} %. The paper judges its "
-          "models against ±1 standard deviation of the simulation; we compare means only.\n\n"
-          "![models](ChannelAssociation-v0/fig20_25_models.png)\n")
-    return md, {"fm_under": under, "fm_over": over, "fm_n": len(vals), "relf": relf, "rel2": rel2, "relm": relm, "cmp": cmp}
+    return lines, cmp
 
 
 # ====================================================================== beyond the paper
@@ -341,13 +451,14 @@ def _solve_time(ctz: np.ndarray) -> int:
     return int(c.max(axis=1).max()) + 1
 
 
-def _id_bits(out: Path, quick: bool, rng) -> tuple[str, dict]:
-    from baselines.channel_association import POLICIES
+def _id_bits(out: Path, size: str, rng) -> tuple[str, dict]:
     from mrcomm_env.channel_association_v0 import parallel_env
 
-    lines = ["| w (v = w−1) | coin flip exact E[T] | id_bits, IDs 0…w (B = ⌈log2(w+1)⌉) | id_bits, random 14-bit IDs (10k robots) | id_bits, random 32-bit IDs |",
-             "|---|---|---|---|---|"]
-    trials = 300 if quick else 3000
+    lines = [
+        "| w (v = w−1) | coin flip exact E[T] | id_bits, IDs 0…w (B = ⌈log2(w+1)⌉) | id_bits, random 14-bit IDs (10k robots) | id_bits, random 32-bit IDs |",
+        "|---|---|---|---|---|",
+    ]
+    trials = pick(size, full=3000, quick=300, tiny=10)
     out_rows = []
     for w in (4, 8, 16, 27, 40, 74, 200):
         v = w - 1
@@ -362,7 +473,7 @@ def _id_bits(out: Path, quick: bool, rng) -> tuple[str, dict]:
                 # robot s is singled out after t steps once its t low bits differ from every other robot's:
                 # t_s = 1 + max_j (common low-bit prefix length) = 1 + max_j ctz(ids_s XOR ids_j)
                 x = ids[:v, None] ^ ids[None, :]
-                x[np.arange(v), np.arange(v)] = 1 << 62          # ignore itself
+                x[np.arange(v), np.arange(v)] = 1 << 62  # ignore itself
                 ctz = np.log2((x & -x).astype(np.float64)).astype(np.int64)
                 ts[i] = _solve_time(ctz)
             row.append(float(ts.mean()))
@@ -371,46 +482,55 @@ def _id_bits(out: Path, quick: bool, rng) -> tuple[str, dict]:
     # mobile field through the environment itself: steady fraction matched, coin flip vs id_bits
     env_rows = []
     for pol_name in ("coin_flip", "id_bits"):
-        env = parallel_env(n_robots=400, separation=5.0, max_cycles=60 if quick else 150)
-        pol = POLICIES[pol_name]()
-        obs, _ = env.reset(seed=1)
-        pol.reset(env.local_views(), 1)
+        env = parallel_env(n_robots=400, separation=5.0, max_cycles=pick(size, full=150, quick=60, tiny=6))
         fm = []
-        while env.agents:
-            obs, *_ = env.step(pol.act(obs, env.local_views()))
+
+        def record(*_, env=env, fm=fm):
             fm.append(env.metrics()["fraction_matched"])
-        env_rows.append((pol_name, float(np.mean(fm[len(fm) // 2:])), env.metrics()["edge_ratio"]))
-    np.savetxt(out / "id_bits_vs_coin.csv", np.array(out_rows), delimiter=",", fmt="%.5g",
-               header="w,coin_exact,idbits_dense,idbits_rand14,idbits_rand32", comments="")
-    md = ("**Beyond the paper — `id_bits` vs `coin_flip`** (stationary neighbourhood, mean steps to completion):\n\n"
-          + "\n".join(lines)
-          + "\n\nMobile field (400 robots, 10 % mobile, via the environment): "
-          + "; ".join(f"`{n}` steady fraction matched {f:.3f}, final edge ratio {e:.3f}" for n, f, e in env_rows) + ".\n\n"
-          "Where each wins: with *compact* IDs (a neighbourhood numbered 0…w) `id_bits` needs exactly "
-          "⌈log2(w+1)⌉ steps, well below the coin flip's ≈ log2(wv) + 1.3. With IDs spread over a large "
-          "space the low bits behave like coin flips drawn without replacement, so `id_bits` is about as fast as "
-          "the coin flip on average and never slower than B steps; the coin flip needs no shared clock, no "
-          "beacon step and no address plan, and it is the only one of the two whose activity is independent of "
-          "the address — which §6.3's noise-threshold argument relies on.\n")
+
+        metrics = run_episode(env, make_policy(ENV_ID, pol_name), 1, on_step=record)
+        env_rows.append((pol_name, float(np.mean(fm[len(fm) // 2 :])), metrics["edge_ratio"]))
+    _savetxt(
+        out / "id_bits_vs_coin.csv",
+        np.array(out_rows),
+        delimiter=",",
+        fmt="%.5g",
+        header="w,coin_exact,idbits_dense,idbits_rand14,idbits_rand32",
+        comments="",
+    )
+    md = (
+        "**Beyond the paper — `id_bits` vs `coin_flip`** (stationary neighbourhood, mean steps to completion):\n\n"
+        + "\n".join(lines)
+        + "\n\nMobile field (400 robots, 10 % mobile, via the environment): "
+        + "; ".join(f"`{n}` steady fraction matched {f:.3f}, final edge ratio {e:.3f}" for n, f, e in env_rows)
+        + ".\n\n"
+        "Where each wins: with *compact* IDs (a neighbourhood numbered 0…w) `id_bits` needs exactly "
+        "⌈log2(w+1)⌉ steps, well below the coin flip's ≈ log2(wv) + 1.3. With IDs spread over a large "
+        "space the low bits behave like coin flips drawn without replacement, so `id_bits` is about as fast as "
+        "the coin flip on average and never slower than B steps; the coin flip needs no shared clock, no "
+        "beacon step and no address plan, and it is the only one of the two whose activity is independent of "
+        "the address — which §6.3's noise-threshold argument relies on.\n"
+    )
     return md, {"rows": out_rows, "env": env_rows}
 
 
 # ====================================================================== entry point
-def run(out_dir: Path, quick: bool) -> str:
+def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    size = size_of(quick, tiny)
     rng = np.random.default_rng(2016)
     t0 = time.perf_counter()
-    md5, r5 = _fig5(out, quick, rng)
-    md6 = _fig6(out, r5["store"], rng)
-    md78, r78 = _fig7_8(out, quick, rng)
-    md9, r9 = _fig9(out, quick, rng)
-    mdm, rm = _markov(out, quick)
-    mdmob, rmob = _mobile(out, quick, rng)
+    md5, r5 = _fig5(out, size, rng)
+    md6 = _fig6(out, r5["store"], rng, size)
+    md78, r78 = _fig7_8(out, size, rng)
+    md9, r9 = _fig9(out, size, rng)
+    mdm, rm = _markov(out)
+    mdmob, rmob = _mobile(out, size, rng)
     mdmod, rmod = _models(out, rmob)
-    mdid, rid = _id_bits(out, quick, rng)
+    mdid, rid = _id_bits(out, size, rng)
     h = lambda res: len(res["fm"]) // 2  # noqa: E731
-    steady = {k: (float(v["fm"][h(v):].mean()), float(v["er"][h(v):].mean())) for k, v in rmob.items()}
+    steady = {k: (float(v["fm"][h(v) :].mean()), float(v["er"][h(v) :].mean())) for k, v in rmob.items()}
 
     def trend(key, vals):
         return [steady[(key, x)] for x in vals]
@@ -421,53 +541,118 @@ def run(out_dir: Path, quick: bool) -> str:
     spd = trend("speed", [16 / 20, 16 / 11, 16 / 8])
     ok = lambda b: "⚠️ partly (effect small but systematic)" if b == "small" else ("✅ agrees" if b else "❌ differs")  # noqa: E731
     claims = [
-        ("§4.3.2 minimum completion time is log2(v)", r5["stats"]["cells_below_log2v"] == 0,
-         "no trial finished in fewer than ⌈log2 v⌉ steps"),
-        ("§4.3.2 simulation matches the exact expectation for w ≤ 8", r5["stats"]["frac_within_3se"] > 0.97,
-         f"{100 * r5['stats']['frac_within_3se']:.1f} % of all cells within 3 SE of our exact E[T] (all w, not only ≤ 8)"),
-        ("§4.3.1 the Markov chain is prohibitively expensive", False,
-         f"a lumped chain gives w ≤ 8 in well under a second and a closed form gives every w (agreement {rm['maxdiff']:.0e})"),
+        (
+            "§4.3.2 minimum completion time is log2(v)",
+            r5["stats"]["cells_below_log2v"] == 0,
+            "no trial finished in fewer than ⌈log2 v⌉ steps",
+        ),
+        (
+            "§4.3.2 simulation matches the exact expectation for w ≤ 8",
+            r5["stats"]["frac_within_3se"] > 0.97,
+            f"{100 * r5['stats']['frac_within_3se']:.1f} % of all cells within 3 SE of our exact E[T] (all w, not only ≤ 8)",
+        ),
+        (
+            "§4.3.1 the Markov chain is prohibitively expensive",
+            False,
+            f"a lumped chain gives w ≤ 8 in well under a second and a closed form gives every w (agreement {rm['maxdiff']:.0e})",
+        ),
         ("§4.3.3 BP eq. (1) underestimates", r78["under"], "eq. (1) < exact for every odd v at w = 20 and 40"),
-        ("§4.3.3 BP eq. (1) is closer for higher v", r78["closer_high_v"],
-         "gap at v = w−1 smaller than at v = 1 for w = 20 and 40"),
-        ("§4.4.2 fraction-matched model is 'startlingly effective'", r9["max_err"] < 0.05,
-         f"max error {r9['max_err']:.3f}; it is close to the exact law (1 − 2^−t)^(w−1)"),
+        (
+            "§4.3.3 BP eq. (1) is closer for higher v",
+            r78["closer_high_v"],
+            "gap at v = w−1 smaller than at v = 1 for w = 20 and 40",
+        ),
+        (
+            "§4.4.2 fraction-matched model is 'startlingly effective'",
+            r9["max_err"] < 0.05,
+            f"max error {r9['max_err']:.3f}; it is close to the exact law (1 − 2^−t)^(w−1)",
+        ),
         ("§6.5 p = ½ is best", rm["best_p"] == 0.5, f"E[T](p) minimal at p = {rm['best_p']:g} (w = 8, v = 7)"),
-        ("§5.4 population mix has little impact", "small" if abs(mix[0][0] - mix[-1][0]) >= 0.02 else
-         abs(mix[0][0] - mix[-1][0]) < 0.02,
-         "steady fraction matched " + " vs ".join(f"{m[0]:.3f}" for m in mix) + ", edge ratio "
-         + " vs ".join(f"{m[1]:.3f}" for m in mix) + " for 10/50/90 % mobile: a small, monotone decline"),
-        ("§5.5 higher density → more ambiguity", den[0][1] < den[1][1] < den[2][1],
-         "edge ratio " + " < ".join(f"{d[1]:.3f}" for d in den) + " for 14/27/74-type densities"),
-        ("§5.5 faster robots → more ambiguity", spd[0][1] < spd[1][1] < spd[2][1],
-         "edge ratio " + ", ".join(f"{s[1]:.3f}" for s in spd) + " for speeds r/20, r/11, r/8"),
-        ("§5.5 range is a key parameter", abs(rng_t[0][0] - rng_t[2][0]) > 0.02,
-         "fraction matched " + ", ".join(f"{x[0]:.3f}" for x in rng_t) + "; edge ratio "
-         + ", ".join(f"{x[1]:.3f}" for x in rng_t) + " for r = 10/16/22 (weakest of the three)"),
-        ("§5.7 mobile fraction-matched model underestimates", rmod["fm_under"],
-         f"our reading of §5.7 lies *above* the simulation in {rmod['fm_over']} of {rmod['fm_n']} cases"),
-        ("§5.8 two-/multi-region models track the simulation", max(rmod["rel2"], rmod["relm"]) < 0.15,
-         f"mean relative error two-region {100 * rmod['rel2']:.1f} %, multi-region {100 * rmod['relm']:.1f} %"),
+        (
+            "§5.4 population mix has little impact",
+            "small" if abs(mix[0][0] - mix[-1][0]) >= 0.02 else abs(mix[0][0] - mix[-1][0]) < 0.02,
+            "steady fraction matched "
+            + " vs ".join(f"{m[0]:.3f}" for m in mix)
+            + ", edge ratio "
+            + " vs ".join(f"{m[1]:.3f}" for m in mix)
+            + " for 10/50/90 % mobile: a small, monotone decline",
+        ),
+        (
+            "§5.5 higher density → more ambiguity",
+            den[0][1] < den[1][1] < den[2][1],
+            "edge ratio " + " < ".join(f"{d[1]:.3f}" for d in den) + " for 14/27/74-type densities",
+        ),
+        (
+            "§5.5 faster robots → more ambiguity",
+            spd[0][1] < spd[1][1] < spd[2][1],
+            "edge ratio " + ", ".join(f"{s[1]:.3f}" for s in spd) + " for speeds r/20, r/11, r/8",
+        ),
+        (
+            "§5.5 range is a key parameter",
+            abs(rng_t[0][0] - rng_t[2][0]) > 0.02,
+            "fraction matched "
+            + ", ".join(f"{x[0]:.3f}" for x in rng_t)
+            + "; edge ratio "
+            + ", ".join(f"{x[1]:.3f}" for x in rng_t)
+            + " for r = 10/16/22 (weakest of the three)",
+        ),
+        (
+            "§5.7 mobile fraction-matched model underestimates",
+            rmod["fm_under"],
+            f"our reading of §5.7 lies *above* the simulation in {rmod['fm_over']} of {rmod['fm_n']} cases",
+        ),
+        (
+            "§5.8 two-/multi-region models track the simulation",
+            max(rmod["rel2"], rmod["relm"]) < 0.15,
+            f"mean relative error two-region {100 * rmod['rel2']:.1f} %, multi-region {100 * rmod['relm']:.1f} %",
+        ),
     ]
     claim_md = "| claim | verdict | evidence |\n|---|---|---|\n" + "\n".join(
-        f"| {c} | {ok(b)} | {e} |" for c, b, e in claims)
+        f"| {c} | {ok(b)} | {e} |" for c, b, e in claims
+    )
     slips = (
         "\n\n**Slips in the paper's text.** (1) §5.5 gives the speeds r/8, r/11, r/20 as \"2, 1.4 and 1.25 "
-        "diameters\": r/20 = 0.8, not 1.25 (we use 0.8). (2) §5.5 lists the default density as a separation of 4 "
+        'diameters": r/20 = 0.8, not 1.25 (we use 0.8). (2) §5.5 lists the default density as a separation of 4 '
         "diameters, but Figs 14–15 draw the default (blue) curve at 27 robots in range, i.e. a separation of 5 "
         "(separation 4 gives ≈ 50 in range); our sweeps use 5, the environment's `separation` default follows the "
         "issue (4). (3) Eq. (11) gives true edges the same exit probability as false edges (one *or* the other ID "
         "leaves); a true edge's two IDs belong to one robot, so it exits with v_exit/v_rest only — with that "
         f"correction the two-region model's mean error drops from {100 * rmod['rel2']:.1f} % to {100 * rmod['relf']:.1f} %. (4) §5.4 says fewer than 10 % of "
         "robots are mobile, while Figs 10–11 use 10/50/90 %. (5) §4.3.1 calls the exact chain O(w!³); lumping "
-        "i-states by class sizes makes it cheap, and for p = ½ a closed form exists (theory.py).")
+        "i-states by class sizes makes it cheap, and for p = ½ a closed form exists (theory.py)."
+    )
     claim_md += slips
-    with open(out / "summary.json", "w") as fh:
-        json.dump({"fig5": r5["stats"], "claims": [(c, str(b), e) for c, b, e in claims],
-                   "seconds": time.perf_counter() - t0, "quick": quick}, fh, indent=1, default=float)
-    return ("## ChannelAssociation-v0 (Ivanov & Shell, *Hark! Who goes there?*)\n\n"
-            f"{'Quick run (subsets, fewer trials)' if quick else 'Full run'}; {time.perf_counter() - t0:.0f} s. "
-            "All sweeps drive the environment's own filter classes in batch.\n\n"
-            "### The paper's claims, one by one\n\n" + claim_md + "\n\n### Stationary neighbourhoods (§4)\n\n"
-            + md5 + "\n" + md6 + "\n" + md78 + "\n" + md9 + "\n" + mdm
-            + "\n### Mobile robots (§5)\n\n" + mdmob + "\n" + mdmod + "\n### Beyond the paper\n\n" + mdid)
+    atomic_write_json(
+        out / "summary.json",
+        {
+            "fig5": r5["stats"],
+            "claims": [(c, str(b), e) for c, b, e in claims],
+            "seconds": time.perf_counter() - t0,
+            "quick": quick,
+        },
+        indent=1,
+        default=float,
+    )
+    return (
+        "## ChannelAssociation-v0 (Ivanov & Shell, *Hark! Who goes there?*)\n\n"
+        f"{'Tiny run (smoke-test sizes; the numbers mean nothing)' if tiny else 'Quick run (subsets, fewer trials)' if quick else 'Full run'}; {time.perf_counter() - t0:.0f} s. "
+        "All sweeps drive the environment's own filter classes in batch.\n\n"
+        "### The paper's claims, one by one\n\n"
+        + claim_md
+        + "\n\n### Stationary neighbourhoods (§4)\n\n"
+        + md5
+        + "\n"
+        + md6
+        + "\n"
+        + md78
+        + "\n"
+        + md9
+        + "\n"
+        + mdm
+        + "\n### Mobile robots (§5)\n\n"
+        + mdmob
+        + "\n"
+        + mdmod
+        + "\n### Beyond the paper\n\n"
+        + mdid
+    )

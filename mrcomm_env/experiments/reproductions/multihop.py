@@ -1,28 +1,40 @@
 """Reproduction of Julian et al. (paper 003): Fig. 2 sweep, the m = 7 claim, Fig. 3 coverage, Fig. 5 staleness.
 
-``run(out_dir, quick)`` writes CSV/JSON and PNGs into ``out_dir`` and returns a markdown section.
+``run(out_dir, quick, tiny=False)`` writes CSV/JSON and PNGs into ``out_dir`` and returns a markdown section.
 Fig. 2 drives the batched per-slot core (:mod:`sweep`, the same :mod:`protocol` code the env uses);
-Fig. 3, Fig. 5 and the policy table drive the environment itself with the scripted baselines.
+Fig. 3, Fig. 5 and the policy table drive the environment itself with the scripted baselines, through the
+shared episode loop (:func:`.common.run_episode`).
 """
 
 from __future__ import annotations
 
 import csv
-import json
 import math
 import time
 from pathlib import Path
 
 import numpy as np
 
+from baselines import make_policy
 from mrcomm_env.core.stats import mean_ci95
+from mrcomm_env.experiments.reproductions.common import (
+    atomic_open,
+    atomic_write_json,
+    figure,
+    label_axes,
+    pick,
+    progress,
+    run_episode,
+    size_of,
+)
 from mrcomm_env.multihop import protocol as proto
 from mrcomm_env.multihop import theory
+from mrcomm_env.multihop.env import AGE_SCALE_FRAMES
 from mrcomm_env.multihop.sweep import grid_propagation
 
 EXPERIMENTS = {
     "fig2_propagation": "average propagation time vs slot length m on the 10×10 grid, centred 2×2…8×8 subgraphs, "
-                        "Monte-Carlo random slot orders, cold-start and steady-state readings",
+    "Monte-Carlo random slot orders, cold-start and steady-state readings",
     "claim_m7": "does m = 7 cut every subgraph's propagation time by > 47 % against flooding (m = 100)?",
     "rules_m7": "Algorithm 1 as in the text (lowest counter) vs the listing (argmax), eq. (2) and age_aware at m = 7",
     "fig3_coverage": "coverage cost over time, nine flying robots, m = 1 / 3 / 9 at 3000 baud, 192-bit estimates",
@@ -30,9 +42,23 @@ EXPERIMENTS = {
     "policies_m7": "steady-state importance-weighted age (−reward) of every baseline in the env at m = 7",
 }
 
+ENV_ID = "mrcomm/MultiHop-v0"
+ARTIFACTS = (
+    "fig2_propagation.csv",
+    "fig2_propagation.png",
+    "fig3_coverage.csv",
+    "fig3_coverage.png",
+    "fig5_staleness.csv",
+    "fig5_staleness.png",
+    "results.json",
+)
 SIZES = (2, 4, 6, 8)
-READINGS = (("cold", 0, "cold start, all pairs (max)"), ("cold", 1, "cold start, mean pair"),
-            ("steady", 0, "fresh stamp in steady state, all pairs (max)"), ("steady", 1, "fresh stamp in steady state, mean pair"))
+READINGS = (
+    ("cold", 0, "cold start, all pairs (max)"),
+    ("cold", 1, "cold start, mean pair"),
+    ("steady", 0, "fresh stamp in steady state, all pairs (max)"),
+    ("steady", 1, "fresh stamp in steady state, mean pair"),
+)
 
 
 def _fmt(x: float, nd: int = 0) -> str:
@@ -46,13 +72,15 @@ def _summ(values: np.ndarray) -> tuple[float, float]:
 
 
 # ----------------------------------------------------------------------------------- Fig. 2
-def fig2(out: Path, quick: bool, progress) -> tuple[str, dict]:
+def fig2(out: Path, size: str) -> tuple[str, dict]:
     side = 10
     blocks = {k: proto.centred_block(side, k) for k in SIZES}
-    if quick:
-        ms, runs, cap = [3, 7, 20, 100], 4, 300
-    else:
-        ms, runs, cap = [2, 3, 4, 5, 6, 7, 8, 9, 10, 12, 14, 17, 20, 25, 30, 40, 50, 70, 100], 50, 1000
+    ms, runs, cap = pick(
+        size,
+        full=([2, 3, 4, 5, 6, 7, 8, 9, 10, 12, 14, 17, 20, 25, 30, 40, 50, 70, 100], 50, 1000),
+        quick=([3, 7, 20, 100], 4, 300),
+        tiny=([7, 100], 1, 8),
+    )
     rows, table = [], {}
     for m in progress(ms, desc="Fig 2: slot lengths"):
         res = grid_propagation(side, m, runs, seed=1000 + m, blocks=blocks, max_frames=cap)
@@ -60,10 +88,19 @@ def fig2(out: Path, quick: bool, progress) -> tuple[str, dict]:
             for k in SIZES:
                 mean, half = _summ(res[phase][k][stat])
                 table[(m, phase, stat, k)] = mean
-                rows.append({"m": m, "reading": phase, "statistic": ("max", "mean")[stat], "subgraph": f"{k}x{k}",
-                             "mean_s": mean, "ci95_s": half, "runs": runs,
-                             "completed": int(np.isfinite(res[phase][k][stat]).sum())})
-    with open(out / "fig2_propagation.csv", "w", newline="") as fh:
+                rows.append(
+                    {
+                        "m": m,
+                        "reading": phase,
+                        "statistic": ("max", "mean")[stat],
+                        "subgraph": f"{k}x{k}",
+                        "mean_s": mean,
+                        "ci95_s": half,
+                        "runs": runs,
+                        "completed": int(np.isfinite(res[phase][k][stat]).sum()),
+                    }
+                )
+    with atomic_open(out / "fig2_propagation.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
@@ -72,31 +109,31 @@ def fig2(out: Path, quick: bool, progress) -> tuple[str, dict]:
 
 
 def _plot_fig2(out: Path, ms, table) -> None:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(11, 4.2))
-    FigureCanvasAgg(fig)
-    for a, (phase, title) in enumerate((("cold", "cold start"), ("steady", "fresh stamp, steady state"))):
-        ax = fig.add_subplot(1, 2, a + 1)
-        for k in SIZES:
-            y = [table[(m, phase, 0, k)] for m in ms]
-            ax.plot(ms, y, marker="o", ms=3, label=f"{k}×{k}")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlabel("slot length m (estimates)")
-        ax.set_ylabel("average propagation time (s), all pairs")
-        ax.set_title(f"10×10 grid, location-based (§3.2): {title}")
-        ax.axvline(7, color="0.6", ls=":")
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "fig2_propagation.png", dpi=90)
+    with figure(out / "fig2_propagation.png", figsize=(11, 4.2), ncols=2, dpi=90) as (_, axes):
+        for ax, (phase, title) in zip(
+            axes, (("cold", "cold start"), ("steady", "fresh stamp, steady state")), strict=True
+        ):
+            for k in SIZES:
+                y = [table[(m, phase, 0, k)] for m in ms]
+                ax.plot(ms, y, marker="o", ms=3, label=f"{k}×{k}")
+            ax.axvline(7, color="0.6", ls=":")
+            label_axes(
+                ax,
+                xscale="log",
+                yscale="log",
+                xlabel="slot length m (estimates)",
+                ylabel="average propagation time (s), all pairs",
+                title=f"10×10 grid, location-based (§3.2): {title}",
+                legend=8,
+            )
 
 
 def best_m(table, ms) -> str:
     """Slot length with the lowest average propagation time, per reading and subgraph (Fig. 2's optimum)."""
-    lines = ["| reading | " + " | ".join(f"{k}×{k}: best m (s; vs m=100)" for k in SIZES) + " |",
-             "| --- |" + " --- |" * len(SIZES)]
+    lines = [
+        "| reading | " + " | ".join(f"{k}×{k}: best m (s; vs m=100)" for k in SIZES) + " |",
+        "| --- |" + " --- |" * len(SIZES),
+    ]
     for phase, stat, label in READINGS:
         cells = []
         for k in SIZES:
@@ -106,43 +143,75 @@ def best_m(table, ms) -> str:
             gain = (vals[m_best] - flood) / flood * 100 if math.isfinite(flood) and flood > 0 else math.nan
             cells.append(f"{m_best} ({_fmt(vals[m_best])}; {gain:+.0f} %)")
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    beats = [label for phase, stat, label in READINGS
-             if min(table[(m, phase, stat, 8)] for m in ms if m != 100) < table[(100, phase, stat, 8)]]
-    lines.append("\nFor the 8×8, some m < 100 beats flooding under: " + (", ".join(beats) or "no reading") +
-                 ". Only there does the 8×8 curve have the paper's shape (fastest at a moderate m, not at flooding).")
+    beats = [
+        label
+        for phase, stat, label in READINGS
+        if min(table[(m, phase, stat, 8)] for m in ms if m != 100) < table[(100, phase, stat, 8)]
+    ]
+    lines.append(
+        "\nFor the 8×8, some m < 100 beats flooding under: "
+        + (", ".join(beats) or "no reading")
+        + ". Only there does the 8×8 curve have the paper's shape (fastest at a moderate m, not at flooding)."
+    )
     return "\n".join(lines)
 
 
 def claim_m7(table) -> tuple[str, list[dict]]:
-    lines = ["| reading | subgraph | flooding m=100 (s) | m=7 (s) | change | > 47 % drop? |", "| --- | --- | --- | --- | --- | --- |"]
+    lines = [
+        "| reading | subgraph | flooding m=100 (s) | m=7 (s) | change | > 47 % drop? |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
     recs = []
     for phase, stat, label in READINGS:
         for k in SIZES:
             flood, lb = table[(100, phase, stat, k)], table[(7, phase, stat, k)]
             change = (lb - flood) / flood * 100 if math.isfinite(lb) and math.isfinite(flood) else math.inf
             holds = change < -47
-            recs.append({"reading": label, "subgraph": f"{k}x{k}", "flooding_s": flood, "m7_s": lb,
-                         "change_pct": change, "holds": bool(holds)})
-            lines.append(f"| {label} | {k}×{k} | {_fmt(flood)} | {_fmt(lb)} | "
-                         f"{'n/c' if not math.isfinite(change) else f'{change:+.0f} %'} | {'yes' if holds else '**no**'} |")
+            recs.append(
+                {
+                    "reading": label,
+                    "subgraph": f"{k}x{k}",
+                    "flooding_s": flood,
+                    "m7_s": lb,
+                    "change_pct": change,
+                    "holds": bool(holds),
+                }
+            )
+            lines.append(
+                f"| {label} | {k}×{k} | {_fmt(flood)} | {_fmt(lb)} | "
+                f"{'n/c' if not math.isfinite(change) else f'{change:+.0f} %'} | {'yes' if holds else '**no**'} |"
+            )
     return "\n".join(lines), recs
 
 
-def rules_m7(quick: bool, progress, table) -> tuple[str, list[dict]]:
+def rules_m7(size: str, table) -> tuple[str, list[dict]]:
     blocks = {k: proto.centred_block(10, k) for k in SIZES}
-    runs, cap = (4, 300) if quick else (50, 1000)
-    configs = [("listing (argmax, Alg. 1)", "listing", 1.0),
-               ("eq. (2) probabilistic", "probabilistic", 1.0), ("age_aware (ours)", "age_aware", 1.0)]
-    if not quick:
+    runs, cap = pick(size, full=(50, 1000), quick=(4, 300), tiny=(1, 8))
+    configs = [
+        ("listing (argmax, Alg. 1)", "listing", 1.0),
+        ("eq. (2) probabilistic", "probabilistic", 1.0),
+        ("age_aware (ours)", "age_aware", 1.0),
+    ]
+    if size == "full":
         configs += [("text, α = 0.25", "text", 0.25), ("text, α = 2", "text", 2.0)]
-    recs = [{"rule": "text", "subgraph": f"{k}x{k}", "cold_s": table[(7, "cold", 0, k)],
-             "steady_s": table[(7, "steady", 0, k)]} for k in SIZES]
-    lines = ["| selection at m=7 | " + " | ".join(f"{k}×{k} cold / steady (s)" for k in SIZES) + " |",
-             "| --- |" + " --- |" * len(SIZES),
-             "| text (lowest counter, §3.2; Fig. 2 runs) | " + " | ".join(
-                 f"{_fmt(r['cold_s'])} / {_fmt(r['steady_s'])}" for r in recs) + " |"]
+    recs = [
+        {
+            "rule": "text",
+            "subgraph": f"{k}x{k}",
+            "cold_s": table[(7, "cold", 0, k)],
+            "steady_s": table[(7, "steady", 0, k)],
+        }
+        for k in SIZES
+    ]
+    lines = [
+        "| selection at m=7 | " + " | ".join(f"{k}×{k} cold / steady (s)" for k in SIZES) + " |",
+        "| --- |" + " --- |" * len(SIZES),
+        "| text (lowest counter, §3.2; Fig. 2 runs) | "
+        + " | ".join(f"{_fmt(r['cold_s'])} / {_fmt(r['steady_s'])}" for r in recs)
+        + " |",
+    ]
     for label, sel, alpha in progress(configs, desc="selection rules at m=7"):
-        cap_here = 30 if sel == "listing" else cap  # the listing never completes; do not burn the budget
+        cap_here = min(30, cap) if sel == "listing" else cap  # the listing never completes; do not burn the budget
         res = grid_propagation(10, 7, runs, seed=77, blocks=blocks, selector=sel, alpha=alpha, max_frames=cap_here)
         cells = []
         for k in SIZES:
@@ -155,102 +224,119 @@ def rules_m7(quick: bool, progress, table) -> tuple[str, list[dict]]:
 
 # ----------------------------------------------------------------------------------- env-driven parts
 def _make(**kw):
+    """The env with the paper's action semantics: v0's priority per robot (``layout="absolute"``)."""
     from mrcomm_env.multihop.env import MultiHopEnv
 
-    return MultiHopEnv(**kw)
+    return MultiHopEnv(layout="absolute", **kw)
 
 
-def _policy(name):
-    from baselines.multihop import POLICIES
-
-    return POLICIES[name]()
-
-
-def fig3(out: Path, quick: bool, progress) -> tuple[str, dict]:
-    horizon, seeds = (120.0, 2) if quick else (300.0, 12)
+def fig3(out: Path, size: str) -> tuple[str, dict]:
+    horizon, seeds = pick(size, full=(300.0, 12), quick=(120.0, 2), tiny=(10.0, 1))
     grid_t = np.linspace(0.0, horizon, 301)
-    configs = [(1, "no_hop", "m=1 no hop"), (3, "location_based", "m=3 location-based"), (9, "flooding", "m=9 flooding"),
-               (3, "age_aware", "m=3 age_aware (ours)")]
+    configs = [
+        (1, "no_hop", "m=1 no hop"),
+        (3, "location_based", "m=3 location-based"),
+        (9, "flooding", "m=9 flooding"),
+        (3, "age_aware", "m=3 age_aware (ours)"),
+    ]
     curves, rates, finals = {}, {}, {}
     for m, pol_name, label in progress(configs, desc="Fig 3: coverage"):
         runs = []
         for seed in range(seeds):
-            env = _make(scene="coverage", slot_size=m, max_cycles=10**7)
-            pol = _policy(pol_name)
-            obs, _ = env.reset(seed=seed)
-            pol.reset(env.local_views(), seed)
-            ts, cs = [0.0], [env.coverage_cost()]
-            while env.t < horizon:
-                obs, *_ = env.step(pol.act(obs, env.local_views()))
+            env = _make(scene="coverage", slot_size=m, max_cycles=10**7)  # the episode ends at `horizon` seconds
+            ts, cs = [], []
+
+            def record(*_, env=env, ts=ts, cs=cs):
                 ts.append(env.t)
                 cs.append(env.coverage_cost())
+                return env.t >= horizon
+
+            run_episode(env, make_policy(ENV_ID, pol_name), seed, on_reset=record, on_step=record)
             runs.append(np.interp(grid_t, ts, cs))
         curves[label] = np.mean(runs, axis=0)
         finals[label] = [float(r[-1]) for r in runs]
         rates[label] = theory.frame_rate(m, 9, 192, 3000.0)
-    with open(out / "fig3_coverage.csv", "w", newline="") as fh:
+    with atomic_open(out / "fig3_coverage.csv", "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["time_s", *curves])
         for i, t in enumerate(grid_t):
             w.writerow([f"{t:.2f}", *(f"{curves[k][i]:.3f}" for k in curves)])
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(6.5, 4))
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
-    for label, y in curves.items():
-        ax.plot(grid_t, y, label=f"{label} ({rates[label]:.2f} Hz)")
-    ax.set_yscale("log")
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("coverage cost H/area (m²)")
-    ax.set_title("9 robots, 100 m square, 40 m range, ≤ 5 m/s, 3000 baud, 192 bits")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "fig3_coverage.png", dpi=90)
+    with figure(out / "fig3_coverage.png", figsize=(6.5, 4), dpi=90) as (_, ax):
+        for label, y in curves.items():
+            ax.plot(grid_t, y, label=f"{label} ({rates[label]:.2f} Hz)")
+        label_axes(
+            ax,
+            yscale="log",
+            xlabel="time (s)",
+            ylabel="coverage cost H/area (m²)",
+            title="9 robots, 100 m square, 40 m range, ≤ 5 m/s, 3000 baud, 192 bits",
+            legend=8,
+        )
     marks = [10.0, 30.0, 60.0]
     paper = theory.paper_frame_rates()
-    lines = ["| scheme | frame rate ours / paper (Hz) | " + " | ".join(f"cost at {t:.0f} s" for t in marks)
-             + " | mean cost over first 30 s | final cost (m²) | runs ending > 5 % above the 3×3 optimum |",
-             "| --- |" + " --- |" * (len(marks) + 4)]
+    lines = [
+        "| scheme | frame rate ours / paper (Hz) | "
+        + " | ".join(f"cost at {t:.0f} s" for t in marks)
+        + " | mean cost over first 30 s | final cost (m²) | runs ending > 5 % above the 3×3 optimum |",
+        "| --- |" + " --- |" * (len(marks) + 4),
+    ]
     optimum = 100.0**2 / 54  # centroidal 3×3 grid: each robot's square cell of side L/3, 2 (L/3)²/12
     summary = {}
-    for (m, _, label) in configs:
+    for m, _, label in configs:
         y = curves[label]
         at = [float(np.interp(t, grid_t, y)) for t in marks]
         early = float(y[grid_t <= 30.0].mean())
         final = float(y[grid_t >= horizon - 30.0].mean())
         stuck = sum(f > 1.05 * optimum for f in finals[label])
         summary[label] = {"at": at, "early": early, "final": final, "finals": finals[label], "stuck": stuck}
-        lines.append(f"| {label} | {rates[label]:.2f} / {paper.get(m, float('nan')) if m in paper else '–'} | "
-                     + " | ".join(f"{v:.0f}" for v in at) + f" | {early:.0f} | {final:.1f} | {stuck}/{seeds} |")
+        lines.append(
+            f"| {label} | {rates[label]:.2f} / {paper.get(m, float('nan')) if m in paper else '–'} | "
+            + " | ".join(f"{v:.0f}" for v in at)
+            + f" | {early:.0f} | {final:.1f} | {stuck}/{seeds} |"
+        )
     lines.append(f"\n3×3 optimum: {optimum:.1f} m²; {seeds} take-offs (seeds) per scheme, {horizon:.0f} s each.")
     return "\n".join(lines), summary
 
 
-def fig5(out: Path, quick: bool, progress) -> str:
-    warm, sample = (200, 40) if quick else (600, 300)
-    configs = [(7, "location_based", "m=7 location-based"), (7, "age_aware", "m=7 age_aware (ours)"),
-               (100, "flooding", "m=100 flooding")]
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+def fig5(out: Path, size: str) -> str:
+    warm, sample = pick(size, full=(600, 300), quick=(200, 40), tiny=(10, 5))
+    configs = [
+        (7, "location_based", "m=7 location-based"),
+        (7, "age_aware", "m=7 age_aware (ours)"),
+        (100, "flooding", "m=100 flooding"),
+    ]
+    with figure(out / "fig5_staleness.png", figsize=(6.5, 4), dpi=90) as (_, ax):
+        rows, lines = _fig5_runs(ax, configs, warm, sample)
+        label_axes(
+            ax,
+            xlabel="distance from the corner robot (grid units)",
+            ylabel="mean age of its estimate (s)",
+            yscale="log",
+            title="Staleness vs distance, corner robot of the 10×10 grid (cf. Fig. 5)",
+            legend=8,
+        )
+    with atomic_open(out / "fig5_staleness.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    return "\n".join(lines)
 
-    fig = Figure(figsize=(6.5, 4))
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
+
+def _fig5_runs(ax, configs, warm: int, sample: int) -> tuple[list[dict], list[str]]:
     rows = []
-    lines = ["| scheme | mean age of estimates at distance ≤ 2 (s) | 2–6 | > 6 | corner robot: unknown estimates |",
-             "| --- | --- | --- | --- | --- |"]
+    lines = [
+        "| scheme | mean age of estimates at distance ≤ 2 (s) | 2–6 | > 6 | corner robot: unknown estimates |",
+        "| --- | --- | --- | --- | --- |",
+    ]
     for m, pol_name, label in progress(configs, desc="Fig 5: staleness"):
         env = _make(scene="grid", slot_size=m, max_cycles=warm + sample)
-        pol = _policy(pol_name)
-        obs, _ = env.reset(seed=5)
-        pol.reset(env.local_views(), 5)
         ages = []
-        for k in range(warm + sample):
-            obs, *_ = env.step(pol.act(obs, env.local_views()))
-            if k >= warm:
+
+        def record(step, *_, env=env, ages=ages):
+            if step >= warm:
                 ages.append(env._ages[0].copy())  # robot 0: a corner, the most remote receiver
+
+        run_episode(env, make_policy(ENV_ID, pol_name), 5, on_step=record)
         ages = np.array(ages)
         dist = np.linalg.norm(env.pos - env.pos[0], axis=1)
         mean_age = ages.mean(axis=0)
@@ -258,60 +344,59 @@ def fig5(out: Path, quick: bool, progress) -> str:
         o = np.argsort(dist)[1:]
         ax.plot(dist[o], mean_age[o], ".", ms=5, label=label)
         for j in o:
-            rows.append({"scheme": label, "robot": int(j), "distance": float(dist[j]), "mean_age_s": float(mean_age[j]),
-                         "max_age_s": float(ages[:, j].max())})
+            rows.append(
+                {
+                    "scheme": label,
+                    "robot": int(j),
+                    "distance": float(dist[j]),
+                    "mean_age_s": float(mean_age[j]),
+                    "max_age_s": float(ages[:, j].max()),
+                }
+            )
         bands = [(dist > 0) & (dist <= 2), (dist > 2) & (dist <= 6), dist > 6]
         lines.append(f"| {label} | " + " | ".join(f"{mean_age[b].mean():.0f}" for b in bands) + f" | {unknown} |")
-    ax.set_xlabel("distance from the corner robot (grid units)")
-    ax.set_ylabel("mean age of its estimate (s)")
-    ax.set_yscale("log")
-    ax.set_title("Staleness vs distance, corner robot of the 10×10 grid (cf. Fig. 5)")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "fig5_staleness.png", dpi=90)
-    with open(out / "fig5_staleness.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    return "\n".join(lines)
+    return rows, lines
 
 
-def policies_m7(quick: bool, progress) -> tuple[str, dict]:
-    frames = 200 if quick else 800
+def policies_m7(size: str) -> tuple[str, dict]:
+    frames = pick(size, full=800, quick=200, tiny=10)
     names = ["location_based", "age_aware", "probabilistic", "flooding", "no_hop", "random"]
     res = {}
-    lines = ["| policy (grid, m=7) | steady weighted age = −reward (s) | mean age (s) | 8×8 cold propagation (s) |",
-             "| --- | --- | --- | --- |"]
+    lines = [
+        "| policy (grid, m=7) | steady weighted age = −reward (s) | mean age (s) | 8×8 cold propagation (s) |",
+        "| --- | --- | --- | --- |",
+    ]
     for name in progress(names, desc="policies at m=7"):
         env = _make(scene="grid", slot_size=7, max_cycles=frames)
-        pol = _policy(name)
-        obs, _ = env.reset(seed=11)
-        pol.reset(env.local_views(), 11)
         rewards = []
-        while env.agents:
-            obs, r, *_ = env.step(pol.act(obs, env.local_views()))
-            rewards.append(next(iter(r.values())))
-        met = env.metrics()
-        res[name] = {"weighted_age": -float(np.mean(rewards[frames // 2:])), "mean_age": met["mean_age"],
-                     "prop8": met["propagation_time_8x8"]}
+
+        def record(step, observations, step_rewards, infos, rewards=rewards):
+            rewards.append(next(iter(step_rewards.values())))
+
+        met = run_episode(env, make_policy(ENV_ID, name), 11, on_step=record)
+        res[name] = {
+            # the reward is −(weighted age) in units of AGE_SCALE_FRAMES frames (lam = 0): back to seconds
+            "weighted_age": -float(np.mean(rewards[frames // 2 :])) * AGE_SCALE_FRAMES * env.frame_dur,
+            "mean_age": met["mean_age"],
+            "prop8": met["propagation_time_8x8"],
+        }
         shown = "flooding (round-robin window at m=7)" if name == "flooding" else name
-        lines.append(f"| {shown} | {res[name]['weighted_age']:.0f} | {met['mean_age']:.0f} | {_fmt(met['propagation_time_8x8'])} |")
-    lines.append(f"\nOne seeded episode of {frames} frames each; weighted age averaged over the second half; "
-                 "n/c = the 8×8 subgraph had not completed within the episode.")
+        lines.append(
+            f"| {shown} | {res[name]['weighted_age']:.0f} | {met['mean_age']:.0f} | {_fmt(met['propagation_time_8x8'])} |"
+        )
+    lines.append(
+        f"\nOne seeded episode of {frames} frames each; weighted age averaged over the second half; "
+        "n/c = the 8×8 subgraph had not completed within the episode."
+    )
     return "\n".join(lines), res
 
 
 # ----------------------------------------------------------------------------------- entry point
-def run(out_dir: Path, quick: bool) -> str:
-    from tqdm.auto import tqdm
-
+def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    size = size_of(quick, tiny)
     start = time.perf_counter()
-
-    def progress(it, desc):
-        return tqdm(it, desc=desc, leave=False)
-
     timing = {}
 
     def timed(key, fn, *args):
@@ -320,33 +405,52 @@ def run(out_dir: Path, quick: bool) -> str:
         timing[key] = round(time.perf_counter() - t0, 1)
         return res
 
-    how, table = timed("fig2", fig2, out, quick, progress)
+    how, table = timed("fig2", fig2, out, size)
     claim_md, claim = claim_m7(table)
     best_md = best_m(table, sorted({key[0] for key in table}))
-    rules_md, rules = timed("rules_m7", rules_m7, quick, progress, table)
-    cov_md, cov = timed("fig3", fig3, out, quick, progress)
-    stale_md = timed("fig5", fig5, out, quick, progress)
-    pol_md, pols = timed("policies_m7", policies_m7, quick, progress)
-    json.dump({"claim_m7": claim, "rules_m7": rules, "fig3": cov, "policies_m7": pols,
-               "quick": quick, "seconds": time.perf_counter() - start, "timing_s": timing},
-              open(out / "results.json", "w"), indent=2, default=float)
+    rules_md, rules = timed("rules_m7", rules_m7, size, table)
+    cov_md, cov = timed("fig3", fig3, out, size)
+    stale_md = timed("fig5", fig5, out, size)
+    pol_md, pols = timed("policies_m7", policies_m7, size)
+    atomic_write_json(
+        out / "results.json",
+        {
+            "claim_m7": claim,
+            "rules_m7": rules,
+            "fig3": cov,
+            "policies_m7": pols,
+            "quick": quick,
+            "seconds": time.perf_counter() - start,
+            "timing_s": timing,
+        },
+        indent=2,
+        default=float,
+    )
 
     labels = [lab for _, _, lab in READINGS]
     all_hold = [lab for lab in labels if all(c["holds"] for c in claim if c["reading"] == lab)]
-    fails = "; ".join(f"{lab}: " + ", ".join(c["subgraph"] for c in claim if c["reading"] == lab and not c["holds"])
-                      for lab in labels if lab not in all_hold)
-    slower = [f"{c['subgraph']} ({c['reading']})" for c in claim if math.isfinite(c["change_pct"]) and c["change_pct"] > 0]
-    claim_note = ("Where it fails, m = 7 is even *slower* than flooding for: " + ", ".join(slower) + ". Estimates of "
-                  "distant robots are forwarded with probability ∝ d^-α (eq. 2), so every hop of a long chain waits "
-                  "for its relay's counter; flooding's 14× longer frame loses to that only over short distances. The "
-                  "paper leaves α and the units of Fig. 2 unstated; the α rows below show the sensitivity."
-                  if slower else "")
+    fails = "; ".join(
+        f"{lab}: " + ", ".join(c["subgraph"] for c in claim if c["reading"] == lab and not c["holds"])
+        for lab in labels
+        if lab not in all_hold
+    )
+    slower = [
+        f"{c['subgraph']} ({c['reading']})" for c in claim if math.isfinite(c["change_pct"]) and c["change_pct"] > 0
+    ]
+    claim_note = (
+        "Where it fails, m = 7 is even *slower* than flooding for: " + ", ".join(slower) + ". Estimates of "
+        "distant robots are forwarded with probability ∝ d^-α (eq. 2), so every hop of a long chain waits "
+        "for its relay's counter; flooding's 14× longer frame loses to that only over short distances. The "
+        "paper leaves α and the units of Fig. 2 unstated; the α rows below show the sensitivity."
+        if slower
+        else ""
+    )
     early = min(cov, key=lambda k: cov[k]["early"] if "ours" not in k else math.inf)  # paper's three schemes
     final = min(cov, key=lambda k: cov[k]["final"] if "ours" not in k else math.inf)
     name = out.name
     md = f"""## MultiHop-v0 — Julian, Schwager, Angermann & Rus, location-based multi-hopping (paper 003)
 
-{"Quick run (subset of m, few runs): numbers are indicative only. " if quick else ""}Setting: 10×10 stationary grid,
+{pick(size, full="", quick="Quick run (subset of m, few runs): numbers are indicative only. ", tiny="Tiny run (smoke-test sizes): the numbers mean nothing. ")}Setting: 10×10 stationary grid,
 4-neighbour links, 192-bit estimates at 3000 baud (one estimate = 64 ms; slot = 64·m ms), α = 1, a random TDMA
 order per run, Algorithm 1 run at each slot with the §3.2 rule (lowest counter). Flooding is m = n = 100 (with
 m ≥ known estimates Algorithm 1 sends everything, so it *is* flooding). m = 1 never completes any subgraph (only

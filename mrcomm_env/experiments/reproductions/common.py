@@ -1,0 +1,117 @@
+"""What the reproductions share: run sizes, progress bars, figures and the episode loop.
+
+* :func:`size_of` / :func:`pick` — one reproduction, three sizes: ``full`` (the paper's), ``quick`` (a few
+  minutes, indicative numbers) and ``tiny`` (seconds, for the smoke test: every file is written, the
+  numbers mean nothing);
+* :func:`progress` — the progress bar every sweep shows;
+* :func:`figure` — a matplotlib figure on the Agg canvas (no pyplot: a reproduction never changes the
+  caller's backend or leaks figures) that is laid out and saved atomically when the block ends, and
+  :func:`label_axes` for the labels, scales, title and legend;
+* :func:`run_episode` — :func:`mrcomm_env.experiments.evaluation.run_episode`, the one episode loop,
+  re-exported so that a reproduction imports everything it shares from here;
+* :func:`atomic_open`, :func:`atomic_write_json`, :func:`atomic_write_text` — every CSV/JSON goes through
+  these (:mod:`mrcomm_env.experiments.io`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any, TypeVar
+
+from mrcomm_env.experiments.evaluation import run_episode
+from mrcomm_env.experiments.io import atomic_open, atomic_savefig, atomic_write_json, atomic_write_text
+
+__all__ = [
+    "SIZES",
+    "atomic_open",
+    "atomic_write_json",
+    "atomic_write_text",
+    "figure",
+    "label_axes",
+    "pick",
+    "progress",
+    "run_episode",
+    "size_of",
+]
+
+SIZES = ("full", "quick", "tiny")
+T = TypeVar("T")
+_UNSET: Any = object()
+
+
+def size_of(quick: bool, tiny: bool = False) -> str:
+    """The size of a run: ``"tiny"`` wins over ``"quick"``, which wins over ``"full"``."""
+    return "tiny" if tiny else "quick" if quick else "full"
+
+
+def pick(size: str, *, full: T, quick: T, tiny: T = _UNSET) -> T:
+    """The value for this run's ``size``; ``tiny`` defaults to the ``quick`` value."""
+    if size not in SIZES:
+        raise ValueError(f"size must be one of {', '.join(SIZES)}, got {size!r}")
+    if size == "full":
+        return full
+    if size == "tiny" and tiny is not _UNSET:
+        return tiny
+    return quick
+
+
+def progress(iterable: Iterable[T], desc: str) -> Iterable[T]:
+    """A progress bar over ``iterable`` that disappears when done (the CLI's output stays readable)."""
+    from tqdm.auto import tqdm
+
+    return tqdm(iterable, desc=desc, leave=False)
+
+
+@contextlib.contextmanager
+def figure(
+    path: str | Path,
+    *,
+    figsize: tuple[float, float],
+    nrows: int = 1,
+    ncols: int = 1,
+    dpi: float | None = None,
+    tight: bool = True,
+) -> Iterator[tuple[Any, Any]]:
+    """``with figure(out / "fig.png", figsize=(6, 4)) as (fig, ax): ax.plot(…)`` — saved on leaving the block.
+
+    ``ax`` is one Axes for a 1×1 grid, else the array ``fig.subplots`` returns. ``tight`` lays the figure out
+    with ``tight_layout`` before saving; ``dpi`` is the saved resolution (default: the figure's, 100).
+    Nothing is written when the block raises.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(nrows, ncols)
+    yield fig, axes
+    if tight:
+        fig.tight_layout()
+    atomic_savefig(fig, path, **({} if dpi is None else {"dpi": dpi}))
+
+
+def label_axes(
+    ax,
+    *,
+    xlabel: str | None = None,
+    ylabel: str | None = None,
+    title: str | None = None,
+    xscale: str | None = None,
+    yscale: str | None = None,
+    legend: float | None = None,
+) -> None:
+    """Set whichever of the labels, title and axis scales are given; ``legend`` is the legend's font size."""
+    if xscale:
+        ax.set_xscale(xscale)
+    if yscale:
+        ax.set_yscale(yscale)
+    if xlabel is not None:
+        ax.set_xlabel(xlabel)
+    if ylabel is not None:
+        ax.set_ylabel(ylabel)
+    if title is not None:
+        ax.set_title(title)
+    if legend is not None:
+        ax.legend(fontsize=legend)
