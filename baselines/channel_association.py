@@ -22,8 +22,8 @@ import math
 import numpy as np
 
 from baselines.common import RandomPolicy
-from mrcomm_env.core.policy import Policy
 from mrcomm_env.core.config import Int, Param, Real
+from mrcomm_env.core.policy import Policy
 
 ENV_ID = "mrcomm/ChannelAssociation-v0"
 DEFAULT_POLICY = "coin_flip"

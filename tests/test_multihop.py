@@ -239,7 +239,7 @@ def test_relative_layout_selects_candidates_nearest_first():
     env._rank_candidates()
     views = env.local_views()
     for i in range(9):
-        cand = views["robot_%d" % i]["candidates"]
+        cand = views[f"robot_{i}"]["candidates"]
         assert i not in cand and sorted(cand) == [j for j in range(9) if j != i]
         d = np.linalg.norm(env.pos[cand] - env.pos[i], axis=1)
         assert np.all(np.diff(d) >= 0)  # nearest first
