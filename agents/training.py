@@ -36,7 +36,7 @@ ALGORITHMS = {
     "dqn": ("stable_baselines3", "DQN"),
 }
 #: arguments of ``train`` that are not the algorithm's own hyperparameters
-RUN_KEYS = ("n_envs", "normalize", "checkpoint_every", "net_arch")
+RUN_KEYS = ("n_envs", "normalize", "checkpoint_every", "net_arch", "policy")
 
 
 class RunError(ValueError):
@@ -54,6 +54,9 @@ class TrainConfig:
     n_envs: int = 4  #: copies of the parallel env; the VecEnv has n_envs × N agent slots
     normalize: bool = True  #: VecNormalize on observations and returns
     net_arch: list[int] = field(default_factory=lambda: [64, 64])
+    #: ``mlp`` (SB3's MlpPolicy) or ``candidates`` (one shared scorer per candidate, ``agents/policies.py``;
+    #: needs an env whose ``observation_layout()`` lists candidates)
+    policy: str = "mlp"
     checkpoint_every: int = 50_000  #: agent-steps between checkpoints
 
     def validate(self) -> TrainConfig:
@@ -66,7 +69,13 @@ class TrainConfig:
                 raise ValueError(f"argument '{name}' must be an integer ≥ 1, got {value!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ValueError(f"argument 'seed' must be an integer ≥ 0, got {self.seed!r}")
-        make(self.env_id, **self.env_kwargs).close()  # the env's own arguments are checked before any work
+        if self.policy not in ("mlp", "candidates"):
+            raise ValueError(f"argument 'policy' must be 'mlp' or 'candidates', got {self.policy!r}")
+        env = make(self.env_id, **self.env_kwargs)  # the env's own arguments are checked before any work
+        if self.policy == "candidates" and env.observation_layout() is None:
+            raise ValueError(f"policy 'candidates' needs an observation of candidates; {self.env_id} with "
+                             f"{self.env_kwargs} has a flat one")
+        env.close()
         return self
 
 
@@ -98,11 +107,14 @@ def split_settings(settings: dict[str, Any]) -> tuple[dict[str, Any], dict[str, 
     return run, hyper
 
 
-def make_training_env(config: TrainConfig, seed: int) -> AgentSlotVecEnv:
+def make_training_env(config: TrainConfig, seed: int):
+    """The agent-slot VecEnv under a VecMonitor (episode returns in the logs, counted once per agent slot)."""
+    from stable_baselines3.common.vec_env import VecMonitor
+
     env_fns = [lambda: make(config.env_id, **config.env_kwargs) for _ in range(config.n_envs)]
     venv = AgentSlotVecEnv(env_fns)
     venv.seed(seed)
-    return venv
+    return VecMonitor(venv)
 
 
 def algorithm_class(algo: str):
@@ -219,8 +231,17 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False, progress: 
             venv = VecNormalize(venv, norm_obs=True, norm_reward=True, gamma=config.hyperparams.get("gamma", 0.99))
         kwargs = dict(config.hyperparams)
         policy_kwargs = dict(kwargs.pop("policy_kwargs", {}))
-        policy_kwargs.setdefault("net_arch", list(config.net_arch))
-        model = cls("MlpPolicy", venv, seed=config.seed, device="cpu", verbose=0, policy_kwargs=policy_kwargs, **kwargs)
+        if config.policy == "candidates":
+            from agents.policies import CandidatePolicy
+
+            probe = make(config.env_id, **config.env_kwargs)
+            policy = CandidatePolicy
+            policy_kwargs.update(layout=probe.observation_layout(), hidden=int(config.net_arch[0]))
+            probe.close()
+        else:
+            policy = "MlpPolicy"
+            policy_kwargs.setdefault("net_arch", list(config.net_arch))
+        model = cls(policy, venv, seed=config.seed, device="cpu", verbose=0, policy_kwargs=policy_kwargs, **kwargs)
         done_steps = 0
     model.set_logger(configure(str(out), ["csv", "tensorboard"]))
 

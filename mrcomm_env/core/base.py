@@ -92,6 +92,13 @@ class MrcommParallelEnv(ParallelEnv):
         """Field → array whose row i is what robot i knows (keys as in ``LOCAL_VIEW``)."""
         return {}
 
+    def observation_layout(self) -> dict[str, int] | None:
+        """For observations that list candidates: ``{"candidates": K, "features": F, "globals": G,
+        "extra_actions": E}`` (K blocks of F features, then G of the robot itself; E actions beyond one per
+        candidate). None for a flat observation. Learned policies may use it to share weights across
+        candidates (``agents/policies.py``)."""
+        return None
+
     def _state(self) -> np.ndarray:
         """The global state for centralised critics; by default every robot's observation, concatenated."""
         return self._observe().reshape(-1)
@@ -295,15 +302,16 @@ def _action_checker(space: spaces.Space):
 
         def check_bits(agent, action):
             raw = np.asarray(action) if not isinstance(action, (str, bytes)) else None
-            if raw is None or raw.dtype.kind not in "iub" or raw.shape != shape or not np.isin(raw, (0, 1)).all():
-                raise ValueError(f"action of {agent} must be an array of 0/1 integers of shape {shape}, got {action!r}")
+            if raw is None or raw.dtype.kind not in "iubf" or raw.shape != shape or not np.isin(raw, (0, 1)).all():
+                raise ValueError(f"action of {agent} must be an array of 0s and 1s of shape {shape}, got {action!r}")
 
         def check(agents, actions):
             try:
                 raw = np.asarray(actions)
             except ValueError:  # ragged
                 raw = None
-            if raw is not None and raw.dtype.kind in "iub" and raw.shape == (len(agents), *shape):
+            # gymnasium's MultiBinary.contains takes any real array of exact 0s and 1s (SB3 sends float32)
+            if raw is not None and raw.dtype.kind in "iubf" and raw.shape == (len(agents), *shape):
                 if ((raw == 0) | (raw == 1)).all():
                     return raw.astype(np.int8, copy=False)
             for agent, action in zip(agents, actions):

@@ -281,6 +281,11 @@ class MultiHopEnv(MrcommParallelEnv):
         self.ledger.record(self._step_bits, messages=n)
         return self._frame_end()
 
+    def observation_layout(self) -> dict[str, int] | None:
+        if not self._relative:
+            return None
+        return {"candidates": self.n_agents - 1, "features": RELATIVE_FEATURES, "globals": 3, "extra_actions": 0}
+
     def _priorities(self, actions) -> np.ndarray:
         """(N, N) priorities of the frame: the v0 action itself, or the selected candidates by rank."""
         if not self._relative:
