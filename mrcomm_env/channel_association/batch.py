@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mrcomm_env.channel_association.env import layout_field
 from mrcomm_env.channel_association.filters import BitsetFilter, DenseFilter, SparseFilter
+from mrcomm_env.channel_association.scenes import layout_field
 
 
 def neighborhood_trials(w: int, v: int, trials: int, rng: np.random.Generator, p: float = 0.5,

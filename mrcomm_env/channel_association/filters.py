@@ -35,21 +35,81 @@ ground truth (metric ``fraction_wrong``).
 
 from __future__ import annotations
 
+from typing import Any, Protocol, runtime_checkable
+
 import numpy as np
 
 
-class DenseFilter:
+@runtime_checkable
+class AssociationFilter(Protocol):
+    """What the environment (and the batch drivers) need from a store of observers' i-states.
+
+    A filter keeps B observers' i-states. It addresses wireless and visual IDs by *slot*: an index the
+    caller chose (the robot index in a field, the position in a neighbourhood); the scene that drives
+    the filter knows which robot a slot is. Sensed data is passed in the filter's own representation:
+    (B, W) / (B, V) 0/1 masks for the slot-per-robot filters (:class:`DenseFilter`,
+    :class:`BitsetFilter`, which also takes its native packed rows), sorted keys ``observer * n + robot``
+    for :class:`SparseFilter`. Implementations may accept further keyword-only arguments that only save
+    time and must agree with the positional ones.
+    """
+
+    drop_time: int
+    tolerance: int
+    extra_edges: bool
+    #: draws the observers' local visual labels (the environment passes its own generator)
+    rng: np.random.Generator
+    #: tracked visual IDs found with no candidate and re-opened, so far
+    conflicts: int
+    #: wireless + visual IDs added in the last step, per observer (Algorithm 2's addNew…IDs)
+    new_ids: np.ndarray
+
+    def init_known(self, wireless: Any, visual: Any) -> None:
+        """Algorithm 1's start: the neighbourhood is known, every wireless × visual pair is an edge."""
+
+    def step(self, recv: Any, vact: Any, v_in: Any = None, lists: bool = False) -> None:
+        """One time step: ``recv`` wireless messages received, ``vact`` lights seen, ``v_in`` visual IDs
+        still in range (needed only for Algorithm 2's list operations, ``lists``)."""
+
+    def stats(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(matched, visual IDs, edges, unresolved) per observer; matched = visual IDs with one candidate."""
+
+    def stats_key(self) -> Any:
+        """A value equal between two calls iff :meth:`stats` and ``new_ids`` may not have changed, or
+        None when the filter offers no such shortcut."""
+
+    def edges(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(observer, wireless slot, visual slot) of every edge of the i-states."""
+
+    def matches(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(observer, wireless slot, visual slot) of every unique match (a visual ID with one candidate)."""
+
+    def candidates(self, observer: int) -> dict[int, list[int]]:
+        """One observer's i-state: its own visual label → candidate wireless slots (ascending)."""
+
+
+class FilterBase:
+    """Settings every filter shares (Algorithm 2's ``drop_time``, §6.3's ``tolerance``, §5.2's extra
+    edges) and the generator of local visual labels."""
+
+    def __init__(self, drop_time: int = 20, tolerance: int = 0, extra_edges: bool = False):
+        self.drop_time = int(drop_time)
+        self.tolerance = int(tolerance)
+        self.extra_edges = bool(extra_edges)
+        self.rng = np.random.default_rng(0)
+
+
+class DenseFilter(FilterBase):
     """A batch of B observers, each with W wireless and V visual slots (i-state ``E[b, h, s]``)."""
 
     def __init__(self, batch: int, n_w: int, n_v: int, drop_time: int = 20, tolerance: int = 0,
                  extra_edges: bool = False):
+        super().__init__(drop_time, tolerance, extra_edges)
         self.shape = (batch, n_w, n_v)
-        self.drop_time = int(drop_time)
-        self.tolerance = int(tolerance)
-        self.extra_edges = bool(extra_edges)
-        #: draws the observers' local visual labels (the environment passes its own generator)
-        self.rng = np.random.default_rng(0)
         self.reset()
+
+    def pack(self, mask: np.ndarray) -> np.ndarray:
+        """A (…, W) mask of wireless slots in the representation :meth:`step` takes (the mask itself)."""
+        return mask
 
     def reset(self) -> None:
         b, w, v = self.shape
@@ -136,11 +196,23 @@ class DenseFilter:
         ne = self.deg.sum(1)
         return matched, nv, ne, nv - matched
 
+    def stats_key(self):
+        # the statistics are functions of (candidates per visual ID, tracked visual IDs, new IDs)
+        return self.deg.tobytes(), self.vt.tobytes(), self.new_ids.tobytes()
+
+    def edges(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return np.nonzero(self.E)
+
     def matches(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(observer, wireless slot, visual slot) of every unique match."""
         one = (self.deg == 1) & self.vt
         b, h, s = np.nonzero(self.E & one[:, None, :])
         return b, h, s
+
+    def candidates(self, observer: int) -> dict[int, list[int]]:
+        E = self.E[observer]
+        return {int(self.vlabel[observer, s]): np.nonzero(E[:, s])[0].tolist()
+                for s in np.nonzero(self.vt[observer])[0]}
 
 
 # ====================================================================== sparse backend
@@ -184,15 +256,14 @@ def _cross_by_group(gid_a: np.ndarray, gid_b: np.ndarray, n_groups: int):
     return i, j
 
 
-class SparseFilter:
-    """Edge-list filter for many observers in a population of ``n`` robots (keys ``o * n + x``)."""
+class SparseFilter(FilterBase):
+    """Edge-list filter for many observers in a population of ``n`` robots (keys ``o * n + x``).
+
+    Slots are robot indices: observer o's wireless and visual slot x is robot x."""
 
     def __init__(self, n: int, drop_time: int = 20, tolerance: int = 0, extra_edges: bool = False):
+        super().__init__(drop_time, tolerance, extra_edges)
         self.n = int(n)
-        self.drop_time = int(drop_time)
-        self.tolerance = int(tolerance)
-        self.extra_edges = bool(extra_edges)
-        self.rng = np.random.default_rng(0)
         self.reset()
 
     def reset(self) -> None:
@@ -229,7 +300,7 @@ class SparseFilter:
     def _keep_edges(self, keep):
         self.ew, self.ev, self.ed = self.ew[keep], self.ev[keep], self.ed[keep]
 
-    def step(self, recv_keys: np.ndarray, vact_keys: np.ndarray, v_in=None, lists: bool = False,
+    def step(self, recv_keys: np.ndarray, vact_keys: np.ndarray, v_in=None, lists: bool = False, *,
              w_active=None, v_active=None) -> None:
         """``recv_keys``: sorted keys o*n+a of received wireless messages; ``vact_keys``: sorted keys o*n+b
         of visual IDs whose light was seen; ``v_in(keys) -> bool``: visual IDs still in range.
@@ -328,12 +399,28 @@ class SparseFilter:
         ne = np.bincount(vo, weights=self.vdeg, minlength=n).astype(np.int64)
         return matched, nv, ne, nv - matched
 
+    def stats_key(self):
+        return None                                     # the statistics are cheap next to a step
+
+    def edges(self):
+        n = self.n
+        return self.ev // n, self.ew % n, self.ev % n
+
     def matches(self):
         """(observer, wireless robot, visual robot) of every unique match."""
         n = self.n
         vidx = _search_grouped(self.vk, self.ev)
         sel = self.vdeg[vidx] == 1
         return self.ev[sel] // n, self.ew[sel] % n, self.ev[sel] % n
+
+    def candidates(self, observer: int) -> dict[int, list[int]]:
+        n = self.n
+        lo, hi = np.searchsorted(self.vk, [observer * n, (observer + 1) * n])
+        out = {}
+        for key, lab in zip(self.vk[lo:hi], self.vlab[lo:hi], strict=True):
+            a, b = np.searchsorted(self.ev, [key, key + 1])
+            out[int(lab)] = sorted((self.ew[a:b] % n).tolist())
+        return out
 
 
 def _merged(old_values: np.ndarray, old: np.ndarray, at: np.ndarray, new_values) -> np.ndarray:
@@ -347,6 +434,7 @@ def _merged(old_values: np.ndarray, old: np.ndarray, at: np.ndarray, new_values)
 # ====================================================================== bit-set backend
 _ONE = np.uint64(1)
 _ZERO = np.uint64(0)
+_U64 = np.dtype(np.uint64)
 
 
 _POW2 = _ONE << np.arange(64, dtype=np.uint64)
@@ -357,7 +445,7 @@ def pack_rows(mask: np.ndarray) -> np.ndarray:
     return mask @ _POW2[: mask.shape[-1]]
 
 
-class BitsetFilter:
+class BitsetFilter(FilterBase):
     """:class:`DenseFilter` with each visual ID's candidate column packed into one ``uint64``.
 
     The i-state of observer b is ``C[b, s]`` — bit h set when wireless slot h is still a candidate for
@@ -369,12 +457,10 @@ class BitsetFilter:
     def __init__(self, batch: int, n_w: int, n_v: int, drop_time: int = 20, extra_edges: bool = False):
         if n_w > 64:
             raise ValueError(f"BitsetFilter holds at most 64 wireless slots, got {n_w}")
+        super().__init__(drop_time, 0, extra_edges)
         self.shape = (batch, n_w, n_v)
-        self.drop_time = int(drop_time)
-        self.tolerance = 0
-        self.extra_edges = bool(extra_edges)
-        self.rng = np.random.default_rng(0)
         self._bits = np.arange(n_w, dtype=np.uint64)
+        self._pow = _POW2[:n_w]
         self._ones8, self._ones16 = np.ones(n_v, dtype=np.uint8), np.ones(n_v, dtype=np.uint16)
         self.reset()
 
@@ -391,6 +477,10 @@ class BitsetFilter:
         self.new_ids = np.zeros(b, dtype=np.int64)
         self.conflicts = 0
 
+    def pack(self, mask: np.ndarray) -> np.ndarray:
+        """A (…, W) mask of wireless slots as the bit sets :meth:`step` takes natively (``pack_rows``)."""
+        return mask @ self._pow
+
     @property
     def E(self) -> np.ndarray:
         """The i-state as the paper's (B, W, V) 0/1 matrix."""
@@ -405,14 +495,14 @@ class BitsetFilter:
         self.deg = np.bitwise_count(self.C)
 
     def step(self, recv: np.ndarray, vact: np.ndarray, v_in: np.ndarray | None = None,
-             lists: bool = False, recv_bits: np.ndarray | None = None) -> None:
-        """As :meth:`DenseFilter.step`; ``recv_bits`` may give ``recv`` already packed (then ``recv``
-        is not used and may be None).
+             lists: bool = False) -> None:
+        """As :meth:`DenseFilter.step`; ``recv`` may also be given packed, as the (B,) ``uint64`` bit
+        sets of :meth:`pack`.
 
         The arrays are tiny in the environment (N ≤ 64), so the cost is the number of numpy calls:
         the code keeps that low (one-call comparisons, tests that skip rare work). Invariant: the
         column of an untracked visual ID is 0."""
-        R = pack_rows(recv) if recv_bits is None else recv_bits
+        R = recv if recv.dtype == _U64 else recv @ self._pow
         C, vt = self.C, self.vt
         if lists:
             lost = np.greater(vt, v_in)                        # tracked but out of range
@@ -463,8 +553,19 @@ class BitsetFilter:
         ne = deg @ self._ones16
         return matched, nv, ne, nv - matched
 
+    def stats_key(self):
+        return self.deg.tobytes(), self.vt.tobytes(), self.new_ids.tobytes()
+
+    def edges(self):
+        return np.nonzero(self.E)
+
     def matches(self):
         one = (self.deg == 1) & self.vt
         b, s = np.nonzero(one)
         h = np.log2(self.C[b, s].astype(np.float64)).astype(np.int64) if len(b) else np.zeros(0, np.int64)
         return b, h, s
+
+    def candidates(self, observer: int) -> dict[int, list[int]]:
+        column_bits = (self.C[observer][None, :] >> self._bits[:, None]) & _ONE    # (W, V), as E[observer]
+        return {int(self.vlabel[observer, s]): np.nonzero(column_bits[:, s])[0].tolist()
+                for s in np.nonzero(self.vt[observer])[0]}
