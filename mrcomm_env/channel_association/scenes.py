@@ -42,8 +42,38 @@ def layout_field(rng: np.random.Generator, n: int, separation: float, mobile_fra
     mob = rng.uniform(0.0, 1.0, size=(n_mob, 2)) * size
     pos = np.concatenate((stat, mob))
     mobile = np.zeros(n, dtype=bool)
-    mobile[n - n_mob:] = True
+    mobile[n - n_mob :] = True
     return pos, mobile, size
+
+
+def move_and_bounce(p: np.ndarray, vel: np.ndarray, size: np.ndarray, fast: np.ndarray | None = None) -> None:
+    """Advance positions ``p`` (M, 2) by ``vel`` in place, bouncing off the walls of [0, size] (§5.4).
+
+    ``fast`` marks the coordinates whose speed exceeds the arena (see :func:`fast_coordinates`): a step
+    then crosses the arena more than once, and adding the velocity first would round the position away.
+    """
+    if fast is not None:
+        side = np.broadcast_to(size, p.shape)[fast]
+        v0 = vel[fast]
+        # position on the unfolded line modulo the period 2·size, without losing the start to rounding
+        u = np.mod(p[fast] + np.mod(v0, 2.0 * side), 2.0 * side)
+    p += vel
+    out = p < 0.0
+    out |= p > size
+    if np.count_nonzero(out):  # one reflection at either wall
+        np.abs(p, out=p)
+        np.subtract(size, np.abs(size - p), out=p)
+        vel[out] *= -1.0
+    if fast is not None:
+        back = u > side  # the second half of the period runs backwards
+        p[fast] = np.where(back, 2.0 * side - u, u)
+        vel[fast] = np.where(back, -v0, v0)
+
+
+def fast_coordinates(vel: np.ndarray, size: np.ndarray) -> np.ndarray | None:
+    """Mask of velocity components longer than the arena (speeds only flip sign), or None if there is none."""
+    fast = np.abs(vel) > size
+    return fast if np.count_nonzero(fast) else None
 
 
 def make_slot_filter(batch: int, n_w: int, n_v: int, drop_time: int, tolerance: int, extra_edges: bool):
@@ -132,7 +162,7 @@ class NeighborhoodScene(Scene):
         self.rng = rng
         # the observer's own labelling: visual slot s is robot vis_robot[s] (a random subset, random order)
         self.vis_robot = 1 + rng.permutation(c.w)[: c.v]
-        self.positions = _ring_positions(c.w, self.vis_robot)   # for rendering only
+        self.positions = _ring_positions(c.w, self.vis_robot)  # for rendering only
         self.filter = make_slot_filter(1, c.w, c.v, c.drop_time, c.miss_tolerance, False)
         self.filter.rng = rng
         self.filter.init_known(np.ones((1, c.w), bool), np.ones((1, c.v), bool))
@@ -147,7 +177,7 @@ class NeighborhoodScene(Scene):
         self.filter.step(recv, vact)
 
     def robot_stats(self, matched, nv, ne, unres, new):
-        cols = np.zeros((5, self.n), dtype=np.int64)      # only robot_0 runs a filter
+        cols = np.zeros((5, self.n), dtype=np.int64)  # only robot_0 runs a filter
         cols[:, 0] = (matched[0], nv[0], ne[0], unres[0], new[0])
         return tuple(cols)
 
@@ -187,18 +217,12 @@ class FieldScene(Scene):
         self.n_stat = n - int(self.moving.sum())
         heading = rng.uniform(0.0, 2.0 * np.pi, size=n - self.n_stat)
         self.vel = c.speed * np.stack((np.cos(heading), np.sin(heading)), axis=1)
+        self.fast = fast_coordinates(self.vel, self.size)
         self.mobile = self.n_stat < n
         self.measured = self.moving if self.mobile else self.observer
 
     def _move(self) -> None:
-        p = self.positions[self.n_stat:]                    # mobile robots are stored last (a view)
-        p += self.vel
-        out = p < 0.0
-        out |= p > self.size
-        if np.count_nonzero(out):                          # bounce off the boundary (§5.4)
-            np.abs(p, out=p)
-            np.subtract(self.size, np.abs(self.size - p), out=p)
-            self.vel[out] *= -1.0
+        move_and_bounce(self.positions[self.n_stat :], self.vel, self.size, self.fast)  # mobile robots are last
 
 
 class DenseFieldScene(FieldScene):
@@ -206,12 +230,12 @@ class DenseFieldScene(FieldScene):
 
     def __init__(self, cfg, n_agents: int):
         super().__init__(cfg, n_agents)
-        self.self_inf = np.where(np.eye(n_agents, dtype=bool), np.inf, 0.0)   # a robot is not its own neighbour
+        self.self_inf = np.where(np.eye(n_agents, dtype=bool), np.inf, 0.0)  # a robot is not its own neighbour
 
     def reset(self, rng: np.random.Generator) -> None:
         super().reset(rng)
         c, n = self.cfg, self.n
-        self.rows_key = None                                # mobile robots' in-range rows not yet known
+        self.rows_key = None  # mobile robots' in-range rows not yet known
         self.filter = make_slot_filter(n, n, n, c.drop_time, c.miss_tolerance, self.extra)
         self.filter.rng = rng
         self._update_ranges()
@@ -225,13 +249,13 @@ class DenseFieldScene(FieldScene):
         and mirrors them into their columns: distances between stationary robots never change, and
         |a − b| equals |b − a| exactly in floating point, so the result is the full computation's.
         """
-        z = self.positions.view(np.complex128).ravel()      # positions viewed as complex numbers
+        z = self.positions.view(np.complex128).ravel()  # positions viewed as complex numbers
         d = np.abs(z[first:, None] - z)
         d += self.self_inf[first:]
         wr, vr = self.wrange, self.vrange
         if first == 0:
             self.wr = d <= wr
-            self.vr = d <= vr if vr < wr else self.wr       # the same array when the ranges are equal
+            self.vr = d <= vr if vr < wr else self.wr  # the same array when the ranges are equal
         else:
             w = d <= wr
             v = d <= vr if vr < wr else None
@@ -251,14 +275,14 @@ class DenseFieldScene(FieldScene):
         mobile, f = self.mobile, self.filter
         if mobile:
             self._move()
-            self._update_ranges(self.n_stat)                # only the mobile robots' rows and columns
+            self._update_ranges(self.n_stat)  # only the mobile robots' rows and columns
         q = self.q
         if q > 0.0:
             n, rng = self.n, self.rng
             recv = self.wr & emit & (rng.random((n, n)) >= q)
             vact = self.vr & emit & (rng.random((n, n)) >= q)
             f.step(recv, vact, self.vr, mobile)
-        elif n_emit or mobile:                              # else: known neighbourhoods, nobody lit, no change
+        elif n_emit or mobile:  # else: known neighbourhoods, nobody lit, no change
             f.step(self.wr_packed & f.pack(emit), self.vr & emit, self.vr, mobile)
 
 
@@ -294,13 +318,13 @@ class SparseFieldScene(FieldScene):
             m = np.repeat(np.arange(ns, n), cnt)
             keep = x != m
             m, x = m[keep], x[keep]
-            st = x < ns                                     # mobile–stationary pairs also go the other way
+            st = x < ns  # mobile–stationary pairs also go the other way
             dyn = np.sort(np.concatenate((m * n + x, x[st] * n + m[st])))
-            keys = np.sort(np.concatenate((keys, dyn)), kind="stable")   # merge of two sorted runs
+            keys = np.sort(np.concatenate((keys, dyn)), kind="stable")  # merge of two sorted runs
         self.wkeys = keys
         if self.vrange < self.wrange:
             d = pos[keys // n] - pos[keys % n]
-            self.vkeys = keys[np.einsum("ij,ij->i", d, d) <= self.vrange ** 2]
+            self.vkeys = keys[np.einsum("ij,ij->i", d, d) <= self.vrange**2]
         else:
             self.vkeys = keys
 
@@ -310,7 +334,7 @@ class SparseFieldScene(FieldScene):
         inside = np.ones(len(keys), dtype=bool)
         mov = np.nonzero(self.moving[o] | self.moving[x])[0]
         d = self.positions[o[mov]] - self.positions[x[mov]]
-        inside[mov] = np.einsum("ij,ij->i", d, d) <= self.vrange ** 2
+        inside[mov] = np.einsum("ij,ij->i", d, d) <= self.vrange**2
         return inside
 
     def step(self, emit: np.ndarray, n_emit: int) -> None:
@@ -332,14 +356,14 @@ class SparseFieldScene(FieldScene):
             o, x = np.divmod(keys, n)
             on = emit[x]
             mov = np.nonzero(on & (self.moving[o] | self.moving[x]))[0]
-            if len(mov):                                    # stationary pairs tracked ⇒ in range
+            if len(mov):  # stationary pairs tracked ⇒ in range
                 d = self.positions[o[mov]] - self.positions[x[mov]]
-                on[mov] = np.einsum("ij,ij->i", d, d) <= self.wrange ** 2
+                on[mov] = np.einsum("ij,ij->i", d, d) <= self.wrange**2
             if salt is not None:
                 on &= _uniform_hash(keys, salt[0]) >= q
             return on
 
-        def v_active(keys):                                 # tracked visual IDs are in range
+        def v_active(keys):  # tracked visual IDs are in range
             on = emit[keys % n]
             if salt is not None:
                 on &= _uniform_hash(keys, salt[1]) >= q
