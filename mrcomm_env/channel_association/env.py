@@ -44,8 +44,10 @@ one interface (:class:`~.filters.AssociationFilter`); a scene strategy (:mod:`.s
 dense field, sparse field) owns the world, the sensing and the filter, so the env never branches on
 either. Fields larger than 64 robots are checked at construction against an i-state budget
 (:mod:`.limits`: about N·k_w·k_v edges for k_w, k_v neighbours in range); beyond it the constructor
-raises ``ValueError``. The documented maximum, 10,000 robots at the default density, takes about 1 s
-and 0.6 GiB per step (mobile) or 8 s to reset and 1.5 GiB (stationary). A step recomputes
+raises ``ValueError``. The documented maximum, 10,000 robots at the default density (≈ 50 neighbours
+each), takes 1–3 s per step and 0.6 GiB peak with coin flips; if every robot emits in the first step,
+that step creates ≈ 2.5·10⁷ edges (11 s, 2 GiB). Stationary, the reset builds them (3–5 s, 1.3 GiB).
+A million robots at that density would start with 2.5·10⁹ edges: the range stops at 10,000. A step recomputes
 only the mobile robots' ranges, and the per-robot statistics only when the i-states changed. `drop_time`
 defaults to 20: the paper gives no value; a robot in range stays silent 20 steps with probability 2⁻²⁰.
 `completion_time` is −1 until every observer is final and always in mobile scenes.
