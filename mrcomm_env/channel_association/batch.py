@@ -18,12 +18,19 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mrcomm_env.channel_association.env import layout_field
 from mrcomm_env.channel_association.filters import BitsetFilter, DenseFilter, SparseFilter
+from mrcomm_env.channel_association.scenes import fast_coordinates, layout_field, move_and_bounce
 
 
-def neighborhood_trials(w: int, v: int, trials: int, rng: np.random.Generator, p: float = 0.5,
-                        max_cycles: int = 400, track_fraction: int = 0):
+def neighborhood_trials(
+    w: int,
+    v: int,
+    trials: int,
+    rng: np.random.Generator,
+    p: float = 0.5,
+    max_cycles: int = 400,
+    track_fraction: int = 0,
+):
     """Completion times of ``trials`` neighbourhoods (−1 if not final within ``max_cycles``).
 
     With ``track_fraction`` = T > 0 also returns the mean fraction matched at steps 0 … T.
@@ -52,9 +59,19 @@ def neighborhood_trials(w: int, v: int, trials: int, rng: np.random.Generator, p
 class MobileField:
     """A §5.4 field where the robots in ``observers`` (default: the mobile ones) run Algorithm 2."""
 
-    def __init__(self, rng: np.random.Generator, n: int, separation: float, mobile_fraction: float,
-                 speed: float, wireless_range: float, visual_range: float | None = None,
-                 drop_time: int = 20, p: float = 0.5, observers: np.ndarray | None = None):
+    def __init__(
+        self,
+        rng: np.random.Generator,
+        n: int,
+        separation: float,
+        mobile_fraction: float,
+        speed: float,
+        wireless_range: float,
+        visual_range: float | None = None,
+        drop_time: int = 20,
+        p: float = 0.5,
+        observers: np.ndarray | None = None,
+    ):
         self.rng, self.n, self.p = rng, n, p
         self.pos, self.moving, self.size = layout_field(rng, n, separation, mobile_fraction)
         self.n_stat = n - int(self.moving.sum())
@@ -67,13 +84,7 @@ class MobileField:
         self.filter.rng = rng
 
     def _move(self):
-        p = self.pos[self.n_stat:]
-        p += self.vel
-        out = (p < 0.0) | (p > self.size)
-        if out.any():
-            np.abs(p, out=p)
-            np.subtract(self.size, np.abs(self.size - p), out=p)
-            self.vel[out] *= -1.0
+        move_and_bounce(self.pos[self.n_stat :], self.vel, self.size, fast_coordinates(self.vel, self.size))
 
     def _keys(self):
         """Sorted keys o*n + x of robots x within wireless range of each observer o (k-d tree)."""
@@ -86,14 +97,14 @@ class MobileField:
         keys = np.sort(o[keep] * n + src[keep])
         if self.vr < self.wr:
             d = self.pos[keys // n] - self.pos[keys % n]
-            vkeys = keys[np.einsum("ij,ij->i", d, d) <= self.vr ** 2]
+            vkeys = keys[np.einsum("ij,ij->i", d, d) <= self.vr**2]
         else:
             vkeys = keys
         return keys, vkeys
 
     def in_visual_range(self, keys):
         d = self.pos[keys // self.n] - self.pos[keys % self.n]
-        return np.einsum("ij,ij->i", d, d) <= self.vr ** 2
+        return np.einsum("ij,ij->i", d, d) <= self.vr**2
 
     def step(self, emit: np.ndarray | None = None) -> dict:
         """Move, emit (coin flips unless ``emit`` is given), filter; return measurements over the observers."""
