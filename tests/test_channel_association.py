@@ -316,20 +316,24 @@ def test_id_bits_solves_in_exactly_log2_id_space_steps():
         POLICIES["bernoulli"](p=0.0)
 
 
-def test_reward_telescopes_and_bits_are_counted():
+def test_reward_charges_every_unmatched_step_and_the_bits_are_counted():
     env = parallel_env(n_robots=20, emission_cost=0.3, max_cycles=25)
     obs, infos = env.reset(seed=8)
     pol = POLICIES["bernoulli"](p=0.3)
     pol.reset(env.local_views(), 8)
-    start = env._team_score
-    total, emissions, bits = 0.0, 0, 0.0
+    total, expected, emissions, bits = 0.0, 0.0, 0, 0.0
     while env.agents:
         acts = pol.act(obs, env.local_views())
         obs, r, _, _, infos = env.step(acts)
         total += r["robot_0"]
-        emissions += sum(acts.values())
+        step_emissions = sum(acts.values())
+        # the unmatched share over every robot's i-state after this step, plus the emissions' price
+        views = env.local_views()
+        frac = views.team("matched") / np.maximum(views.team("visual_ids"), 1)
+        expected += -(1.0 - frac.mean()) - 0.3 * step_emissions / 20
+        emissions += step_emissions
         bits += sum(i["bits_sent"] for i in infos.values())
-    assert total == pytest.approx(env._team_score - start - 0.3 * emissions / 20)
+    assert total == pytest.approx(expected)
     m = env.metrics()
     assert m["messages_sent"] == emissions
     assert m["bits_sent"] == bits == emissions * (math.ceil(math.log2(20)) + 1)

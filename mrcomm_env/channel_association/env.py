@@ -4,7 +4,7 @@
 | --- | --- |
 | Agents | `neighborhood`: w + 1 (`robot_0` observes, `robot_1 … robot_w` are its neighbours); `field`: `n_robots` |
 | Actions | `Discrete(2)`: 1 = emit a message pair (light on + wireless broadcast of the own ID), 0 = stay silent |
-| Observations | `Box(0, 1, (⌈log2 N⌉ + 10,), float32)`: own ID bits, observer flag, step/max_cycles, last 4 emissions (newest first), own i-state: fraction matched, ambiguity (edges − v)/edges, unresolved u/(u+8), new IDs this step n/(n+4) |
+| Observations | `Box(0, 1, (2⌈log2 N⌉ + 11,), float32)`: own ID bits, observer flag, step/max_cycles, last 4 emissions (newest first), own i-state: fraction matched, ambiguity (edges − v)/edges, unresolved u/(u+8), new IDs this step n/(n+4); then the clock phase, one-hot of step mod (⌈log2 N⌉ + 1), which a blink code needs |
 | Arguments | `scene`, `w`, `v`, `n_robots`, `separation`, `mobile_fraction`, `speed`, `wireless_range`, `visual_range`, `drop_time`, `miss_probability`, `miss_tolerance`, `max_cycles`, `emission_cost` |
 
 Every robot has a global wireless ID (its index) and sees its neighbours only as anonymous blobs to
@@ -32,8 +32,9 @@ Noise (§6.3): `miss_probability` drops each wireless reception and each light s
 re-opened (`conflicts`), and wrong unique matches are reported by the ground-truth metric
 `fraction_wrong` instead of passing silently.
 
-Reward (team): increase of the mean fraction matched over observers, minus `emission_cost` × the mean
-number of emissions per robot this step. Units: robot diameters and time steps. A message pair costs
+Reward (team): −(1 − mean fraction matched over every robot's i-state), minus `emission_cost` × the mean number of
+emissions per robot this step: every step with unmatched visual IDs costs, so an episode's return counts
+how long association took (stationary scenes end when every i-state is final). Units: robot diameters and time steps. A message pair costs
 ⌈log2 N⌉ + 1 bits (Assumption 2: the wireless ID plus one light bit), charged to `bits_sent`.
 
 Implementation. Populations up to 64 robots keep one ``uint64`` candidate set per (observer, visual ID)
@@ -148,7 +149,12 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         "wide_wireless": {"scene": "field", "n_robots": 30, "wireless_range": 22.0, "visual_range": 10.0},
         "noisy": {"scene": "neighborhood", "w": 6, "v": 5, "miss_probability": 0.05, "miss_tolerance": 1},
     }
-    VERSION_HISTORY = [("v0", "first release: scenes neighborhood and field, Algorithms 1–2, misses")]
+    VERSION_HISTORY = [
+        ("v0", "first release: scenes neighborhood and field, Algorithms 1–2, misses"),
+        ("v0 rev 2", "learnable: the reward is −(1 − fraction matched) per step (was its increase, so every "
+         "policy's return was 1 and only discounting rewarded speed); the observation gains the clock phase "
+         "one-hot of step mod (⌈log2 N⌉ + 1), which a blink code needs"),
+    ]
 
     #: populations up to this size use slot-per-robot filters (bit sets, or the literal (N, N, N) 0/1
     #: matrix when ``miss_tolerance`` > 0); larger ones the k-d tree + edge list backend
@@ -176,7 +182,9 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         self._msg_bits_f = float(self._msg_bits)
         ids = np.arange(n)
         self._id_code = ((ids[:, None] >> np.arange(self._id_bits)[None, :]) & 1).astype(np.float32)
-        self._obs_dim = self._id_bits + 1 + HISTORY + 5
+        self._clock = self._id_bits + 1  # the phase a blink code of ⌈log2 N⌉ bits plus a beacon cycles through
+        self._obs_dim = self._id_bits + 1 + HISTORY + 5 + self._clock
+        self._phase_col = self._obs_dim - self._clock
         self._obs_space = spaces.Box(0.0, 1.0, shape=(self._obs_dim,), dtype=np.float32)
         self._act_space = spaces.Discrete(2)
         self._ledger = BitLedger(n)
@@ -210,7 +218,6 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         self._completion = -1
         self.scene.reset(self.np_random)
         self._refresh()
-        self._score = self._team_score
 
     # the scene's state, read by tests, rendering and the reproduction
     @property
@@ -271,9 +278,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         self._ledger.record(emit * self._msg_bits_f, n_emit)
         self.scene.step(emit, n_emit)
         self._refresh()
-        score = self._team_score
-        reward = score - self._score - self._cost * n_emit / n
-        self._score = score
+        reward = self._team_score - 1.0 - self._cost * n_emit / n
         if self._completion < 0 and not self.scene.mobile and not self._stats[3].any():
             self._completion = self.step_count + 1
         return reward
@@ -304,6 +309,8 @@ class ChannelAssociationEnv(MrcommParallelEnv):
     def _observe(self) -> np.ndarray:
         obs = self._obs
         obs[:, self._n_static] = min(self.step_count / self._max_cycles, 1.0)
+        obs[:, self._phase_col :] = 0.0
+        obs[:, self._phase_col + self.step_count % self._clock] = 1.0
         return obs.copy()  # the caller's rows must not change later
 
     def _local_view(self) -> dict:
@@ -348,4 +355,4 @@ class ChannelAssociationEnv(MrcommParallelEnv):
 
         ax.add_patch(Circle(pos[0], r, fill=False, color="tab:blue"))
         ax.set_aspect("equal")
-        ax.set_title(f"{self.ENV_ID} step {self.step_count}  matched {self._score:.2f}")
+        ax.set_title(f"{self.ENV_ID} step {self.step_count}  matched {self._team_score:.2f}")
