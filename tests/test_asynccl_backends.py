@@ -153,6 +153,27 @@ def test_kernels_agree(n, G, full):
                              err_msg="column: P")
 
 
+def test_update_agrees_on_an_lu_inverted_ill_conditioned_prior():
+    """Y⁻ = P⁻⁻¹ from numpy's LU inverse is asymmetric by up to ε·κ(P⁻)·‖Y⁻‖ (10⁻⁵ relative at κ(P⁻) = 2.5·10⁹,
+    as a metres-wide prior after near-noiseless range/bearing gives). ``ekf.update`` inverts the whole Y and
+    symmetrises P, which cancels the antisymmetric part to first order; the compiled update must do the same and
+    not read Y⁻ from one triangle (which put it 10²–10⁴ times beyond the bound below)."""
+    rng = np.random.default_rng(7)
+    n, G = 5, 3
+    geo, X, z = _problem(rng, n, G, True)
+    A = ekf.information(X, geo, z, 1.0 / SD, 1.0 / STH)
+    for smallest in (1e-10, 1e-8, 1e-6):
+        V = np.linalg.qr(rng.standard_normal((G, 3 * n, 3 * n)))[0]
+        P = V @ (np.geomspace(smallest, 25.0, 3 * n)[None, :, None] * V.transpose(0, 2, 1))
+        Yp = ekf.inv(P)
+        hold = rng.random((G, 2 * geo.m)) < 0.7
+        ref = ekf.update(X, Yp, A, hold)
+        got = ekf_numba.update(X, Yp, A, hold, None, geo)
+        tol_x, tol_p = _update_tolerances(X, Yp, A, hold, None, ref)
+        assert_close_conditioned(got[1], ref[1], tol_p, err_msg=f"P, κ(P⁻) = {condition(P):.1e}")
+        assert_close_conditioned(got[0], ref[0], tol_x, HEADINGS, f"x, κ(P⁻) = {condition(P):.1e}")
+
+
 def test_inverse_falls_back_when_not_positive_definite():
     A = np.diag([1.0, -2.0, 3.0])[None]
     assert_close_conditioned(ekf_numba.inv(A)[0], np.diag([1.0, -0.5, 1.0 / 3.0]), solve_tolerance(A, 1.0))
