@@ -5,6 +5,10 @@ K = P Hᵀ (H P Hᵀ + R)⁻¹, P = (I − K H) P) following the model documente
 propagate every robot with its odometry u_{k-1} (unicycle, Q = diag((σ_v v)², σ_ω²)), then one batch
 update with all range/bearing measurements of step k (R = diag((σ_d d)², σ_θ²)). It shares no code
 with the environment's batched information-form filter.
+
+The two filters invert different matrices (S = H P Hᵀ + R here; P⁻ and Y = P⁻⁻¹ + Hᵀ W H there), so they agree
+to the forward-error bound of ``tests/numerics.py`` accumulated over the chain of column steps, with κ_k the sum
+of the condition numbers of the three matrices of step k, computed here from the reference's P⁻, S and P.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ import math
 
 import numpy as np
 import pytest
+from numerics import HEADINGS, assert_close_conditioned, condition, episode_tolerance
 
 from mrcomm_env.asynccl_v0 import parallel_env
 
@@ -43,9 +48,10 @@ def ref_propagate(x, P, u, dt, qv=None, qw=None):
 
 
 def ref_update(x, P, meas):
-    """meas: list of (observer a, target b, [d, θ])."""
+    """meas: list of (observer a, target b, [d, θ]). Returns x, P and κ_k = κ(P⁻) + κ(S) + κ(P): the condition
+    numbers of what this update inverts (S) and of what the environment's information form inverts (P⁻, Y = P⁻¹)."""
     if not meas:
-        return x, P
+        return x, P, condition(P)
     n3 = len(x)
     H = np.zeros((2 * len(meas), n3))
     innov = np.zeros(2 * len(meas))
@@ -65,7 +71,8 @@ def ref_update(x, P, meas):
     x = x + K @ innov
     for v in range(n3 // 3):
         x[3 * v + 2] = _wrap(x[3 * v + 2])
-    return x, (np.eye(n3) - K @ H) @ P
+    Pn = (np.eye(n3) - K @ H) @ P
+    return x, Pn, condition(P) + condition(S) + condition(Pn)
 
 
 def all_meas(pk, rows=None, k=None):
@@ -92,14 +99,27 @@ def run_recorded(seed, steps, n=4, policy_modes=None, **kw):
 
 
 def reference_chain(x0, P0, packets, upto, dt=0.05):
+    """x̂_{k|k}, P_{k|k} and the accumulated condition Σ_{j ≤ k} κ_j of the chain, for k = 0 … upto."""
     out = {}
-    x, P = x0, P0
+    x, P, total = x0, P0, 0.0
     for k in range(upto + 1):
         if k >= 1:
             x, P = ref_propagate(x, P, packets[k - 1].u, dt)
-        x, P = ref_update(x, P, all_meas(packets[k]))
-        out[k] = (x, P)
+        x, P, kappa = ref_update(x, P, all_meas(packets[k]))
+        total += kappa
+        out[k] = (x, P, total)
     return out
+
+
+def ops(n):
+    """Roundings along one entry per step: 3N for the state's solves plus 2m rows (m = N(N−1)) of H, S or Y."""
+    return 3 * n + 2 * n * (n - 1)
+
+
+def bounds(chain_kappa, x, P, n):
+    """Bounds for x and P after a chain with accumulated Σκ (``episode_tolerance`` with a single entry)."""
+    return (float(episode_tolerance([chain_kappa], np.linalg.norm(x), ops(n))[0]),
+            float(episode_tolerance([chain_kappa], np.linalg.norm(P, 2), ops(n))[0]))
 
 
 @pytest.mark.parametrize("seed,kw", [(0, {}), (1, {"packet_loss": 0.2, "link_probability": 0.3})])
@@ -114,10 +134,12 @@ def test_delayed_centralized_estimates_equal_an_independent_centralized_ekf(seed
             if ci < 0:
                 continue
             xe, Pe = central[ci]
-            np.testing.assert_allclose(xe, ref[ci][0], rtol=0, atol=1e-9)
-            np.testing.assert_allclose(Pe, ref[ci][1], rtol=0, atol=1e-9)
+            xr, Pr, chain = ref[ci]
+            tol_x, tol_p = bounds(chain, xr, Pr, env.n_agents)
+            assert_close_conditioned(xe, xr, tol_x, HEADINGS, f"x̂_{{{ci}|{ci}}}")
+            assert_close_conditioned(Pe, Pr, tol_p, err_msg=f"P_{{{ci}|{ci}}}")
             if ci == t:  # with everything up to t, the causal estimate is the centralized one
-                np.testing.assert_allclose(X[i], ref[t][0], rtol=0, atol=1e-9)
+                assert_close_conditioned(X[i], xr, tol_x, HEADINGS, f"causal x̂ at {t}")
             checked += 1
     assert checked > 200
 
@@ -132,9 +154,10 @@ def test_causal_estimates_restart_from_the_checkpoint_with_last_available_odomet
             ci = int(c[i])
             if ci >= t:
                 continue
-            x, Pm = (x0, P0) if ci < 0 else ref[ci]
+            x, Pm, chain = (x0, P0, 0.0) if ci < 0 else ref[ci]
             if ci < 0:  # the prior, then column 0 with what the robot holds
-                x, Pm = ref_update(x, Pm, all_meas(packets[0], L[i], 0))
+                x, Pm, kappa = ref_update(x, Pm, all_meas(packets[0], L[i], 0))
+                chain += kappa
                 start = 1
             else:
                 start = ci + 1
@@ -144,9 +167,11 @@ def test_causal_estimates_restart_from_the_checkpoint_with_last_available_odomet
                 qv = [1.0 if s < 0 else (SV * u[v, 0]) ** 2 for v, s in enumerate(src)]
                 qw = [1.0 if s < 0 else SW**2 for s in src]
                 x, Pm = ref_propagate(x, Pm, u, 0.05, qv, qw)
-                x, Pm = ref_update(x, Pm, all_meas(packets[k], L[i], k))
-            np.testing.assert_allclose(X[i], x, rtol=0, atol=1e-9)
-            np.testing.assert_allclose(P[i], Pm, rtol=0, atol=1e-9)
+                x, Pm, kappa = ref_update(x, Pm, all_meas(packets[k], L[i], k))
+                chain += kappa
+            tol_x, tol_p = bounds(chain, x, Pm, env.n_agents)
+            assert_close_conditioned(X[i], x, tol_x, HEADINGS, f"robot {i} at {t}")
+            assert_close_conditioned(P[i], Pm, tol_p, err_msg=f"robot {i} at {t}")
             checked += 1
     assert checked > 10
 

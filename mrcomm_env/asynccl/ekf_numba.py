@@ -2,13 +2,15 @@
 
 Same functions, same arguments, same mathematics: the column step of §IV (eq. (1) propagation, one
 batch update with the range/bearing rows of eq. (2) in information form). ``ekf.py`` is the reference;
-``tests/test_asynccl_backends.py`` checks that both agree to round-off, kernel by kernel and over whole
-episodes. What differs is only how the arithmetic is organised, because at these sizes (3N = 15) the
-cost of numpy is its per-call overhead, not the arithmetic:
+``tests/test_asynccl_backends.py`` checks that both agree, kernel by kernel and over whole episodes,
+within the forward-error bound of the matrices they invert (``tests/numerics.py``; when that bound means
+round-off: docs/architecture.md, "Compiled twins"). What differs is only how the arithmetic is organised,
+because at these sizes (3N = 15) the cost of numpy is its per-call overhead, not the arithmetic:
 
 * propagation applies F = I + E (E has two entries per robot, ∂(x, y)/∂φ) as row and column operations
   instead of dense products;
-* the update adds each held row's outer product on the row's ≤ 5 non-zero columns only;
+* the update adds each held row's outer product on the row's ≤ 5 non-zero columns only, to the symmetric
+  part of the prior information (what ``ekf.update`` sees to first order through its symmetrised result);
 * the inverse of the (symmetric positive definite) information matrix goes through its Cholesky factor,
   P = L⁻ᵀ L⁻¹, which is about four times cheaper than the LU inverse and exactly symmetric. A matrix that
   is not numerically positive definite falls back to the LU inverse.
@@ -184,7 +186,16 @@ def _update(Xp, Yp, A, hold, prior, a, b):
     cols = np.empty(5, dtype=np.int64)
     for g in range(G):
         p = prior[g]
-        Y[:, :] = Yp[p]
+        # Y starts from the symmetric part of Y⁻: the Cholesky factorisation below reads only the lower triangle,
+        # while ``ekf.update``'s LU inverse sees the whole matrix and symmetrises its result, which removes the
+        # antisymmetric part of Y⁻ to first order. An LU inverse Y⁻ = P⁻⁻¹ (``ekf.inv``) is asymmetric by up to
+        # ε·κ(P⁻)·‖Y⁻‖; read from one triangle only, that changed P = Y⁻¹ by a relative κ(Y)·ε·κ(P⁻), up to O(1)
+        # at the κ of near-noiseless sensing. A Y⁻ of this module (``inv``) is exactly symmetric: nothing changes.
+        for i in range(n3):
+            for j in range(i + 1):
+                s = 0.5 * (Yp[p, i, j] + Yp[p, j, i])
+                Y[i, j] = s
+                Y[j, i] = s
         bvec[:] = 0.0
         for r in range(m2):
             if not hold[g, r]:

@@ -18,7 +18,8 @@ of [11] with the L_i / D1 / D2 book-keeping). Information moves one hop per step
 step k comes from T_k^{j-} (eq. (4)–(5)). The discard rules of §III-A.3 / §III-B.3 keep the tables small.
 
 From its table every robot computes the **delayed centralized estimate** x̂_{c|c} at its complete
-frontier c — identical to a centralized EKF on all measurements (tested to 1e-9) — and a **causal
+frontier c — identical to a centralized EKF on all measurements (tested within the forward-error bound of
+the matrices the two filters invert, ``tests/numerics.py``) — and a **causal
 estimate** of the whole team at the current step from what it holds (missing odometry replaced by the
 last available one, §IV). The reward trades the causal estimates' position error against bits.
 ``mean_delay`` is eq. (7): steps from k until robot i can compute x̂_{k|k}, over k and robots, ignoring
@@ -40,8 +41,19 @@ time steps" (only the Table I discussion uses the variants). ``max_history`` bou
 that never completed a step which leaves memory abandons it and restarts from its causal estimate.
 
 **Speed**: with numba installed (``mrcomm-env[fast]``), the EKF column steps and the table exchange run
-compiled twins of their numpy code (``core.backend``; ``MRCOMM_BACKEND=numpy`` forces numpy). Tables and
-bits are identical on both; estimates agree to round-off.
+compiled twins of their numpy code (``core.backend``; ``MRCOMM_BACKEND=numpy`` forces numpy). Tables,
+bits and delays are identical on both. Estimates differ by rounding (LU versus Cholesky inverses), within
+β·‖x‖ where β = 2·3·(3N + 2m)·ε·Σ_k κ_k adds up the condition numbers κ_k of the matrices each column step
+inverts (P⁻ and the information matrix Y, eq. (2)). They agree to round-off while β ≪ 1: over 150 steps
+β ≈ 2·10⁻⁷ with the defaults (estimates 10⁻¹⁴ m apart), 2·10⁻⁴ with near-noiseless sensing
+(``sigma_d=0.001``, ``sigma_theta_deg=0.01``, 4·10⁻¹⁰ m apart). Only the prior fixes the team's rigid
+motion, so κ grows like (``initial_sigma`` / (σ·d))², σ·d the position precision of a range or bearing at
+distance d. A prior metres wide with near-noiseless sensing (``initial_sigma=5`` and the values above) puts
+κ at 10¹³–10¹⁴ (ε·κ ≈ 10⁻², β ≈ 50): the filter linearises at estimates metres off and amplifies rounding
+up to 10–50-fold per step, so the two backends end metres apart — and so does one backend whose prior
+mean moved by one ulp: the result is set by rounding, not by the data. The metric ``log10_condition`` (log₁₀ of the
+largest κ(P_{k|k}) of the centralized estimate) flags it: ≈ 4 by default, ≤ 10.5 where backends agree to
+10⁻⁷ m, ≥ 12.5 where they differ by centimetres to metres (docs/architecture.md, "Compiled twins").
 """
 
 from __future__ import annotations
@@ -50,6 +62,7 @@ import math
 
 import numpy as np
 from gymnasium import spaces
+from numpy.linalg import _umath_linalg
 
 from mrcomm_env.asynccl.estimator import Estimators
 from mrcomm_env.asynccl.table import QINF, SCHEME1, SILENT, InfoTables
@@ -68,6 +81,7 @@ ALL_MODES = ("silent", "scheme1", "scheme2_q1", "scheme2_q2", "scheme2_q4", "sch
 AGE_SCALE, BITS_SCALE, EMA = 10.0, 1.0e4, 0.2
 # floors of the filter's noise model so that zero-noise configurations stay numerically sound
 SIGMA_FLOOR = 1e-4
+EPS = float(np.finfo(np.float64).eps)  # a condition number beyond 1/ε means a numerically singular covariance
 _sum = np.add.reduce  # = ndarray.sum without its two Python frames per call (tiny arrays: half the cost)
 
 
@@ -146,6 +160,8 @@ class AsyncCLEnv(MrcommParallelEnv):
         "table_size": "packets held per robot, mean over steps and robots",
         "max_table_size": "largest table (packets) any robot held",
         "abandoned_steps": "robot-steps dropped because they left memory before being complete",
+        "log10_condition": "log10 of the largest condition number κ of the centralized covariance P_k|k over the "
+        "episode (≤ log10(1/ε) ≈ 15.7); above ~12 the estimates depend on rounding, not only on the data",
     }
     INFO_KEYS = {
         "delay": "t − c: steps since the newest delayed centralized estimate of this robot",
@@ -210,6 +226,8 @@ class AsyncCLEnv(MrcommParallelEnv):
             x0[2::3] = wrap(x0[2::3])
             self.est.reset(x0, np.eye(3 * n) * s0 * s0, pk)
             self.est.step(0, self.tables.c, self.tables.latest)
+            self._max_cond = 1.0
+            self._note_condition(0)
             self._errors()
         self._draw_links()
         self._account_table()
@@ -238,6 +256,7 @@ class AsyncCLEnv(MrcommParallelEnv):
         self._ema += EMA * (bits - self._ema)
         if cfg["estimation"]:
             self.est.step(t, tab.c, tab.latest)
+            self._note_condition(t)
             self._errors()
             reward = -self._mean_pos  # = mean over robots of the RMS position errors
         else:
@@ -258,6 +277,16 @@ class AsyncCLEnv(MrcommParallelEnv):
         self._draw_links()
         self._account_table()
         return reward
+
+    def _note_condition(self, t: int) -> None:
+        """Track the largest κ₂ of the centralized covariance P_{t|t}: it is the inverse of the information matrix
+        the column step of t inverted (eq. (2) in information form), so κ(P) = κ(Y), and ε·κ bounds the digits the
+        step loses. One symmetric eigenvalue solve of one 3N × 3N matrix per step (without numpy.linalg's per-call
+        checks, like ``ekf.inv``): 1–3 % of a step at N = 5, under 0.5 % at N = 20."""
+        w = _umath_linalg.eigvalsh_lo(self.est.central[t][1], signature="d->d")
+        cond = w[-1] / w[0] if w[0] > EPS * w[-1] else 1.0 / EPS
+        if cond > self._max_cond:
+            self._max_cond = cond
 
     def _errors(self) -> None:
         n = self.n_agents
@@ -330,6 +359,7 @@ class AsyncCLEnv(MrcommParallelEnv):
             "table_size": self._sum_table / self._n_table if self._n_table else 0.0,
             "max_table_size": self._max_table,
             "abandoned_steps": float(tab.abandoned),
+            "log10_condition": math.log10(self._max_cond) if self.cfg["estimation"] else 0.0,
         }
 
     def _render(self, ax) -> None:
