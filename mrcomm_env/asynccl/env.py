@@ -188,6 +188,17 @@ class AsyncCLEnv(MrcommParallelEnv):
         "disk_budget": {"n_robots": 4, "link_model": "combined", "comm_radius": 3.0, "bit_budget": 3000.0,
                         "packet_loss": 0.1, "trajectory": "waypoint", "max_cycles": 100},
     }
+    #: configurations at the documented maxima (``tests/test_limits.py``, ``experiments/limits.py``)
+    LIMIT_CONFIGS = {
+        "max_robots_delay_only": {"n_robots": MAX_ROBOTS, "estimation": False},
+        "max_robots_delay_only_max_history": {"n_robots": MAX_ROBOTS, "estimation": False, "max_history": MAX_HISTORY,
+                                              "modes": ["scheme2_qinf", f"scheme2_q{MAX_Q}"], "lam": 1e6},
+        "max_robots_delay_only_budget": {"n_robots": MAX_ROBOTS, "estimation": False, "bit_budget": 5000.0,
+                                         "link_model": "combined", "q_rule": "receiver"},
+        "max_robots_estimating": {"n_robots": MAX_ROBOTS_ESTIMATING, "initial_sigma": 10.0},
+        "max_history_estimating": {"max_history": MAX_HISTORY, "initial_sigma": SIGMA_FLOOR, "sigma_v": 0.0,
+                                   "sigma_omega_deg": 0.0, "sigma_d": 0.0, "sigma_theta_deg": 0.0},
+    }
     VERSION_HISTORY = [("v0", "first version: Scheme 1, Scheme 2 (q ≥ 1 and ∞) and silence as per-step actions")]
 
     def _setup(self) -> None:

@@ -43,6 +43,11 @@ from mrcomm_env.multihop import protocol as proto
 from mrcomm_env.multihop import theory
 
 SUBGRAPHS = (2, 4, 6, 8)
+# Documented limits, measured on one core (``mrcomm_env/experiments/limits.py``, random actions): n = 1024
+# runs a grid or static field frame (1024 slots) in 0.3–0.5 s and a moving field frame in 3–4 s, in 0.3 GB;
+# the coverage controller re-partitions the square for every robot at every slot, O(n³ · points) per frame:
+# n = 25 takes 0.8 s per frame, n = 50 2.5–5.5 s, n = 100 over a minute.
+MAX_COVERAGE_ROBOTS = 25
 MAX_ALPHA = 1000.0
 CONTROL_PERIOD, MAX_CONTROL_STEPS = 0.25, 16  # coverage controller: seconds per Euler step, steps per slot at most
 MAX_SPEED = 1000.0  # m/s: faster than any robot; keeps speed × slot time finite for the slowest channel
@@ -58,7 +63,8 @@ class MultiHopEnv(MrcommParallelEnv):
         "scene": Param("grid", "`grid` (stationary 4-neighbour grid, Fig. 2), `field` (disk links, optional motion) "
                        "or `coverage` (Voronoi coverage by flying robots, Fig. 3)", Choice(("grid", "field", "coverage"))),
         "n_robots": Param(None, "number of robots n; default grid_side² (grid), 20 (field), 9 (coverage); "
-                          "in the grid scene robots fill rows of grid_side columns (a partial last row is allowed)", Optional(Int(lo=2, hi=1024, fuzz=(4, 12)))),
+                          "in the grid scene robots fill rows of grid_side columns (a partial last row is allowed); at most "
+                          f"{MAX_COVERAGE_ROBOTS} in the coverage scene (the paper flies 9)", Optional(Int(lo=2, hi=1024, fuzz=(4, 12)))),
         "grid_side": Param(10, "columns of the grid scene (robots at unit spacing; a square grid by default)", Int(lo=2, hi=32, fuzz=(2, 5))),
         "slot_size": Param(None, "m: estimates per TDMA slot, 1 <= m <= n (m = n is flooding, m = 1 no hop); "
                            "default min(7, n), 7 being the paper's choice for the 10×10 grid",
@@ -120,6 +126,16 @@ class MultiHopEnv(MrcommParallelEnv):
         "field_moving": {"scene": "field", "n_robots": 12, "speed": 2.0, "comm_range": 35.0, "max_cycles": 40},
         "coverage": {"scene": "coverage", "slot_size": 3, "max_cycles": 40},
     }
+    #: configurations at the documented maxima (``tests/test_limits.py``, ``experiments/limits.py``)
+    LIMIT_CONFIGS = {
+        "max_grid_flooding": {"grid_side": 32, "slot_size": 1024},
+        "max_field_moving": {"scene": "field", "n_robots": 1024, "speed": MAX_SPEED, "arena_size": 1e6,
+                             "comm_range": 1e7, "alpha": MAX_ALPHA, "baud": 1e12},
+        "max_coverage": {"scene": "coverage", "n_robots": MAX_COVERAGE_ROBOTS, "alpha": MAX_ALPHA,
+                         "max_speed": MAX_SPEED, "control_gain": 1000.0},
+        "slowest_channel_coverage": {"scene": "coverage", "baud": 1.0, "bits_per_estimate": 1_000_000,
+                                     "slot_size": 9, "arena_size": 1.0},
+    }
     VERSION_HISTORY = [("v0", "first version: grid, field and coverage scenes; one step = one TDMA frame")]
 
     # ----------------------------------------------------------------- setup
@@ -129,6 +145,9 @@ class MultiHopEnv(MrcommParallelEnv):
             n = c.grid_side ** 2 if c.n_robots is None else c.n_robots
         else:
             n = c.n_robots if c.n_robots is not None else (9 if c.scene == "coverage" else 20)
+        if c.scene == "coverage" and n > MAX_COVERAGE_ROBOTS:
+            raise ValueError(f"argument 'n_robots' must be at most {MAX_COVERAGE_ROBOTS} when 'scene' is 'coverage' "
+                             f"(every robot's Voronoi controller runs at every slot: O(n³) per frame), got {n}")
         m = min(7, n) if c.slot_size is None else c.slot_size
         if m > n:
             raise ValueError(f"argument 'slot_size' must be in [1, n_robots = {n}], got {m}")
