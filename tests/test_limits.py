@@ -55,7 +55,8 @@ def test_every_documented_size_limit_is_exercised(env_id):
         hi = _int_upper_bound(spec.check)
         if hi is not None:
             assert any(cfg.get(arg) == hi or _implied(env_id, arg, cfg) == hi for cfg in configs.values()), (
-                f"{arg} = {hi} is documented but no LIMIT_CONFIGS entry runs it")
+                f"{arg} = {hi} is documented but no LIMIT_CONFIGS entry runs it"
+            )
 
 
 def _implied(env_id, arg, cfg):
@@ -170,6 +171,7 @@ def test_importance_is_eq1_scaled_per_row_and_finite_for_steep_alpha():
 def test_asynccl_at_the_noise_floor_prior_runs():
     from mrcomm_env.asynccl.env import SIGMA_FLOOR
 
-    _, rewards = _run("AsyncCL-v0", 20, initial_sigma=SIGMA_FLOOR, sigma_v=0.0, sigma_d=0.0, sigma_omega_deg=0.0,
-                      sigma_theta_deg=0.0)
+    _, rewards = _run(
+        "AsyncCL-v0", 20, initial_sigma=SIGMA_FLOOR, sigma_v=0.0, sigma_d=0.0, sigma_omega_deg=0.0, sigma_theta_deg=0.0
+    )
     assert all(math.isfinite(r) for r in rewards)

@@ -34,9 +34,16 @@ def limit_configs(env_id: str) -> dict[str, dict[str, Any]]:
     return dict(getattr(env_class(env_id), LIMIT_ATTRIBUTE, {}))
 
 
-def measure_limit(env_id: str, config: dict[str, Any], seconds: float = 10.0, min_steps: int = 3,
-                  max_steps: int | None = None, seed: int = 0, timeout: float | None = None,
-                  env_vars: dict[str, str] | None = None) -> dict[str, Any]:
+def measure_limit(
+    env_id: str,
+    config: dict[str, Any],
+    seconds: float = 10.0,
+    min_steps: int = 3,
+    max_steps: int | None = None,
+    seed: int = 0,
+    timeout: float | None = None,
+    env_vars: dict[str, str] | None = None,
+) -> dict[str, Any]:
     """Run ``env_id`` with ``config`` in a fresh process under random actions.
 
     It steps for ``seconds`` of wall time, but at least ``min_steps`` and at most ``max_steps`` steps
@@ -50,14 +57,24 @@ def measure_limit(env_id: str, config: dict[str, Any], seconds: float = 10.0, mi
         raise ValueError(f"argument 'seconds' must be a finite number ≥ 0, got {seconds!r}")
     if isinstance(min_steps, bool) or not isinstance(min_steps, int) or min_steps < 1:
         raise ValueError(f"argument 'min_steps' must be an integer ≥ 1, got {min_steps!r}")
-    if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, int)
-                                  or max_steps < min_steps):
-        raise ValueError(f"argument 'max_steps' must be None or an integer ≥ min_steps = {min_steps}, got {max_steps!r}")
-    job = {"env_id": env_id, "config": config, "seconds": seconds, "min_steps": min_steps, "max_steps": max_steps,
-           "seed": seed}
+    if max_steps is not None and (
+        isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < min_steps
+    ):
+        raise ValueError(
+            f"argument 'max_steps' must be None or an integer ≥ min_steps = {min_steps}, got {max_steps!r}"
+        )
+    job = {
+        "env_id": env_id,
+        "config": config,
+        "seconds": seconds,
+        "min_steps": min_steps,
+        "max_steps": max_steps,
+        "seed": seed,
+    }
     env = {**os.environ, **(env_vars or {})}
-    proc = subprocess.run([sys.executable, "-m", __name__, json.dumps(job)], capture_output=True, text=True,
-                          timeout=timeout, env=env)
+    proc = subprocess.run(
+        [sys.executable, "-m", __name__, json.dumps(job)], capture_output=True, text=True, timeout=timeout, env=env
+    )
     lines = proc.stdout.strip().splitlines()
     if proc.returncode != 0 or not lines:
         last = (proc.stderr.strip().splitlines() or ["no output"])[-1]
