@@ -82,6 +82,15 @@ def measure_limit(
     return json.loads(lines[-1])
 
 
+def measure_limits(env_id: str, seconds: float = 10.0, **kwargs: Any) -> dict[str, dict[str, Any]]:
+    """:func:`measure_limit` for every configuration of ``limit_configs(env_id)``, keyed by its name; each result
+    also holds its ``config``. What ``mrcomm bench`` reports per env at the documented maxima."""
+    return {
+        name: {"config": cfg, **measure_limit(env_id, cfg, seconds=seconds, **kwargs)}
+        for name, cfg in limit_configs(env_id).items()
+    }
+
+
 def _run(job: dict[str, Any]) -> dict[str, Any]:
     import numpy as np
 
