@@ -2,7 +2,7 @@
 
 | | |
 | --- | --- |
-| Agents | `n_robots` robots `robot_0 … robot_{N-1}` (default 5) |
+| Agents | `n_robots` robots `robot_0 … robot_{N-1}` (default 5; at most 30 with `estimation`, 200 delay-only) |
 | Actions | `Discrete(len(modes))` per robot: the transfer mode it uses on all its links this step, an index into `modes` (default `silent`, `scheme1`, `scheme2_q1`, `scheme2_q2`, `scheme2_q4`, `scheme2_q8`, `scheme2_qinf`) |
 | Observations | `Box(0, 1, (N + 4,))`: age a of the oldest incomplete column as `a/(a+10)`; for every robot v how many steps behind its row is, `b/(b+10)`; trace of the own-pose covariance `tr/(tr+1)`; neighbours now `/(N−1)`; bits sent recently (EMA) `e/(e+10⁴)` |
 | Reward | team reward `−mean_i RMS_pos(causal team estimate of robot i) − lam · (bits sent by the team this step)` |

@@ -2,7 +2,7 @@
 
 | | |
 | --- | --- |
-| Agents | `n_robots` robots `robot_0 … robot_{N-1}` (grid: `grid_side²`, field: 20, coverage: 9 by default) |
+| Agents | `n_robots` robots `robot_0 … robot_{N-1}` (grid: `grid_side²`, field: 20, coverage: 9 by default; at most 1024, 25 in the coverage scene) |
 | Actions | `Box(0, 1, (N,))` per robot: a priority for each robot's estimate; the env sends the robot's own estimate plus the `slot_size − 1` known estimates of highest priority (ties: lower index); priority `0` withholds an estimate |
 | Observations | `Box(0, 1, (3N + 2,))`: per robot j the age of my estimate of j `a/(a + T_frame)` (1 = unknown), the estimated distance to j over the arena diagonal (1 = unknown), j's slot position after mine `((s_j − s_i) mod N)/N`; then my slot `s_i/N` and `m/N` |
 | Reward | team reward `−Σ_{i≠j} w_ij a_ij / Σ w_ij`, the age of information (seconds) weighted by the importance `w_ij = d_ij^-α` of eq. (1) at frame end |
