@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import pickle
+import warnings
 
 import numpy as np
 import pettingzoo
@@ -278,11 +279,43 @@ def test_invalid_actions_and_agents_raise_value_error(env_id):
 
 
 # ------------------------------------------------------------------------------------------------ property tests
+#: for a range without an upper bound, the fuzz also draws this large finite value (every range is a promise)
+HUGE = 1e300
+
+
+def _real_edges(v: Real) -> list[float]:
+    """The documented edges of a real range: closed ends themselves, open ends one ulp inside (and, at an
+    open 0, also 1e-300), and a huge finite value where the range has no upper bound."""
+    edges = []
+    if v.lo is not None:
+        if v.lo_open:
+            edges.append(math.nextafter(v.lo, math.inf))
+            edges.append(v.lo + 1e-300 if v.lo == 0.0 else math.nextafter(v.lo, math.inf))
+        else:
+            edges.append(float(v.lo))
+    if v.hi is not None:
+        edges.append(math.nextafter(v.hi, -math.inf) if v.hi_open else float(v.hi))
+    else:
+        edges.append(HUGE)
+        if v.allow_inf:
+            edges.append(math.inf)
+    return sorted(set(edges))
+
+
 def _strategy(validator):
+    """Values of one argument: its cheap ``fuzz`` range plus the edges of its documented range.
+
+    Integer upper bounds are sizes (robots, history, slots) whose cost grows with the value; they run, with
+    their memory measured, in tests/test_limits.py (each env's ``LIMIT_CONFIGS``) rather than here."""
+    if isinstance(validator, Optional):
+        inner = _strategy(validator.inner)
+        return None if inner is None else st.one_of(st.none(), inner)
     if isinstance(validator, Int) and validator.fuzz:
-        return st.integers(*validator.fuzz)
+        edges = [validator.lo] if validator.lo is not None else []
+        return st.one_of(st.integers(*validator.fuzz), st.sampled_from(edges)) if edges else st.integers(
+            *validator.fuzz)
     if isinstance(validator, Real) and validator.fuzz:
-        return st.floats(*validator.fuzz, allow_nan=False)
+        return st.one_of(st.floats(*validator.fuzz, allow_nan=False), st.sampled_from(_real_edges(validator)))
     if isinstance(validator, Choice):
         return st.sampled_from(validator.options)
     if isinstance(validator, Bool):
@@ -297,24 +330,41 @@ def _config_strategy(env_id):
     return st.fixed_dictionaries({}, optional=fields)
 
 
+FUZZ_STEPS = 12
+
+
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_random_valid_configurations_run(env_id):
+    """Random arguments, edges of every range included, either build an env whose short episode stays finite
+    and in its spaces without a single RuntimeWarning, or are rejected at construction naming an argument."""
     params = env_class(env_id).PARAMS
 
-    @settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+    @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
     @given(cfg=_config_strategy(env_id), seed=st.integers(0, 2**16))
     def check(cfg, seed):
-        cfg = {**cfg, "max_cycles": min(cfg.get("max_cycles", 25), 25)}
-        try:
-            env = mrcomm_env.make(env_id, **cfg)
-        except ValueError as exc:  # arguments that constrain each other must say which
-            assert any(f"'{arg}'" in str(exc) for arg in params), str(exc)
-            return
-        rollout_obs_space = env.observation_space("robot_0")
-        trace = rollout(env, seed=seed, steps=25)
+        cfg = {**cfg, "max_cycles": min(cfg.get("max_cycles", FUZZ_STEPS), FUZZ_STEPS)}
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", RuntimeWarning)
+            try:
+                env = mrcomm_env.make(env_id, **cfg)
+            except ValueError as exc:  # arguments that constrain each other must say which
+                assert any(f"'{arg}'" in str(exc) for arg in params), str(exc)
+                return
+            rollout_obs_space = env.observation_space("robot_0")
+            trace = rollout(env, seed=seed, steps=FUZZ_STEPS)
         for out in trace[1:-1]:
             obs = out[0]
             assert all(rollout_obs_space.contains(o) for o in obs.values())
             assert np.all(np.isfinite(np.fromiter(flat_values([out[1], out[4]]), dtype=float)))
 
     check()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_fuzz_reaches_the_edges_of_every_real_range(env_id):
+    """The strategy above can draw each documented edge (a range edge the fuzz never draws is no promise)."""
+    for arg, spec in env_class(env_id).PARAMS.items():
+        check = spec.check.inner if isinstance(spec.check, Optional) else spec.check
+        if isinstance(check, Real) and check.fuzz:
+            for edge in _real_edges(check):
+                assert check(arg, edge) == edge  # every edge is itself a valid value

@@ -2,7 +2,7 @@
 
 | | |
 | --- | --- |
-| Agents | `n_robots` robots `robot_0 … robot_{N-1}` (default 5) |
+| Agents | `n_robots` robots `robot_0 … robot_{N-1}` (default 5; at most 30 with `estimation`, 200 delay-only) |
 | Actions | `Discrete(len(modes))` per robot: the transfer mode it uses on all its links this step, an index into `modes` (default `silent`, `scheme1`, `scheme2_q1`, `scheme2_q2`, `scheme2_q4`, `scheme2_q8`, `scheme2_qinf`) |
 | Observations | `Box(0, 1, (N + 4,))`: age a of the oldest incomplete column as `a/(a+10)`; for every robot v how many steps behind its row is, `b/(b+10)`; trace of the own-pose covariance `tr/(tr+1)`; neighbours now `/(N−1)`; bits sent recently (EMA) `e/(e+10⁴)` |
 | Reward | team reward `−mean_i RMS_pos(causal team estimate of robot i) − lam · (bits sent by the team this step)` |
@@ -59,6 +59,7 @@ largest κ(P_{k|k}) of the centralized estimate) flags it: ≈ 4 by default, ≤
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 from gymnasium import spaces
@@ -82,6 +83,17 @@ AGE_SCALE, BITS_SCALE, EMA = 10.0, 1.0e4, 0.2
 # floors of the filter's noise model so that zero-noise configurations stay numerically sound
 SIGMA_FLOOR = 1e-4
 EPS = float(np.finfo(np.float64).eps)  # a condition number beyond 1/ε means a numerically singular covariance
+MAX_HISTORY = 100_000  # largest max_history; Scheme 2's q is bounded by it (a larger q would mean the same)
+MAX_Q = MAX_HISTORY
+_SCHEME2_Q = re.compile(r"scheme2_q([0-9]+)")  # ASCII digits only (str.isdigit also accepts '²', which int() rejects)
+# Documented limits, measured on one core of the 24 GiB CI machine (``mrcomm_env/experiments/limits.py``,
+# random actions). The delay-only bookkeeping holds (N, N) tables and the exchange touches every row on every
+# link, O(p N³) per step: N = 200 runs ≈ 10 steps/s in 0.4 GB (N = 400: 0.5 steps/s, 1.5 GB). With the EKFs
+# every robot holds the (3N)² covariance and whitened rows of all N(N-1) range/bearing measurements of its
+# columns, O(N⁴) memory: N = 30 runs ≥ 1 step/s in 0.8 GB, N = 50 takes 3–7 s per step and 3.2 GB, N = 100
+# 47 s and 10 GB. The paper's Table I needs N ≤ 100 (delay only); its estimation study uses N = 5.
+MAX_ROBOTS = 200
+MAX_ROBOTS_ESTIMATING = 30
 _sum = np.add.reduce  # = ndarray.sum without its two Python frames per call (tiny arrays: half the cost)
 
 
@@ -97,20 +109,23 @@ def mode_code(name: str) -> int:
 
 
 class ModeName(Validator):
-    """``silent``, ``scheme1``, ``scheme2_q<q>`` with an integer q ≥ 1, or ``scheme2_qinf``."""
+    """``silent``, ``scheme1``, ``scheme2_q<q>`` with an integer 1 ≤ q ≤ ``MAX_Q``, or ``scheme2_qinf``."""
 
     def __call__(self, name, value):
         if isinstance(value, str):
             if value in ("silent", "scheme1", "scheme2_qinf"):
                 return value
-            if value.startswith("scheme2_q") and value[9:].isdigit():
-                if int(value[9:]) >= 1:
-                    return f"scheme2_q{int(value[9:])}"
-                raise ValueError(f"argument '{name}': q must be ≥ 1 (or inf), got {value!r}")
+            match = _SCHEME2_Q.fullmatch(value)
+            if match:
+                q = int(match.group(1))
+                if 1 <= q <= MAX_Q:
+                    return f"scheme2_q{q}"
+                raise ValueError(f"argument '{name}': q of {value!r} must be in [1, {MAX_Q}] or inf (no table holds "
+                                 f"more than max_history ≤ {MAX_Q} columns, so a larger q would mean the same)")
         self._fail(name, value)
 
     def describe(self):
-        return "`silent`, `scheme1`, `scheme2_q<q>` (integer q ≥ 1) or `scheme2_qinf`"
+        return f"`silent`, `scheme1`, `scheme2_q<q>` (integer 1 ≤ q ≤ {MAX_Q}) or `scheme2_qinf`"
 
 
 class AsyncCLEnv(MrcommParallelEnv):
@@ -118,7 +133,10 @@ class AsyncCLEnv(MrcommParallelEnv):
     DESCRIPTION = "Which information-transfer scheme each robot uses per step in asynchronous multi-centralized CL"
     metadata = {"name": "asynccl_v0", "render_modes": ["rgb_array", "human"], "render_fps": 10}
     PARAMS = {
-        "n_robots": Param(5, "number of robots N", Int(lo=2, hi=2000, fuzz=(2, 6))),
+        "n_robots": Param(5, f"number of robots N; at most {MAX_ROBOTS_ESTIMATING} with `estimation` (every robot runs a "
+                          "centralized EKF of the whole team: memory grows as N⁴), at most "
+                          f"{MAX_ROBOTS} delay-only (Table I needs ≤ 100)",
+                          Int(lo=2, hi=MAX_ROBOTS, fuzz=(2, 6))),
         "link_model": Param("bernoulli", "`bernoulli` (each pair linked with probability p per step, Table I), "
                             "`disk` (within `comm_radius`) or `combined` (both)",
                             Choice(("bernoulli", "disk", "combined"))),
@@ -132,11 +150,12 @@ class AsyncCLEnv(MrcommParallelEnv):
         "bit_budget": Param(None, "per-link bit budget per step; the payload is truncated oldest data first",
                             Optional(Real(0.0, fuzz=(50.0, 5000.0)))),
         "modes": Param(ALL_MODES, "the transfer modes an action indexes", ListOf(ModeName())),
-        "lam": Param(1e-6, "λ: reward cost per bit sent", Real(0.0, fuzz=(0.0, 1e-4))),
+        "lam": Param(1e-6, "λ: reward cost per bit sent (at most 1e6, so that λ times the bits of any step, "
+                     "< 1e17, stays a finite reward)", Real(0.0, 1e6, fuzz=(0.0, 1e-4))),
         "estimation": Param(True, "run the EKFs (false: delay-only bookkeeping, as for Table I)", Bool()),
         "max_cycles": Param(500, "episode length in time steps", Int(lo=1, fuzz=(1, 60))),
         "max_history": Param(500, "time steps of packets kept in memory; a robot still missing a column that "
-                             "leaves memory abandons it", Int(lo=2, hi=100_000, fuzz=(2, 50))),
+                             "leaves memory abandons it", Int(lo=2, hi=MAX_HISTORY, fuzz=(2, 50))),
         "trajectory": Param("sinusoid", "`sinusoid` (phase-shifted figure-eights, §IV) or `waypoint`",
                             Choice(("sinusoid", "waypoint"))),
         "dt": Param(0.05, "time step (s)", Real(0.0, 1.0, lo_open=True, fuzz=(0.01, 0.2))),
@@ -148,8 +167,10 @@ class AsyncCLEnv(MrcommParallelEnv):
                         "non-discarded columns, discard by the rules of §III-B.3), `oracle` (a column is discarded "
                         "as soon as every robot has it) or `receiver` (the q oldest columns in which the receiver "
                         "lacks something)", Choice(("paper", "oracle", "receiver"))),
-        "initial_sigma": Param(0.05, "std of the initial pose prior (m and rad)", Real(0.0, 10.0, lo_open=True,
-                                                                                      fuzz=(0.01, 0.5))),
+        "initial_sigma": Param(0.05, "std of the initial pose prior (m and rad); at least the filter's noise floor "
+                               f"{SIGMA_FLOOR:g} (a prior far tighter than every noise makes the information matrix "
+                               "singular: 1e-8 still ran, 1e-12 did not)",
+                               Real(SIGMA_FLOOR, 10.0, fuzz=(0.01, 0.5))),
     }
     METRICS = {
         "mean_delay": "eq. (7): mean steps from k until a robot can compute x̂_{k|k} (complete steps only)",
@@ -183,11 +204,26 @@ class AsyncCLEnv(MrcommParallelEnv):
         "disk_budget": {"n_robots": 4, "link_model": "combined", "comm_radius": 3.0, "bit_budget": 3000.0,
                         "packet_loss": 0.1, "trajectory": "waypoint", "max_cycles": 100},
     }
+    #: configurations at the documented maxima (``tests/test_limits.py``, ``experiments/limits.py``)
+    LIMIT_CONFIGS = {
+        "max_robots_delay_only": {"n_robots": MAX_ROBOTS, "estimation": False},
+        "max_robots_delay_only_max_history": {"n_robots": MAX_ROBOTS, "estimation": False, "max_history": MAX_HISTORY,
+                                              "modes": ["scheme2_qinf", f"scheme2_q{MAX_Q}"], "lam": 1e6},
+        "max_robots_delay_only_budget": {"n_robots": MAX_ROBOTS, "estimation": False, "bit_budget": 5000.0,
+                                         "link_model": "combined", "q_rule": "receiver"},
+        "max_robots_estimating": {"n_robots": MAX_ROBOTS_ESTIMATING, "initial_sigma": 10.0},
+        "max_history_estimating": {"max_history": MAX_HISTORY, "initial_sigma": SIGMA_FLOOR, "sigma_v": 0.0,
+                                   "sigma_omega_deg": 0.0, "sigma_d": 0.0, "sigma_theta_deg": 0.0},
+    }
     VERSION_HISTORY = [("v0", "first version: Scheme 1, Scheme 2 (q ≥ 1 and ∞) and silence as per-step actions")]
 
     def _setup(self) -> None:
         cfg = self.cfg
         n = self.n_agents = cfg["n_robots"]
+        if cfg["estimation"] and n > MAX_ROBOTS_ESTIMATING:
+            raise ValueError(f"argument 'n_robots' must be at most {MAX_ROBOTS_ESTIMATING} when 'estimation' is true "
+                             f"(every robot's EKF of the whole team needs memory growing as N⁴), got n_robots={n}; "
+                             f"pass estimation=False for delay-only runs of up to {MAX_ROBOTS} robots")
         self.mode_names = tuple(cfg["modes"])
         self._codes = np.array([mode_code(m) for m in self.mode_names], dtype=np.int64)
         self._obs_space = spaces.Box(0.0, 1.0, shape=(n + 4,), dtype=np.float32)

@@ -33,7 +33,6 @@ import numpy as np
 
 from mrcomm_env.asynccl.world import HEADER_BITS, LIST_ENTRY_BITS
 from mrcomm_env.core import backend
-from mrcomm_env.core.comm import fit_to_budget
 
 SILENT, SCHEME1, QINF = -1, 0, 1 << 40  # mode codes: -1 silent, 0 Scheme 1, q ≥ 1 Scheme 2 (QINF = ∞)
 DENSE_MAX_N = 24  # up to this team size the exchange runs on dense (sender, receiver, row) arrays
@@ -218,31 +217,50 @@ class InfoTables:
         return bits, links
 
     def _truncate(self, recv, send, lo, hi, gain, header, budget):
-        """Per-link bit budget: header first, then packets oldest column first (rows by id)."""
-        hi = hi.copy()
-        sent = np.zeros(len(recv))
+        """Per-link bit budget: header first, then packets oldest column first (rows by id).
+
+        Link e offers rows v at steps lo[e, v]+1 … hi[e, v]. In (column, row) order the packets that fit are
+        every packet of the columns ≤ K_e plus a prefix, by row id, of column K_e + 1, where K_e is the last
+        column whose cumulative payload fits. The payload up to column K is Σ_v cum(min(hi, K)) − cum(lo)
+        (cumulative bits per row), monotone in K, so K_e is found by a bisection run on all links at once:
+        O(links · N · log(spread of columns)) array work instead of a Python loop over links and packets.
+        A link whose header alone exceeds the budget sends nothing.
+        """
         W = self.W
-        for e in range(len(recv)):
-            room = budget - header[e]
-            if room < 0:
-                hi[e] = lo[e]
-                continue
-            rows = np.nonzero(gain[e])[0]
-            if rows.size:
-                counts = hi[e, rows] - lo[e, rows]
-                vs = np.repeat(rows, counts)
-                ks = np.concatenate([np.arange(lo[e, v] + 1, hi[e, v] + 1) for v in rows])
-                order = np.lexsort((vs, ks))
-                vs, ks = vs[order], ks[order]
-                sizes = self.pkt_bits[vs, (ks + 1) % W]
-                take = fit_to_budget(sizes, room)
-                new_hi = lo[e].copy()
-                np.maximum.at(new_hi, vs[:take], ks[:take])
-                hi[e] = new_hi
-                sent[e] = header[e] + sizes[:take].sum()
-            else:
-                sent[e] = header[e]
-        return hi, hi > lo, sent
+        rows = self._rows
+        cum, pkt = self.cum_bits, self.pkt_bits
+        room = budget - header  # (E,)
+        fits = room >= 0.0
+        top = np.where(gain, hi, lo)  # rows without gain offer nothing: their range is empty
+        cum_lo = cum[rows, (lo + 1) % W]
+
+        def payload(K):  # bits of every offered packet of columns ≤ K, per link
+            upto = np.maximum(np.minimum(top, K[:, None]), lo)
+            return _sum(cum[rows, (upto + 1) % W] - cum_lo, axis=1)
+
+        big = np.iinfo(np.int64).max
+        k_ok = np.where(gain, lo, big).min(axis=1, initial=big)  # all of the columns up to here: nothing, fits
+        k_hi = np.where(gain, hi, -1).max(axis=1, initial=-1)
+        k_ok = np.minimum(k_ok, k_hi)  # (no gain: k_ok = k_hi = -1, nothing to search)
+        while True:
+            open_ = k_ok < k_hi
+            if not _any(open_, axis=None):
+                break
+            mid = k_ok + (k_hi - k_ok + 1) // 2
+            ok = payload(mid) <= room
+            k_ok = np.where(open_ & ok, mid, k_ok)
+            k_hi = np.where(open_ & ~ok, mid - 1, k_hi)
+        full = payload(k_ok)
+        # column K + 1: rows in id order while they fit (packet sizes are positive, so that is a prefix)
+        nxt = (k_ok + 1)[:, None]
+        in_col = (lo < nxt) & (nxt <= top)
+        sizes = np.where(in_col, pkt[rows, (nxt + 1) % W], 0.0)
+        taken = in_col & (np.cumsum(sizes, axis=1) <= (room - full)[:, None])
+        new_hi = np.where(taken, nxt, np.maximum(np.minimum(top, k_ok[:, None]), lo))
+        sent = header + full + _sum(np.where(taken, sizes, 0.0), axis=1)
+        new_hi = np.where(fits[:, None], new_hi, lo)
+        sent = np.where(fits, sent, 0.0)
+        return new_hi, new_hi > lo, sent
 
     def _settle(self, t: int) -> None:
         """New complete frontiers (delay bookkeeping, eq. (7)) and the discard rule."""

@@ -32,7 +32,11 @@ LIST_ENTRY_BITS = ID_BITS + STEP_BITS
 HEADER_BITS = ID_BITS + 2 * STEP_BITS
 
 SIN_A, SIN_B, SIN_W = 2.0, 1.0, 0.25  # figure-eight half-widths (m) and angular rate (rad/s)
-CHUNK = 128  # sinusoidal episodes are generated this many steps at a time
+CHUNK = 128  # sinusoidal episodes are generated this many steps at a time ...
+# ... unless the team is large: a chunk holds (steps × ordered pairs) distances, bearings and noise, so the
+# steps per chunk shrink to keep it near this many pair-steps (16 MiB per float array; N ≤ 91 keeps 128 steps,
+# N = 200 takes 26). Without this bound N = 2000 asked for 7.6 GiB in one array.
+CHUNK_PAIR_STEPS = 1 << 20
 MIN_RANGE = 0.05  # closer than this the sensor gives no reading (keeps bearings defined)
 WP_ARENA, WP_SPEED, WP_GAIN, WP_MAX_TURN, WP_REACHED = 6.0, 0.4, 2.0, 1.0, 0.3
 
@@ -92,7 +96,8 @@ class World:
         The unicycle recursion x_{k+1} = x_k + v_k cos φ_k dt, φ_{k+1} = φ_k + ω_k dt (eq. (1)) is a cumulative
         sum over steps; the open-loop sinusoidal controls do not depend on the state.
         """
-        n, dt, C = self.n, self.dt, CHUNK
+        n, dt = self.n, self.dt
+        C = self._chunk_len = int(np.clip(CHUNK_PAIR_STEPS // max(len(self._pairs_a), 1), 1, CHUNK))
         s = SIN_W * dt * (self.k + np.arange(C))[:, None] + self.phase[None, :]
         w = SIN_W
         xd, yd = SIN_A * w * np.cos(s), 2.0 * SIN_B * w * np.cos(2.0 * s)
@@ -146,7 +151,7 @@ class World:
         if self.trajectory == "sinusoid":
             self.k += 1
             j = self.k - self._chunk_start
-            if j >= CHUNK:
+            if j >= self._chunk_len:
                 self._build_chunk(rng, self._next_x0)
                 j = 0
             self.x = self._xs[j]

@@ -35,6 +35,9 @@ class MrcommParallelEnv(ParallelEnv):
     #: every field returned by ``_local_view()`` is what robot i itself knows.
     LOCAL_VIEW: ClassVar[dict[str, str]] = {}
     DOCUMENTED_CONFIGS: ClassVar[dict[str, dict[str, Any]]] = {"default": {}}
+    #: configurations at the documented maxima of ``PARAMS`` (run by ``tests/test_limits.py`` and measured by
+    #: ``mrcomm bench --limits``): every range is a promise
+    LIMIT_CONFIGS: ClassVar[dict[str, dict[str, Any]]] = {}
     VERSION_HISTORY: ClassVar[list[tuple[str, str]]] = []
     #: what one env step stands for in the paper's own time unit, for the benchmark: an env whose step is a
     #: whole TDMA frame sets ("slot", True) so that speed is also reported per slot (N slots per step)

@@ -272,6 +272,13 @@ def cmd_bench(args) -> int:
     results["runs"] = runs
     results["seconds_per_run"] = args.seconds
     results["warmup_seconds"] = args.warmup
+    from mrcomm_env.experiments import bench
+
+    results["extras"] = bench.extras_section(targets)
+    if args.train:
+        results["train"] = bench.train_section(targets, params, args.train_timesteps)
+    if args.limits:
+        results["limits"] = bench.limits_section(targets, args.seconds)
     atomic_write_json(out, results, indent=2)
     print(f"wrote {out} (median of {runs} runs of {args.seconds:g} s each)")
     return 0
@@ -352,6 +359,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--warmup", type=nonnegative_seconds, default=1.0, help="length of one untimed run before them (0: none)"
     )
+    p.add_argument("--train", action="store_true", help="also PPO agent-steps/s through the training VecEnv")
+    p.add_argument("--train-timesteps", type=positive_int, default=20_000, help="PPO agent-steps per env (--train)")
+    p.add_argument("--limits", action="store_true", help="also steps/s and peak memory at every documented maximum")
     p.add_argument("--out", default="results/bench.json")
     p.set_defaults(func=cmd_bench)
 

@@ -38,8 +38,11 @@ def centroids(points: np.ndarray, own: np.ndarray, est: np.ndarray, known: np.nd
 
 
 def control_step(pos: np.ndarray, target: np.ndarray, gain: float, vmax: float, dt: float, side: float) -> np.ndarray:
-    """``ṗ = k (C - p)`` with ``|ṗ| <= vmax``, one Euler step, clipped to the square."""
-    v = gain * (target - pos)
+    """``ṗ = k (C - p)`` with ``|ṗ| <= vmax``, one Euler step that never passes ``C``, clipped to the square.
+
+    For ``k dt ≤ 1`` (every control period of the default gain) this is the plain Euler step; a larger
+    ``k dt`` would overshoot the target and oscillate, which the continuous dynamics never do."""
+    v = min(gain, 1.0 / dt) * (target - pos)
     speed = np.linalg.norm(v, axis=1, keepdims=True)
     v = np.where(speed > vmax, v * (vmax / np.maximum(speed, 1e-12)), v)
     return np.clip(pos + v * dt, 0.0, side)

@@ -2,7 +2,7 @@
 
 | | |
 | --- | --- |
-| Agents | `n_robots` robots `robot_0 … robot_{N-1}` (grid: `grid_side²`, field: 20, coverage: 9 by default) |
+| Agents | `n_robots` robots `robot_0 … robot_{N-1}` (grid: `grid_side²`, field: 20, coverage: 9 by default; at most 1024, 25 in the coverage scene) |
 | Actions | `layout="relative"` (default): `MultiBinary(N − 1)` per robot, one bit per *candidate*: the other robots ranked by my estimated distance to them (nearest first; estimates I do not hold last, by slot order after mine). The env sends my own estimate plus the first `slot_size − 1` selected candidates I hold at my slot; unselected ones are withheld, so a robot may send fewer than `m` and save bits. `layout="absolute"` (v0): `Box(0, 1, (N,))`, a priority per robot index (ties: lower index; 0 withholds) |
 | Observations | `relative`: `Box(0, 1, (5(N − 1) + 3,))`, per candidate rank: held (0/1), estimated distance over the arena diagonal, age `a/(a + T_frame)`, freshness gained since I last broadcast it `g/(g + T_frame)`, its slot position after mine; then my slot `s_i/N`, `m/N` and the fraction of robots I hold. `absolute` (v0): `Box(0, 1, (3N + 2,))` by robot index |
 | Reward | `−(Σ w_ij a_ij / Σ w_ij) / (10 T_frame) − lam · bits / (N m b)`: the importance-weighted age of information (eq. (1) weights `w_ij = d_ij^-α`) in units of ten frames, and the share of the slots' capacity used; `reward_mode="neighbourhood"` gives each robot the weighted age held by its neighbours (what its broadcast refreshes) and its own bits instead |
@@ -45,6 +45,14 @@ from mrcomm_env.multihop import theory
 SUBGRAPHS = (2, 4, 6, 8)
 RELATIVE_FEATURES = 5  # per candidate: held, distance, age, freshness gained, slot position
 AGE_SCALE_FRAMES = 10.0  # the reward's age unit: ten frames keep it O(1) per step
+# Documented limits, measured on one core (``mrcomm_env/experiments/limits.py``, random actions): n = 1024
+# runs a grid or static field frame (1024 slots) in 0.3–0.5 s and a moving field frame in 3–4 s, in 0.3 GB;
+# the coverage controller re-partitions the square for every robot at every slot, O(n³ · points) per frame:
+# n = 25 takes 0.8 s per frame, n = 50 2.5–5.5 s, n = 100 over a minute.
+MAX_COVERAGE_ROBOTS = 25
+MAX_ALPHA = 1000.0
+CONTROL_PERIOD, MAX_CONTROL_STEPS = 0.25, 16  # coverage controller: seconds per Euler step, steps per slot at most
+MAX_SPEED = 1000.0  # m/s: faster than any robot; keeps speed × slot time finite for the slowest channel
 HOP_BUCKETS = ("1", "2", "3", "4plus")
 
 
@@ -57,26 +65,31 @@ class MultiHopEnv(MrcommParallelEnv):
         "scene": Param("grid", "`grid` (stationary 4-neighbour grid, Fig. 2), `field` (disk links, optional motion) "
                        "or `coverage` (Voronoi coverage by flying robots, Fig. 3)", Choice(("grid", "field", "coverage"))),
         "n_robots": Param(None, "number of robots n; default grid_side² (grid), 20 (field), 9 (coverage); "
-                          "in the grid scene robots fill rows of grid_side columns (a partial last row is allowed)", Optional(Int(lo=2, hi=1024, fuzz=(4, 12)))),
+                          "in the grid scene robots fill rows of grid_side columns (a partial last row is allowed); at most "
+                          f"{MAX_COVERAGE_ROBOTS} in the coverage scene (the paper flies 9)", Optional(Int(lo=2, hi=1024, fuzz=(4, 12)))),
         "grid_side": Param(10, "columns of the grid scene (robots at unit spacing; a square grid by default)", Int(lo=2, hi=32, fuzz=(2, 5))),
         "slot_size": Param(None, "m: estimates per TDMA slot, 1 <= m <= n (m = n is flooding, m = 1 no hop); "
                            "default min(7, n), 7 being the paper's choice for the 10×10 grid",
                            Optional(Int(lo=1, hi=1024, fuzz=(1, 4)))),
-        "alpha": Param(1.0, "α of the importance d^-α, eq. (1)", Real(lo=0.0, lo_open=True, fuzz=(0.25, 3.0))),
+        "alpha": Param(1.0, "α of the importance d^-α, eq. (1) (at most 1000: d^-α is evaluated in log form, and beyond "
+                       "that only the nearest robot counts at any distance ratio above 1.0007)",
+                       Real(lo=0.0, hi=MAX_ALPHA, lo_open=True, fuzz=(0.25, 3.0))),
         "bits_per_estimate": Param(192, "b: bits per estimate incl. time stamp (six 32-bit integers, §4)",
-                                   Int(lo=1, fuzz=(8, 256))),
-        "baud": Param(3000.0, "r_b: channel bit rate (bits/s, §4)", Real(lo=0.0, lo_open=True, fuzz=(300.0, 1e5))),
+                                   Int(lo=1, hi=1_000_000, fuzz=(8, 256))),
+        "baud": Param(3000.0, "r_b: channel bit rate (bits/s, §4); 1 bit/s to 1 Tbit/s keeps slot times and ages "
+                      "finite and well above round-off", Real(lo=1.0, hi=1e12, fuzz=(300.0, 1e5))),
         "max_cycles": Param(400, "episode length in TDMA frames (400 lets the 8×8 cold start finish at m = 7)",
                            Int(lo=1, fuzz=(1, 30))),
-        "arena_size": Param(100.0, "side of the square (m), field and coverage scenes",
-                            Real(lo=0.0, lo_open=True, fuzz=(10.0, 200.0))),
-        "comm_range": Param(40.0, "disk link radius (m), field and coverage scenes",
-                            Real(lo=0.0, lo_open=True, fuzz=(5.0, 200.0))),
-        "speed": Param(0.0, "field scene: random-waypoint speed (m/s), 0 = stationary", Real(lo=0.0, fuzz=(0.0, 5.0))),
+        "arena_size": Param(100.0, "side of the square (m), field and coverage scenes (1 m to 1000 km: squared "
+                            "distances stay finite)", Real(lo=1.0, hi=1e6, fuzz=(10.0, 200.0))),
+        "comm_range": Param(40.0, "disk link radius (m), field and coverage scenes (above 1e7 m every robot of the "
+                            "largest arena is linked anyway)", Real(lo=0.0, hi=1e7, lo_open=True, fuzz=(5.0, 200.0))),
+        "speed": Param(0.0, "field scene: random-waypoint speed (m/s), 0 = stationary", Real(lo=0.0, hi=MAX_SPEED,
+                                                                                             fuzz=(0.0, 5.0))),
         "max_speed": Param(5.0, "coverage scene: speed limit of the flying robots (m/s)",
-                           Real(lo=0.0, lo_open=True, fuzz=(0.5, 5.0))),
+                           Real(lo=0.0, hi=MAX_SPEED, lo_open=True, fuzz=(0.5, 5.0))),
         "control_gain": Param(1.0, "coverage scene: k of ṗ = k (C_i − p_i) (1/s)",
-                              Real(lo=0.0, lo_open=True, fuzz=(0.1, 2.0))),
+                              Real(lo=0.0, hi=1000.0, lo_open=True, fuzz=(0.1, 2.0))),
         "layout": Param("relative", "`relative`: agent-relative candidates ranked by estimated distance, one "
                         "select bit each (MultiBinary); `absolute`: v0's priority per robot index (Box)",
                         Choice(("relative", "absolute"))),
@@ -126,6 +139,16 @@ class MultiHopEnv(MrcommParallelEnv):
         "neighbourhood_reward": {"grid_side": 5, "slot_size": 4, "max_cycles": 30, "lam": 0.5,
                                  "reward_mode": "neighbourhood"},
     }
+    #: configurations at the documented maxima (``tests/test_limits.py``, ``experiments/limits.py``)
+    LIMIT_CONFIGS = {
+        "max_grid_flooding": {"grid_side": 32, "slot_size": 1024},
+        "max_field_moving": {"scene": "field", "n_robots": 1024, "speed": MAX_SPEED, "arena_size": 1e6,
+                             "comm_range": 1e7, "alpha": MAX_ALPHA, "baud": 1e12},
+        "max_coverage": {"scene": "coverage", "n_robots": MAX_COVERAGE_ROBOTS, "alpha": MAX_ALPHA,
+                         "max_speed": MAX_SPEED, "control_gain": 1000.0},
+        "slowest_channel_coverage": {"scene": "coverage", "baud": 1.0, "bits_per_estimate": 1_000_000,
+                                     "slot_size": 9, "arena_size": 1.0},
+    }
     VERSION_HISTORY = [
         ("v0", "first version: grid, field and coverage scenes; one step = one TDMA frame"),
         ("v0 rev 2", "learnable by a shared policy: default `layout=relative` (MultiBinary select bits over "
@@ -142,6 +165,9 @@ class MultiHopEnv(MrcommParallelEnv):
             n = c.grid_side ** 2 if c.n_robots is None else c.n_robots
         else:
             n = c.n_robots if c.n_robots is not None else (9 if c.scene == "coverage" else 20)
+        if c.scene == "coverage" and n > MAX_COVERAGE_ROBOTS:
+            raise ValueError(f"argument 'n_robots' must be at most {MAX_COVERAGE_ROBOTS} when 'scene' is 'coverage' "
+                             f"(every robot's Voronoi controller runs at every slot: O(n³) per frame), got {n}")
         m = min(7, n) if c.slot_size is None else c.slot_size
         if m > n:
             raise ValueError(f"argument 'slot_size' must be in [1, n_robots = {n}], got {m}")
@@ -229,11 +255,18 @@ class MultiHopEnv(MrcommParallelEnv):
         self._hop_masks = [hops == 1, hops == 2, hops == 3, (hops >= 4) & ~self._eye]
 
     def _reward_weights(self) -> None:
+        """Eq. (1) weights of the reward, ``d_ij^-α`` divided by the largest one (the reward is a weighted mean,
+        so the scale cancels). Log form: raw ``d^-α`` underflowed to 0 for every pair at α = 300 (a reward of
+        −0.0) and overflowed to inf at α = 200 in a 1 m arena (NaN)."""
         d = np.linalg.norm(self.pos[:, None] - self.pos[None], axis=-1)
-        w = np.maximum(d, proto.MIN_DIST) ** (-self.cfg.alpha)
+        log_d = np.log(np.maximum(d, proto.MIN_DIST))
+        off = ~self._eye
+        nearest = float(log_d[off].min()) if off.any() else 0.0
+        # ≤ 1 off the diagonal, = 1 for the nearest pair (the diagonal, clipped to 1 here, is zeroed below)
+        w = np.exp(-self.cfg.alpha * np.maximum(log_d - nearest, 0.0))
         w[self._eye] = 0.0
         self._w = w
-        self._wsum = max(float(w.sum()), 1e-300)
+        self._wsum = float(w.sum())  # ≥ 1: the nearest pair weighs 1
 
     # ----------------------------------------------------------------- dynamics
     def _step_world(self, actions: list) -> float:
@@ -257,7 +290,9 @@ class MultiHopEnv(MrcommParallelEnv):
             last_sent[s, idx] = True
             sent_stamp[s, idx] = row[idx]
             t += self.slot_dur
-            rcv = self._nbrs[s]
+            # moving robots: the links of this slot, from the positions now (only the sender's row is needed, so
+            # a frame costs O(n²) instead of a full link matrix per slot; the matrix is rebuilt at frame end)
+            rcv = self._receivers(s) if moving else self._nbrs[s]
             if rcv.size:
                 if moving:
                     est[s, s] = self.pos[s]
@@ -273,6 +308,7 @@ class MultiHopEnv(MrcommParallelEnv):
         stamps[self._eye] = t
         if moving:
             est[self._eye] = self.pos
+            self._links()
             self._reward_weights()
             self._hops()
         if not self._all_known:
@@ -323,13 +359,21 @@ class MultiHopEnv(MrcommParallelEnv):
             if arrive.any():
                 self.waypoint[arrive] = self.np_random.uniform(0.0, self.side, size=(int(arrive.sum()), 2))
         else:
-            # control period at most 0.25 s so slow frames (m = 9) are integrated as finely as fast ones
-            sub = max(1, math.ceil(duration / 0.25 - 1e-9))
+            # control period at most 0.25 s so slow frames (m = 9) are integrated as finely as fast ones; a slot
+            # longer than MAX_CONTROL_STEPS × 0.25 s (a very slow channel) takes MAX_CONTROL_STEPS longer steps
+            sub = min(max(1, math.ceil(duration / CONTROL_PERIOD - 1e-9)), MAX_CONTROL_STEPS)
             known = self.stamps > proto.UNKNOWN
             for _ in range(sub):
                 target = cov.centroids(self._ctrl_points, self.pos, self.est, known)
                 self.pos = cov.control_step(self.pos, target, c.control_gain, c.max_speed, duration / sub, self.side)
-        self._links()
+
+    def _receivers(self, sender: int) -> np.ndarray:
+        """Robots within ``comm_range`` of ``sender`` now: its row of ``disk_links``."""
+        diff = self.pos - self.pos[sender]
+        r = self.cfg.comm_range
+        within = np.einsum("ij,ij->i", diff, diff) <= r * r
+        within[sender] = False
+        return np.flatnonzero(within)
 
     def _frame_end(self) -> float:
         ages = np.where(self.stamps > proto.UNKNOWN, self.t - self.stamps, self.t)  # unknown: age since start

@@ -4,7 +4,7 @@ Everything here works on a leading batch axis ``B`` so that the environment (``B
 robots when a policy plans every robot's slot at once) and the Monte-Carlo reproduction (``B`` random
 slot orders side by side) run *the same code*:
 
-* :func:`importance` — eq. (1), ``f_ij = d(p_i, p̂_j)^-α`` (0 for an unknown estimate);
+* :func:`importance` — eq. (1), ``f_ij = d(p_i, p̂_j)^-α`` (0 for an unknown estimate), scaled per row;
 * :func:`location_based_select` — Algorithm 1 with persistent counters, ``O(m n)`` per slot; ``rule``
   ``"text"`` takes the *lowest* counter (§3.2), ``"listing"`` the *highest* (the printed listing);
 * :func:`probabilistic_select` — eq. (2) sampling without replacement, in one shot (Plackett–Luce:
@@ -26,12 +26,28 @@ import numpy as np
 UNKNOWN = -np.inf
 #: distances are clamped here so that f = d^-α stays finite for co-located robots (own estimate excepted)
 MIN_DIST = 1e-3
+LOG_MIN_DIST = float(np.log(MIN_DIST))
+#: largest scaled log-importance (≈ 1e150): own and co-located estimates never overflow a sum or an age product
+LOG_WEIGHT_CAP = 345.0
 
 
 def importance(dist: np.ndarray, known: np.ndarray, alpha: float) -> np.ndarray:
-    """Eq. (1): ``d^-α`` for known estimates, 0 for unknown ones (they cannot be chosen)."""
-    d = np.maximum(dist, MIN_DIST)
-    return np.where(known, d ** (-alpha), 0.0)
+    """Eq. (1), ``d^-α`` for known estimates and 0 for unknown ones (they cannot be chosen), scaled per row.
+
+    Every use of the importances compares them within one robot's row (eq. (2) normalises them, the
+    selection rules rank them), so each row is divided by the importance of the nearest other known robot
+    (distance > 0; the robot's own estimate, at distance 0, does not set the scale). Computed in log form:
+    raw ``d^-α`` underflows to exactly 0 for every d > 11 at α = 300, which made eq. (2) 0/0. After scaling
+    the nearest robot weighs 1, farther ones less (underflowing to 0 only when their share of eq. (2) is
+    below 1e-308 anyway), and entries closer than that robot (its own, co-located ones clamped at
+    ``MIN_DIST``) weigh at most ``e^LOG_WEIGHT_CAP`` so that sums and products with ages stay finite.
+    """
+    log_d = np.log(np.maximum(dist, MIN_DIST))
+    others = known & (np.asarray(dist) > 0.0)
+    ref = np.min(np.where(others, log_d, np.inf), axis=-1, keepdims=True)
+    ref = np.where(np.isfinite(ref), ref, LOG_MIN_DIST)  # nothing else known: the scale does not matter
+    log_f = np.minimum(-alpha * (log_d - ref), LOG_WEIGHT_CAP)
+    return np.where(known, np.exp(log_f), 0.0)
 
 
 def location_based_select(

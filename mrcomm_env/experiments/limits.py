@@ -1,0 +1,140 @@
+"""Speed and peak memory of an environment at its documented maxima (for ``mrcomm bench`` and the limit tests).
+
+Every ``Param`` range is a promise: an env class lists, in ``LIMIT_CONFIGS``, named configurations at the
+largest values its documentation allows (team size, history, slot size, …). :func:`measure_limit` builds
+one of them in a fresh Python process, runs random actions for a while and reports env-steps/s and that
+process's peak resident memory, so each configuration's peak is its own and not the largest seen so far.
+
+    >>> from mrcomm_env.experiments.limits import limit_configs, measure_limit
+    >>> for name, cfg in limit_configs("AsyncCL-v0").items():
+    ...     print(name, measure_limit("AsyncCL-v0", cfg, seconds=5.0))
+
+Run as a module it measures one configuration and prints one JSON line (that is what the parent reads).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import resource
+import subprocess
+import sys
+import time
+from typing import Any
+
+from mrcomm_env.registry import env_class, make
+
+#: the hook name; until ``MrcommParallelEnv`` declares it, a class without it has no documented maxima
+LIMIT_ATTRIBUTE = "LIMIT_CONFIGS"
+
+
+def limit_configs(env_id: str) -> dict[str, dict[str, Any]]:
+    """Named configurations of ``env_id`` at its documented maxima (empty when the class lists none)."""
+    return dict(getattr(env_class(env_id), LIMIT_ATTRIBUTE, {}))
+
+
+def measure_limit(
+    env_id: str,
+    config: dict[str, Any],
+    seconds: float = 10.0,
+    min_steps: int = 3,
+    max_steps: int | None = None,
+    seed: int = 0,
+    timeout: float | None = None,
+    env_vars: dict[str, str] | None = None,
+) -> dict[str, Any]:
+    """Run ``env_id`` with ``config`` in a fresh process under random actions.
+
+    It steps for ``seconds`` of wall time, but at least ``min_steps`` and at most ``max_steps`` steps
+    (episodes restart when they end). Returns ``steps_per_s`` (over the timed steps, construction and the
+    first reset excluded), ``peak_rss_mb`` (the child's peak resident set, interpreter included), ``steps``,
+    ``build_s`` and ``reset_s`` (seconds to construct and to reset), ``finite`` (every observation, reward
+    and info seen was finite) and ``n_agents``. A child that fails raises ``RuntimeError`` with its last
+    error line; ``timeout`` (seconds) bounds the child.
+    """
+    if not (isinstance(seconds, (int, float)) and math.isfinite(seconds) and seconds >= 0):
+        raise ValueError(f"argument 'seconds' must be a finite number ≥ 0, got {seconds!r}")
+    if isinstance(min_steps, bool) or not isinstance(min_steps, int) or min_steps < 1:
+        raise ValueError(f"argument 'min_steps' must be an integer ≥ 1, got {min_steps!r}")
+    if max_steps is not None and (
+        isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < min_steps
+    ):
+        raise ValueError(
+            f"argument 'max_steps' must be None or an integer ≥ min_steps = {min_steps}, got {max_steps!r}"
+        )
+    job = {
+        "env_id": env_id,
+        "config": config,
+        "seconds": seconds,
+        "min_steps": min_steps,
+        "max_steps": max_steps,
+        "seed": seed,
+    }
+    env = {**os.environ, **(env_vars or {})}
+    proc = subprocess.run(
+        [sys.executable, "-m", __name__, json.dumps(job)], capture_output=True, text=True, timeout=timeout, env=env
+    )
+    lines = proc.stdout.strip().splitlines()
+    if proc.returncode != 0 or not lines:
+        last = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+        raise RuntimeError(f"{env_id} {config}: the measuring process failed ({proc.returncode}): {last}")
+    return json.loads(lines[-1])
+
+
+def measure_limits(env_id: str, seconds: float = 10.0, **kwargs: Any) -> dict[str, dict[str, Any]]:
+    """:func:`measure_limit` for every configuration of ``limit_configs(env_id)``, keyed by its name; each result
+    also holds its ``config``. What ``mrcomm bench`` reports per env at the documented maxima."""
+    return {
+        name: {"config": cfg, **measure_limit(env_id, cfg, seconds=seconds, **kwargs)}
+        for name, cfg in limit_configs(env_id).items()
+    }
+
+
+def _run(job: dict[str, Any]) -> dict[str, Any]:
+    import numpy as np
+
+    start = time.perf_counter()
+    env = make(job["env_id"], **job["config"])
+    built = time.perf_counter()
+    obs, infos = env.reset(seed=job["seed"])
+    reset_done = time.perf_counter()
+    space = env.action_space(env.possible_agents[0])
+    space.seed(job["seed"])
+    finite = _all_finite(np, obs.values(), infos)
+    steps, episodes = 0, 0
+    deadline = reset_done + job["seconds"]
+    max_steps = job["max_steps"]
+    timed = 0.0
+    while steps < job["min_steps"] or (time.perf_counter() < deadline and (max_steps is None or steps < max_steps)):
+        if not env.agents:
+            episodes += 1
+            env.reset(seed=job["seed"] + episodes)
+        actions = {a: space.sample() for a in env.agents}
+        t0 = time.perf_counter()
+        obs, rewards, _, _, infos = env.step(actions)
+        timed += time.perf_counter() - t0
+        steps += 1
+        finite = finite and _all_finite(np, obs.values(), infos, rewards.values())
+    peak_kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
+    return {
+        "env_id": job["env_id"],
+        "n_agents": env.n_agents,
+        "steps": steps,
+        "steps_per_s": steps / timed if timed > 0 else math.inf,
+        "peak_rss_mb": peak_kib / 1024.0,
+        "build_s": built - start,
+        "reset_s": reset_done - built,
+        "finite": bool(finite),
+    }
+
+
+def _all_finite(np, observations, infos, rewards=()) -> bool:
+    values = [np.asarray(o, dtype=float).ravel() for o in observations]
+    values.append(np.asarray(list(rewards), dtype=float))
+    values.append(np.asarray([v for info in infos.values() for v in info.values()], dtype=float))
+    return all(bool(np.all(np.isfinite(v))) for v in values)
+
+
+if __name__ == "__main__":
+    print(json.dumps(_run(json.loads(sys.argv[1]))))
