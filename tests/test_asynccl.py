@@ -258,9 +258,37 @@ def test_observations_and_infos():
         obs, rew, _, _, infos = env.step({a: env.mode_names.index("scheme2_qinf") for a in env.agents})
         assert all(space.contains(o) for o in obs.values())
     assert set(infos["robot_0"]) == set(env.INFO_KEYS)
-    # the reward is the negative mean causal position error minus λ·bits
-    bits = sum(i["bits_sent"] for i in infos.values())
+    # the default reward is minus the mean delay t − c (in tens of steps) minus λ per kbit sent per robot;
+    # the infos' delay is read after the world moved on to t + 1, one step more than at the exchange
+    n = env.n_agents
+    kbit_per_robot = sum(i["bits_sent"] for i in infos.values()) / (1000.0 * n)
+    delay = np.mean([i["delay"] for i in infos.values()]) - 1.0
+    expect = -delay / 10.0 - env.cfg["lam"] * kbit_per_robot
+    assert_close_conditioned(rew["robot_0"], expect, tolerance(abs(expect) + 1.0, 2 * n + 6), err_msg="reward")
+
+
+def test_position_reward_is_the_causal_error_and_needs_estimation():
+    env = parallel_env(max_cycles=10, reward="position", lam=0.5)
+    env.reset(seed=1)
+    for _ in range(10):
+        _, rew, _, _, infos = env.step({a: env.mode_names.index("scheme1") for a in env.agents})
+    n = env.n_agents
     err = np.mean([i["rms_position"] for i in infos.values()])
-    expect = -err - env.cfg["lam"] * bits
+    kbit_per_robot = sum(i["bits_sent"] for i in infos.values()) / (1000.0 * n)
+    expect = -err - 0.5 * kbit_per_robot
     # the same N errors and bits summed in another order (same-sign terms, cond 1)
-    assert_close_conditioned(rew["robot_0"], expect, tolerance(abs(expect), 2 * env.n_agents + 4), err_msg="reward")
+    assert_close_conditioned(rew["robot_0"], expect, tolerance(abs(expect), 2 * n + 6), err_msg="reward")
+    with pytest.raises(ValueError, match="'reward'"):
+        parallel_env(reward="position", estimation=False)
+
+
+def test_observation_is_agent_relative():
+    # robot i's block k describes robot (i + k + 1) mod N: linked flags match the links of the coming exchange
+    env = parallel_env(n_robots=4, max_cycles=5)
+    obs, _ = env.reset(seed=3)
+    for i in range(4):
+        blocks = obs[f"robot_{i}"][: 3 * 3].reshape(3, 3)
+        others = [(i + k) % 4 for k in (1, 2, 3)]
+        np.testing.assert_array_equal(blocks[:, 0], env.adj[i, others].astype(np.float32))
+        behind = env.tables.t - env.tables.latest[i, others]
+        np.testing.assert_allclose(blocks[:, 1], behind / (behind + 10.0), rtol=1e-6)

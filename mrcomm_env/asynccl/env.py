@@ -4,8 +4,8 @@
 | --- | --- |
 | Agents | `n_robots` robots `robot_0 … robot_{N-1}` (default 5; at most 30 with `estimation`, 200 delay-only) |
 | Actions | `Discrete(len(modes))` per robot: the transfer mode it uses on all its links this step, an index into `modes` (default `silent`, `scheme1`, `scheme2_q1`, `scheme2_q2`, `scheme2_q4`, `scheme2_q8`, `scheme2_qinf`) |
-| Observations | `Box(0, 1, (N + 4,))`: age a of the oldest incomplete column as `a/(a+10)`; for every robot v how many steps behind its row is, `b/(b+10)`; trace of the own-pose covariance `tr/(tr+1)`; neighbours now `/(N−1)`; bits sent recently (EMA) `e/(e+10⁴)` |
-| Reward | team reward `−mean_i RMS_pos(causal team estimate of robot i) − lam · (bits sent by the team this step)` |
+| Observations | `Box(0, 1, (3(N − 1) + 5,))`, agent-relative: for each other robot, in the order i+1, i+2, … (mod N): linked in the coming exchange (0/1), how many steps behind my copy of its row is `b/(b+10)`, how far behind its complete frontier is as far as I know (what it lacks) `a/(a+10)`; then my own delay `d/(d+10)`, the episode clock `t/max_cycles`, my own-pose covariance trace on a log scale `(log10 tr + 6)/8` (clipped), my neighbours now `/(N−1)`, bits I sent recently (EMA) `e/(e+10⁴)` |
+| Reward | team reward `−(mean delay t − c_i)/10` (`reward="delay"`, default) or `−mean_i RMS_pos` of the causal team estimates in metres (`reward="position"`), minus `lam` × kbit sent per robot this step |
 | Arguments | `n_robots`, `link_model`, `link_probability`, `comm_radius`, `sensing_radius`, `packet_loss`, `bit_budget`, `modes`, `lam`, `estimation`, `max_cycles`, `max_history`, `trajectory`, `dt`, `sigma_v`, `sigma_omega_deg`, `sigma_d`, `sigma_theta_deg`, `q_rule`, `initial_sigma` |
 
 N robots move in 2D on unicycle paths (phase-shifted sinusoids of §IV, or random waypoints), measure
@@ -21,7 +21,8 @@ From its table every robot computes the **delayed centralized estimate** x̂_{c|
 frontier c — identical to a centralized EKF on all measurements (tested within the forward-error bound of
 the matrices the two filters invert, ``tests/numerics.py``) — and a **causal
 estimate** of the whole team at the current step from what it holds (missing odometry replaced by the
-last available one, §IV). The reward trades the causal estimates' position error against bits.
+last available one, §IV). The reward trades the delay of eq. (7) (or the causal estimates' position
+error) against bits.
 ``mean_delay`` is eq. (7): steps from k until robot i can compute x̂_{k|k}, over k and robots, ignoring
 steps still incomplete when the episode ends. ``estimation=False`` skips the EKF (delay-only runs,
 Table I); the error terms are then 0.
@@ -80,6 +81,8 @@ from mrcomm_env.core.config import Bool, Choice, Int, ListOf, Optional, Param, R
 
 ALL_MODES = ("silent", "scheme1", "scheme2_q1", "scheme2_q2", "scheme2_q4", "scheme2_q8", "scheme2_qinf")
 AGE_SCALE, BITS_SCALE, EMA = 10.0, 1.0e4, 0.2
+OTHER_FEATURES, OWN_FEATURES = 3, 5  # per other robot: linked, row lag, what it lacks; then five of my own
+KBIT = 1000.0
 # floors of the filter's noise model so that zero-noise configurations stay numerically sound
 SIGMA_FLOOR = 1e-4
 EPS = float(np.finfo(np.float64).eps)  # a condition number beyond 1/ε means a numerically singular covariance
@@ -150,8 +153,11 @@ class AsyncCLEnv(MrcommParallelEnv):
         "bit_budget": Param(None, "per-link bit budget per step; the payload is truncated oldest data first",
                             Optional(Real(0.0, fuzz=(50.0, 5000.0)))),
         "modes": Param(ALL_MODES, "the transfer modes an action indexes", ListOf(ModeName())),
-        "lam": Param(1e-6, "λ: reward cost per bit sent (at most 1e6, so that λ times the bits of any step, "
-                     "< 1e17, stays a finite reward)", Real(0.0, 1e6, fuzz=(0.0, 1e-4))),
+        "lam": Param(0.05, "λ: reward cost of one kbit sent per robot and step (at most 1e6, so that λ times the "
+                     "bits of any step stays a finite reward)", Real(0.0, 1e6, fuzz=(0.0, 1.0))),
+        "reward": Param("delay", "what the reward charges besides bits: `delay` (the team's mean t − c_i in units "
+                        "of 10 steps, eq. (7)'s quantity) or `position` (the causal estimates' mean RMS position "
+                        "error, m; needs `estimation`)", Choice(("delay", "position"))),
         "estimation": Param(True, "run the EKFs (false: delay-only bookkeeping, as for Table I)", Bool()),
         "max_cycles": Param(500, "episode length in time steps", Int(lo=1, fuzz=(1, 60))),
         "max_history": Param(500, "time steps of packets kept in memory; a robot still missing a column that "
@@ -215,7 +221,13 @@ class AsyncCLEnv(MrcommParallelEnv):
         "max_history_estimating": {"max_history": MAX_HISTORY, "initial_sigma": SIGMA_FLOOR, "sigma_v": 0.0,
                                    "sigma_omega_deg": 0.0, "sigma_d": 0.0, "sigma_theta_deg": 0.0},
     }
-    VERSION_HISTORY = [("v0", "first version: Scheme 1, Scheme 2 (q ≥ 1 and ∞) and silence as per-step actions")]
+    VERSION_HISTORY = [
+        ("v0", "first version: Scheme 1, Scheme 2 (q ≥ 1 and ∞) and silence as per-step actions"),
+        ("v0 rev 2", "learnable: the reward charges the mean delay (`reward=delay`, default; the v0 position error "
+         "is `reward=position`) and `lam` prices kbit per robot (was per team bit at 1e-6: 0.002 per step, "
+         "noise); the observation is agent-relative per other robot (linked now, how far behind my copy of its "
+         "row is, what it lacks as far as I know), with the clock and a log-scale covariance trace"),
+    ]
 
     def _setup(self) -> None:
         cfg = self.cfg
@@ -224,9 +236,14 @@ class AsyncCLEnv(MrcommParallelEnv):
             raise ValueError(f"argument 'n_robots' must be at most {MAX_ROBOTS_ESTIMATING} when 'estimation' is true "
                              f"(every robot's EKF of the whole team needs memory growing as N⁴), got n_robots={n}; "
                              f"pass estimation=False for delay-only runs of up to {MAX_ROBOTS} robots")
+        if cfg["reward"] == "position" and not cfg["estimation"]:
+            raise ValueError("argument 'reward' = 'position' needs estimation=True (no estimates, no position error)")
         self.mode_names = tuple(cfg["modes"])
         self._codes = np.array([mode_code(m) for m in self.mode_names], dtype=np.int64)
-        self._obs_space = spaces.Box(0.0, 1.0, shape=(n + 4,), dtype=np.float32)
+        self._obs_space = spaces.Box(0.0, 1.0, shape=(OTHER_FEATURES * (n - 1) + OWN_FEATURES,), dtype=np.float32)
+        # robot i sees robot (i + k) mod N in block k - 1: the same layout for every robot (agent-relative)
+        self._others = (np.arange(n)[:, None] + np.arange(1, n)[None, :]) % n
+        self._others_flat = (self._others + np.arange(n)[:, None] * n).ravel()
         self._act_space = spaces.Discrete(len(self.mode_names))
         self.world = World(n, cfg["dt"], cfg["trajectory"], cfg["sensing_radius"], cfg["sigma_v"],
                            math.radians(cfg["sigma_omega_deg"]), cfg["sigma_d"], math.radians(cfg["sigma_theta_deg"]),
@@ -239,7 +256,6 @@ class AsyncCLEnv(MrcommParallelEnv):
         # flat index of P_i[3i+d, 3i+d] in robot i's covariance: the diagonal of its own-pose block
         self._own_rows = np.arange(n)[:, None]
         self._own_flat = (np.arange(n)[:, None] * 3 + np.arange(3)[None, :]) * (3 * n + 1)
-        self._obs_scale = np.array([AGE_SCALE] * (n + 1) + [1.0, 1.0, BITS_SCALE])
 
     # ------------------------------------------------------------------ episode
     def _reset_world(self) -> None:
@@ -294,10 +310,11 @@ class AsyncCLEnv(MrcommParallelEnv):
             self.est.step(t, tab.c, tab.latest)
             self._note_condition(t)
             self._errors()
+        if cfg["reward"] == "position":
             reward = -self._mean_pos  # = mean over robots of the RMS position errors
-        else:
-            reward = 0.0
-        reward -= cfg["lam"] * float(_sum(bits, axis=None))
+        else:  # eq. (7)'s quantity: steps until each robot can compute x̂_{t|t}
+            reward = -float(_sum(t - tab.c, axis=None)) / (self.n_agents * AGE_SCALE)
+        reward -= cfg["lam"] * float(_sum(bits, axis=None)) / (self.n_agents * KBIT)
         # the world moves on to step t+1; every robot adds its own packet M_{t+1}^i (eq. (5))
         self.world.advance(rng)
         pk = self.world.measure(rng)
@@ -354,19 +371,27 @@ class AsyncCLEnv(MrcommParallelEnv):
     def _observe(self) -> np.ndarray:
         tab, n = self.tables, self.n_agents
         t = tab.t
-        # every feature but the neighbour count is x / (x + scale): one division over the whole row
-        raw = np.empty((n, n + 4))
-        np.subtract(t - 1, tab.c, out=raw[:, 0])  # age of the oldest incomplete column
-        np.subtract(t, tab.latest, out=raw[:, 1:n + 1])  # how many steps behind each row is
+        k = OTHER_FEATURES * (n - 1)
+        out = np.empty((n, k + OWN_FEATURES), dtype=np.float32)
+        blocks = out[:, :k].reshape(n, n - 1, OTHER_FEATURES)
+        flat = self._others_flat
+        behind = (t - tab.latest).reshape(-1)[flat]  # steps my copy of each other row lags
+        lacks = (t - tab.known).reshape(-1)[flat]  # how far each other robot's frontier lags, as far as I know
+        blocks[:, :, 0] = self.adj.reshape(-1)[flat].reshape(n, n - 1)
+        blocks[:, :, 1] = (behind / (behind + AGE_SCALE)).reshape(n, n - 1)
+        blocks[:, :, 2] = (lacks / (lacks + AGE_SCALE)).reshape(n, n - 1)
+        delay = t - 1 - tab.c  # age of the oldest incomplete column
+        out[:, k] = delay / (delay + AGE_SCALE)
+        out[:, k + 1] = min(t / self.cfg["max_cycles"], 1.0)
         if self.cfg["estimation"]:
-            raw[:, n + 1] = _sum(self.est.P.reshape(n, -1)[self._own_rows, self._own_flat], axis=1)  # own-pose trace
+            trace = _sum(self.est.P.reshape(n, -1)[self._own_rows, self._own_flat], axis=1)  # own-pose trace
+            # a log scale: the trace spans 1e-6 (well localised) to 1e2 (lost); tr/(tr+1) was flat at 1e-3
+            out[:, k + 2] = np.clip((np.log10(np.maximum(trace, 1e-12)) + 6.0) / 8.0, 0.0, 1.0)
         else:
-            raw[:, n + 1] = 0.0
-        raw[:, n + 2] = 0.0
-        raw[:, n + 3] = self._ema
-        raw /= raw + self._obs_scale
-        raw[:, n + 2] = self.neighbours / (n - 1)
-        return raw.astype(np.float32)
+            out[:, k + 2] = 0.0
+        out[:, k + 3] = self.neighbours / (n - 1)
+        out[:, k + 4] = self._ema / (self._ema + BITS_SCALE)
+        return out
 
     def _local_view(self) -> dict:
         tab = self.tables
