@@ -135,6 +135,12 @@ class MapSyncEnv(MrcommParallelEnv):
             "probability a link in range is up this step (core.bernoulli_links)",
             Real(lo=0.0, hi=1.0, fuzz=(0.3, 1.0)),
         ),
+        "database_seed": Param(
+            0,
+            "seed of Protocol 1's shared database R, given to the robots before deployment "
+            "(the same in every episode; Alice's picks of i are random per episode)",
+            Int(lo=0, hi=2**63 - 1, fuzz=(0, 1000)),
+        ),
         "explicit_database": Param(
             False,
             "keep Protocol 1's database of 100n strings in memory (n ≤ 1024) instead "
@@ -254,7 +260,8 @@ class MapSyncEnv(MrcommParallelEnv):
         self.session_of = np.full(N, -1, dtype=np.int64)
         self.sessions: dict[int, Session] = {}
         self._next_session = 0
-        self.strings = SharedStrings(n, int(rng.integers(2**63)), explicit=c.explicit_database)
+        # R is given to the robots before deployment (Protocol 1, step 1): the same for every episode
+        self.strings = SharedStrings(n, c.database_seed, explicit=c.explicit_database, cache=True)
         self.sketch_seed = int(rng.integers(2**63))
         self.ledger.reset()
         self.recent_bits = np.zeros(N)

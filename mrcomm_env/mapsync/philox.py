@@ -29,6 +29,8 @@ DOMAIN_PARITY = 1
 
 #: largest explicit database materialised (bits); 100 n · n bits is 13 MB at n = 1024
 MAX_EXPLICIT_BITS = 100 * 1024 * 1024
+#: largest database kept as a per-process cache of the on-demand strings (1 MB: n ≤ 289, a 17×17 grid)
+CACHE_BITS = 8 * 1024 * 1024
 
 
 @lru_cache(maxsize=64)
@@ -94,7 +96,7 @@ class SharedStrings:
     ``b // 32``. Bits past ``n`` in the last word are zero.
     """
 
-    def __init__(self, n: int, seed: int, size: int | None = None, explicit: bool = False):
+    def __init__(self, n: int, seed: int, size: int | None = None, explicit: bool = False, cache: bool = False):
         if n < 2:
             raise ValueError(f"argument 'n' must be an integer ≥ 2 (bits per map), got {n!r}")
         self.n = int(n)
@@ -115,6 +117,9 @@ class SharedStrings:
                     f"allowed up to {MAX_EXPLICIT_BITS / 8e6:.0f} MB (use the on-demand generator)"
                 )
             self.database = self._generate(np.arange(self.size), np.zeros(self.size, np.int64), self.words_per_string)
+        elif cache and self.size * self.n <= CACHE_BITS:
+            # the same strings, generated once per process and (n, seed): a speed-up for small maps only
+            self.database = _cached_database(self.n, int(seed), self.size)
 
     def _generate(self, index, first_word, n_words) -> np.ndarray:
         words = stream_words(self.key, index, first_word, n_words, DOMAIN_DATABASE)
@@ -134,10 +139,18 @@ class SharedStrings:
         if self.database is None:
             return self._generate(index, first_word, n_words)
         cols = first_word[:, None] + np.arange(n_words)[None, :]
-        padded = np.concatenate([self.database, np.zeros((self.size, n_words), np.uint32)], axis=1)
-        return padded[index[:, None], cols]
+        inside = cols < self.words_per_string
+        out = self.database[index[:, None], np.minimum(cols, self.words_per_string - 1)]
+        return out if inside.all() else np.where(inside, out, np.uint32(0))
 
     def bits(self, index: int) -> np.ndarray:
         """String ``r_index`` as ``n`` bools (for checks; the protocols work on words)."""
         words = self.words(np.array([index]), np.array([0]), self.words_per_string)[0]
         return np.unpackbits(words.view(np.uint8), bitorder="little")[: self.n].astype(bool)
+
+
+@lru_cache(maxsize=4)
+def _cached_database(n: int, seed: int, size: int) -> np.ndarray:
+    words = SharedStrings(n, seed, size)._generate(np.arange(size), np.zeros(size, np.int64), (n + 31) // 32)
+    words.flags.writeable = False
+    return words

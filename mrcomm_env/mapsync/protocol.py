@@ -67,20 +67,9 @@ def pack(bits: np.ndarray) -> np.ndarray:
     return np.packbits(bits, bitorder="little").view(np.uint32)
 
 
-def _segment_words(words: np.ndarray, lo: np.ndarray, hi: np.ndarray, n_words: int) -> tuple[np.ndarray, np.ndarray]:
-    """Words of every segment [lo, hi] (inclusive bit indices), bits outside it cleared, and its first word."""
-    first = lo // 32
-    if lo.size == 1 and lo[0] == 0 and hi[0] == 32 * words.size - 1:
-        return words[None, :], first  # the whole map, a whole number of words: nothing to mask
-    cols = first[:, None] + np.arange(n_words)[None, :]
-    last = (hi // 32)[:, None]
-    mask = np.where(cols <= last, np.uint32(0xFFFFFFFF), np.uint32(0)).astype(np.uint32)
-    head = (np.uint32(0xFFFFFFFF) << (lo % 32).astype(np.uint32)).astype(np.uint32)
-    tail = (np.uint32(0xFFFFFFFF) >> (31 - hi % 32).astype(np.uint32)).astype(np.uint32)
-    mask[:, 0] &= head
-    mask = np.where(cols == last, mask & tail[:, None], mask)
-    padded = np.concatenate([words, np.zeros(n_words, np.uint32)])
-    return padded[np.minimum(cols, padded.size - 1)] & mask, first
+_ONES = np.uint32(0xFFFFFFFF)
+_FROM_BIT = np.array([(0xFFFFFFFF << b) & 0xFFFFFFFF for b in range(32)], dtype=np.uint32)  # bits ≥ b
+_TO_BIT = np.array([0xFFFFFFFF >> (31 - b) for b in range(32)], dtype=np.uint32)  # bits ≤ b
 
 
 def segment_inner_products(
@@ -95,14 +84,22 @@ def segment_inner_products(
     lo = np.asarray(lo, dtype=np.int64)
     hi = np.asarray(hi, dtype=np.int64)
     index = np.asarray(index, dtype=np.int64)
-    n_words = int((hi // 32 - lo // 32).max()) + 1
-    k = index.shape[1]
-    segs = [_segment_words(w, lo, hi, n_words) for w in maps]
-    first = segs[0][1]
-    r = strings.words(index.reshape(-1), np.repeat(first, k), n_words).reshape(index.shape[0], k, n_words)
-    return [
-        (np.bitwise_count(r & seg[:, None, :]).sum(axis=-1, dtype=np.int64) & 1).astype(np.uint8) for seg, _ in segs
-    ]
+    first, last = lo >> 5, hi >> 5
+    span = last - first
+    n_words = int(span.max()) + 1
+    S, k = index.shape
+    stacked = np.stack(maps)  # (M, W)
+    if S == 1 and lo[0] == 0 and hi[0] == 32 * stacked.shape[1] - 1:
+        seg = stacked[:, None, :]  # the whole map, a whole number of words: nothing to mask
+    else:
+        cols = first[:, None] + np.arange(n_words)[None, :]
+        mask = np.where(cols <= last[:, None], _ONES, np.uint32(0))
+        mask[:, 0] &= _FROM_BIT[lo & 31]
+        mask[np.arange(S), span] &= _TO_BIT[hi & 31]
+        seg = stacked[:, np.minimum(cols, stacked.shape[1] - 1)] & mask  # (M, S, n_words)
+    r = strings.words(index.reshape(-1), np.repeat(first, k), n_words).reshape(S, k, n_words)
+    counts = np.bitwise_count(r[None, :, :, :] & seg[:, :, None, :]).sum(axis=-1, dtype=np.int64)
+    return list((counts & 1).astype(np.uint8))
 
 
 @dataclass
