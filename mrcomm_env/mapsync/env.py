@@ -4,9 +4,9 @@
 | --- | --- |
 | Agents | `n_robots` robots `robot_0 … robot_{N-1}` (2 by default: Alice and Bob) |
 | Actions | `Discrete(5)` per robot: 0 idle, 1 `equality` (Protocol 1), 2 `bisection` (Algorithm 1), 3 `full`, 4 `sketch` |
-| Observations | `Box(0, 1, (4(N−1) + 5,))`: per peer (in the order i+1, i+2, … mod N) steps since the last sync `s/(s+10)`, cells newly learned since then `c/(c+10)`, link up now, result of the last test (0 none, ½ same, 1 different); then my recent bits `b/(b+n)` (EWMA), my map coverage, busy, progress of my session, `t / max_cycles` |
+| Observations | `Box(0, 1, (4(N−1) + 5,))`: per peer (in the order i+1, i+2, … mod N) steps since our maps were last made equal `s/(s+10)`, cells whose bit my own sensing changed since then `c/(c+10)`, link up now, result of the last test (0 none, ½ same, 1 different); then my recent bits `b/(b+n)` (EWMA), my map coverage, busy, progress of my session, `t / max_cycles` |
 | Reward | team reward `−(mean normalised Hamming disagreement over pairs) − lam · (team bits this step) / (n · N)` |
-| Arguments | `preset`, `grid_size`, `n_obstacles`, `n_robots`, `k`, `res`, `bits_per_step`, `appear_rate`, `vanish_rate`, `lam`, `max_cycles`, `comm_range`, `link_prob`, `explicit_database` |
+| Arguments | `preset`, `grid_size`, `n_obstacles`, `n_robots`, `k`, `res`, `bits_per_step`, `appear_rate`, `vanish_rate`, `lam`, `max_cycles`, `comm_range`, `link_prob`, `database_seed`, `explicit_database` |
 
 **World** (§III, §V-C). A `grid_size²` 4-connected grid; robots random-walk and, on entering a cell, sense it
 and its 4-neighbours. Each map is a bit vector of n = `grid_size²` cells (1 = obstacle, 0 = free or unknown).
@@ -23,8 +23,8 @@ is never stale, so the rule reduces to OR and no stamp is sent.
 
 **Syncs.** A robot's action asks for a sync with the linked peer it synced with least recently; a sync needs
 a link (core link models: always in range by default, `comm_range` for disk links, `link_prob` for random
-drops). If both ends ask, one sync runs, run by the lower index (Alice) with her protocol. The requester is
-Alice: she runs the protocol as client (:mod:`protocol`); for `bisection`, `full` and `sketch` Bob then
+drops). The requester is Alice; if both ends ask, one sync runs, with the lower index as Alice and her
+protocol. Alice runs the protocol as client (:mod:`protocol`); for `bisection`, `full` and `sketch` Bob then
 tells her which cells differ (an enumerative code, :func:`protocol.return_bits`) and the merge applies to
 both. The protocol computes on the maps as they were when the sync started; its result is merged into the
 maps when its last bit arrives. A link carries at most `bits_per_step` bits per step (both directions), so a
@@ -277,6 +277,8 @@ class MapSyncEnv(MrcommParallelEnv):
         #: (step, alice, bob, protocol) of every equality test that found a difference (Fig. 7's list)
         self.detections: list[tuple[int, int, int, str]] = []
         self.known = np.zeros(N, dtype=np.int64)
+        self._events = 0  # counts changes of anything the observation shows besides the clock
+        self._events_seen = -1
         self._dirty = True
         self._sense(0)
         self._update_disagreement()
@@ -302,6 +304,7 @@ class MapSyncEnv(MrcommParallelEnv):
             self._recent_any = bool(self.recent_bits.max() > 1e-6 * self.n)
             if not self._recent_any:
                 self.recent_bits[:] = 0.0
+                self._events += 1
         self._steps += 1
         self._sum_disagreement += self._disagreement_mean
         self._sum_error += self._error_mean
@@ -337,12 +340,14 @@ class MapSyncEnv(MrcommParallelEnv):
         unseen = self.stamps[rows, cells] < 0
         if unseen.any():
             self.known += np.count_nonzero(unseen & self._sensed_distinct[self.pos], axis=1)
+            self._events += 1
         if changed.any():
             # own sensing changed these cells: new since the last sync with every peer
             self.new_cells += np.count_nonzero(changed & self._sensed_distinct[self.pos], axis=1)[:, None]
             np.fill_diagonal(self.new_cells, 0)
             self.maps[rows, cells] = seen
             self._dirty = True
+            self._events += 1
         self.stamps[rows, cells] = stamp
 
     def _update_disagreement(self) -> None:
@@ -411,6 +416,7 @@ class MapSyncEnv(MrcommParallelEnv):
         session = Session(a, b, name, t, messages, outcome, snapshot, 0, sum(bits for _, bits in messages))
         self.sessions[nonce] = session
         self.session_of[[a, b]] = nonce
+        self._events += 1
 
     def _progress_sessions(self, t: int) -> None:
         cap = self.cfg.bits_per_step
@@ -444,6 +450,7 @@ class MapSyncEnv(MrcommParallelEnv):
     def _close(self, key: int) -> None:
         s = self.sessions.pop(key)
         self.session_of[[s.alice, s.bob]] = -1
+        self._events += 1
 
     def _complete(self, s: Session, t: int) -> None:
         a, b = s.alice, s.bob
@@ -521,19 +528,22 @@ class MapSyncEnv(MrcommParallelEnv):
         out = self._obs_buf
         per_peer = out[:, : 4 * (N - 1)].reshape(N, N - 1, 4)
         steps = self.step_count - self.last_sync.take(flat)
-        new = self.new_cells.take(flat)
         per_peer[..., 0] = steps / (steps + 10.0)
+        own = out[:, 4 * (N - 1) :]
+        own[:, 4] = min(self.step_count / self._horizon, 1.0)
+        if self._events == self._events_seen and self._static_links and not self._recent_any and not self.sessions:
+            return out.copy()  # only the clock moved
+        self._events_seen = self._events
+        new = self.new_cells.take(flat)
         per_peer[..., 1] = new / (new + 10.0)
         per_peer[..., 2] = self.linked.take(flat)
         per_peer[..., 3] = _TEST_CODE.take(self.last_test.take(flat) + 1)
-        own = out[:, 4 * (N - 1) :]
         own[:, 0] = self.recent_bits / (self.recent_bits + self.n)
         own[:, 1] = self.known / self.n
         own[:, 2] = self.session_of >= 0
         own[:, 3] = 0.0
         for s in self.sessions.values():
             own[[s.alice, s.bob], 3] = s.sent / max(s.total, 1)
-        own[:, 4] = min(self.step_count / self._horizon, 1.0)
         return out.copy()
 
     def _agent_infos(self) -> dict:
