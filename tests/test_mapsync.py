@@ -404,3 +404,35 @@ def test_separate_test_variant_runs_bisection_only_after_a_difference():
     for step, kind in kinds:
         if kind == "bisection":
             assert (step - 1, "equality") in kinds
+
+
+# ------------------------------------------------------------------------------------------------ compiled twin
+@pytest.mark.parametrize("n", [16, 45, 77, 256, 1024, 4096])
+@pytest.mark.parametrize("cached", [False, True])
+def test_compiled_inner_products_equal_the_numpy_reference(n, cached):
+    kernels = pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    rng = np.random.default_rng(n)
+    strings = SharedStrings(n, 42, cache=cached)
+    maps = [proto.pack(rng.random(n) < 0.5), proto.pack(rng.random(n) < 0.5)]
+    index = rng.integers(0, strings.size, (15, 4))
+    lo = rng.integers(0, n, 15)
+    hi = np.minimum(n - 1, lo + rng.integers(0, n, 15))
+    lo[0], hi[0] = 0, n - 1
+    database = strings.database if cached and strings.database is not None else np.zeros((1, 1), np.uint32)
+    compiled = kernels.inner_products(
+        np.stack(maps),
+        database,
+        strings.database is not None,
+        strings.key[0],
+        strings.key[1],
+        0,
+        strings.words_per_string,
+        int(strings._last_mask),
+        index,
+        lo,
+        hi,
+        proto._FROM_BIT,
+        proto._TO_BIT,
+    )
+    reference = proto._inner_products_numpy(maps, strings, index, lo, hi)
+    assert all(np.array_equal(c, r) for c, r in zip(compiled, reference))

@@ -279,6 +279,8 @@ class MapSyncEnv(MrcommParallelEnv):
         self.known = np.zeros(N, dtype=np.int64)
         self._events = 0  # counts changes of anything the observation shows besides the clock
         self._events_seen = -1
+        self._map_version = 0
+        self._infos_key = None
         self._dirty = True
         self._sense(0)
         self._update_disagreement()
@@ -354,6 +356,7 @@ class MapSyncEnv(MrcommParallelEnv):
         if not self._dirty:
             return
         self._dirty = False
+        self._map_version += 1
         maps = self.maps.astype(np.float64)
         ones = maps.sum(axis=1)
         ham = (ones[:, None] + ones[None, :] - 2.0 * (maps @ maps.T)) / self.n
@@ -547,15 +550,20 @@ class MapSyncEnv(MrcommParallelEnv):
         return out.copy()
 
     def _agent_infos(self) -> dict:
+        key = (self._events, self._map_version)
+        if key == self._infos_key and not self.ledger.step_bits.any() and not self._infos_cache["bits_sent"].any():
+            return self._infos_cache  # nothing the infos show has changed since the last call
         N = self.n_agents
-        return {
-            "bits_sent": self.ledger.step_bits,
+        self._infos_key = key
+        self._infos_cache = {
+            "bits_sent": self.ledger.step_bits.copy(),
             "disagreement": self._hamming.sum(axis=1) / (N - 1),
             "error_vs_truth": self._errors,
             "coverage": self.known / self.n,
             "busy": (self.session_of >= 0).astype(np.float64),
-            "syncs": self.robot_syncs,
+            "syncs": self.robot_syncs.copy(),
         }
+        return self._infos_cache
 
     def metrics(self) -> dict[str, float]:
         steps = max(self._steps, 1)

@@ -36,8 +36,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mrcomm_env.core import backend
 from mrcomm_env.mapsync import pinsketch, theory
-from mrcomm_env.mapsync.philox import DOMAIN_PARITY, SharedStrings, seed_key, stream_words
+from mrcomm_env.mapsync.philox import DOMAIN_DATABASE, DOMAIN_PARITY, SharedStrings, seed_key, stream_words
 
 PROTOCOLS = ("equality", "bisection", "full", "sketch")
 STEP4_RULES = ("fixed", "as_printed")
@@ -84,6 +85,32 @@ def segment_inner_products(
     lo = np.asarray(lo, dtype=np.int64)
     hi = np.asarray(hi, dtype=np.int64)
     index = np.asarray(index, dtype=np.int64)
+    if backend.compiled():
+        from mrcomm_env.mapsync import kernels_numba
+
+        use_db = strings.database is not None
+        database = strings.database if use_db else np.zeros((1, 1), np.uint32)
+        out = kernels_numba.inner_products(
+            np.stack(maps),
+            database,
+            use_db,
+            strings.key[0],
+            strings.key[1],
+            DOMAIN_DATABASE,
+            strings.words_per_string,
+            int(strings._last_mask),
+            index,
+            lo,
+            hi,
+            _FROM_BIT,
+            _TO_BIT,
+        )
+        return list(out)
+    return _inner_products_numpy(maps, strings, index, lo, hi)
+
+
+def _inner_products_numpy(maps, strings, index, lo, hi) -> list[np.ndarray]:
+    """The numpy reference of :func:`segment_inner_products` (the compiled twin: ``kernels_numba``)."""
     first, last = lo >> 5, hi >> 5
     span = last - first
     n_words = int(span.max()) + 1
@@ -193,12 +220,13 @@ def bisection(
         length = hi - lo + 1
         leaf = length <= res
         if leaf.any():  # lines 2–6, EQUALLINEAR: Alice sends her bits of the segment, Bob compares
-            for a, b in zip(lo[leaf].tolist(), hi[leaf].tolist()):
-                seg = np.flatnonzero(x[a : b + 1] != y[a : b + 1])
-                if seg.size:
-                    found.append(seg + a)
-                compared += b - a + 1
-            alice += int(length[leaf].sum())
+            leaf_lo, leaf_hi = lo[leaf], hi[leaf]
+            holding = differs[leaf_hi + 1] - differs[leaf_lo] > 0  # Bob's comparison finds these
+            for a, b in zip(leaf_lo[holding].tolist(), leaf_hi[holding].tolist()):
+                found.append(np.flatnonzero(x[a : b + 1] != y[a : b + 1]) + a)
+            leaf_bits = int(length[leaf].sum())
+            compared += leaf_bits
+            alice += leaf_bits
             if detected is None:
                 detected = bool(found)
         inner_lo, inner_hi = lo[~leaf], hi[~leaf]

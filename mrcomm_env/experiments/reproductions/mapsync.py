@@ -301,7 +301,9 @@ def fig3(out: Path, quick: bool, progress) -> tuple[str, dict]:
         f"| | paper | ours |\n| --- | --- | --- |\n| n = 1024, k = 7 | 3.17 s | {ours * 1e3:.3f} ms |\n"
         f"| n = 16 (fastest) | 0.04 s | {ours16 * 1e3:.3f} ms |"
     )
-    return text, {"protocol1_n1024_k7_s": ours, "protocol1_n16_min_s": ours16}
+    from mrcomm_env.core import backend
+
+    return text, {"protocol1_n1024_k7_s": ours, "protocol1_n16_min_s": ours16, "backend": backend.name()}
 
 
 # ----------------------------------------------------------------------------------------------- Figs 4–6
@@ -581,7 +583,8 @@ fixed rule.
 
 {f3}
 
-Vectorised GF(2) inner products on bit-packed words, r_i generated on demand (no database, no cache).
+GF(2) inner products on bit-packed words (popcount), r_i generated on demand (no database, no cache); inner
+loop: {f3_info["backend"]} (`MRCOMM_BACKEND`).
 
 ## Figs 4–6: differences corrected by Algorithm 1 (res = 1)
 
