@@ -436,3 +436,18 @@ def test_compiled_inner_products_equal_the_numpy_reference(n, cached):
     )
     reference = proto._inner_products_numpy(maps, strings, index, lo, hi)
     assert all(np.array_equal(c, r) for c, r in zip(compiled, reference))
+
+
+def test_whole_episodes_are_identical_on_both_backends(monkeypatch):
+    pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    import types
+
+    def episode(compiled):
+        monkeypatch.setattr(proto, "backend", types.SimpleNamespace(compiled=lambda: compiled))
+        env = mrcomm_env.make("MapSync-v0", preset="paper", max_cycles=120)
+        metrics = run_episode(env, make_policy("MapSync-v0", "random"), seed=17)
+        return metrics, env.detections, env.maps.copy()
+
+    numpy_run, compiled_run = episode(False), episode(True)
+    assert numpy_run[0] == compiled_run[0] and numpy_run[1] == compiled_run[1]
+    assert np.array_equal(numpy_run[2], compiled_run[2])
