@@ -116,7 +116,8 @@ class SharedStrings:
                     f"argument 'explicit' needs {self.size * self.n / 8e6:.0f} MB for 100n strings of n = {self.n} bits; "
                     f"allowed up to {MAX_EXPLICIT_BITS / 8e6:.0f} MB (use the on-demand generator)"
                 )
-            self.database = self._generate(np.arange(self.size), np.zeros(self.size, np.int64), self.words_per_string)
+            # materialised once per process and (n, seed): an env resets without regenerating 100n strings
+            self.database = _cached_database(self.n, int(seed), self.size)
         elif cache and self.size * self.n <= CACHE_BITS:
             # the same strings, generated once per process and (n, seed): a speed-up for small maps only
             self.database = _cached_database(self.n, int(seed), self.size)
@@ -149,7 +150,7 @@ class SharedStrings:
         return np.unpackbits(words.view(np.uint8), bitorder="little")[: self.n].astype(bool)
 
 
-@lru_cache(maxsize=4)
+@lru_cache(maxsize=8)
 def _cached_database(n: int, seed: int, size: int) -> np.ndarray:
     words = SharedStrings(n, seed, size)._generate(np.arange(size), np.zeros(size, np.int64), (n + 31) // 32)
     words.flags.writeable = False

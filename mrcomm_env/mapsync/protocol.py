@@ -17,13 +17,15 @@ where the two maps differ. Its result carries Alice's and Bob's bits separately.
 * :func:`full` — Alice sends all n bits.
 * :func:`sketch` — beyond the paper: a streaming PinSketch (:mod:`pinsketch`). Alice first sends ``v``
   public-coin parity bits of her map (fresh random strings from the shared seed and a session nonce both
-  robots know, so no index is sent) and her bit of cell 0 (cells 1 … n−1 are the field elements). Then she
+  robots know, so no index is sent; v = :func:`sketch_verify_bits`) and her bit of cell 0 (cells 1 … n−1 are the field elements). Then she
   streams odd syndromes of GF(2^m), m = ⌈log2 n⌉, one at a time; after each, Bob decodes the XOR with his own
   and checks the candidate map against the parities; when it passes he sends one *stop* bit. The number of
   differences is never sent or guessed: the stream is rateless and stops at the first syndrome that decodes,
   so the estimation cost is the stop bit and the parities. A wrong candidate passes the parities with
-  probability 2^−v (one-sided, like Protocol 1). If ``v + 1 + t·m`` would reach ``n``, Alice sends her map
-  instead. *Timing assumption*: Alice waits for a possible stop after each syndrome, so a link's round trip
+  probability 2^−v; Bob then keeps a wrong map (one-sided, like Protocol 1; about 1.7·2^−v per run, d ≥ 2). If ``v + 1 + t·m`` would reach ``n``, Alice sends her map
+  instead. Bits to agreement stay within 2 log2 C(n, d) for n ≥ 1024 and d ≤ 64 except just above a power of
+  two (n ∈ [1025, 1204] at d near 64: up to 2.09×), where the field gains a bit while log2 C(n, d)/d does
+  not. *Timing assumption*: Alice waits for a possible stop after each syndrome, so a link's round trip
   is short against a step; ``strict_feedback=True`` instead charges Bob one continue/stop bit per syndrome.
 
 :func:`return_bits` is the cost of the way back (Bob tells Alice the differing cells) that two-way
@@ -32,6 +34,7 @@ merging in the env adds.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -43,8 +46,21 @@ from mrcomm_env.mapsync.philox import DOMAIN_DATABASE, DOMAIN_PARITY, SharedStri
 PROTOCOLS = ("equality", "bisection", "full", "sketch")
 STEP4_RULES = ("fixed", "as_printed")
 
-#: parity bits a sketch candidate is verified against (false acceptance ≤ 2^−v per candidate)
-SKETCH_VERIFY_BITS = 8
+#: parity bits a sketch candidate is verified against below n = 1024 (a wrong candidate passes w.p. 2^−v)
+SKETCH_VERIFY_SMALL = 8
+
+
+def sketch_verify_bits(n: int) -> int:
+    """Parity bits v of the sketch: from n = 1024 on, as many as keep one difference within 2 log2 n bits.
+
+    One difference costs m (one syndrome) + 1 (cell 0) + v + 1 (stop) bits, so v = ⌊2 log2 n⌋ − m − 2: 8 at
+    n = 1024, 10 at 4096, 14 at 65536 (7 just above a power of two, where m jumps); 8 below n = 1024. With d ≥ 2 the decoder meets
+    wrong candidates before the right one, mostly at the first syndrome; the chance that one passes is about
+    (1 + 1/2 + 1/6 + …)·2^−v ≈ 1.7·2^−v per reconciliation — a one-sided error like Protocol 1's 2^−k.
+    """
+    if n < 1024:
+        return SKETCH_VERIFY_SMALL
+    return math.floor(2 * math.log2(n)) - pinsketch.field_bits(n) - 2
 
 
 def check_protocol(name: str) -> str:
@@ -281,12 +297,14 @@ def sketch(
     y: np.ndarray,
     seed: int,
     nonce: int,
-    verify_bits: int = SKETCH_VERIFY_BITS,
+    verify_bits: int | None = None,
     strict_feedback: bool = False,
     block: int = 8,
 ) -> Reconciliation:
     """Streaming PinSketch with parity verification (see the module docstring); Bob learns the difference."""
     n = check_n(len(x))
+    if verify_bits is None:
+        verify_bits = sketch_verify_bits(n)
     if verify_bits < 1:
         raise ValueError(f"argument 'verify_bits' must be an integer ≥ 1, got {verify_bits!r}")
     x = np.asarray(x, dtype=bool)

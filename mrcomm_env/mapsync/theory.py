@@ -90,7 +90,7 @@ def log2_binomial(n: int, d: int) -> float:
     """log2 C(n, d): the bits Bob needs to learn Alice's map when he knows his own and that d cells differ."""
     if d < 0 or d > n:
         return math.nan
-    return (math.lgamma(n + 1) - math.lgamma(d + 1) - math.lgamma(n - d + 1)) / math.log(2.0)
+    return math.log2(math.comb(n, d))  # exact big integer first: lgamma loses the last bits (log2 4096 ≠ 12)
 
 
 def ceil_log2_binomial(n: int, d: int) -> int:
