@@ -22,7 +22,7 @@ where the two maps differ. Its result carries Alice's and Bob's bits separately.
   and checks the candidate map against the parities; when it passes he sends one *stop* bit. The number of
   differences is never sent or guessed: the stream is rateless and stops at the first syndrome that decodes,
   so the estimation cost is the stop bit and the parities. A wrong candidate passes the parities with
-  probability 2^−v; Bob then keeps a wrong map (one-sided, like Protocol 1; about 1.7·2^−v per run, d ≥ 2). If ``v + 1 + t·m`` would reach ``n``, Alice sends her map
+  probability 2^−v; Bob then keeps a wrong map (one-sided, like Protocol 1; at most about e·2^−v per run). If ``v + 1 + t·m`` would reach ``n``, Alice sends her map
   instead. Bits to agreement stay within 2 log2 C(n, d) for n ≥ 1024 and d ≤ 64 except just above a power of
   two (n ∈ [1025, 1204] at d near 64: up to 2.09×), where the field gains a bit while log2 C(n, d)/d does
   not. *Timing assumption*: Alice waits for a possible stop after each syndrome, so a link's round trip
@@ -54,9 +54,11 @@ def sketch_verify_bits(n: int) -> int:
     """Parity bits v of the sketch: from n = 1024 on, as many as keep one difference within 2 log2 n bits.
 
     One difference costs m (one syndrome) + 1 (cell 0) + v + 1 (stop) bits, so v = ⌊2 log2 n⌋ − m − 2: 8 at
-    n = 1024, 10 at 4096, 14 at 65536 (7 just above a power of two, where m jumps); 8 below n = 1024. With d ≥ 2 the decoder meets
-    wrong candidates before the right one, mostly at the first syndrome; the chance that one passes is about
-    (1 + 1/2 + 1/6 + …)·2^−v ≈ 1.7·2^−v per reconciliation — a one-sided error like Protocol 1's 2^−k.
+    n = 1024, 10 at 4096, 14 at 65536 (7 just above a power of two, where m jumps); 8 below n = 1024. With d ≥ 2 the
+    decoder meets wrong candidates before the right one: "no difference" before the first syndrome, the one root
+    of the first, and after t syndromes a wrong locator splits into valid roots with probability about 1/t!, so
+    one passes with probability about (1 + 1 + 1/2 + 1/6 + …)·2^−v ≤ e·2^−v per reconciliation (2·2^−v at
+    d = 2) — a one-sided error like Protocol 1's 2^−k.
     """
     if n < 1024:
         return SKETCH_VERIFY_SMALL
