@@ -456,3 +456,26 @@ def test_whole_episodes_are_identical_on_both_backends(monkeypatch):
     numpy_run, compiled_run = episode(False), episode(True)
     assert numpy_run[0] == compiled_run[0] and numpy_run[1] == compiled_run[1]
     assert np.array_equal(numpy_run[2], compiled_run[2])
+
+
+@pytest.mark.parametrize(
+    "cfg",
+    [
+        {},
+        {"n_robots": 3, "bits_per_step": 50},
+        {"appear_rate": 0.01, "vanish_rate": 0.05},
+        {"n_robots": 4, "comm_range": 5.0, "link_prob": 0.7, "bits_per_step": 30},
+    ],
+)
+def test_incremental_observation_and_infos_equal_a_full_recompute(cfg):
+    env = MapSyncEnv(**cfg)
+    env.reset(seed=1)
+    rng = np.random.default_rng(0)
+    while env.agents:
+        actions = {a: int(rng.integers(1, 5)) if rng.random() < 0.05 else IDLE for a in env.agents}
+        obs, _, _, _, infos = env.step(actions)
+        if not env.agents:
+            break
+        env._stale, env._infos_key = 31, None  # forget every cache
+        assert np.array_equal(np.stack(list(obs.values())), env._observe())
+        assert infos == env._infos()

@@ -55,6 +55,9 @@ ACTIONS = ("idle", "equality", "bisection", "full", "sketch")
 IDLE, EQUALITY, BISECTION, FULL, SKETCH = range(5)
 TEST_NONE, TEST_SAME, TEST_DIFFERENT = -1, 1, 0  # last_test: Protocol 1's return values, −1 = no test yet
 _TEST_CODE = np.array([0.0, 1.0, 0.5])  # observation of last_test + 1: none 0, different 1, same ½
+# parts of the observation recomputed only after they change (the clock columns are updated every step)
+_STALE_NEW, _STALE_LINKS, _STALE_SESSIONS, _STALE_RECENT, _STALE_KNOWN = 1, 2, 4, 8, 16
+_STALE_ALL = 31
 
 
 @dataclass
@@ -233,7 +236,7 @@ class MapSyncEnv(MrcommParallelEnv):
         self._peer_order = np.array([[(i + o) % N for o in range(1, N)] for i in range(N)], dtype=np.int64)
         self._eye = np.eye(N, dtype=bool)
         self._pairs = np.triu_indices(N, 1)
-        self._sense_rows = np.repeat(np.arange(N)[:, None], 5, axis=1)
+        self._row_offsets = np.arange(N)[:, None] * self.n  # row i of the flattened (N, n) maps starts at i·n
         self._peer_flat = np.arange(N)[:, None] * N + self._peer_order  # (N, N−1) flat (i, j) of each peer slot
         self._horizon = c.max_cycles
         self._obs_buf = np.zeros((N, 4 * (N - 1) + 5), dtype=np.float32)
@@ -278,7 +281,7 @@ class MapSyncEnv(MrcommParallelEnv):
         self.detections: list[tuple[int, int, int, str]] = []
         self.known = np.zeros(N, dtype=np.int64)
         self._events = 0  # counts changes of anything the observation shows besides the clock
-        self._events_seen = -1
+        self._stale = _STALE_ALL  # which parts of the observation must be recomputed
         self._map_version = 0
         self._infos_key = None
         self._dirty = True
@@ -307,6 +310,7 @@ class MapSyncEnv(MrcommParallelEnv):
             if not self._recent_any:
                 self.recent_bits[:] = 0.0
                 self._events += 1
+                self._stale |= _STALE_RECENT
         self._steps += 1
         self._sum_disagreement += self._disagreement_mean
         self._sum_error += self._error_mean
@@ -335,22 +339,25 @@ class MapSyncEnv(MrcommParallelEnv):
         truth[vanish] = False
 
     def _sense(self, stamp: int) -> None:
-        cells = self._sensed[self.pos]  # (N, 5): off-grid neighbours repeat the own cell (same value and stamp)
-        rows = self._sense_rows
-        seen = self.truth[cells]
-        changed = self.maps[rows, cells] != seen
-        unseen = self.stamps[rows, cells] < 0
+        cells = self._sensed.take(self.pos, axis=0)  # (N, 5): off-grid neighbours repeat the own cell
+        flat = cells + self._row_offsets  # into the flattened (N, n) maps and stamps
+        seen = self.truth.take(cells)
+        maps, stamps = self.maps.reshape(-1), self.stamps.reshape(-1)
+        changed = maps.take(flat) != seen
+        unseen = stamps.take(flat) < 0
         if unseen.any():
-            self.known += np.count_nonzero(unseen & self._sensed_distinct[self.pos], axis=1)
+            self.known += np.count_nonzero(unseen & self._sensed_distinct.take(self.pos, axis=0), axis=1)
             self._events += 1
+            self._stale |= _STALE_KNOWN
         if changed.any():
             # own sensing changed these cells: new since the last sync with every peer
-            self.new_cells += np.count_nonzero(changed & self._sensed_distinct[self.pos], axis=1)[:, None]
+            self.new_cells += np.count_nonzero(changed & self._sensed_distinct.take(self.pos, axis=0), axis=1)[:, None]
             np.fill_diagonal(self.new_cells, 0)
-            self.maps[rows, cells] = seen
+            maps.put(flat, seen)
             self._dirty = True
             self._events += 1
-        self.stamps[rows, cells] = stamp
+            self._stale |= _STALE_NEW
+        stamps.put(flat, stamp)
 
     def _update_disagreement(self) -> None:
         if not self._dirty:
@@ -420,6 +427,7 @@ class MapSyncEnv(MrcommParallelEnv):
         self.sessions[nonce] = session
         self.session_of[[a, b]] = nonce
         self._events += 1
+        self._stale |= _STALE_SESSIONS
 
     def _progress_sessions(self, t: int) -> None:
         cap = self.cfg.bits_per_step
@@ -454,6 +462,7 @@ class MapSyncEnv(MrcommParallelEnv):
         s = self.sessions.pop(key)
         self.session_of[[s.alice, s.bob]] = -1
         self._events += 1
+        self._stale |= _STALE_SESSIONS | _STALE_NEW | _STALE_KNOWN
 
     def _complete(self, s: Session, t: int) -> None:
         a, b = s.alice, s.bob
@@ -534,19 +543,31 @@ class MapSyncEnv(MrcommParallelEnv):
         per_peer[..., 0] = steps / (steps + 10.0)
         own = out[:, 4 * (N - 1) :]
         own[:, 4] = min(self.step_count / self._horizon, 1.0)
-        if self._events == self._events_seen and self._static_links and not self._recent_any and not self.sessions:
+        stale = self._stale
+        if self.sessions:
+            stale |= _STALE_SESSIONS
+        if self._recent_any:
+            stale |= _STALE_RECENT
+        if not self._static_links:
+            stale |= _STALE_LINKS
+        self._stale = 0
+        if not stale:
             return out.copy()  # only the clock moved
-        self._events_seen = self._events
-        new = self.new_cells.take(flat)
-        per_peer[..., 1] = new / (new + 10.0)
-        per_peer[..., 2] = self.linked.take(flat)
-        per_peer[..., 3] = _TEST_CODE.take(self.last_test.take(flat) + 1)
-        own[:, 0] = self.recent_bits / (self.recent_bits + self.n)
-        own[:, 1] = self.known / self.n
-        own[:, 2] = self.session_of >= 0
-        own[:, 3] = 0.0
-        for s in self.sessions.values():
-            own[[s.alice, s.bob], 3] = s.sent / max(s.total, 1)
+        if stale & _STALE_NEW:
+            new = self.new_cells.take(flat)
+            per_peer[..., 1] = new / (new + 10.0)
+        if stale & _STALE_LINKS:
+            per_peer[..., 2] = self.linked.take(flat)
+        if stale & _STALE_SESSIONS:  # a sync ended: verdicts, busy flags, progress (and counters reset)
+            per_peer[..., 3] = _TEST_CODE.take(self.last_test.take(flat) + 1)
+            own[:, 2] = self.session_of >= 0
+            own[:, 3] = 0.0
+            for s in self.sessions.values():
+                own[[s.alice, s.bob], 3] = s.sent / max(s.total, 1)
+        if stale & _STALE_RECENT:
+            own[:, 0] = self.recent_bits / (self.recent_bits + self.n)
+        if stale & _STALE_KNOWN:
+            own[:, 1] = self.known / self.n
         return out.copy()
 
     def _agent_infos(self) -> dict:
