@@ -32,6 +32,9 @@ ENTRIES: dict[str, EnvEntry] = {
         "baselines.channel_association",
         "mrcomm_env.experiments.reproductions.channel_association",
     ),
+    "mrcomm/MapSync-v0": EnvEntry(
+        "mrcomm_env.mapsync_v0", "baselines.mapsync", "mrcomm_env.experiments.reproductions.mapsync"
+    ),
     "mrcomm/MultiHop-v0": EnvEntry(
         "mrcomm_env.multihop_v0", "baselines.multihop", "mrcomm_env.experiments.reproductions.multihop"
     ),

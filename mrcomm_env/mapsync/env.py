@@ -1,0 +1,620 @@
+"""MapSync-v0: keeping occupancy maps in agreement over a narrow channel (Alsayegh et al., paper 002).
+
+| | |
+| --- | --- |
+| Agents | `n_robots` robots `robot_0 … robot_{N-1}` (2 by default: Alice and Bob) |
+| Actions | `Discrete(5)` per robot: 0 idle, 1 `equality` (Protocol 1), 2 `bisection` (Algorithm 1), 3 `full`, 4 `sketch` |
+| Observations | `Box(0, 1, (4(N−1) + 5,))`: per peer (in the order i+1, i+2, … mod N) steps since our maps were last made equal `s/(s+10)`, cells whose bit my own sensing changed since then `c/(c+10)`, link up now, result of the last test (0 none, ½ same, 1 different); then my recent bits `b/(b+n)` (EWMA), my map coverage, busy, progress of my session, `t / max_cycles` |
+| Reward | team reward `−(mean normalised Hamming disagreement over pairs) − lam · (team bits this step) / (n · N)` |
+| Arguments | `preset`, `grid_size`, `n_obstacles`, `n_robots`, `k`, `res`, `bits_per_step`, `appear_rate`, `vanish_rate`, `lam`, `max_cycles`, `comm_range`, `link_prob`, `database_seed`, `explicit_database` |
+
+**World** (§III, §V-C). A `grid_size²` 4-connected grid; robots random-walk and, on entering a cell, sense it
+and its 4-neighbours. Each map is a bit vector of n = `grid_size²` cells (1 = obstacle, 0 = free or unknown).
+Preset `paper` is Fig. 7: obstacles at (12,15), (6,13), (6,9), (3,15), (12,3), (12,13), (5,5), (13,7), (14,1),
+(6,5), Alice (`robot_0`) at (11,7), Bob (`robot_1`) at (3,7), 200 steps, k = 10.
+
+**Changing world and the merge rule.** Obstacles appear on free unoccupied cells at `appear_rate` and vanish
+at `vanish_rate` per cell and step. Every robot stamps each cell with the step it last observed it. A sync
+merges *last-writer-wins*: for each cell found to differ, the value with the newer stamp wins, so two maps
+that sync agree on every reconciled cell, and gossip converges to each cell's latest observation (a
+join-semilattice: commutative, associative, idempotent). The stamps of the differing cells are sent both
+ways, ⌈log2(max_cycles + 2)⌉ bits each, and counted. When nothing vanishes (`vanish_rate = 0`, the paper) a 1
+is never stale, so the rule reduces to OR and no stamp is sent.
+
+**Syncs.** A robot's action asks for a sync with the linked peer it synced with least recently; a sync needs
+a link (core link models: always in range by default, `comm_range` for disk links, `link_prob` for random
+drops). The requester is Alice; if both ends ask, one sync runs, with the lower index as Alice and her
+protocol. Alice runs the protocol as client (:mod:`protocol`); for `bisection`, `full` and `sketch` Bob then
+tells her which cells differ (an enumerative code, :func:`protocol.return_bits`) and the merge applies to
+both. The protocol computes on the maps as they were when the sync started; its result is merged into the
+maps when its last bit arrives. A link carries at most `bits_per_step` bits per step (both directions), so a
+long protocol spans several steps; its latency is counted, and a sync whose link breaks is aborted (bits
+spent, nothing merged). A robot in a sync cannot start another. Round trips are taken to be short against a
+step. Bits are charged to the robot that sends them (`core.BitLedger`).
+
+**Reward scale.** `lam` is the price of n bits per robot: a step in which the team sends one map's worth of
+bits per robot costs `lam`, the same as disagreeing on every cell. The per-step reward lies in
+[−1 − lam · bits/(nN), 0] and is O(1) for any protocol mix.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from gymnasium import spaces
+
+from mrcomm_env.core import BitLedger, MrcommParallelEnv, bernoulli_links, disk_links
+from mrcomm_env.core.config import Bool, Choice, Int, Optional, Param, Real
+from mrcomm_env.mapsync import protocol as proto
+from mrcomm_env.mapsync import world
+from mrcomm_env.mapsync.philox import SharedStrings
+
+ACTIONS = ("idle", "equality", "bisection", "full", "sketch")
+IDLE, EQUALITY, BISECTION, FULL, SKETCH = range(5)
+TEST_NONE, TEST_SAME, TEST_DIFFERENT = -1, 1, 0  # last_test: Protocol 1's return values, −1 = no test yet
+_TEST_CODE = np.array([0.0, 1.0, 0.5])  # observation of last_test + 1: none 0, different 1, same ½
+# parts of the observation recomputed only after they change (the clock columns are updated every step)
+_STALE_NEW, _STALE_LINKS, _STALE_SESSIONS, _STALE_RECENT, _STALE_KNOWN = 1, 2, 4, 8, 16
+_STALE_ALL = 31
+
+
+@dataclass
+class Session:
+    """One sync between Alice (the requester) and Bob, in flight over their link."""
+
+    alice: int
+    bob: int
+    protocol: str
+    start_step: int
+    messages: list  #: [(sender, bits)] in the order they are sent
+    outcome: object  #: EqualityResult or Reconciliation, computed on the maps at the start
+    snapshot: dict = field(default_factory=dict)
+    sent: int = 0  #: bits delivered so far
+    total: int = 0
+
+
+class MapSyncEnv(MrcommParallelEnv):
+    ENV_ID = "mrcomm/MapSync-v0"
+    DESCRIPTION = (
+        "When and how robots reconcile occupancy maps over a narrow channel (equality test, bisection, sketch)"
+    )
+    metadata = {"name": "mapsync_v0", "render_modes": ["rgb_array", "human"], "render_fps": 10}
+    PARAMS = {
+        "preset": Param(
+            "random",
+            "`random`: obstacles and starts drawn per episode; `paper`: Fig. 7's layout "
+            "(needs grid_size 16, n_robots 2, n_obstacles 10)",
+            Choice(("random", "paper")),
+        ),
+        "grid_size": Param(
+            world.PAPER_GRID,
+            "side of the square 4-connected grid; n = grid_size² map bits",
+            Int(lo=2, hi=256, fuzz=(2, 12)),
+        ),
+        "n_obstacles": Param(10, "obstacles at the start (at most grid_size² − 1)", Int(lo=0, fuzz=(0, 12))),
+        "n_robots": Param(2, "number of robots", Int(lo=2, hi=64, fuzz=(2, 5))),
+        "k": Param(
+            world.PAPER_K,
+            "Protocol 1 rounds (one-sided error ≤ 2^−k, Prop. 2); the case study's k = 10",
+            Int(lo=1, hi=64, fuzz=(1, 12)),
+        ),
+        "res": Param(
+            1,
+            "Algorithm 1's resolution: segments of at most res cells are compared bit by bit",
+            Int(lo=1, fuzz=(1, 16)),
+        ),
+        "bits_per_step": Param(
+            None,
+            "bits a link carries per step, both directions together (null: no limit, "
+            "every sync completes in the step it starts)",
+            Optional(Int(lo=1, fuzz=(8, 600))),
+        ),
+        "appear_rate": Param(
+            0.0,
+            "probability per free unoccupied cell and step that an obstacle appears",
+            Real(lo=0.0, hi=1.0, fuzz=(0.0, 0.01)),
+        ),
+        "vanish_rate": Param(
+            0.0,
+            "probability per obstacle and step that it disappears (> 0 switches the merge "
+            "from OR to last-writer-wins with stamps sent)",
+            Real(lo=0.0, hi=1.0, fuzz=(0.0, 0.05)),
+        ),
+        "lam": Param(
+            0.1, "price of n bits per robot in reward units (see Reward scale)", Real(lo=0.0, fuzz=(0.0, 2.0))
+        ),
+        "max_cycles": Param(
+            world.PAPER_STEPS, "episode length in steps (the case study runs 200)", Int(lo=1, fuzz=(1, 40))
+        ),
+        "comm_range": Param(
+            None,
+            "disk link radius in cells (null: always in range)",
+            Optional(Real(lo=0.0, lo_open=True, fuzz=(1.0, 20.0))),
+        ),
+        "link_prob": Param(
+            1.0,
+            "probability a link in range is up this step (core.bernoulli_links)",
+            Real(lo=0.0, hi=1.0, fuzz=(0.3, 1.0)),
+        ),
+        "database_seed": Param(
+            0,
+            "seed of Protocol 1's shared database R, given to the robots before deployment "
+            "(the same in every episode; Alice's picks of i are random per episode)",
+            Int(lo=0, hi=2**63 - 1, fuzz=(0, 1000)),
+        ),
+        "explicit_database": Param(
+            False,
+            "keep Protocol 1's database of 100n strings in memory (n ≤ 1024) instead "
+            "of generating r_i on demand from the shared seed (same strings)",
+            Bool(),
+        ),
+    }
+    METRICS = {
+        "disagreement": "time-average over steps of the mean normalised Hamming distance between two robots' maps",
+        "error_vs_truth": "time-average over steps and robots of the fraction of cells where a map differs from "
+        "the world (unknown cells read as free)",
+        "bits_sent": "bits sent in the episode, all robots and protocols",
+        "syncs": "syncs completed (any protocol, equality tests included)",
+        "false_equal": "equality tests (Protocol 1 as `equality`, or Algorithm 1's first test) that said "
+        '"same" while the maps differed',
+        "corrected_fraction": "over completed bisection/full/sketch syncs: cells reconciled / cells that differed "
+        "when the sync started (nan if none differed)",
+        "sync_latency_steps": "mean steps from a sync's start to its last bit (1 = within the step; nan if none)",
+        "equality_tests": "equality tests run (both kinds above)",
+        "detections": "equality tests that found a difference",
+        "aborted_syncs": "syncs aborted because their link broke",
+        "coverage": "mean fraction of cells a robot has observed or learned, at the end",
+    }
+    INFO_KEYS = {
+        "bits_sent": "bits this robot sent this step",
+        "disagreement": "mean normalised Hamming distance between this robot's map and each other robot's",
+        "error_vs_truth": "fraction of cells where this robot's map differs from the world",
+        "coverage": "fraction of cells this robot has observed or learned",
+        "busy": "1 while this robot is in a sync",
+        "syncs": "syncs this robot completed so far",
+    }
+    LOCAL_VIEW = {
+        "map": "(n,) this robot's occupancy bits (1 = obstacle)",
+        "stamps": "(n,) step at which this robot last observed each cell, or received it in a merge (−1: never)",
+        "position": "(2,) this robot's cell (x, y)",
+        "steps_since_sync": "(N,) steps since this robot's maps were last made equal to each robot's (own: 0)",
+        "new_cells": "(N,) cells this robot's own sensing changed since then",
+        "last_test": "(N,) last equality verdict with each robot: 1 same, 0 different, −1 none (both ends learn it)",
+        "linked": "(N,) link to each robot this step",
+        "busy": "1 while this robot is in a sync",
+    }
+    DOCUMENTED_CONFIGS = {
+        "default": {},
+        "paper": {"preset": "paper"},
+        "changing": {"appear_rate": 0.002, "vanish_rate": 0.02, "max_cycles": 100},
+        "narrow_team": {"n_robots": 4, "bits_per_step": 64, "comm_range": 8.0, "link_prob": 0.8, "max_cycles": 80},
+        "explicit_database": {"grid_size": 8, "explicit_database": True, "max_cycles": 60},
+    }
+    VERSION_HISTORY = [
+        (
+            "v0",
+            "first version: Protocol 1, Algorithm 1, full and streaming PinSketch syncs; "
+            "last-writer-wins merge; per-link bit budget with latency",
+        )
+    ]
+
+    # ----------------------------------------------------------------- setup
+    def _setup(self) -> None:
+        c = self.cfg
+        self.size = c.grid_size
+        self.n = c.grid_size**2
+        if c.n_obstacles > self.n - 1:
+            raise ValueError(
+                f"argument 'n_obstacles' must be at most grid_size² − 1 = {self.n - 1} (a free cell is needed), "
+                f"got {c.n_obstacles}"
+            )
+        if c.preset == "paper":
+            wrong = {
+                "grid_size": (c.grid_size, world.PAPER_GRID),
+                "n_robots": (c.n_robots, 2),
+                "n_obstacles": (c.n_obstacles, len(world.PAPER_OBSTACLES)),
+            }
+            for arg, (got, need) in wrong.items():
+                if got != need:
+                    raise ValueError(
+                        f"argument 'preset' = 'paper' is Fig. 7's layout and needs '{arg}' = {need}, got {got}"
+                    )
+        if c.explicit_database and 100 * self.n * self.n > 100 * 1024 * 1024:
+            raise ValueError(f"argument 'explicit_database' needs n ≤ 1024 (grid_size ≤ 32), got n = {self.n}")
+        self.n_agents = c.n_robots
+        N = self.n_agents
+        table = world.neighbour_table(self.size)
+        self._neighbours = table.tolist()
+        self._sensed, self._sensed_distinct = world.sensing_table(table)
+        self._static_links = c.comm_range is None and c.link_prob >= 1.0
+        self._stamp_bits = max(1, math.ceil(math.log2(c.max_cycles + 2)))  # steps 0 … max_cycles and "never"
+        self._lww = c.vanish_rate > 0.0
+        self._obs_space = spaces.Box(0.0, 1.0, shape=(4 * (N - 1) + 5,), dtype=np.float32)
+        self._act_space = spaces.Discrete(len(ACTIONS))
+        self._peer_order = np.array([[(i + o) % N for o in range(1, N)] for i in range(N)], dtype=np.int64)
+        self._eye = np.eye(N, dtype=bool)
+        self._pairs = np.triu_indices(N, 1)
+        self._row_offsets = np.arange(N)[:, None] * self.n  # row i of the flattened (N, n) maps starts at i·n
+        self._peer_flat = np.arange(N)[:, None] * N + self._peer_order  # (N, N−1) flat (i, j) of each peer slot
+        self._horizon = c.max_cycles
+        self._obs_buf = np.zeros((N, 4 * (N - 1) + 5), dtype=np.float32)
+        self.ledger = BitLedger(N)
+
+    # ----------------------------------------------------------------- episode
+    def _reset_world(self) -> None:
+        c, rng, n, N = self.cfg, self.np_random, self.n, self.n_agents
+        truth = np.zeros(n, dtype=bool)
+        if c.preset == "paper":
+            truth[[world.cell_of(x, y, self.size) for x, y in world.PAPER_OBSTACLES]] = True
+            self.pos = np.array([world.cell_of(x, y, self.size) for x, y in world.PAPER_STARTS], dtype=np.int64)
+        else:
+            truth[rng.choice(n, size=c.n_obstacles, replace=False)] = True
+            free = np.flatnonzero(~truth)
+            self.pos = rng.choice(free, size=N, replace=free.size < N).astype(np.int64)
+        self.truth = truth
+        self.maps = np.zeros((N, n), dtype=bool)
+        self.stamps = np.full((N, n), -1, dtype=np.int32)
+        self.last_sync = np.zeros((N, N), dtype=np.int64)  # step at which each pair's maps were last made equal
+        self.new_cells = np.zeros((N, N), dtype=np.int64)
+        self.last_test = np.full((N, N), TEST_NONE, dtype=np.int64)
+        self.linked = ~self._eye
+        self.session_of = np.full(N, -1, dtype=np.int64)
+        self.sessions: dict[int, Session] = {}
+        self._next_session = 0
+        # R is given to the robots before deployment (Protocol 1, step 1): the same for every episode
+        self.strings = SharedStrings(n, c.database_seed, explicit=c.explicit_database, cache=True)
+        self.sketch_seed = int(rng.integers(2**63))
+        self.ledger.reset()
+        self.recent_bits = np.zeros(N)
+        self._recent_any = False
+        self.robot_syncs = np.zeros(N, dtype=np.int64)
+        self._steps = 0
+        self._sum_disagreement = 0.0
+        self._sum_error = 0.0
+        self._counts = dict.fromkeys(("syncs", "false_equal", "equality_tests", "detections", "aborted_syncs"), 0)
+        self._corrected = 0
+        self._to_correct = 0
+        self._latencies: list[int] = []
+        #: (step, alice, bob, protocol) of every equality test that found a difference (Fig. 7's list)
+        self.detections: list[tuple[int, int, int, str]] = []
+        self.known = np.zeros(N, dtype=np.int64)
+        self._events = 0  # counts changes of anything the observation shows besides the clock
+        self._stale = _STALE_ALL  # which parts of the observation must be recomputed
+        self._map_version = 0
+        self._infos_key = None
+        self._dirty = True
+        self._sense(0)
+        self._update_disagreement()
+
+    # ----------------------------------------------------------------- dynamics
+    def _step_world(self, actions: list) -> float:
+        c = self.cfg
+        t = self.step_count
+        self.ledger.begin_step()
+        self._links()
+        self._start_sessions(actions, t)
+        if self.sessions:
+            self._progress_sessions(t)
+        if c.appear_rate > 0.0 or c.vanish_rate > 0.0:
+            self._change_world()
+            self._dirty = True
+        self.pos = world.random_walk(self.np_random, self.pos, self._neighbours, self.truth)
+        self._sense(t + 1)
+        self._update_disagreement()
+        bits = self.ledger.step_bits
+        if self._recent_any or bits.any():
+            self.recent_bits = 0.9 * self.recent_bits + 0.1 * bits
+            self._recent_any = bool(self.recent_bits.max() > 1e-6 * self.n)
+            if not self._recent_any:
+                self.recent_bits[:] = 0.0
+                self._events += 1
+                self._stale |= _STALE_RECENT
+        self._steps += 1
+        self._sum_disagreement += self._disagreement_mean
+        self._sum_error += self._error_mean
+        return -self._disagreement_mean - c.lam * float(bits.sum()) / (self.n * self.n_agents)
+
+    def _links(self) -> None:
+        c, N = self.cfg, self.n_agents
+        if self._static_links:
+            return
+        if c.comm_range is None:
+            adj = ~self._eye
+        else:
+            ys, xs = np.divmod(self.pos, self.size)
+            adj = disk_links(np.column_stack([xs, ys]).astype(np.float64), c.comm_range)
+        if c.link_prob < 1.0:
+            adj = adj & bernoulli_links(self.np_random, N, c.link_prob)
+        self.linked = adj
+
+    def _change_world(self) -> None:
+        c, rng, truth = self.cfg, self.np_random, self.truth
+        occupied = np.zeros(self.n, dtype=bool)
+        occupied[self.pos] = True
+        appear = (~truth) & (~occupied) & (rng.random(self.n) < c.appear_rate)
+        vanish = truth & (rng.random(self.n) < c.vanish_rate)
+        truth[appear] = True
+        truth[vanish] = False
+
+    def _sense(self, stamp: int) -> None:
+        cells = self._sensed.take(self.pos, axis=0)  # (N, 5): off-grid neighbours repeat the own cell
+        flat = cells + self._row_offsets  # into the flattened (N, n) maps and stamps
+        seen = self.truth.take(cells)
+        maps, stamps = self.maps.reshape(-1), self.stamps.reshape(-1)
+        changed = maps.take(flat) != seen
+        unseen = stamps.take(flat) < 0
+        if unseen.any():
+            self.known += np.count_nonzero(unseen & self._sensed_distinct.take(self.pos, axis=0), axis=1)
+            self._events += 1
+            self._stale |= _STALE_KNOWN
+        if changed.any():
+            # own sensing changed these cells: new since the last sync with every peer
+            self.new_cells += np.count_nonzero(changed & self._sensed_distinct.take(self.pos, axis=0), axis=1)[:, None]
+            np.fill_diagonal(self.new_cells, 0)
+            maps.put(flat, seen)
+            self._dirty = True
+            self._events += 1
+            self._stale |= _STALE_NEW
+        stamps.put(flat, stamp)
+
+    def _update_disagreement(self) -> None:
+        if not self._dirty:
+            return
+        self._dirty = False
+        self._map_version += 1
+        maps = self.maps.astype(np.float64)
+        ones = maps.sum(axis=1)
+        ham = (ones[:, None] + ones[None, :] - 2.0 * (maps @ maps.T)) / self.n
+        self._hamming = ham
+        self._disagreement_mean = float(ham[self._pairs].mean())
+        self._errors = np.count_nonzero(self.maps != self.truth, axis=1) / self.n
+        self._error_mean = float(self._errors.mean())
+
+    # ----------------------------------------------------------------- syncs
+    def _choose_peer(self, i: int) -> int:
+        free = self.session_of < 0
+        best, best_age = -1, -(2**62)
+        for j in self._peer_order[i].tolist():
+            if free[j] and self.linked[i, j] and -self.last_sync[i, j] > best_age:
+                best, best_age = j, int(-self.last_sync[i, j])
+        return best
+
+    def _start_sessions(self, actions: list, t: int) -> None:
+        for i, act in enumerate(actions):
+            if act == IDLE or self.session_of[i] >= 0:
+                continue
+            j = self._choose_peer(i)
+            if j < 0:
+                continue
+            # both ends asking: j's request is served by this one sync (j is busy from now on)
+            self._open_session(i, j, ACTIONS[act], t)
+
+    def _open_session(self, a: int, b: int, name: str, t: int) -> None:
+        x, y = self.maps[a], self.maps[b]
+        nonce = self._next_session
+        self._next_session += 1
+        if name == "equality":
+            outcome = proto.equality(x, y, self.strings, self.cfg.k, self.np_random)
+            messages = [(a, outcome.alice_bits), (b, outcome.bob_bits)]
+            snapshot = {"differ": bool((x != y).any())}
+        else:
+            if name == "bisection":
+                outcome = proto.bisection(x, y, self.strings, self.cfg.k, self.cfg.res, self.np_random)
+                messages = [(a if who == "alice" else b, bits) for who, bits in outcome.extra["messages"]]
+            elif name == "full":
+                outcome = proto.full(x, y)
+                messages = [(a, outcome.alice_bits)]
+            else:
+                outcome = proto.sketch(x, y, self.sketch_seed, nonce)
+                messages = [(a, outcome.alice_bits), (b, outcome.bob_bits)]
+            found = outcome.found
+            messages.append((b, proto.return_bits(outcome.candidates, found.size)))
+            if self._lww and found.size:
+                messages += [(b, found.size * self._stamp_bits), (a, found.size * self._stamp_bits)]
+            snapshot = {
+                "found": found,
+                "x": x[found].copy(),
+                "y": y[found].copy(),
+                "sa": self.stamps[a, found].copy(),
+                "sb": self.stamps[b, found].copy(),
+                "differ": int((x != y).sum()),
+                "right": int((x[found] != y[found]).sum()),
+            }
+        messages = [(who, int(bits)) for who, bits in messages if bits > 0]
+        session = Session(a, b, name, t, messages, outcome, snapshot, 0, sum(bits for _, bits in messages))
+        self.sessions[nonce] = session
+        self.session_of[[a, b]] = nonce
+        self._events += 1
+        self._stale |= _STALE_SESSIONS
+
+    def _progress_sessions(self, t: int) -> None:
+        cap = self.cfg.bits_per_step
+        for key in list(self.sessions):
+            s = self.sessions[key]
+            if not self.linked[s.alice, s.bob]:
+                self._close(key)
+                self._counts["aborted_syncs"] += 1
+                continue
+            budget = s.total - s.sent if cap is None else min(cap, s.total - s.sent)
+            self._deliver(s, budget)
+            if s.sent >= s.total:
+                self._complete(s, t)
+                self._close(key)
+
+    def _deliver(self, s: Session, budget: int) -> None:
+        """Charge the next ``budget`` bits of the transcript to their senders, in order."""
+        done = 0
+        for who, bits in s.messages:
+            if budget <= 0:
+                break
+            if done + bits <= s.sent:
+                done += bits
+                continue
+            part = min(bits - max(0, s.sent - done), budget)
+            self.ledger.add(who, part, messages=1)
+            s.sent += part
+            budget -= part
+            done += bits
+
+    def _close(self, key: int) -> None:
+        s = self.sessions.pop(key)
+        self.session_of[[s.alice, s.bob]] = -1
+        self._events += 1
+        self._stale |= _STALE_SESSIONS | _STALE_NEW | _STALE_KNOWN
+
+    def _complete(self, s: Session, t: int) -> None:
+        a, b = s.alice, s.bob
+        self._counts["syncs"] += 1
+        self.robot_syncs[[a, b]] += 1
+        self._latencies.append(t - s.start_step + 1)
+        synced = True
+        if s.protocol == "equality":
+            synced = self._verdict(s, s.outcome.equal)
+        else:
+            if s.protocol == "bisection":
+                self._verdict(s, not s.outcome.detected)
+            self._merge(s)
+            self._to_correct += s.snapshot["differ"]
+            self._corrected += s.snapshot["right"]
+        if synced:
+            for i, j in ((a, b), (b, a)):
+                self.last_sync[i, j] = t + 1
+                self.new_cells[i, j] = 0
+
+    def _verdict(self, s: Session, equal: bool) -> bool:
+        a, b = s.alice, s.bob
+        self._counts["equality_tests"] += 1
+        if equal and s.snapshot["differ"]:
+            self._counts["false_equal"] += 1
+        if not equal:
+            self._counts["detections"] += 1
+            self.detections.append((s.start_step, a, b, s.protocol))
+        self.last_test[a, b] = self.last_test[b, a] = TEST_SAME if equal else TEST_DIFFERENT
+        return equal
+
+    def _merge(self, s: Session) -> None:
+        """Last-writer-wins on the cells Bob found (OR when nothing vanishes), into the maps as they are now.
+
+        Each robot believes the other holds the opposite bit on every found cell (true unless a sketch was
+        wrongly accepted); it adopts that bit where the other's stamp is newer than its own current stamp.
+        """
+        snap = s.snapshot
+        found = snap["found"]
+        if found.size == 0:
+            return
+        for me, other_bit, other_stamp in ((s.alice, ~snap["x"], snap["sb"]), (s.bob, ~snap["y"], snap["sa"])):
+            if self._lww:
+                adopt = other_stamp > self.stamps[me, found]
+            else:  # only appearances: a 1 is never stale, so the merge is OR
+                adopt = other_bit & ~self.maps[me, found]
+            cells = found[adopt]
+            self.known[me] += int(np.count_nonzero(self.stamps[me, cells] < 0))
+            self.maps[me, cells] = other_bit[adopt]
+            self.stamps[me, cells] = np.maximum(self.stamps[me, cells], other_stamp[adopt])
+        self._dirty = True
+
+    # ----------------------------------------------------------------- views
+    def steps_since(self) -> np.ndarray:
+        """(N, N) steps since each pair's maps were last made equal (own entry 0)."""
+        out = self.step_count - self.last_sync
+        np.fill_diagonal(out, 0)
+        return out
+
+    def _local_view(self) -> dict:
+        ys, xs = np.divmod(self.pos, self.size)
+        return {
+            "map": self.maps,
+            "stamps": self.stamps,
+            "position": np.column_stack([xs, ys]),
+            "steps_since_sync": self.steps_since(),
+            "new_cells": self.new_cells,
+            "last_test": self.last_test,
+            "linked": self.linked,
+            "busy": (self.session_of >= 0).astype(np.int64),
+        }
+
+    def _observe(self) -> np.ndarray:
+        N, flat = self.n_agents, self._peer_flat
+        out = self._obs_buf
+        per_peer = out[:, : 4 * (N - 1)].reshape(N, N - 1, 4)
+        steps = self.step_count - self.last_sync.take(flat)
+        per_peer[..., 0] = steps / (steps + 10.0)
+        own = out[:, 4 * (N - 1) :]
+        own[:, 4] = min(self.step_count / self._horizon, 1.0)
+        stale = self._stale
+        if self.sessions:
+            stale |= _STALE_SESSIONS
+        if self._recent_any:
+            stale |= _STALE_RECENT
+        if not self._static_links:
+            stale |= _STALE_LINKS
+        self._stale = 0
+        if not stale:
+            return out.copy()  # only the clock moved
+        if stale & _STALE_NEW:
+            new = self.new_cells.take(flat)
+            per_peer[..., 1] = new / (new + 10.0)
+        if stale & _STALE_LINKS:
+            per_peer[..., 2] = self.linked.take(flat)
+        if stale & _STALE_SESSIONS:  # a sync ended: verdicts, busy flags, progress (and counters reset)
+            per_peer[..., 3] = _TEST_CODE.take(self.last_test.take(flat) + 1)
+            own[:, 2] = self.session_of >= 0
+            own[:, 3] = 0.0
+            for s in self.sessions.values():
+                own[[s.alice, s.bob], 3] = s.sent / max(s.total, 1)
+        if stale & _STALE_RECENT:
+            own[:, 0] = self.recent_bits / (self.recent_bits + self.n)
+        if stale & _STALE_KNOWN:
+            own[:, 1] = self.known / self.n
+        return out.copy()
+
+    def _agent_infos(self) -> dict:
+        key = (self._events, self._map_version)
+        if key == self._infos_key and not self.ledger.step_bits.any() and not self._infos_cache["bits_sent"].any():
+            return self._infos_cache  # nothing the infos show has changed since the last call
+        N = self.n_agents
+        self._infos_key = key
+        self._infos_cache = {
+            "bits_sent": self.ledger.step_bits.copy(),
+            "disagreement": self._hamming.sum(axis=1) / (N - 1),
+            "error_vs_truth": self._errors,
+            "coverage": self.known / self.n,
+            "busy": (self.session_of >= 0).astype(np.float64),
+            "syncs": self.robot_syncs.copy(),
+        }
+        return self._infos_cache
+
+    def metrics(self) -> dict[str, float]:
+        steps = max(self._steps, 1)
+        out = {
+            "disagreement": self._sum_disagreement / steps if self._steps else self._disagreement_mean,
+            "error_vs_truth": self._sum_error / steps if self._steps else float(self._errors.mean()),
+            "bits_sent": float(self.ledger.total_bits.sum()),
+        }
+        out.update({k: float(v) for k, v in self._counts.items()})
+        out["corrected_fraction"] = self._corrected / self._to_correct if self._to_correct else math.nan
+        out["sync_latency_steps"] = float(np.mean(self._latencies)) if self._latencies else math.nan
+        out["coverage"] = float(self.known.mean() / self.n)
+        return out
+
+    def _render(self, ax) -> None:
+        size = self.size
+        img = np.ones((size, size, 3))
+        img[self.truth.reshape(size, size)] = (0.15, 0.15, 0.15)
+        differ = self.maps.any(axis=0) & ~self.maps.all(axis=0)
+        img[differ.reshape(size, size) & ~self.truth.reshape(size, size)] = (1.0, 0.75, 0.75)
+        img[(differ & self.truth).reshape(size, size)] = (0.75, 0.1, 0.1)
+        ax.imshow(img, origin="lower", extent=(-0.5, size - 0.5, -0.5, size - 0.5))
+        ys, xs = np.divmod(self.pos, size)
+        colors = [f"C{i % 10}" for i in range(self.n_agents)]
+        ax.scatter(xs, ys, c=colors, s=60, zorder=3, edgecolors="k")
+        for s in self.sessions.values():
+            ax.plot([xs[s.alice], xs[s.bob]], [ys[s.alice], ys[s.bob]], "--", color="0.5", zorder=2)
+        ax.set_xlim(-0.5, size - 0.5)
+        ax.set_ylim(-0.5, size - 0.5)
+        ax.set_aspect("equal")
+        ax.set_title(
+            f"step {self.step_count}: disagreement {self._disagreement_mean:.3f} (red: cells on which maps differ)"
+        )

@@ -1,0 +1,388 @@
+"""The synchronisation protocols, executed between two robots with every bit counted (paper 002, §IV).
+
+Maps are bit vectors of ``n`` cells. Alice is the robot that runs the protocol as client; Bob answers. Each
+protocol here is *one-way reconciliation*: it ends when Bob knows (or believes he knows) the set of cells
+where the two maps differ. Its result carries Alice's and Bob's bits separately.
+
+* :func:`equality` — Protocol 1. k rounds: Alice draws ``i`` uniformly from the 100n strings, sends ``i`` and
+  ``b = X·r_i mod 2``; Bob counts the rounds with ``Y·r_i ≠ b``. Step 4 as printed ("if the counter is
+  greater or equal than zero return *different*") would answer "different" always; the fix, used unless
+  ``step4="as_printed"``, is "greater than zero", which makes the error one-sided (Proposition 2). Bob's
+  verdict is one more bit back to Alice (§IV-A: "sending one more bit will ensure that both parties have the
+  result"), reported apart from Proposition 1's ``k(⌈log2 100n⌉ + 1)``.
+* :func:`bisection` — Algorithm 1 as request/response rounds, one round per recursion level: Alice sends a
+  Protocol 1 (on the segment, strings restricted to it) for every open segment longer than ``res`` and her
+  bits of every open segment of length ≤ ``res`` (EQUALLINEAR); Bob answers one verdict bit per Protocol 1.
+  Segments that tested different are split at ``⌊(l+u)/2⌋`` for the next round.
+* :func:`full` — Alice sends all n bits.
+* :func:`sketch` — beyond the paper: a streaming PinSketch (:mod:`pinsketch`). Alice first sends ``v``
+  public-coin parity bits of her map (fresh random strings from the shared seed and a session nonce both
+  robots know, so no index is sent; v = :func:`sketch_verify_bits`) and her bit of cell 0 (cells 1 … n−1 are the field elements). Then she
+  streams odd syndromes of GF(2^m), m = ⌈log2 n⌉, one at a time; after each, Bob decodes the XOR with his own
+  and checks the candidate map against the parities; when it passes he sends one *stop* bit. The number of
+  differences is never sent or guessed: the stream is rateless and stops at the first syndrome that decodes,
+  so the estimation cost is the stop bit and the parities. A wrong candidate passes the parities with
+  probability 2^−v; Bob then keeps a wrong map (one-sided, like Protocol 1; at most about e·2^−v per run). If ``v + 1 + t·m`` would reach ``n``, Alice sends her map
+  instead. Bits to agreement stay within 2 log2 C(n, d) for n ≥ 1024 and d ≤ 64 except just above a power of
+  two (n ∈ [1025, 1204] at d near 64: up to 2.09×), where the field gains a bit while log2 C(n, d)/d does
+  not. *Timing assumption*: Alice waits for a possible stop after each syndrome, so a link's round trip
+  is short against a step; ``strict_feedback=True`` instead charges Bob one continue/stop bit per syndrome.
+
+:func:`return_bits` is the cost of the way back (Bob tells Alice the differing cells) that two-way
+merging in the env adds.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mrcomm_env.core import backend
+from mrcomm_env.mapsync import pinsketch, theory
+from mrcomm_env.mapsync.philox import DOMAIN_DATABASE, DOMAIN_PARITY, SharedStrings, seed_key, stream_words
+
+PROTOCOLS = ("equality", "bisection", "full", "sketch")
+STEP4_RULES = ("fixed", "as_printed")
+
+#: parity bits a sketch candidate is verified against below n = 1024 (a wrong candidate passes w.p. 2^−v)
+SKETCH_VERIFY_SMALL = 8
+
+
+def sketch_verify_bits(n: int) -> int:
+    """Parity bits v of the sketch: from n = 1024 on, as many as keep one difference within 2 log2 n bits.
+
+    One difference costs m (one syndrome) + 1 (cell 0) + v + 1 (stop) bits, so v = ⌊2 log2 n⌋ − m − 2: 8 at
+    n = 1024, 10 at 4096, 14 at 65536 (7 just above a power of two, where m jumps); 8 below n = 1024. With d ≥ 2 the
+    decoder meets wrong candidates before the right one: "no difference" before the first syndrome, the one root
+    of the first, and after t syndromes a wrong locator splits into valid roots with probability about 1/t!, so
+    one passes with probability about (1 + 1 + 1/2 + 1/6 + …)·2^−v ≤ e·2^−v per reconciliation (2·2^−v at
+    d = 2) — a one-sided error like Protocol 1's 2^−k.
+    """
+    if n < 1024:
+        return SKETCH_VERIFY_SMALL
+    return math.floor(2 * math.log2(n)) - pinsketch.field_bits(n) - 2
+
+
+def check_protocol(name: str) -> str:
+    if name not in PROTOCOLS:
+        raise ValueError(f"argument 'protocol' must be one of {', '.join(PROTOCOLS)}; got {name!r}")
+    return name
+
+
+def check_n(n: int) -> int:
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
+        raise ValueError(f"argument 'n' (bits per map) must be an integer ≥ 2, got {n!r}")
+    return int(n)
+
+
+def pack(bits: np.ndarray) -> np.ndarray:
+    """A bit vector as little-endian uint32 words (bit b → word b // 32, bit b % 32); zero padded."""
+    bits = np.asarray(bits, dtype=bool).reshape(-1)
+    pad = (-bits.size) % 32
+    if pad:
+        bits = np.concatenate([bits, np.zeros(pad, dtype=bool)])
+    return np.packbits(bits, bitorder="little").view(np.uint32)
+
+
+_ONES = np.uint32(0xFFFFFFFF)
+_FROM_BIT = np.array([(0xFFFFFFFF << b) & 0xFFFFFFFF for b in range(32)], dtype=np.uint32)  # bits ≥ b
+_TO_BIT = np.array([0xFFFFFFFF >> (31 - b) for b in range(32)], dtype=np.uint32)  # bits ≤ b
+
+
+def segment_inner_products(
+    maps: list[np.ndarray], strings: SharedStrings, index: np.ndarray, lo: np.ndarray, hi: np.ndarray
+) -> list[np.ndarray]:
+    """``X[lo..hi] · r_i[lo..hi] mod 2`` for every map X in ``maps`` (packed words), every segment s and each of
+    its indices ``index[s, :]``: one ``(S, k)`` uint8 array per map.
+
+    Both robots derive the same ``r_i`` from the shared seed; the simulation generates the words once and lets
+    each robot's map use them (the bits exchanged are unaffected).
+    """
+    lo = np.asarray(lo, dtype=np.int64)
+    hi = np.asarray(hi, dtype=np.int64)
+    index = np.asarray(index, dtype=np.int64)
+    if backend.compiled():
+        from mrcomm_env.mapsync import kernels_numba
+
+        use_db = strings.database is not None
+        database = strings.database if use_db else np.zeros((1, 1), np.uint32)
+        out = kernels_numba.inner_products(
+            np.stack(maps),
+            database,
+            use_db,
+            strings.key[0],
+            strings.key[1],
+            DOMAIN_DATABASE,
+            strings.words_per_string,
+            int(strings._last_mask),
+            index,
+            lo,
+            hi,
+            _FROM_BIT,
+            _TO_BIT,
+        )
+        return list(out)
+    return _inner_products_numpy(maps, strings, index, lo, hi)
+
+
+def _inner_products_numpy(maps, strings, index, lo, hi) -> list[np.ndarray]:
+    """The numpy reference of :func:`segment_inner_products` (the compiled twin: ``kernels_numba``)."""
+    first, last = lo >> 5, hi >> 5
+    span = last - first
+    n_words = int(span.max()) + 1
+    S, k = index.shape
+    stacked = np.stack(maps)  # (M, W)
+    if S == 1 and lo[0] == 0 and hi[0] == 32 * stacked.shape[1] - 1:
+        seg = stacked[:, None, :]  # the whole map, a whole number of words: nothing to mask
+    else:
+        cols = first[:, None] + np.arange(n_words)[None, :]
+        mask = np.where(cols <= last[:, None], _ONES, np.uint32(0))
+        mask[:, 0] &= _FROM_BIT[lo & 31]
+        mask[np.arange(S), span] &= _TO_BIT[hi & 31]
+        seg = stacked[:, np.minimum(cols, stacked.shape[1] - 1)] & mask  # (M, S, n_words)
+    r = strings.words(index.reshape(-1), np.repeat(first, k), n_words).reshape(S, k, n_words)
+    counts = np.bitwise_count(r[None, :, :, :] & seg[:, :, None, :]).sum(axis=-1, dtype=np.int64)
+    return list((counts & 1).astype(np.uint8))
+
+
+@dataclass
+class EqualityResult:
+    equal: bool  #: Bob's verdict (Protocol 1's return value 1 = "same")
+    counter: int  #: rounds in which Bob's inner product differed from Alice's
+    alice_bits: int  #: Proposition 1: k (⌈log2 100n⌉ + 1)
+    bob_bits: int  #: the verdict sent back (1)
+
+
+def protocol1_batch(
+    x_words, y_words, strings: SharedStrings, k: int, lo, hi, rng: np.random.Generator, step4: str = "fixed"
+) -> tuple[np.ndarray, np.ndarray]:
+    """Protocol 1 on many segments at once: (verdict "equal" per segment, counter per segment)."""
+    if step4 not in STEP4_RULES:
+        raise ValueError(f"argument 'step4' must be one of {', '.join(STEP4_RULES)}; got {step4!r}")
+    lo = np.atleast_1d(np.asarray(lo, dtype=np.int64))
+    hi = np.atleast_1d(np.asarray(hi, dtype=np.int64))
+    index = rng.integers(0, strings.size, size=(lo.size, k))  # step 3a: Alice's random picks
+    b, b_bob = segment_inner_products([x_words, y_words], strings, index, lo, hi)  # steps 3b (Alice), 3d (Bob)
+    counter = (b != b_bob).sum(axis=1)  # step 3e
+    # step 4: "greater than zero" means different; as printed ("≥ 0") it can never answer "same"
+    equal = counter == 0 if step4 == "fixed" else np.zeros(lo.size, dtype=bool)
+    return equal, counter
+
+
+def equality(
+    x: np.ndarray, y: np.ndarray, strings: SharedStrings, k: int, rng: np.random.Generator, step4: str = "fixed"
+) -> EqualityResult:
+    """Protocol 1 on whole maps ``x`` and ``y`` (bool vectors of n cells)."""
+    n = check_n(len(x))
+    if k < 1:
+        raise ValueError(f"argument 'k' must be an integer ≥ 1, got {k!r}")
+    equal, counter = protocol1_batch(pack(x), pack(y), strings, k, 0, n - 1, rng, step4)
+    return EqualityResult(bool(equal[0]), int(counter[0]), theory.protocol1_bits(n, k), 1)
+
+
+@dataclass
+class Reconciliation:
+    """What one-way reconciliation achieved and cost: Bob's belief of the differing cells, and bits."""
+
+    protocol: str
+    found: np.ndarray  #: cells Bob believes differ (sorted)
+    alice_bits: int
+    bob_bits: int
+    rounds: int  #: request/response rounds
+    candidates: int  #: cells both robots know ``found`` lies within (the way back codes a subset of these)
+    detected: bool  #: did the first test (Protocol 1 on the whole map, or any step) find a difference
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def bits(self) -> int:
+        return self.alice_bits + self.bob_bits
+
+
+def full(x: np.ndarray, y: np.ndarray) -> Reconciliation:
+    n = check_n(len(x))
+    diff = np.flatnonzero(np.asarray(x, bool) != np.asarray(y, bool))
+    return Reconciliation("full", diff, n, 0, 1, n, diff.size > 0)
+
+
+def bisection(
+    x: np.ndarray,
+    y: np.ndarray,
+    strings: SharedStrings,
+    k: int,
+    res: int,
+    rng: np.random.Generator,
+    step4: str = "fixed",
+) -> Reconciliation:
+    """Algorithm 1, ERRORCORRECTION(X, Y, 1, n, res), as one request/response round per recursion level."""
+    n = check_n(len(x))
+    if k < 1:
+        raise ValueError(f"argument 'k' must be an integer ≥ 1, got {k!r}")
+    if res < 1:
+        raise ValueError(f"argument 'res' must be an integer ≥ 1, got {res!r}")
+    x = np.asarray(x, dtype=bool)
+    y = np.asarray(y, dtype=bool)
+    xw, yw = pack(x), pack(y)
+    differs = np.concatenate([[0], np.cumsum(x != y)])  # prefix counts: which segments truly differ (metrics)
+    p1_bits = theory.protocol1_bits(n, k)
+    lo, hi = np.array([0]), np.array([n - 1])
+    alice = bob = rounds = tests = compared = 0
+    found: list[np.ndarray] = []
+    detected = None
+    missed_tests = 0
+    messages: list[tuple[str, int]] = []  # one request (Alice) and one reply (Bob) per round
+    while lo.size:
+        rounds += 1
+        alice_before, bob_before = alice, bob
+        length = hi - lo + 1
+        leaf = length <= res
+        if leaf.any():  # lines 2–6, EQUALLINEAR: Alice sends her bits of the segment, Bob compares
+            leaf_lo, leaf_hi = lo[leaf], hi[leaf]
+            holding = differs[leaf_hi + 1] - differs[leaf_lo] > 0  # Bob's comparison finds these
+            for a, b in zip(leaf_lo[holding].tolist(), leaf_hi[holding].tolist()):
+                found.append(np.flatnonzero(x[a : b + 1] != y[a : b + 1]) + a)
+            leaf_bits = int(length[leaf].sum())
+            compared += leaf_bits
+            alice += leaf_bits
+            if detected is None:
+                detected = bool(found)
+        inner_lo, inner_hi = lo[~leaf], hi[~leaf]
+        if inner_lo.size == 0:
+            messages.append(("alice", alice - alice_before))
+            break
+        equal, _ = protocol1_batch(xw, yw, strings, k, inner_lo, inner_hi, rng, step4)  # line 7
+        tests += inner_lo.size
+        alice += inner_lo.size * p1_bits
+        bob += inner_lo.size  # Bob's verdicts, so that Alice knows which halves to open next
+        if detected is None:
+            detected = not bool(equal[0])
+        different = ~equal
+        if step4 == "fixed":
+            truly = differs[inner_hi + 1] - differs[inner_lo] > 0
+            missed_tests += int((equal & truly).sum())
+        messages += [("alice", alice - alice_before), ("bob", bob - bob_before)]
+        mid = (inner_lo[different] + inner_hi[different]) // 2  # line 1
+        lo = np.concatenate([inner_lo[different], mid + 1])  # lines 10–11
+        hi = np.concatenate([mid, inner_hi[different]])
+        order = np.argsort(lo, kind="stable")
+        lo, hi = lo[order], hi[order]
+    cells = np.sort(np.concatenate(found)) if found else np.empty(0, dtype=np.int64)
+    return Reconciliation(
+        "bisection",
+        cells,
+        alice,
+        bob,
+        rounds,
+        compared,
+        bool(detected),
+        {"protocol1_calls": tests, "false_equal_tests": missed_tests, "messages": messages},
+    )
+
+
+def parity_strings(seed: int, nonce: int, n: int, count: int) -> np.ndarray:
+    """``count`` public-coin random n-bit strings for one session (``(count, words)`` uint32)."""
+    n_words = (n + 31) // 32
+    index = np.array([(nonce * count + j) % (1 << 32) for j in range(count)], dtype=np.uint64)
+    words = stream_words(seed_key(seed), index, np.zeros(count, np.int64), n_words, DOMAIN_PARITY)
+    if n % 32:
+        words[:, -1] &= np.uint32((1 << (n % 32)) - 1)
+    return words
+
+
+def parities(words: np.ndarray, strings: np.ndarray) -> np.ndarray:
+    return (np.bitwise_count(strings & words[None, :]).sum(axis=1) & 1).astype(np.uint8)
+
+
+def sketch(
+    x: np.ndarray,
+    y: np.ndarray,
+    seed: int,
+    nonce: int,
+    verify_bits: int | None = None,
+    strict_feedback: bool = False,
+    block: int = 8,
+) -> Reconciliation:
+    """Streaming PinSketch with parity verification (see the module docstring); Bob learns the difference."""
+    n = check_n(len(x))
+    if verify_bits is None:
+        verify_bits = sketch_verify_bits(n)
+    if verify_bits < 1:
+        raise ValueError(f"argument 'verify_bits' must be an integer ≥ 1, got {verify_bits!r}")
+    x = np.asarray(x, dtype=bool)
+    y = np.asarray(y, dtype=bool)
+    m = pinsketch.field_bits(n)
+    gf = pinsketch.field(m)
+    rho = parity_strings(seed, nonce, n, verify_bits)
+    alice_parity = parities(pack(x), rho)
+    alice = verify_bits + 1  # the parities and cell 0
+    bob = 0
+    base = np.array([0]) if x[0] != y[0] else np.empty(0, dtype=np.int64)
+
+    def accepted(candidate: np.ndarray) -> bool:
+        guess = y.copy()
+        guess[candidate] ^= True
+        return bool(np.array_equal(parities(pack(guess), rho), alice_parity))
+
+    if accepted(base):
+        return Reconciliation("sketch", base, alice, 1, 1, n, base.size > 0, {"syndromes": 0, "fallback": False})
+    alice_set = np.flatnonzero(x[1:]) + 1
+    bob_set = np.flatnonzero(y[1:]) + 1
+    decoder = pinsketch.StreamingDecoder(gf, n - 1)
+    t_max = max(0, (n - alice - 1) // m)  # beyond this the raw map is cheaper than more syndromes
+    t = 0
+    rounds = 1
+    while t < t_max:
+        count = min(block, t_max - t)
+        sa = pinsketch.syndromes(gf, alice_set, count, first=t)
+        sb = pinsketch.syndromes(gf, bob_set, count, first=t)
+        for s in (sa ^ sb).tolist():
+            t += 1
+            rounds += 1
+            alice += m
+            if strict_feedback:
+                bob += 1
+            decoder.add(s)
+            if decoder.locator_degree() > t:
+                continue
+            roots = decoder.decode()
+            if roots is not None:
+                candidate = np.sort(np.concatenate([base, roots]))
+                if accepted(candidate):
+                    bob += 0 if strict_feedback else 1
+                    return Reconciliation(
+                        "sketch", candidate, alice, bob, rounds, n, True, {"syndromes": t, "fallback": False, "m": m}
+                    )
+    # no decode within the useful length: Alice sends her map (both know t_max, so no request is needed)
+    alice += n
+    diff = np.flatnonzero(x != y)
+    return Reconciliation("sketch", diff, alice, bob, rounds + 1, n, True, {"syndromes": t, "fallback": True, "m": m})
+
+
+def return_bits(candidates: int, found: int) -> int:
+    """Bob → Alice: how many cells differ (⌈log2(C+1)⌉ bits) and which (⌈log2 C(C, d)⌉, enumerative code)."""
+    if candidates <= 0:
+        return 0
+    return theory.count_bits(candidates) + theory.ceil_log2_binomial(candidates, found)
+
+
+def reconcile(
+    protocol: str,
+    x: np.ndarray,
+    y: np.ndarray,
+    strings: SharedStrings,
+    k: int,
+    res: int,
+    rng: np.random.Generator,
+    seed: int,
+    nonce: int,
+) -> Reconciliation:
+    """Run ``bisection``, ``full`` or ``sketch`` by name."""
+    check_protocol(protocol)
+    if protocol == "bisection":
+        return bisection(x, y, strings, k, res, rng)
+    if protocol == "full":
+        return full(x, y)
+    if protocol == "sketch":
+        return sketch(x, y, seed, nonce)
+    raise ValueError(f"argument 'protocol' must be one of bisection, full, sketch for reconciliation; got {protocol!r}")

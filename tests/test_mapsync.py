@@ -1,0 +1,481 @@
+"""MapSync-v0 (paper 002): protocols against independent references and bounds, env mechanics, baselines."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+import mrcomm_env
+from baselines import make_policy
+from mrcomm_env.experiments.evaluation import run_episode
+from mrcomm_env.mapsync import pinsketch, theory, world
+from mrcomm_env.mapsync import protocol as proto
+from mrcomm_env.mapsync.env import EQUALITY, FULL, IDLE, SKETCH, MapSyncEnv
+from mrcomm_env.mapsync.philox import SharedStrings, philox4x32
+
+
+def maps_with_differences(rng, n, d, density=0.3):
+    x = rng.random(n) < density
+    y = x.copy()
+    diff = rng.choice(n, size=d, replace=False)
+    y[diff] ^= True
+    return x, y, np.sort(diff)
+
+
+# ------------------------------------------------------------------------------------------------ shared strings
+@pytest.mark.parametrize(
+    ("counter", "key", "expected"),
+    [  # Random123's known-answer vectors for Philox4x32-10 (kat_vectors)
+        ((0, 0, 0, 0), (0, 0), (0x6627E8D5, 0xE169C58D, 0xBC57AC4C, 0x9B00DBD8)),
+        ((0xFFFFFFFF,) * 4, (0xFFFFFFFF, 0xFFFFFFFF), (0x408F276D, 0x41C83B0E, 0xA20BC7C6, 0x6D5451FD)),
+        (
+            (0x243F6A88, 0x85A308D3, 0x13198A2E, 0x03707344),
+            (0xA4093822, 0x299F31D0),
+            (0xD16CFE09, 0x94FDCCEB, 0x5001E420, 0x24126EA1),
+        ),
+    ],
+)
+def test_philox_matches_random123_known_answers(counter, key, expected):
+    assert philox4x32(np.array(counter, dtype=np.uint64), key).tolist() == list(expected)
+
+
+@pytest.mark.parametrize("n", [16, 45, 64, 100])
+def test_on_demand_strings_equal_the_explicit_database(n):
+    on_demand = SharedStrings(n, seed=1234)
+    explicit = SharedStrings(n, seed=1234, explicit=True)
+    rows = np.arange(on_demand.size)
+    words = on_demand.words(rows, np.zeros(rows.size, np.int64), on_demand.words_per_string)
+    assert np.array_equal(words, explicit.database)
+    # bits past n are zero, so a string has exactly n bits
+    bits = np.unpackbits(explicit.database.view(np.uint8), axis=1, bitorder="little")
+    assert not bits[:, n:].any()
+    # a segment's inner product from the database's bits (integer dot product) equals the packed popcount path
+    rng = np.random.default_rng(n)
+    x = rng.random(n) < 0.5
+    index = rng.integers(0, on_demand.size, size=(12, 5))
+    lo = rng.integers(0, n, 12)
+    hi = np.minimum(n - 1, lo + rng.integers(0, n, 12))
+    (fast,) = proto.segment_inner_products([proto.pack(x)], on_demand, index, lo, hi)
+    dense = bits[:, :n].astype(np.int64)
+    slow = np.array([[dense[i, a : b + 1] @ x[a : b + 1] % 2 for i in row] for row, a, b in zip(index, lo, hi)])
+    assert np.array_equal(fast, slow)
+
+
+def test_different_seeds_give_different_databases():
+    a = SharedStrings(64, seed=1).words(np.arange(50), np.zeros(50, np.int64), 2)
+    b = SharedStrings(64, seed=2).words(np.arange(50), np.zeros(50, np.int64), 2)
+    assert not np.array_equal(a, b)
+
+
+# ------------------------------------------------------------------------------------------------ Protocol 1
+@pytest.mark.parametrize(("n", "k", "bits"), [(1024, 7, 7 * 18), (16, 3, 3 * 12), (256, 10, 10 * 16)])
+def test_proposition1_bit_cost(n, k, bits):
+    # ⌈log2(100n)⌉: 102400 → 17, 1600 → 11, 25600 → 15 bits of index, plus the inner-product bit
+    rng = np.random.default_rng(0)
+    x, y, _ = maps_with_differences(rng, n, 3)
+    result = proto.equality(x, y, SharedStrings(n, 5), k, rng)
+    assert result.alice_bits == bits == theory.protocol1_bits(n, k)
+    assert result.bob_bits == 1
+
+
+@pytest.mark.parametrize(("k", "d"), [(1, 1), (3, 1), (3, 40), (5, 2)])
+def test_proposition2_one_sided_error_is_two_to_minus_k(k, d):
+    n, trials = 64, 3000
+    rng = np.random.default_rng(100 * k + d)
+    strings = SharedStrings(n, 99)
+    false_equal = 0
+    for _ in range(trials):
+        x, y, _ = maps_with_differences(rng, n, d)
+        false_equal += proto.equality(x, y, strings, k, rng).equal
+    # for X ≠ Y a uniform r_i gives X·r_i = Y·r_i with probability exactly ½, so "equal" has probability 2^−k;
+    # the count is Binomial(trials, 2^−k): accept the central 1 − 2·10⁻⁶ of it
+    p = theory.protocol1_error_bound(k)
+    lo, hi = stats.binom.ppf(1e-6, trials, p), stats.binom.ppf(1 - 1e-6, trials, p)
+    assert lo <= false_equal <= hi
+
+
+def test_protocol1_never_errs_on_equal_maps_and_the_printed_step4_never_says_equal():
+    n, rng = 128, np.random.default_rng(3)
+    strings = SharedStrings(n, 7)
+    for _ in range(200):
+        x = rng.random(n) < 0.5
+        assert proto.equality(x, x.copy(), strings, 2, rng).equal
+        # "if the counter is greater or equal than zero return 0 (different)": true for every counter
+        assert not proto.equality(x, x.copy(), strings, 2, rng, step4="as_printed").equal
+
+
+# ------------------------------------------------------------------------------------------------ Algorithm 1
+def algorithm1_reference(x, y, lo, hi, res, p1_bits):
+    """ERRORCORRECTION line by line (recursive), with an exact equality oracle for Protocol 1.
+
+    Returns (differing cells found, Alice's bits, Bob's verdict bits).
+    """
+    if hi - lo + 1 <= res:  # lines 2–6
+        cells = [c for c in range(lo, hi + 1) if x[c] != y[c]]
+        return cells, hi - lo + 1, 0
+    if np.array_equal(x[lo : hi + 1], y[lo : hi + 1]):  # line 7, Protocol 1 says "same"
+        return [], p1_bits, 1
+    mid = (lo + hi) // 2  # line 1
+    left = algorithm1_reference(x, y, lo, mid, res, p1_bits)
+    right = algorithm1_reference(x, y, mid + 1, hi, res, p1_bits)
+    return left[0] + right[0], p1_bits + left[1] + right[1], 1 + left[2] + right[2]
+
+
+@pytest.mark.parametrize(("n", "res", "d"), [(1024, 1, 1), (1024, 1, 5), (1000, 1, 17), (777, 4, 9), (4096, 8, 64)])
+def test_bisection_corrects_everything_and_matches_the_recursive_algorithm(n, res, d):
+    # k = 40: a missed difference has probability ≤ (tests)·2^−40, so the comparison is exact
+    k, rng = 40, np.random.default_rng(n + d)
+    x, y, diff = maps_with_differences(rng, n, d)
+    result = proto.bisection(x, y, SharedStrings(n, 3), k, res, rng)
+    assert np.array_equal(result.found, diff)
+    cells, alice, bob = algorithm1_reference(x, y, 0, n - 1, res, theory.protocol1_bits(n, k))
+    assert cells == diff.tolist() and result.alice_bits == alice and result.bob_bits == bob
+    assert result.rounds == theory.recursion_depth(n, res) + (1 if res < n else 0)
+
+
+@pytest.mark.parametrize(("n", "d"), [(1024, 1), (1024, 4), (1024, 64), (4096, 16), (1000, 3)])
+def test_bisection_bits_stay_below_the_worst_case_bound(n, d):
+    k, res = 10, 1
+    bound = theory.algorithm1_worst_case(n, k, res, d)
+    rng = np.random.default_rng(d)
+    for _ in range(5):
+        x, y, _ = maps_with_differences(rng, n, d)
+        result = proto.bisection(x, y, SharedStrings(n, 8), k, res, rng)
+        assert result.alice_bits <= bound["alice"] and result.bob_bits <= bound["bob"]
+
+
+def test_bisection_bound_is_attained_and_the_papers_formula_is_not_a_bound():
+    # one difference in a power-of-two map: every level tests both halves of the differing segment
+    n, k, res = 1024, 10, 1
+    x = np.zeros(n, dtype=bool)
+    y = x.copy()
+    y[300] = True
+    result = proto.bisection(x, y, SharedStrings(n, 1), 40, res, np.random.default_rng(0))
+    p1 = theory.protocol1_bits(n, 40)
+    assert result.alice_bits == (1 + 2 * 9) * p1 + 2  # root, two tests on each of 9 levels, two 1-bit leaves
+    assert result.alice_bits == theory.algorithm1_worst_case(n, 40, res, 1)["alice"]
+    # §IV-B charges one Protocol 1 per level: 10 · p1 + 1, about half of what the algorithm sends
+    assert result.alice_bits > theory.algorithm1_paper_worst_case(n, 40, res, 1)
+    assert theory.algorithm1_paper_worst_case(n, k, res, 1) == 10 * theory.protocol1_bits(n, k) + 1
+
+
+# ------------------------------------------------------------------------------------------------ sketch
+def test_pinsketch_is_linear_and_decodes_up_to_capacity():
+    rng = np.random.default_rng(0)
+    gf = pinsketch.field(10)
+    a = rng.choice(np.arange(1, 1024), 40, replace=False)
+    b = rng.choice(np.arange(1, 1024), 40, replace=False)
+    sym = np.setxor1d(a, b)
+    t = 12
+    assert np.array_equal(
+        pinsketch.syndromes(gf, a, t) ^ pinsketch.syndromes(gf, b, t), pinsketch.syndromes(gf, sym, t)
+    )
+    for d in (1, 2, 7, 12):
+        diff = np.sort(rng.choice(np.arange(1, 1024), d, replace=False))
+        decoder = pinsketch.StreamingDecoder(gf, 1023)
+        for s in pinsketch.syndromes(gf, diff, d):
+            decoder.add(int(s))
+        assert np.array_equal(np.sort(decoder.decode()), diff)
+
+
+def test_field_tables_are_a_field():
+    for m in (2, 5, 10, 16):
+        gf = pinsketch.field(m)
+        assert sorted(gf.exp[: gf.order].tolist()) == list(range(1, gf.q))  # α generates every nonzero element
+        a, b = 3 % gf.q or 1, gf.q - 1
+        assert gf.mul(gf.div(a, b), b) == a
+
+
+# n = 65536 with d = 64 takes seconds per run (Chien search over 65535 elements); the bits table covers it
+@pytest.mark.parametrize(
+    ("n", "d"),
+    [(n, d) for n in (1024, 4096) for d in (1, 2, 3, 8, 16, 33, 64)]
+    + [(65536, d) for d in (1, 4, 16)]
+    # just above a power of two the field grows by a bit: still within 2× except n ∈ [1025, 1204] at d near 64
+    + [(1025, 1), (1025, 2), (1025, 16), (1500, 1), (1500, 64), (2049, 1), (2049, 64)],
+)
+def test_sketch_recovers_exactly_within_twice_the_information_bound(n, d):
+    rng = np.random.default_rng(7 * d + n)
+    bound = theory.log2_binomial(n, d)
+    for trial in range(3):
+        x, y, diff = maps_with_differences(rng, n, d)
+        result = proto.sketch(x, y, seed=11, nonce=trial)
+        assert np.array_equal(result.found, diff)
+        assert result.bits <= 2 * bound, (result.bits, bound)  # parities, cell 0 and the stop bit included
+        assert not result.extra["fallback"]
+
+
+def test_sketch_of_equal_maps_costs_only_the_check():
+    x = np.random.default_rng(0).random(4096) < 0.4
+    result = proto.sketch(x, x.copy(), seed=1, nonce=0)
+    # v = ⌊2 log2 4096⌋ − 12 − 2 = 10 parity bits, cell 0 and the stop bit
+    assert result.found.size == 0 and result.bits == 10 + 1 + 1
+
+
+def test_return_code_length():
+    assert proto.return_bits(256, 0) == 9  # count only
+    assert proto.return_bits(256, 3) == 9 + math.ceil(math.log2(math.comb(256, 3)))
+
+
+# ------------------------------------------------------------------------------------------------ env mechanics
+def step_all(env, action_of):
+    return env.step({a: action_of.get(a, IDLE) for a in env.agents})
+
+
+def test_paper_preset_is_figure7():
+    env = MapSyncEnv(preset="paper")
+    env.reset(seed=0)
+    obstacles = {(c % 16, c // 16) for c in np.flatnonzero(env.truth)}
+    assert obstacles == set(world.PAPER_OBSTACLES)
+    start = MapSyncEnv(preset="paper")
+    start.reset(seed=5)
+    # Alice and Bob sensed their starts (11, 7) and (3, 7) before the first move
+    assert start.stamps[0, 7 * 16 + 11] == 0 and start.stamps[1, 7 * 16 + 3] == 0
+    assert env.cfg.max_cycles == 200 and env.cfg.k == 10
+
+
+def test_equality_action_charges_proposition1_and_the_verdict():
+    env = MapSyncEnv(grid_size=16, k=10)
+    env.reset(seed=1)
+    step_all(env, {"robot_0": EQUALITY})
+    assert env.ledger.total_bits.tolist() == [10 * 16, 1]  # n = 256: ⌈log2 25600⌉ = 15, +1 per round
+
+
+def test_one_sync_when_both_ask():
+    both, one = MapSyncEnv(), MapSyncEnv()
+    both.reset(seed=4)
+    one.reset(seed=4)
+    for _ in range(15):
+        step_all(both, {})
+        step_all(one, {})
+    step_all(both, {"robot_0": FULL, "robot_1": FULL})
+    step_all(one, {"robot_0": FULL})
+    assert both.metrics()["syncs"] == one.metrics()["syncs"] == 1
+    assert both.ledger.total_bits.tolist() == one.ledger.total_bits.tolist()
+    assert np.array_equal(both.maps, one.maps)
+
+
+def test_a_full_sync_merges_newest_wins_under_appearing_and_vanishing_obstacles():
+    env = MapSyncEnv(grid_size=8, n_obstacles=12, n_robots=3, appear_rate=0.02, vanish_rate=0.1, max_cycles=400)
+    env.reset(seed=2)
+    rng = np.random.default_rng(0)
+    checked = 0
+    for t in range(300):
+        if t % 7:
+            step_all(env, {})
+            continue
+        a, b = rng.choice(3, 2, replace=False)
+        before_maps, before_stamps = env.maps.copy(), env.stamps.copy()
+        bits_before = env.ledger.total_bits.sum()
+        step_all(env, {f"robot_{a}": FULL})
+        sensed_now = env.stamps == env.step_count  # cells sensed after the merge, within this step
+        b = next(j for j in range(3) if j != a and env.last_sync[a, j] == env.step_count)
+        newer_b = before_stamps[b] > before_stamps[a]
+        expected = np.where(newer_b, before_maps[b], before_maps[a])
+        for r in (a, b):
+            keep = ~sensed_now[r]
+            assert np.array_equal(env.maps[r][keep], expected[keep])
+            # stamps travel only with the differing cells; elsewhere each robot keeps its own
+            differ = before_maps[a] != before_maps[b]
+            stamp = np.where(differ, np.maximum(before_stamps[a], before_stamps[b]), before_stamps[r])
+            assert np.array_equal(env.stamps[r][keep], stamp[keep])
+        # stamps of the differing cells travel both ways: ⌈log2(400 + 2)⌉ = 9 bits each
+        d = int((before_maps[a] != before_maps[b]).sum())
+        ret = proto.return_bits(64, d)
+        assert env.ledger.total_bits.sum() - bits_before == 64 + ret + (2 * 9 * d)
+        checked += d
+    assert checked > 20  # the world did change and the maps did disagree
+
+
+def test_gossip_converges_once_the_world_stops_changing():
+    env = MapSyncEnv(grid_size=8, n_robots=4, appear_rate=0.03, vanish_rate=0.1, max_cycles=500)
+    env.reset(seed=9)
+    for _ in range(80):
+        step_all(env, {})
+    env.cfg["appear_rate"] = env.cfg["vanish_rate"] = 0.0  # freeze the world (the merge stays last-writer-wins)
+    env.pos[:] = env.pos[0]  # gather the robots in one cell so that they all sense the same cells from now on
+    env._neighbours = [[-1, -1, -1, -1]] * env.n  # and keep them there: nobody moves, so no new cells are seen
+    # what gossip must converge to: each cell's newest observation by any robot (the gathering cell and its
+    # neighbours are sensed again from now on, and the frozen world is what they see)
+    newest = env.stamps.argmax(axis=0)
+    expected = env.maps[newest, np.arange(env.n)].copy()
+    sensed = world.sensing_table(world.neighbour_table(8))[0][env.pos[0]]
+    expected[sensed] = env.truth[sensed]
+    assert (env.maps != expected).any(), "nothing to converge: the test would not test anything"
+    for _ in range(6):
+        step_all(env, {a: SKETCH for a in env.agents})
+    assert (env.maps == expected).all(), "gossip did not converge to the newest observations"
+
+
+def test_latency_is_counted_when_a_sync_exceeds_the_link_budget():
+    cap = 64
+    env = MapSyncEnv(bits_per_step=cap)
+    env.reset(seed=3)
+    for _ in range(20):
+        step_all(env, {})
+    x, y = env.maps[0].copy(), env.maps[1].copy()
+    d = int((x != y).sum())
+    total = 256 + proto.return_bits(256, d)
+    steps = math.ceil(total / cap)
+    start = env.step_count
+    step_all(env, {"robot_0": FULL})
+    for _ in range(steps - 1):
+        assert env.session_of[0] >= 0 and env.ledger.step_bits.sum() == cap
+        assert env.metrics()["syncs"] == 0
+        step_all(env, {"robot_0": FULL, "robot_1": SKETCH})  # busy robots cannot start another sync
+    assert env.metrics()["syncs"] == 1 and env.metrics()["sync_latency_steps"] == steps
+    assert env.ledger.total_bits.sum() == total
+    assert env.step_count - start == steps
+
+
+def test_a_broken_link_aborts_the_sync():
+    env = MapSyncEnv(bits_per_step=8, comm_range=3.0, max_cycles=400)
+    env.reset(seed=0)
+    for _ in range(400):
+        if not env.agents:
+            break
+        step_all(env, {"robot_0": FULL})
+    m = env.metrics()
+    assert m["aborted_syncs"] > 0
+    assert m["bits_sent"] > 0
+
+
+# ------------------------------------------------------------------------------------------------ bad input
+@pytest.mark.parametrize(
+    ("kwargs", "name"),
+    [
+        ({"grid_size": 1}, "grid_size"),
+        ({"k": 0}, "'k'"),
+        ({"res": 0}, "'res'"),
+        ({"grid_size": 4, "n_obstacles": 16}, "n_obstacles"),
+        ({"preset": "paper", "grid_size": 8}, "preset"),
+        ({"preset": "fig9"}, "preset"),
+        ({"grid_size": 64, "explicit_database": True}, "explicit_database"),
+        ({"bits_per_step": 0}, "bits_per_step"),
+    ],
+)
+def test_bad_arguments_raise(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        MapSyncEnv(**kwargs)
+
+
+def test_bad_protocol_inputs_raise():
+    rng = np.random.default_rng(0)
+    one = np.zeros(1, dtype=bool)
+    with pytest.raises(ValueError, match="'n'"):
+        proto.full(one, one)
+    with pytest.raises(ValueError, match="'n'"):
+        SharedStrings(1, 0)
+    x = np.zeros(8, dtype=bool)
+    with pytest.raises(ValueError, match="'k'"):
+        proto.equality(x, x, SharedStrings(8, 0), 0, rng)
+    with pytest.raises(ValueError, match="'res'"):
+        proto.bisection(x, x, SharedStrings(8, 0), 3, 0, rng)
+    with pytest.raises(ValueError, match="'protocol'"):
+        proto.check_protocol("telepathy")
+    with pytest.raises(ValueError, match="'step4'"):
+        proto.protocol1_batch(proto.pack(x), proto.pack(x), SharedStrings(8, 0), 3, 0, 7, rng, step4="maybe")
+
+
+# ------------------------------------------------------------------------------------------------ baselines
+def test_case_study_detects_only_at_sync_times_and_never_sends_nothing():
+    env = mrcomm_env.make("MapSync-v0", preset="paper")
+    run_episode(env, make_policy("MapSync-v0", "periodic_equality_then_bisection"), seed=0)
+    assert env.detections and all(step % 10 == 0 for step, *_ in env.detections)
+    assert env.metrics()["syncs"] == 19  # steps 10, 20, …, 190
+    silent = mrcomm_env.make("MapSync-v0", preset="paper")
+    m = run_episode(silent, make_policy("MapSync-v0", "never"), seed=0)
+    assert m["bits_sent"] == 0 and m["syncs"] == 0
+
+
+def test_periodic_sync_lowers_disagreement_and_sketch_sends_fewer_bits_than_full():
+    results = {}
+    for name in ("never", "periodic_full", "periodic_sketch", "periodic_equality_then_bisection"):
+        env = mrcomm_env.make("MapSync-v0", preset="paper")
+        results[name] = run_episode(env, make_policy("MapSync-v0", name), seed=3)
+    assert results["periodic_full"]["disagreement"] < results["never"]["disagreement"]
+    # full and sketch reconcile exactly, so with the same walk they end every sync with the same maps
+    assert results["periodic_sketch"]["disagreement"] == results["periodic_full"]["disagreement"]
+    assert results["periodic_sketch"]["bits_sent"] < results["periodic_full"]["bits_sent"]
+
+
+def test_separate_test_variant_runs_bisection_only_after_a_difference():
+    env = mrcomm_env.make("MapSync-v0", preset="paper")
+    run_episode(env, make_policy("MapSync-v0", "periodic_equality_then_bisection", separate_test=True), seed=0)
+    kinds = {(step, kind) for step, _, _, kind in env.detections}
+    for step, kind in kinds:
+        if kind == "bisection":
+            assert (step - 1, "equality") in kinds
+
+
+# ------------------------------------------------------------------------------------------------ compiled twin
+@pytest.mark.parametrize("n", [16, 45, 77, 256, 1024, 4096])
+@pytest.mark.parametrize("cached", [False, True])
+def test_compiled_inner_products_equal_the_numpy_reference(n, cached):
+    kernels = pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    rng = np.random.default_rng(n)
+    strings = SharedStrings(n, 42, cache=cached)
+    maps = [proto.pack(rng.random(n) < 0.5), proto.pack(rng.random(n) < 0.5)]
+    index = rng.integers(0, strings.size, (15, 4))
+    lo = rng.integers(0, n, 15)
+    hi = np.minimum(n - 1, lo + rng.integers(0, n, 15))
+    lo[0], hi[0] = 0, n - 1
+    database = strings.database if cached and strings.database is not None else np.zeros((1, 1), np.uint32)
+    compiled = kernels.inner_products(
+        np.stack(maps),
+        database,
+        strings.database is not None,
+        strings.key[0],
+        strings.key[1],
+        0,
+        strings.words_per_string,
+        int(strings._last_mask),
+        index,
+        lo,
+        hi,
+        proto._FROM_BIT,
+        proto._TO_BIT,
+    )
+    reference = proto._inner_products_numpy(maps, strings, index, lo, hi)
+    assert all(np.array_equal(c, r) for c, r in zip(compiled, reference))
+
+
+def test_whole_episodes_are_identical_on_both_backends(monkeypatch):
+    pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    import types
+
+    def episode(compiled):
+        monkeypatch.setattr(proto, "backend", types.SimpleNamespace(compiled=lambda: compiled))
+        env = mrcomm_env.make("MapSync-v0", preset="paper", max_cycles=120)
+        metrics = run_episode(env, make_policy("MapSync-v0", "random"), seed=17)
+        return metrics, env.detections, env.maps.copy()
+
+    numpy_run, compiled_run = episode(False), episode(True)
+    assert numpy_run[0] == compiled_run[0] and numpy_run[1] == compiled_run[1]
+    assert np.array_equal(numpy_run[2], compiled_run[2])
+
+
+@pytest.mark.parametrize(
+    "cfg",
+    [
+        {},
+        {"n_robots": 3, "bits_per_step": 50},
+        {"appear_rate": 0.01, "vanish_rate": 0.05},
+        {"n_robots": 4, "comm_range": 5.0, "link_prob": 0.7, "bits_per_step": 30},
+    ],
+)
+def test_incremental_observation_and_infos_equal_a_full_recompute(cfg):
+    env = MapSyncEnv(**cfg)
+    env.reset(seed=1)
+    rng = np.random.default_rng(0)
+    while env.agents:
+        actions = {a: int(rng.integers(1, 5)) if rng.random() < 0.05 else IDLE for a in env.agents}
+        obs, _, _, _, infos = env.step(actions)
+        if not env.agents:
+            break
+        env._stale, env._infos_key = 31, None  # forget every cache
+        assert np.array_equal(np.stack(list(obs.values())), env._observe())
+        assert infos == env._infos()
