@@ -259,7 +259,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
     def _observe_landmarks(self, events_t, events_v, events_l) -> None:
         """Apply the window's observations in time order (ties: vehicle id); each landmark yields at most
         ``obs_per_landmark`` independent observations in total (the sensor floor)."""
-        n, c = self.n_agents, self.cfg
+        c = self.cfg
         self.step_obs[:] = 0
         if not events_t:
             return
