@@ -301,8 +301,13 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         bits = np.zeros(n)
         self.group = self.labels[:, None] == self.labels[None, :]
         messages = 0
+        own = np.arange(n)
+        self.known_pos[own, own] = self.pos  # a vehicle always knows where it is
+        self.known_phase[own, own] = self.phases
         for g in range(self.n_groups):
             members = np.flatnonzero(self.labels == g)
+            if len(members) == 1:  # alone: nothing to send
+                continue
             sent = maps.fuse_group(members, self.parent)
             sides = filters.subtree_sides(members, self.parent)
             messages += 2 * len(sides)
@@ -329,14 +334,13 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         self.in_main = np.zeros(n, dtype=bool)
         self.central = np.zeros(n, dtype=np.int64)
         self.plan_connected = np.zeros(n, dtype=bool)
-        self.utility = np.zeros((n, c.n_landmarks))
+        # every vehicle's eq. (1) row from its own map; members of a group hold the same map after fusion, so
+        # a group's rows form the utility matrix its members assemble from the shared vectors (§IV-A)
+        self.utility = protocol.utility_matrix(maps.Y, maps.count, self.pos, self._estimates, c.speed, c.t_window,
+                                               self.r_info, c.obs_rate, c.obs_per_landmark)
         for g in range(self.n_groups):
             members = np.flatnonzero(self.labels == g)
-            w = int(members[0])  # members hold identical maps after fusion
-            U = protocol.utility_matrix(maps.Y[w], maps.count[w], self.pos[members], self._estimates[w], c.speed,
-                                        c.t_window, self.r_info, c.obs_rate, c.obs_per_landmark)
-            rec = protocol.recommend(U, self._estimates[w], c.d_comms)
-            self.utility[members] = U
+            rec = protocol.recommend(self.utility[members], self._estimates[int(members[0])], c.d_comms)
             self.assignment[members] = rec.assignment
             self.in_main[members] = rec.in_main
             self.central[members] = rec.central

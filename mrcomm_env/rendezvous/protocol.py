@@ -39,13 +39,15 @@ def utility_matrix(Y: np.ndarray, count: np.ndarray, vehicle_pos: np.ndarray, la
                    speed: float, t_window: float, info_per_obs: float, obs_rate: float, budget: int) -> np.ndarray:
     """Eq. (1)–(4): the (n, L) mutual-information gain of each vehicle observing each landmark.
 
-    ``Y`` is ``(L, 2, 2)`` (a shared map) or ``(n, L, 2, 2)`` (one map per vehicle), ``count`` the
-    observations of each landmark the map holds. Observations are isotropic, R⁻¹ = ``info_per_obs`` I,
+    ``Y`` is ``(L, 2, 2)`` (a shared map) or ``(n, L, 2, 2)`` (one map per vehicle), ``count`` ``(L,)`` or
+    ``(n, L)`` the observations of each landmark the map holds, ``landmark_pos`` ``(L, 2)`` or ``(n, L, 2)``
+    the map's landmark estimates. Observations are isotropic, R⁻¹ = ``info_per_obs`` I,
     made at ``obs_rate`` per second, so I_obs = obs_rate·R⁻¹ (eq. 3). The sensor floor caps a landmark at
     ``budget`` independent observations: the gain counts at most the ``budget − count`` the map believes
     remain (a landmark believed exhausted is worth 0).
     """
-    d = np.sqrt(((vehicle_pos[:, None, :] - landmark_pos[None, :, :]) ** 2).sum(-1))
+    offset = vehicle_pos[:, None, :] - (landmark_pos if landmark_pos.ndim == 3 else landmark_pos[None, :, :])
+    d = np.sqrt(offset[..., 0] ** 2 + offset[..., 1] ** 2)
     t_obs = t_window - d / speed  # eq. (4) inside t_obs = t_window − t_travel
     t_obs = np.where(t_obs > 0.0, t_obs, EPS_OBS_TIME)
     remaining = np.maximum(budget - count, 0)
