@@ -57,8 +57,14 @@ def group_utility(views: LocalViews, members: np.ndarray) -> tuple[np.ndarray, n
     est = np.asarray(views.team("landmark_estimates")[w])
     pos = np.asarray(views.team("known_positions")[w])[members]
     U = protocol.utility_matrix(
-        np.asarray(views.team("map_information")[w]), np.asarray(views.team("map_count")[w]), pos, est,
-        p["speed"], p["t_window"], theory.information_per_observation(p["obs_sigma"]), p["obs_rate"],
+        np.asarray(views.team("map_information")[w]),
+        np.asarray(views.team("map_count")[w]),
+        pos,
+        est,
+        p["speed"],
+        p["t_window"],
+        theory.information_per_observation(p["obs_sigma"]),
+        p["obs_rate"],
         p["obs_per_landmark"],
     )
     return U, est, pos
@@ -101,8 +107,14 @@ class PaperProtocol(Policy):
         return {a: int(actions[views.index(a)]) for a in observations}
 
 
-def action_module(rec: protocol.Recommendation, row: int, x_v: np.ndarray, est: np.ndarray, d_max: float,
-                  everywhere_linked: bool = False) -> int:
+def action_module(
+    rec: protocol.Recommendation,
+    row: int,
+    x_v: np.ndarray,
+    est: np.ndarray,
+    d_max: float,
+    everywhere_linked: bool = False,
+) -> int:
     """Fig. 5: which of the three actions of §V vehicle ``row`` of the plan takes."""
     lp = int(rec.assignment[row])
     if lp < 0:  # condition 1: not assigned

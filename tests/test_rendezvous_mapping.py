@@ -67,8 +67,9 @@ def test_logdet_and_mean_of_match_numpy():
 def make_packet(rng, L):
     m = int(rng.integers(1, 4))
     ids = np.sort(rng.choice(L, size=m, replace=False))
-    return filters.Packet(ids, np.stack([random_spd(rng) for _ in range(m)]), rng.normal(size=(m, 2)),
-                          rng.integers(1, 4, size=m))
+    return filters.Packet(
+        ids, np.stack([random_spd(rng) for _ in range(m)]), rng.normal(size=(m, 2)), rng.integers(1, 4, size=m)
+    )
 
 
 def check_no_double_counting(maps: filters.TeamMaps):
@@ -286,8 +287,11 @@ def test_masks_mark_empty_slots_and_an_infeasible_action_acts_as_hold():
         mask = env.action_masks()
         assert mask.any(axis=1).all() and mask[:, -1].all()  # hold is always feasible
         assert (mask[:, : env.K] == (env.candidates >= 0)).all()
-        assert all(infos[a][f"action_mask_{i}"] == float(mask[k, i])
-                   for k, a in enumerate(env.agents) for i in range(env.K + 2))
+        assert all(
+            infos[a][f"action_mask_{i}"] == float(mask[k, i])
+            for k, a in enumerate(env.agents)
+            for i in range(env.K + 2)
+        )
         masked = np.argwhere(~mask)
         actions = {a: int(rng.choice(np.flatnonzero(mask[k]))) for k, a in enumerate(env.agents)}
         if len(masked):
@@ -367,15 +371,33 @@ def test_metric_and_argument_names_and_alias():
     env.reset(seed=0)
     for name in ("iterations_to_half_info", "info_fraction", "normalized_det", "connected_fraction", "bits_sent"):
         assert name in env.metrics()
-    for name in ("n_vehicles", "n_landmarks", "area", "speed", "t_window", "d_comms", "sigma", "k_candidates",
-                 "max_cycles"):
+    for name in (
+        "n_vehicles",
+        "n_landmarks",
+        "area",
+        "speed",
+        "t_window",
+        "d_comms",
+        "sigma",
+        "k_candidates",
+        "max_cycles",
+    ):
         assert name in RendezvousMappingEnv.PARAMS
 
 
-@pytest.mark.parametrize(("arg", "value"), [
-    ("n_vehicles", 0), ("n_landmarks", 3), ("speed", 0.0), ("speed", -1.0), ("t_window", 0.0),
-    ("d_comms", -0.1), ("sigma", -1.0), ("k_candidates", 0),
-])
+@pytest.mark.parametrize(
+    ("arg", "value"),
+    [
+        ("n_vehicles", 0),
+        ("n_landmarks", 3),
+        ("speed", 0.0),
+        ("speed", -1.0),
+        ("t_window", 0.0),
+        ("d_comms", -0.1),
+        ("sigma", -1.0),
+        ("k_candidates", 0),
+    ],
+)
 def test_bad_inputs_raise_value_error_naming_the_argument(arg, value):
     kwargs = {"n_vehicles": 4, "n_landmarks": 40, arg: value}
     with pytest.raises(ValueError, match=f"'{arg}'"):

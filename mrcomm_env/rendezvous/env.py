@@ -54,41 +54,68 @@ POSITION_BITS = 2 * filters.FLOAT_BITS
 
 class RendezvousMappingEnv(MrcommParallelEnv):
     ENV_ID = "mrcomm/RendezvousMapping-v0"
-    DESCRIPTION = ("Which landmark each vehicle maps, or where the team regroups, when maps fuse only over a "
-                   "connected acyclic network (decentralised mapping with limited connectivity)")
+    DESCRIPTION = (
+        "Which landmark each vehicle maps, or where the team regroups, when maps fuse only over a "
+        "connected acyclic network (decentralised mapping with limited connectivity)"
+    )
     metadata = {"name": "rendezvous_mapping_v0", "render_modes": ["rgb_array", "human"], "render_fps": 4}
     STEP_UNIT = ("decision phase", False)
     PARAMS = {
         "n_vehicles": Param(10, "N_v: number of vehicles (§VI-A)", Int(lo=1, hi=64, fuzz=(1, 6))),
-        "n_landmarks": Param(200, "N_l: number of landmarks, at least n_vehicles (§VI-A)",
-                             Int(lo=1, hi=5000, fuzz=(6, 60))),
-        "area": Param(10_000.0, "mapping area (m²) of the square map, side √area (§VI-A)",
-                      Real(lo=0.0, lo_open=True, fuzz=(400.0, 20_000.0))),
+        "n_landmarks": Param(
+            200, "N_l: number of landmarks, at least n_vehicles (§VI-A)", Int(lo=1, hi=5000, fuzz=(6, 60))
+        ),
+        "area": Param(
+            10_000.0,
+            "mapping area (m²) of the square map, side √area (§VI-A)",
+            Real(lo=0.0, lo_open=True, fuzz=(400.0, 20_000.0)),
+        ),
         "speed": Param(1.0, "u: vehicle speed (m/s); d_max = u·t_window", Real(lo=0.0, lo_open=True, fuzz=(0.2, 3.0))),
-        "t_window": Param(15.0, "t_window: time between decision phases (s); d_max = 15 m by default (§VI-B)",
-                          Real(lo=0.0, lo_open=True, fuzz=(1.0, 40.0))),
-        "d_comms": Param(10.0, "maximum communication distance (m): `inf` (§VI-B.2), 0 = co-located only "
-                         "(§VI-B.3) or finite (§VI-B.4)", Real(lo=0.0, allow_inf=True, fuzz=(0.0, 40.0))),
-        "sigma": Param(3.0, "σ (m) of the N(0, σ²) shift of the landmark grid (§VI-B.1); sets the clustering C",
-                       Real(lo=0.0, fuzz=(0.0, 30.0))),
+        "t_window": Param(
+            15.0,
+            "t_window: time between decision phases (s); d_max = 15 m by default (§VI-B)",
+            Real(lo=0.0, lo_open=True, fuzz=(1.0, 40.0)),
+        ),
+        "d_comms": Param(
+            10.0,
+            "maximum communication distance (m): `inf` (§VI-B.2), 0 = co-located only (§VI-B.3) or finite (§VI-B.4)",
+            Real(lo=0.0, allow_inf=True, fuzz=(0.0, 40.0)),
+        ),
+        "sigma": Param(
+            3.0,
+            "σ (m) of the N(0, σ²) shift of the landmark grid (§VI-B.1); sets the clustering C",
+            Real(lo=0.0, fuzz=(0.0, 30.0)),
+        ),
         "k_candidates": Param(5, "K: candidate landmarks listed per vehicle", Int(lo=1, hi=64, fuzz=(1, 8))),
-        "prior_sigma": Param(5.0, "σ₀ (m): std of every landmark's common prior estimate, per axis",
-                             Real(lo=0.0, lo_open=True, fuzz=(0.5, 20.0))),
-        "obs_sigma": Param(3.0, "σ_obs (m): std of one position observation, per axis",
-                           Real(lo=0.0, lo_open=True, fuzz=(0.2, 10.0))),
-        "obs_rate": Param(1.0, "observations per second while at a landmark (I_obs = rate·R⁻¹, eq. 3)",
-                          Real(lo=0.0, lo_open=True, fuzz=(0.2, 4.0))),
-        "obs_per_landmark": Param(5, "sensor floor: independent observations a landmark yields in total, by any "
-                                  "vehicle (makes the available information finite)", Int(lo=1, hi=10_000, fuzz=(1, 20))),
-        "max_cycles": Param(100, "episode length in decision phases (`max_phases` is accepted as an alias)",
-                            Int(lo=1, fuzz=(1, 30))),
+        "prior_sigma": Param(
+            5.0,
+            "σ₀ (m): std of every landmark's common prior estimate, per axis",
+            Real(lo=0.0, lo_open=True, fuzz=(0.5, 20.0)),
+        ),
+        "obs_sigma": Param(
+            3.0, "σ_obs (m): std of one position observation, per axis", Real(lo=0.0, lo_open=True, fuzz=(0.2, 10.0))
+        ),
+        "obs_rate": Param(
+            1.0,
+            "observations per second while at a landmark (I_obs = rate·R⁻¹, eq. 3)",
+            Real(lo=0.0, lo_open=True, fuzz=(0.2, 4.0)),
+        ),
+        "obs_per_landmark": Param(
+            5,
+            "sensor floor: independent observations a landmark yields in total, by any "
+            "vehicle (makes the available information finite)",
+            Int(lo=1, hi=10_000, fuzz=(1, 20)),
+        ),
+        "max_cycles": Param(
+            100, "episode length in decision phases (`max_phases` is accepted as an alias)", Int(lo=1, fuzz=(1, 30))
+        ),
     }
     METRICS = {
         "iterations_to_half_info": "decision phases until the fused map held 50 % of the information available "
-                                   "(§VI-B; nan while not reached)",
+        "(§VI-B; nan while not reached)",
         "info_fraction": "information of the fused map, Σ_l ln det Y_l − ln det Y₀, over the information available",
         "normalized_det": "det P / det P₀ of the fused map (Fig. 6) as the per-landmark geometric mean, "
-                          "(Π_l det P_l / det P₀,l)^(1/N_l), which does not underflow",
+        "(Π_l det P_l / det P₀,l)^(1/N_l), which does not underflow",
         "log10_det_ratio": "log₁₀ of the whole map's det P / det P₀ (the product over landmarks, Fig. 6's quantity)",
         "connected_fraction": "fraction of decision phases after a window at which the whole team was connected",
         "bits_sent": "bits sent in the episode (version vectors, map updates, positions, utility vectors)",
@@ -102,7 +129,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         "own_info_fraction": "information fraction of this vehicle's own map",
         "group_share": "fraction of the team in this vehicle's connected group",
         "action_kind": "what the last action did: 0 go to a candidate, 1 observe l_p(v) then rendezvous, "
-                       "2 rendezvous directly, 3 hold",
+        "2 rendezvous directly, 3 hold",
         "action_feasible": "1 when the last action was feasible (an infeasible one acts as hold)",
         "observations": "independent observations this vehicle made in the last window",
         "action_mask_<i>": "i = 0 … K+1: 1 when action i is feasible now (the same as `env.action_masks()`)",
@@ -129,11 +156,19 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         "default": {"max_cycles": 40},
         "infinite_comms": {"d_comms": math.inf, "n_landmarks": 60, "n_vehicles": 4, "area": 2500.0, "max_cycles": 30},
         "zero_comms": {"d_comms": 0.0, "n_landmarks": 60, "n_vehicles": 4, "area": 2500.0, "max_cycles": 30},
-        "long_window": {"d_comms": 10.0, "t_window": 30.0, "n_landmarks": 60, "n_vehicles": 4, "area": 2500.0,
-                        "max_cycles": 30},
+        "long_window": {
+            "d_comms": 10.0,
+            "t_window": 30.0,
+            "n_landmarks": 60,
+            "n_vehicles": 4,
+            "area": 2500.0,
+            "max_cycles": 30,
+        },
         "single_vehicle": {"n_vehicles": 1, "n_landmarks": 20, "area": 900.0, "k_candidates": 3, "max_cycles": 30},
     }
-    VERSION_HISTORY = [("v0", "first version: one step = one decision phase, Discrete(K + 2) actions, fused-map reward")]
+    VERSION_HISTORY = [
+        ("v0", "first version: one step = one decision phase, Discrete(K + 2) actions, fused-map reward")
+    ]
 
     def __init__(self, render_mode: str | None = None, **kwargs):
         if "max_phases" in kwargs:  # the issue's name for the horizon
@@ -146,7 +181,9 @@ class RendezvousMappingEnv(MrcommParallelEnv):
     def _setup(self) -> None:
         c = self.cfg
         if c.n_landmarks < c.n_vehicles:
-            raise ValueError(f"argument 'n_landmarks' must be at least n_vehicles = {c.n_vehicles}, got {c.n_landmarks}")
+            raise ValueError(
+                f"argument 'n_landmarks' must be at least n_vehicles = {c.n_vehicles}, got {c.n_landmarks}"
+            )
         n, K = c.n_vehicles, c.k_candidates
         self.n_agents = n
         self.K = K
@@ -336,8 +373,17 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         self.plan_connected = np.zeros(n, dtype=bool)
         # every vehicle's eq. (1) row from its own map; members of a group hold the same map after fusion, so
         # a group's rows form the utility matrix its members assemble from the shared vectors (§IV-A)
-        self.utility = protocol.utility_matrix(maps.Y, maps.count, self.pos, self._estimates, c.speed, c.t_window,
-                                               self.r_info, c.obs_rate, c.obs_per_landmark)
+        self.utility = protocol.utility_matrix(
+            maps.Y,
+            maps.count,
+            self.pos,
+            self._estimates,
+            c.speed,
+            c.t_window,
+            self.r_info,
+            c.obs_rate,
+            c.obs_per_landmark,
+        )
         for g in range(self.n_groups):
             members = np.flatnonzero(self.labels == g)
             rec = protocol.recommend(self.utility[members], self._estimates[int(members[0])], c.d_comms)
@@ -401,25 +447,33 @@ class RendezvousMappingEnv(MrcommParallelEnv):
             t = dist / u
             return t / (t + T)
 
-        head = np.column_stack([
-            np.clip(self.pos / side, 0.0, 1.0),
-            np.full(n, min(self.phases / c.max_cycles, 1.0)),
-            self.group.sum(1) / n,
-            np.full(n, float(self.n_groups == 1)),
-            np.clip(self.own_info_fraction(), 0.0, 1.0),
-        ])
+        head = np.column_stack(
+            [
+                np.clip(self.pos / side, 0.0, 1.0),
+                np.full(n, min(self.phases / c.max_cycles, 1.0)),
+                self.group.sum(1) / n,
+                np.full(n, float(self.n_groups == 1)),
+                np.clip(self.own_info_fraction(), 0.0, 1.0),
+            ]
+        )
         valid = self.candidates >= 0
         cand = np.where(valid, self.candidates, 0)
         cpos = self._estimates[rows[:, None], cand]  # (n, K, 2)
         off = cpos - self.pos[:, None, :]
-        cand_feats = np.concatenate([
-            rel(off),
-            np.clip(self.candidate_utility / self.u_max, 0.0, 1.0)[..., None],
-            travel(np.hypot(off[..., 0], off[..., 1]))[..., None],
-            self.in_main[:, None].repeat(K, 1)[..., None] & (cand == self.assignment[:, None])[..., None],
-            (cand == self.assignment[:, None])[..., None],
-            valid[..., None],
-        ], axis=-1) * valid[..., None]
+        cand_feats = (
+            np.concatenate(
+                [
+                    rel(off),
+                    np.clip(self.candidate_utility / self.u_max, 0.0, 1.0)[..., None],
+                    travel(np.hypot(off[..., 0], off[..., 1]))[..., None],
+                    self.in_main[:, None].repeat(K, 1)[..., None] & (cand == self.assignment[:, None])[..., None],
+                    (cand == self.assignment[:, None])[..., None],
+                    valid[..., None],
+                ],
+                axis=-1,
+            )
+            * valid[..., None]
+        )
         lc = self._estimates[rows, self.central]
         lp = self._estimates[rows, np.maximum(self.assignment, 0)]
         d1 = np.hypot(*(lp - self.pos).T)
@@ -437,12 +491,15 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         if k_real > 0:
             idx = order[:, :k_real]
             age = self.phases - self.known_phase[rows[:, None], idx]
-            near[:, :k_real] = np.concatenate([
-                rel(others[rows[:, None], idx]),
-                self.group[rows[:, None], idx][..., None],
-                (age / (age + 1.0))[..., None],
-                np.ones((n, k_real, 1)),
-            ], axis=-1)
+            near[:, :k_real] = np.concatenate(
+                [
+                    rel(others[rows[:, None], idx]),
+                    self.group[rows[:, None], idx][..., None],
+                    (age / (age + 1.0))[..., None],
+                    np.ones((n, k_real, 1)),
+                ],
+                axis=-1,
+            )
         return np.concatenate([head, cand_feats.reshape(n, -1), rdv, near.reshape(n, -1)], axis=1).astype(np.float32)
 
     def _agent_infos(self) -> dict:
@@ -492,15 +549,18 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         sat = self.maps.common_count / self.cfg.obs_per_landmark
         sc = ax.scatter(lm[:, 0], lm[:, 1], c=sat, cmap="viridis", vmin=0, vmax=1, marker="x", s=18, zorder=2)
         ax.figure.colorbar(sc, ax=ax, label="fused observations / floor")
-        ax.scatter(self.pos[:, 0], self.pos[:, 1], c=self.labels, cmap="tab10", marker="s", s=40, zorder=3,
-                   edgecolors="k")
+        ax.scatter(
+            self.pos[:, 0], self.pos[:, 1], c=self.labels, cmap="tab10", marker="s", s=40, zorder=3, edgecolors="k"
+        )
         lc = self._estimates[np.arange(self.n_agents), self.central]
         ax.scatter(lc[:, 0], lc[:, 1], marker="*", s=120, facecolors="none", edgecolors="r", zorder=4)
         ax.set_xlim(-0.02 * self.side, 1.02 * self.side)
         ax.set_ylim(-0.02 * self.side, 1.02 * self.side)
         ax.set_aspect("equal")
-        ax.set_title(f"phase {self.phases}: fused {100 * self.info_fraction():.0f} % of the information, "
-                     f"{self.n_groups} group(s)")
+        ax.set_title(
+            f"phase {self.phases}: fused {100 * self.info_fraction():.0f} % of the information, "
+            f"{self.n_groups} group(s)"
+        )
 
 
 def candidate_lists(utility: np.ndarray, assignment: np.ndarray, K: int) -> tuple[np.ndarray, np.ndarray]:

@@ -114,8 +114,9 @@ class TeamMaps:
     # ------------------------------------------------------------------ fusion
     def missing_bits(self, have: np.ndarray, want: np.ndarray) -> int:
         """Bits of the packets in ``want`` (a version vector) beyond ``have``."""
-        return int(sum(self.packet_bits[u][want[u]] - self.packet_bits[u][have[u]]
-                       for u in range(self.n) if want[u] > have[u]))
+        return int(
+            sum(self.packet_bits[u][want[u]] - self.packet_bits[u][have[u]] for u in range(self.n) if want[u] > have[u])
+        )
 
     def fuse_group(self, members: np.ndarray, parent: np.ndarray) -> dict[tuple[int, int], int]:
         """Fuse one connected group over its tree (``parent[i]``: i's tree parent, −1 at the root).

@@ -35,8 +35,17 @@ from mrcomm_env.rendezvous.world import dense_components
 EPS_OBS_TIME = 1e-3
 
 
-def utility_matrix(Y: np.ndarray, count: np.ndarray, vehicle_pos: np.ndarray, landmark_pos: np.ndarray,
-                   speed: float, t_window: float, info_per_obs: float, obs_rate: float, budget: int) -> np.ndarray:
+def utility_matrix(
+    Y: np.ndarray,
+    count: np.ndarray,
+    vehicle_pos: np.ndarray,
+    landmark_pos: np.ndarray,
+    speed: float,
+    t_window: float,
+    info_per_obs: float,
+    obs_rate: float,
+    budget: int,
+) -> np.ndarray:
     """Eq. (1)–(4): the (n, L) mutual-information gain of each vehicle observing each landmark.
 
     ``Y`` is ``(L, 2, 2)`` (a shared map) or ``(n, L, 2, 2)`` (one map per vehicle), ``count`` ``(L,)`` or

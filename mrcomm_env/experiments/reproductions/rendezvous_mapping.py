@@ -77,9 +77,20 @@ def sweep(name: str, quick: bool, progress) -> list[dict]:
         seed = 1000 * draw + int(10 * sigma)
         kwargs = {"d_comms": spec["d_comms"], "t_window": spec["t_window"], "sigma": sigma}
         reached, c_dmax, c_dcomms = phases_to_half(kwargs, planner, seed, cap)
-        rows.append({"scenario": name, "sigma": sigma, "draw": draw, "seed": seed, "planner": planner,
-                     "phases_to_half": reached, "censored": reached >= cap, "C_dmax": c_dmax, "C_dcomms": c_dcomms,
-                     "C": c_dmax if spec["graph"] == "d_max" else c_dcomms})
+        rows.append(
+            {
+                "scenario": name,
+                "sigma": sigma,
+                "draw": draw,
+                "seed": seed,
+                "planner": planner,
+                "phases_to_half": reached,
+                "censored": reached >= cap,
+                "C_dmax": c_dmax,
+                "C_dcomms": c_dcomms,
+                "C": c_dmax if spec["graph"] == "d_max" else c_dcomms,
+            }
+        )
     return rows
 
 
@@ -93,8 +104,16 @@ def summarise(rows: list[dict]) -> dict:
         table[planner] = []
         for sigma, rs in sorted(by_sigma.items()):
             mean, half = mean_ci95([r["phases_to_half"] for r in rs])
-            table[planner].append({"sigma": sigma, "C": float(np.mean([r["C"] for r in rs])), "mean": mean,
-                                   "ci95": half, "censored": int(sum(r["censored"] for r in rs)), "n": len(rs)})
+            table[planner].append(
+                {
+                    "sigma": sigma,
+                    "C": float(np.mean([r["C"] for r in rs])),
+                    "mean": mean,
+                    "ci95": half,
+                    "censored": int(sum(r["censored"] for r in rs)),
+                    "n": len(rs),
+                }
+            )
     return table
 
 
@@ -118,8 +137,9 @@ def fig4(out: Path) -> str:
         centre = rng.uniform(25, 75, size=2)
         vehicles = np.clip(centre + rng.normal(0, 12.0, size=(n, 2)), 0, side)
         Y = np.broadcast_to(np.eye(2) * theory.prior_information(5.0), (L, 2, 2))
-        U = protocol.utility_matrix(Y, np.zeros(L), vehicles, landmarks, 1.0, t_window,
-                                    theory.information_per_observation(3.0), 1.0, 5)
+        U = protocol.utility_matrix(
+            Y, np.zeros(L), vehicles, landmarks, 1.0, t_window, theory.information_per_observation(3.0), 1.0, 5
+        )
         rec = protocol.recommend(U, landmarks, d_comms, record=True)
         if 3 <= len(rec.steps) <= 6:
             break
@@ -136,8 +156,15 @@ def fig4(out: Path) -> str:
         ax.add_collection(LineCollection(np.stack([landmarks[ii], landmarks[jj]], 1), colors="0.88", linewidths=0.4))
         cut = np.setdiff1d(np.arange(L), working)
         ax.scatter(landmarks[working, 0], landmarks[working, 1], marker="x", s=10, c="0.4")
-        ax.scatter(landmarks[cut, 0], landmarks[cut, 1], marker="o", s=12, facecolors="none", edgecolors="tab:red",
-                   linewidths=0.6)
+        ax.scatter(
+            landmarks[cut, 0],
+            landmarks[cut, 1],
+            marker="o",
+            s=12,
+            facecolors="none",
+            edgecolors="tab:red",
+            linewidths=0.6,
+        )
         ax.scatter(vehicles[:, 0], vehicles[:, 1], marker="s", s=30, c="tab:blue")
         ax.set_xlim(0, side)
         ax.set_ylim(0, side)
@@ -166,17 +193,30 @@ def fig4(out: Path) -> str:
         ax.set_title(f"{k + 2}: pass {k + 1}, |l_w| = {len(st.working)}, l_c = {st.central}, {state}", fontsize=8)
     for k in range(panels, rows_n * cols):
         axes[k // cols, k % cols].axis("off")
-    fig.suptitle("Fig. 4: partition passes (green: main cluster μ_max, orange: other clusters, star: l_c, "
-                 "red circles: cut landmarks)", fontsize=9)
+    fig.suptitle(
+        "Fig. 4: partition passes (green: main cluster μ_max, orange: other clusters, star: l_c, "
+        "red circles: cut landmarks)",
+        fontsize=9,
+    )
     fig.tight_layout()
     fig.savefig(out / "fig4_partition.png", dpi=110)
     plt.close(fig)
-    json.dump({"passes": len(steps), "connected": rec.connected,
-               "working_sizes": [int(len(s.working)) for s in steps], "central": [s.central for s in steps],
-               "outliers": [s.outlier for s in steps]}, open(out / "fig4_partition.json", "w"), indent=2)
-    return (f"Fig. 4 (`fig4_partition.png`): {len(steps)} passes, working set "
-            f"{' → '.join(str(len(s.working)) for s in steps)} landmarks, "
-            f"{'connected' if rec.connected else 'marked unconnected'} at the end.")
+    json.dump(
+        {
+            "passes": len(steps),
+            "connected": rec.connected,
+            "working_sizes": [int(len(s.working)) for s in steps],
+            "central": [s.central for s in steps],
+            "outliers": [s.outlier for s in steps],
+        },
+        open(out / "fig4_partition.json", "w"),
+        indent=2,
+    )
+    return (
+        f"Fig. 4 (`fig4_partition.png`): {len(steps)} passes, working set "
+        f"{' → '.join(str(len(s.working)) for s in steps)} landmarks, "
+        f"{'connected' if rec.connected else 'marked unconnected'} at the end."
+    )
 
 
 # ----------------------------------------------------------------------------------- Fig. 6
@@ -214,9 +254,11 @@ def fig6(out: Path, quick: bool, progress) -> tuple[str, dict]:
     plt.close(fig)
     paper = curves["paper_protocol"]
     monotone = all(b <= a + 1e-12 for a, b in zip(paper, paper[1:]))
-    md = (f"Fig. 6 (`fig6_sample_run.png`): under `paper_protocol` log₁₀ det P/det P₀ falls from 0 to "
-          f"{paper[-1]:.1f} in {len(paper) - 1} phases, never rising ({'holds' if monotone else 'FAILS'}: fused "
-          "information never decreases). The paper plots the same decreasing curve without numbers in the text.")
+    md = (
+        f"Fig. 6 (`fig6_sample_run.png`): under `paper_protocol` log₁₀ det P/det P₀ falls from 0 to "
+        f"{paper[-1]:.1f} in {len(paper) - 1} phases, never rising ({'holds' if monotone else 'FAILS'}: fused "
+        "information never decreases). The paper plots the same decreasing curve without numbers in the text."
+    )
     return md, {"final_log10": {k: c[-1] for k, c in curves.items()}, "monotone": monotone}
 
 
@@ -226,8 +268,14 @@ def plot_sweep(out: Path, name: str, table: dict) -> None:
     spec = SCENARIOS[name]
     fig, ax = plt.subplots(figsize=(6, 4))
     for planner, rows in table.items():
-        ax.errorbar([r["C"] for r in rows], [r["mean"] for r in rows], yerr=[r["ci95"] for r in rows], marker="o",
-                    capsize=3, label=planner)
+        ax.errorbar(
+            [r["C"] for r in rows],
+            [r["mean"] for r in rows],
+            yerr=[r["ci95"] for r in rows],
+            marker="o",
+            capsize=3,
+            label=planner,
+        )
     ax.set_xlabel(f"mean clustering coefficient C of the {spec['graph']} graph")
     ax.set_ylabel("decision phases to 50 % of the information")
     ax.set_title(f"{spec['figure']}: d_comms = {spec['d_comms']:g}, d_max = {spec['t_window']:g}")
@@ -254,38 +302,74 @@ def check_claims(tables: dict, rows: dict) -> list[dict]:
     claims = []
     c, y = xy("fig8_infinite_comms", "paper_protocol")
     rho = spearman(c, y)
-    claims.append({"figure": "Fig. 8", "claim": "with d_comms = ∞, performance becomes less efficient as d_max-graph "
-                   "clustering increases", "measure": f"Spearman ρ(C, phases) = {rho:+.2f}",
-                   "holds": bool(rho > 0)})
+    claims.append(
+        {
+            "figure": "Fig. 8",
+            "claim": "with d_comms = ∞, performance becomes less efficient as d_max-graph clustering increases",
+            "measure": f"Spearman ρ(C, phases) = {rho:+.2f}",
+            "holds": bool(rho > 0),
+        }
+    )
     if "no_partition" in tables["fig8_infinite_comms"]:
         a, b = mean_of("fig8_infinite_comms", "paper_protocol"), mean_of("fig8_infinite_comms", "no_partition")
-        claims.append({"figure": "Fig. 8", "claim": "the Utility and Communication Network module offers little "
-                       "under infinite communication", "measure": f"paper_protocol {a:.1f} vs no_partition {b:.1f} "
-                       f"phases ({100 * (a - b) / b:+.0f} %)", "holds": bool(abs(a - b) <= 0.1 * b)})
+        claims.append(
+            {
+                "figure": "Fig. 8",
+                "claim": "the Utility and Communication Network module offers little under infinite communication",
+                "measure": f"paper_protocol {a:.1f} vs no_partition {b:.1f} phases ({100 * (a - b) / b:+.0f} %)",
+                "holds": bool(abs(a - b) <= 0.1 * b),
+            }
+        )
     c, y = xy("fig9_zero_comms", "paper_protocol")
     rho = spearman(c, y)
-    claims.append({"figure": "Fig. 9", "claim": "with d_comms = 0 the module shines at high d_max-graph clustering "
-                   "(fewer phases as C grows)", "measure": f"Spearman ρ(C, phases) = {rho:+.2f}",
-                   "holds": bool(rho < 0)})
+    claims.append(
+        {
+            "figure": "Fig. 9",
+            "claim": "with d_comms = 0 the module shines at high d_max-graph clustering (fewer phases as C grows)",
+            "measure": f"Spearman ρ(C, phases) = {rho:+.2f}",
+            "holds": bool(rho < 0),
+        }
+    )
     p_hi, g_hi = high_c_mean("fig9_zero_comms", "paper_protocol"), high_c_mean("fig9_zero_comms", "greedy")
-    claims.append({"figure": "Fig. 9", "claim": "…and beats planners that ignore connectivity there",
-                   "measure": f"at the largest σ: paper_protocol {p_hi:.1f} vs greedy {g_hi:.1f} phases",
-                   "holds": bool(p_hi < g_hi)})
+    claims.append(
+        {
+            "figure": "Fig. 9",
+            "claim": "…and beats planners that ignore connectivity there",
+            "measure": f"at the largest σ: paper_protocol {p_hi:.1f} vs greedy {g_hi:.1f} phases",
+            "holds": bool(p_hi < g_hi),
+        }
+    )
     low = [r["phases_to_half"] for r in rows["fig9_zero_comms"] if r["planner"] == "paper_protocol" and r["C"] < 0.3]
     if len(low) >= 2:
         spread = (max(low) - min(low)) / max(statistics.fmean(low), 1e-9)
-        claims.append({"figure": "Fig. 9", "claim": "a horizontal line below C = 0.3 (d_max too small to profit "
-                       "from the grid)", "measure": f"spread (max − min)/mean of the runs with C < 0.3: "
-                       f"{100 * spread:.0f} % over {len(low)} runs", "holds": bool(spread <= 0.2)})
+        claims.append(
+            {
+                "figure": "Fig. 9",
+                "claim": "a horizontal line below C = 0.3 (d_max too small to profit from the grid)",
+                "measure": f"spread (max − min)/mean of the runs with C < 0.3: "
+                f"{100 * spread:.0f} % over {len(low)} runs",
+                "holds": bool(spread <= 0.2),
+            }
+        )
     c, y = xy("fig10_long_window", "paper_protocol")
     rho = spearman(c, y)
-    claims.append({"figure": "Fig. 10", "claim": "with d_comms = 10, d_max = 30 the protocol improves vastly with "
-                   "d_comms-graph clustering", "measure": f"Spearman ρ(C, phases) = {rho:+.2f}",
-                   "holds": bool(rho < 0)})
+    claims.append(
+        {
+            "figure": "Fig. 10",
+            "claim": "with d_comms = 10, d_max = 30 the protocol improves vastly with d_comms-graph clustering",
+            "measure": f"Spearman ρ(C, phases) = {rho:+.2f}",
+            "holds": bool(rho < 0),
+        }
+    )
     p10, p9 = mean_of("fig10_long_window", "paper_protocol"), mean_of("fig9_zero_comms", "paper_protocol")
-    claims.append({"figure": "Figs 9–10", "claim": "minimal rendezvousing (d_max ≫ d_comms) beats continuous "
-                   "rendezvousing", "measure": f"mean phases {p10:.1f} (Fig. 10 setting) vs {p9:.1f} (Fig. 9)",
-                   "holds": bool(p10 < p9)})
+    claims.append(
+        {
+            "figure": "Figs 9–10",
+            "claim": "minimal rendezvousing (d_max ≫ d_comms) beats continuous rendezvousing",
+            "measure": f"mean phases {p10:.1f} (Fig. 10 setting) vs {p9:.1f} (Fig. 9)",
+            "holds": bool(p10 < p9),
+        }
+    )
     return claims
 
 
@@ -313,8 +397,12 @@ def time_decision_phase(phases: int = 30, seed: int = 0, **env_kwargs) -> dict[s
         if not env.agents:
             break
     total = [a + b for a, b in zip(t_policy, t_env)]
-    return {"policy_ms": statistics.median(t_policy), "env_step_ms": statistics.median(t_env),
-            "decision_phase_ms": statistics.median(total), "phases": len(total)}
+    return {
+        "policy_ms": statistics.median(t_policy),
+        "env_step_ms": statistics.median(t_env),
+        "decision_phase_ms": statistics.median(total),
+        "phases": len(total),
+    }
 
 
 # ----------------------------------------------------------------------------------- report
@@ -345,32 +433,62 @@ def run(out_dir: Path, quick: bool) -> str:
         w.writerows(all_rows)
     claims = check_claims(tables, rows)
     timing = time_decision_phase(phases=10 if quick else 40)
-    json.dump({"fig6": fig6_res, "tables": tables, "claims": claims, "timing": timing, "quick": quick,
-               "seconds": time.perf_counter() - start}, open(out / "results.json", "w"), indent=2, default=float)
+    json.dump(
+        {
+            "fig6": fig6_res,
+            "tables": tables,
+            "claims": claims,
+            "timing": timing,
+            "quick": quick,
+            "seconds": time.perf_counter() - start,
+        },
+        open(out / "results.json", "w"),
+        indent=2,
+        default=float,
+    )
 
     lines = ["## RendezvousMapping-v0 — Chapman & Sukkarieh, decentralised mapping with limited connectivity", ""]
     if quick:
-        lines += ["*Quick run: two σ values, one landmark draw each, two planners, a 40-phase cap (80 at "
-                  "d_comms = 0). Run without `--quick` for the full sweep.*", ""]
+        lines += [
+            "*Quick run: two σ values, one landmark draw each, two planners, a 40-phase cap (80 at "
+            "d_comms = 0). Run without `--quick` for the full sweep.*",
+            "",
+        ]
     lines += [fig4_md, "", fig6_md, ""]
     for name, spec in SCENARIOS.items():
-        lines += [f"**{spec['figure']}** (`{name}.png`): d_comms = {spec['d_comms']:g}, "
-                  f"d_max = {spec['t_window']:g} m; phases to 50 % of the information (mean ± 95 % CI; censored "
-                  "runs count as the cap) against C of the " + spec["graph"] + " graph.", "",
-                  "| planner | " + " | ".join(f"σ = {r['sigma']:g} (C = {r['C']:.2f})"
-                                              for r in next(iter(tables[name].values()))) + " |",
-                  "| --- |" + " --- |" * len(next(iter(tables[name].values())))]
+        lines += [
+            f"**{spec['figure']}** (`{name}.png`): d_comms = {spec['d_comms']:g}, "
+            f"d_max = {spec['t_window']:g} m; phases to 50 % of the information (mean ± 95 % CI; censored "
+            "runs count as the cap) against C of the " + spec["graph"] + " graph.",
+            "",
+            "| planner | "
+            + " | ".join(f"σ = {r['sigma']:g} (C = {r['C']:.2f})" for r in next(iter(tables[name].values())))
+            + " |",
+            "| --- |" + " --- |" * len(next(iter(tables[name].values()))),
+        ]
         for planner, rs in tables[name].items():
-            cells = [f"{r['mean']:.1f} ± {r['ci95']:.1f}" + (f" ({r['censored']} cens.)" if r["censored"] else "")
-                     if math.isfinite(r["ci95"]) else f"{r['mean']:.1f}" + (" (cens.)" if r["censored"] else "")
-                     for r in rs]
+            cells = [
+                f"{r['mean']:.1f} ± {r['ci95']:.1f}" + (f" ({r['censored']} cens.)" if r["censored"] else "")
+                if math.isfinite(r["ci95"])
+                else f"{r['mean']:.1f}" + (" (cens.)" if r["censored"] else "")
+                for r in rs
+            ]
             lines.append(f"| `{planner}` | " + " | ".join(cells) + " |")
         lines.append("")
-    lines += ["**The paper's statements** (its figures give no numbers in the text; each statement is tested on our "
-              "runs):", "", "| figure | the paper says | ours | holds |", "| --- | --- | --- | --- |"]
-    lines += [f"| {c['figure']} | {c['claim']} | {c['measure']} | {'yes' if c['holds'] else '**no**'} |"
-              for c in claims]
-    lines += ["", f"Decision phase under `paper_protocol`, 10 vehicles × 200 landmarks, median of "
-              f"{timing['phases']} phases on one thread: {timing['decision_phase_ms']:.1f} ms (policy "
-              f"{timing['policy_ms']:.1f} ms + env step {timing['env_step_ms']:.1f} ms); goal < 50 ms.", ""]
+    lines += [
+        "**The paper's statements** (its figures give no numbers in the text; each statement is tested on our runs):",
+        "",
+        "| figure | the paper says | ours | holds |",
+        "| --- | --- | --- | --- |",
+    ]
+    lines += [
+        f"| {c['figure']} | {c['claim']} | {c['measure']} | {'yes' if c['holds'] else '**no**'} |" for c in claims
+    ]
+    lines += [
+        "",
+        f"Decision phase under `paper_protocol`, 10 vehicles × 200 landmarks, median of "
+        f"{timing['phases']} phases on one thread: {timing['decision_phase_ms']:.1f} ms (policy "
+        f"{timing['policy_ms']:.1f} ms + env step {timing['env_step_ms']:.1f} ms); goal < 50 ms.",
+        "",
+    ]
     return "\n".join(lines)
