@@ -14,6 +14,9 @@ lowest-index member's view, which is what each member would compute alone.
   rendezvous at l_c) or 3 (go to l_c and wait). Actions 2 and 3 are both the env's rendezvous action,
   which applies condition (4) itself. When d_comms covers the whole area every position is connected, the
   module is bypassed (§VI-B.2) and every vehicle heads for l_p, reachable or not (the ε utility of §IV-A).
+  The paper does not say what a team split by a failed rendezvous does; here every member of a group smaller
+  than the team takes the rendezvous action, which then leads to the last whole-team l_c (the env's regroup
+  rule), observing l_p on the way when the detour fits.
 * ``no_partition`` — §VI-B.2: Munkres over the candidates, no partition and no rendezvous (infinite
   communication assumed).
 * ``always_rendezvous`` — §VI-B.3: continuous rendezvousing, every vehicle takes the rendezvous action.
@@ -33,8 +36,8 @@ from mrcomm_env.rendezvous import protocol, theory
 ENV_ID = "mrcomm/RendezvousMapping-v0"
 DEFAULT_POLICY = "paper_protocol"
 
-#: the three actions of §V, as reported by ``PaperProtocol.last_actions``
-OBSERVE, OBSERVE_THEN_RENDEZVOUS, RENDEZVOUS = 1, 2, 3
+#: the three actions of §V, as reported by ``PaperProtocol.last_actions``, and regrouping a split team
+OBSERVE, OBSERVE_THEN_RENDEZVOUS, RENDEZVOUS, REGROUP = 1, 2, 3, 4
 
 
 def groups(views: LocalViews) -> list[np.ndarray]:
@@ -98,6 +101,9 @@ class PaperProtocol(Policy):
             U, est, pos = group_utility(views, members)
             rec = protocol.recommend(U, est, p["d_comms"])
             self.last_plans[int(members[0])] = rec
+            if len(members) < views.n_agents:  # the team is split: regroup (the env's rule), l_p on the way
+                self.last_actions[members] = REGROUP
+                continue
             for row, v in enumerate(members.tolist()):
                 kind = action_module(rec, row, pos[row], est, d_max, everywhere_linked)
                 self.last_actions[v] = kind

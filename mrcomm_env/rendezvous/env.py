@@ -27,7 +27,11 @@ counted for the version vectors, map updates, positions and utility vectors sent
 **The plan** (``protocol.py``): at each decision phase every connected group runs the recommendation
 phase of §IV on its shared map (utility eq. (1)–(4), Munkres, clusters, cluster value eq. (6),
 eigenvector centrality, partition eq. (7)–(8)). It defines each member's recommended landmark l_p(v),
-the main cluster and the rendezvous landmark l_c of the actions above. A vehicle's candidates are
+the main cluster and the rendezvous landmark l_c of the actions above. **Regrouping** (our rule: the
+paper assumes the planned network always forms, §V, and is silent on a split team): while the team is
+split into several groups, the rendezvous landmark of every group is the l_c of the last plan the whole
+team made together, a landmark every vehicle knows, so that vehicles taking the rendezvous action meet
+again there. A vehicle's candidates are
 l_p(v) then its highest-utility landmarks; landmarks it believes exhausted are not candidates.
 
 **Moving** goes to the vehicle's own estimate of a landmark, straight at speed u; a target out of reach
@@ -148,7 +152,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         "candidate_utility": "(K,) eq. (1) utility of each candidate",
         "recommended_landmark": "l_p(v) of the group's plan, −1 when unassigned",
         "in_main_cluster": "l_p(v) lies in the plan's main cluster μ_max",
-        "rendezvous_landmark": "l_c of the group's plan",
+        "rendezvous_landmark": "l_c of the group's plan; while the team is split, the l_c of the last whole-team plan",
         "plan_connected": "the group's plan ended connected (not marked unconnected, §IV-D)",
         "action_mask": "(K + 2,) bool: feasible actions",
     }
@@ -226,6 +230,8 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         self.connected_phases = 0
         self.rendezvous_windows = 0
         self.half_phase = math.nan
+        # each vehicle's regroup landmark: l_c of the last plan the whole team made together (all start together)
+        self.regroup = np.zeros(n, dtype=np.int64)
         self.action_kind = np.full(n, HOLD, dtype=np.int64)
         self.action_ok = np.ones(n, dtype=bool)
         self.step_obs = np.zeros(n, dtype=np.int64)
@@ -389,8 +395,12 @@ class RendezvousMappingEnv(MrcommParallelEnv):
             rec = protocol.recommend(self.utility[members], self._estimates[int(members[0])], c.d_comms)
             self.assignment[members] = rec.assignment
             self.in_main[members] = rec.in_main
-            self.central[members] = rec.central
             self.plan_connected[members] = rec.connected
+            if len(members) == n:  # the whole team planned together: its l_c is the regroup point from now on
+                self.central[members] = rec.central
+                self.regroup[:] = rec.central
+            else:  # a split team regroups where it last agreed to meet (our rule; §V assumes no split)
+                self.central[members] = self.regroup[members]
         self.candidates, self.candidate_utility = candidate_lists(self.utility, self.assignment, K)
         self.mask = np.ones((n, K + 2), dtype=bool)
         self.mask[:, :K] = self.candidates >= 0
