@@ -382,8 +382,9 @@ def check_claims(tables: dict, rows: dict) -> list[dict]:
 
 # ----------------------------------------------------------------------------------- timing
 def time_decision_phase(phases: int = 30, seed: int = 0, **env_kwargs) -> dict[str, float]:
-    """Median wall time (ms) of one decision phase under ``paper_protocol`` (10 vehicles, 200 landmarks by
-    default): the policy's planning, the env step (window, fusion, the env's own plan), and both.
+    """Median time (ms) of one decision phase under ``paper_protocol`` (10 vehicles, 200 landmarks by
+    default): the policy's planning, the env step (window, fusion, the env's own plan), and both, in wall time
+    and in this process's CPU time (``cpu_ms``: what the phase costs on one core when the machine is shared).
 
     This is the benchmark for the issue's goal of < 50 ms on one core; ``mrcomm bench`` can call it.
     """
@@ -392,13 +393,15 @@ def time_decision_phase(phases: int = 30, seed: int = 0, **env_kwargs) -> dict[s
     obs, _ = env.reset(seed=seed)
     views = env.local_views()
     policy.reset(views, seed)
-    t_policy, t_env = [], []
+    t_policy, t_env, cpu = [], [], []
     for _ in range(phases):
+        c0 = time.process_time()
         t0 = time.perf_counter()
         actions = policy.act(obs, views)
         t1 = time.perf_counter()
         obs, *_ = env.step(actions)
         t2 = time.perf_counter()
+        cpu.append(1e3 * (time.process_time() - c0))
         t_policy.append(1e3 * (t1 - t0))
         t_env.append(1e3 * (t2 - t1))
         if not env.agents:
@@ -408,6 +411,8 @@ def time_decision_phase(phases: int = 30, seed: int = 0, **env_kwargs) -> dict[s
         "policy_ms": statistics.median(t_policy),
         "env_step_ms": statistics.median(t_env),
         "decision_phase_ms": statistics.median(total),
+        "decision_phase_cpu_ms": statistics.median(cpu),
+        "max_decision_phase_ms": max(total),
         "phases": len(total),
     }
 
@@ -493,7 +498,8 @@ def run(out_dir: Path, quick: bool) -> str:
     lines += [
         "",
         f"Decision phase under `paper_protocol`, 10 vehicles × 200 landmarks, median of "
-        f"{timing['phases']} phases on one thread: {timing['decision_phase_ms']:.1f} ms (policy "
+        f"{timing['phases']} phases on one thread: {timing['decision_phase_ms']:.1f} ms wall, "
+        f"{timing['decision_phase_cpu_ms']:.1f} ms CPU (policy "
         f"{timing['policy_ms']:.1f} ms + env step {timing['env_step_ms']:.1f} ms); goal < 50 ms.",
         "",
     ]
