@@ -38,6 +38,11 @@ ENTRIES: dict[str, EnvEntry] = {
     "mrcomm/MultiHop-v0": EnvEntry(
         "mrcomm_env.multihop_v0", "baselines.multihop", "mrcomm_env.experiments.reproductions.multihop"
     ),
+    "mrcomm/RendezvousMapping-v0": EnvEntry(
+        "mrcomm_env.rendezvous_mapping_v0",
+        "baselines.rendezvous_mapping",
+        "mrcomm_env.experiments.reproductions.rendezvous_mapping",
+    ),
 }
 
 

@@ -1,0 +1,1 @@
+"""RendezvousMapping-v0: decentralised multi-vehicle mapping with limited connectivity (Chapman & Sukkarieh)."""

@@ -1,0 +1,597 @@
+"""RendezvousMapping-v0: decentralised multi-vehicle mapping with limited connectivity (Chapman & Sukkarieh, paper 004).
+
+| | |
+| --- | --- |
+| Agents | `n_vehicles` vehicles `robot_0 … robot_{N-1}` (10 by default) mapping `n_landmarks` landmarks (200) in a square of `area` m² (10,000, §VI-A) |
+| Actions | `Discrete(K + 2)`, K = `k_candidates`: `0 … K−1` go to candidate landmark i and observe it (slot 0 is the group's recommended landmark l_p(v) when the vehicle has one); `K` rendezvous at the group's central landmark l_c, observing l_p(v) on the way when the detour fits the window (Fig. 5 actions 2 and 3); `K + 1` hold (keep observing the landmark it is at). Infeasible actions (empty candidate slots) are masked: `env.action_masks()` (N, K+2) and the infos `action_mask_0 …`; taken anyway they act as hold |
+| Observations | `Box(0, 1, (11 + 12K,))`: own position, phase, group share, whole-team connected, own map's information fraction; per candidate (relative position, eq. (1) utility, travel time, in main cluster, recommended, valid); the rendezvous landmark (relative position, travel time, detour fits, plan connected); the K nearest vehicles it knows of (relative position, linked now, staleness, valid) |
+| Reward | team reward: increase of Σ_l ln det Y_l of the **fused** global map (the information every vehicle holds) over the step, in units of one landmark's available information per vehicle |
+| Arguments | `n_vehicles`, `n_landmarks`, `area`, `speed`, `t_window`, `d_comms`, `sigma`, `k_candidates`, `prior_sigma`, `obs_sigma`, `obs_rate`, `obs_per_landmark`, `max_cycles` (alias `max_phases`) |
+
+**One env step is one decision phase** (§I, Fig. 1): the actions chosen at phase k are carried out over the
+gathering window t_window (travel at speed u, observe, wait), and the window ends with the next decision
+phase, at which every connected group fuses its maps over a Dijkstra spanning tree (§III) and plans.
+
+**Landmarks** start on a uniform grid and are shifted by N(0, σ²) within the area (§VI-B.1); σ sets the
+mean clustering coefficient C of the landmark graphs at d_comms and d_max = u·t_window (metrics
+``clustering_dcomms``, ``clustering_dmax``). Every vehicle starts with the same prior map (§III: each
+landmark's estimate off by N(0, σ₀²)), and all start together at a launch point drawn in the area.
+
+**Filters and fusion** (``filters.py``): information form per landmark, observations z = x + N(0, σ_obs²I)
+at ``obs_rate`` Hz while at a landmark; each landmark yields at most ``obs_per_landmark`` independent
+observations (the sensor floor, ``theory.py``), which makes the available information finite. Fusion
+moves whole packets tracked by version vectors (exact channel-filter bookkeeping): nothing is counted
+twice, and a vehicle that was cut off sends, when it reconnects, only what the others lack. Bits are
+counted for the version vectors, map updates, positions and utility vectors sent on each tree edge.
+
+**The plan** (``protocol.py``): at each decision phase every connected group runs the recommendation
+phase of §IV on its shared map (utility eq. (1)–(4), Munkres, clusters, cluster value eq. (6),
+eigenvector centrality, partition eq. (7)–(8)). It defines each member's recommended landmark l_p(v),
+the main cluster and the rendezvous landmark l_c of the actions above. **Regrouping** (our rule: the
+paper assumes the planned network always forms, §V, and is silent on a split team): while the team is
+split into several groups, the rendezvous landmark of every group is the l_c of the last plan the whole
+team made together, a landmark every vehicle knows, so that vehicles taking the rendezvous action meet
+again there. A vehicle's candidates are
+l_p(v) then its highest-utility landmarks; landmarks it believes exhausted are not candidates.
+
+**Moving** goes to the vehicle's own estimate of a landmark, straight at speed u; a target out of reach
+is approached for the whole window (§IV-A's ε utility: "travel towards"). With d_comms = 0 vehicles are
+linked only when co-located, i.e. after a rendezvous at the same landmark.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from gymnasium import spaces
+
+from mrcomm_env.core import BitLedger, MrcommParallelEnv
+from mrcomm_env.core.config import Int, Param, Real
+from mrcomm_env.rendezvous import filters, protocol, theory, world
+
+#: action kinds reported in the infos
+GO, DETOUR_RENDEZVOUS, RENDEZVOUS, HOLD = 0, 1, 2, 3
+#: bits of one position (two floats) and of one utility entry
+POSITION_BITS = 2 * filters.FLOAT_BITS
+
+
+class RendezvousMappingEnv(MrcommParallelEnv):
+    ENV_ID = "mrcomm/RendezvousMapping-v0"
+    DESCRIPTION = (
+        "Which landmark each vehicle maps, or where the team regroups, when maps fuse only over a "
+        "connected acyclic network (decentralised mapping with limited connectivity)"
+    )
+    metadata = {"name": "rendezvous_mapping_v0", "render_modes": ["rgb_array", "human"], "render_fps": 4}
+    STEP_UNIT = ("decision phase", False)
+    PARAMS = {
+        "n_vehicles": Param(10, "N_v: number of vehicles (§VI-A)", Int(lo=1, hi=64, fuzz=(1, 6))),
+        "n_landmarks": Param(
+            200, "N_l: number of landmarks, at least n_vehicles (§VI-A)", Int(lo=1, hi=5000, fuzz=(6, 60))
+        ),
+        "area": Param(
+            10_000.0,
+            "mapping area (m²) of the square map, side √area (§VI-A)",
+            Real(lo=0.0, lo_open=True, fuzz=(400.0, 20_000.0)),
+        ),
+        "speed": Param(1.0, "u: vehicle speed (m/s); d_max = u·t_window", Real(lo=0.0, lo_open=True, fuzz=(0.2, 3.0))),
+        "t_window": Param(
+            15.0,
+            "t_window: time between decision phases (s); d_max = 15 m by default (§VI-B)",
+            Real(lo=0.0, lo_open=True, fuzz=(1.0, 40.0)),
+        ),
+        "d_comms": Param(
+            10.0,
+            "maximum communication distance (m): `inf` (§VI-B.2), 0 = co-located only (§VI-B.3) or finite (§VI-B.4)",
+            Real(lo=0.0, allow_inf=True, fuzz=(0.0, 40.0)),
+        ),
+        "sigma": Param(
+            3.0,
+            "σ (m) of the N(0, σ²) shift of the landmark grid (§VI-B.1); sets the clustering C",
+            Real(lo=0.0, fuzz=(0.0, 30.0)),
+        ),
+        "k_candidates": Param(5, "K: candidate landmarks listed per vehicle", Int(lo=1, hi=64, fuzz=(1, 8))),
+        "prior_sigma": Param(
+            5.0,
+            "σ₀ (m): std of every landmark's common prior estimate, per axis",
+            Real(lo=0.0, lo_open=True, fuzz=(0.5, 20.0)),
+        ),
+        "obs_sigma": Param(
+            3.0, "σ_obs (m): std of one position observation, per axis", Real(lo=0.0, lo_open=True, fuzz=(0.2, 10.0))
+        ),
+        "obs_rate": Param(
+            1.0,
+            "observations per second while at a landmark (I_obs = rate·R⁻¹, eq. 3)",
+            Real(lo=0.0, lo_open=True, fuzz=(0.2, 4.0)),
+        ),
+        "obs_per_landmark": Param(
+            5,
+            "sensor floor: independent observations a landmark yields in total, by any "
+            "vehicle (makes the available information finite)",
+            Int(lo=1, hi=10_000, fuzz=(1, 20)),
+        ),
+        "max_cycles": Param(
+            100, "episode length in decision phases (`max_phases` is accepted as an alias)", Int(lo=1, fuzz=(1, 30))
+        ),
+    }
+    METRICS = {
+        "iterations_to_half_info": "decision phases until the fused map held 50 % of the information available "
+        "(§VI-B; nan while not reached)",
+        "info_fraction": "information of the fused map, Σ_l ln det Y_l − ln det Y₀, over the information available",
+        "normalized_det": "det P / det P₀ of the fused map (Fig. 6) as the per-landmark geometric mean, "
+        "(Π_l det P_l / det P₀,l)^(1/N_l), which does not underflow",
+        "log10_det_ratio": "log₁₀ of the whole map's det P / det P₀ (the product over landmarks, Fig. 6's quantity)",
+        "connected_fraction": "fraction of decision phases after a window at which the whole team was connected",
+        "bits_sent": "bits sent in the episode (version vectors, map updates, positions, utility vectors)",
+        "own_info_fraction": "mean over vehicles of the information fraction of its own map",
+        "rendezvous_fraction": "fraction of vehicle-windows spent on a rendezvous action",
+        "clustering_dcomms": "mean clustering coefficient C of the landmark graph at d_comms (§VI-B.1)",
+        "clustering_dmax": "mean clustering coefficient C of the landmark graph at d_max = u·t_window",
+    }
+    INFO_KEYS = {
+        "bits_sent": "bits this vehicle sent at the last decision phase",
+        "own_info_fraction": "information fraction of this vehicle's own map",
+        "group_share": "fraction of the team in this vehicle's connected group",
+        "action_kind": "what the last action did: 0 go to a candidate, 1 observe l_p(v) then rendezvous, "
+        "2 rendezvous directly, 3 hold",
+        "action_feasible": "1 when the last action was feasible (an infeasible one acts as hold)",
+        "observations": "independent observations this vehicle made in the last window",
+        "action_mask_<i>": "i = 0 … K+1: 1 when action i is feasible now (the same as `env.action_masks()`)",
+    }
+    LOCAL_VIEW = {
+        "position": "(2,) own position (m)",
+        "phase": "decision phases so far",
+        "map_information": "(L, 2, 2) own information matrices Y_l",
+        "map_vector": "(L, 2) own information vectors y_l",
+        "map_count": "(L,) observations of each landmark in own map (for the sensor floor)",
+        "landmark_estimates": "(L, 2) own estimates Y_l⁻¹ y_l (m)",
+        "known_positions": "(N, 2) last known position of every vehicle (own: current)",
+        "known_phase": "(N,) phase at which each of those positions was learnt",
+        "group": "(N,) bool: vehicles in its connected group now (itself included)",
+        "candidates": "(K,) candidate landmark ids, −1 for an empty slot",
+        "candidate_utility": "(K,) eq. (1) utility of each candidate",
+        "recommended_landmark": "l_p(v) of the group's plan, −1 when unassigned",
+        "in_main_cluster": "l_p(v) lies in the plan's main cluster μ_max",
+        "rendezvous_landmark": "l_c of the group's plan; while the team is split, the l_c of the last whole-team plan",
+        "plan_connected": "the group's plan ended connected (not marked unconnected, §IV-D)",
+        "action_mask": "(K + 2,) bool: feasible actions",
+    }
+    DOCUMENTED_CONFIGS = {
+        "default": {"max_cycles": 40},
+        "infinite_comms": {"d_comms": math.inf, "n_landmarks": 60, "n_vehicles": 4, "area": 2500.0, "max_cycles": 30},
+        "zero_comms": {"d_comms": 0.0, "n_landmarks": 60, "n_vehicles": 4, "area": 2500.0, "max_cycles": 30},
+        "long_window": {
+            "d_comms": 10.0,
+            "t_window": 30.0,
+            "n_landmarks": 60,
+            "n_vehicles": 4,
+            "area": 2500.0,
+            "max_cycles": 30,
+        },
+        "single_vehicle": {"n_vehicles": 1, "n_landmarks": 20, "area": 900.0, "k_candidates": 3, "max_cycles": 30},
+    }
+    VERSION_HISTORY = [
+        ("v0", "first version: one step = one decision phase, Discrete(K + 2) actions, fused-map reward")
+    ]
+
+    def __init__(self, render_mode: str | None = None, **kwargs):
+        if "max_phases" in kwargs:  # the issue's name for the horizon
+            if "max_cycles" in kwargs:
+                raise ValueError("pass the horizon as 'max_cycles' or 'max_phases', not both")
+            kwargs["max_cycles"] = kwargs.pop("max_phases")
+        super().__init__(render_mode=render_mode, **kwargs)
+
+    # ----------------------------------------------------------------- setup
+    def _setup(self) -> None:
+        c = self.cfg
+        if c.n_landmarks < c.n_vehicles:
+            raise ValueError(
+                f"argument 'n_landmarks' must be at least n_vehicles = {c.n_vehicles}, got {c.n_landmarks}"
+            )
+        n, K = c.n_vehicles, c.k_candidates
+        self.n_agents = n
+        self.K = K
+        self.side = math.sqrt(c.area)
+        self.d_max = c.speed * c.t_window
+        self.r_info = theory.information_per_observation(c.obs_sigma)
+        self.y0_info = theory.prior_information(c.prior_sigma)
+        self.avail_per_landmark = theory.available_information(c.prior_sigma, c.obs_sigma, c.obs_per_landmark)
+        self.available = self.avail_per_landmark * c.n_landmarks
+        self.u_max = theory.max_utility(c.prior_sigma, c.obs_sigma, c.obs_per_landmark)
+        # reward unit: one landmark's available information per vehicle, so that a team mapping one fresh
+        # landmark per vehicle and phase, fused at once, earns about 1 per step
+        self.reward_scale = self.avail_per_landmark * n
+        ticks = math.floor(c.t_window * c.obs_rate + 1e-9)
+        self.ticks = np.arange(1, ticks + 1) / c.obs_rate  # observation instants within a window
+        self.obs_dim = 11 + 12 * K
+        self._obs_space = spaces.Box(0.0, 1.0, shape=(self.obs_dim,), dtype=np.float32)
+        self._act_space = spaces.Discrete(K + 2)
+        self.ledger = BitLedger(n)
+        self._mask_keys = [f"action_mask_{i}" for i in range(K + 2)]
+
+    # ----------------------------------------------------------------- episode
+    def _reset_world(self) -> None:
+        c, n, rng = self.cfg, self.n_agents, self.np_random
+        L = c.n_landmarks
+        self.landmarks = world.jittered_grid(L, self.side, c.sigma, rng)
+        prior_mean = self.landmarks + rng.normal(0.0, c.prior_sigma, size=(L, 2))
+        Y0 = np.broadcast_to(np.eye(2) * self.y0_info, (L, 2, 2)).copy()
+        y0 = prior_mean * self.y0_info
+        self.maps = filters.TeamMaps(n, Y0, y0)
+        self.logdet0 = float(filters.logdet2(Y0).sum())
+        self.fused_logdet = self.logdet0
+        self.world_count = np.zeros(L, dtype=np.int64)
+        self.pos = np.broadcast_to(rng.uniform(0.0, self.side, size=2), (n, 2)).copy()
+        self.at_landmark = np.full(n, -1, dtype=np.int64)
+        self.known_pos = np.broadcast_to(self.pos, (n, n, 2)).copy()
+        self.known_phase = np.zeros((n, n), dtype=np.int64)
+        self.ledger.reset()
+        self.phases = 0
+        self.connected_phases = 0
+        self.rendezvous_windows = 0
+        self.half_phase = math.nan
+        # each vehicle's regroup landmark: l_c of the last plan the whole team made together (all start together)
+        self.regroup = np.zeros(n, dtype=np.int64)
+        self.action_kind = np.full(n, HOLD, dtype=np.int64)
+        self.action_ok = np.ones(n, dtype=bool)
+        self.step_obs = np.zeros(n, dtype=np.int64)
+        self._clustering: dict[str, float] = {}
+        self._decision_phase()
+
+    # ----------------------------------------------------------------- dynamics
+    def _step_world(self, actions: list) -> float:
+        n, c = self.n_agents, self.cfg
+        T, u = c.t_window, c.speed
+        est = self._estimates
+        events_t, events_v, events_l = [], [], []
+        new_pos = self.pos.copy()
+        new_at = np.full(n, -1, dtype=np.int64)
+        for v, a in enumerate(actions):
+            ok = bool(self.mask[v, a])
+            self.action_ok[v] = ok
+            if not ok:
+                a = self.K + 1
+            here, t, final = self.pos[v], 0.0, -1
+            for target, landmark, leave in self._route(v, a, est[v]):  # leave: departure time, None: stay
+                dist = float(np.hypot(*(target - here)))
+                arrive = t + dist / u
+                if arrive > T + 1e-9:  # out of reach: travel towards it for the rest of the window
+                    here, final = here + (target - here) * ((T - t) * u / dist), -1
+                    break
+                end = T if leave is None else leave
+                sel = self.ticks[(self.ticks >= arrive - 1e-9) & (self.ticks <= end + 1e-9)]
+                events_t.append(sel)
+                events_v.append(np.full(len(sel), v))
+                events_l.append(np.full(len(sel), landmark))
+                here, t, final = target, end, landmark
+            new_pos[v] = here
+            new_at[v] = final
+        self.rendezvous_windows += int(np.isin(self.action_kind, (DETOUR_RENDEZVOUS, RENDEZVOUS)).sum())
+        self._observe_landmarks(events_t, events_v, events_l)
+        self.pos, self.at_landmark = new_pos, new_at
+        before = self.fused_logdet
+        self.phases += 1
+        self._decision_phase()
+        self.connected_phases += int(self.n_groups == 1)
+        frac = self.info_fraction()
+        if math.isnan(self.half_phase) and frac >= 0.5:
+            self.half_phase = float(self.phases)
+        return (self.fused_logdet - before) / self.reward_scale
+
+    def _route(self, v: int, a: int, est: np.ndarray) -> list:
+        """The legs (target position, landmark observed there or −1, departure time or None) of action a."""
+        c = self.cfg
+        if a < self.K:
+            lm = int(self.candidates[v, a])
+            self.action_kind[v] = GO
+            return [(est[lm], lm, None)]
+        if a == self.K:
+            lp, lc = int(self.assignment[v]), int(self.central[v])
+            if lp >= 0 and lp != lc:
+                d1 = float(np.hypot(*(est[lp] - self.pos[v])))
+                d2 = float(np.hypot(*(est[lc] - est[lp])))
+                if d1 + d2 < c.speed * c.t_window:  # Fig. 5 condition 4: observe l_p(v), then reach l_c in time
+                    self.action_kind[v] = DETOUR_RENDEZVOUS
+                    return [(est[lp], lp, c.t_window - d2 / c.speed), (est[lc], lc, None)]
+            self.action_kind[v] = RENDEZVOUS
+            return [(est[lc], lc, None)]
+        self.action_kind[v] = HOLD
+        lm = int(self.at_landmark[v])
+        return [(self.pos[v], lm, None)] if lm >= 0 else []
+
+    def _observe_landmarks(self, events_t, events_v, events_l) -> None:
+        """Apply the window's observations in time order (ties: vehicle id); each landmark yields at most
+        ``obs_per_landmark`` independent observations in total (the sensor floor)."""
+        c = self.cfg
+        self.step_obs[:] = 0
+        if not events_t:
+            return
+        t = np.concatenate(events_t)
+        v = np.concatenate(events_v).astype(np.int64)
+        lm = np.concatenate(events_l).astype(np.int64)
+        if len(t) == 0:
+            return
+        order = np.lexsort((v, t))
+        v, lm = v[order], lm[order]
+        by_lm = np.argsort(lm, kind="stable")
+        sorted_lm = lm[by_lm]
+        start = np.searchsorted(sorted_lm, sorted_lm, side="left")
+        rank = np.empty(len(lm), dtype=np.int64)
+        rank[by_lm] = np.arange(len(lm)) - start  # earlier observations of the same landmark this window
+        useful = self.world_count[lm] + rank < c.obs_per_landmark
+        v, lm = v[useful], lm[useful]
+        if len(lm) == 0:
+            return
+        np.add.at(self.world_count, lm, 1)
+        z = self.landmarks[lm] + self.np_random.normal(0.0, c.obs_sigma, size=(len(lm), 2))
+        R_inv = np.eye(2) * self.r_info
+        for w in np.unique(v).tolist():
+            mine = v == w
+            ids, inverse, counts = np.unique(lm[mine], return_inverse=True, return_counts=True)
+            dy = np.zeros((len(ids), 2))
+            np.add.at(dy, inverse, z[mine] * self.r_info)
+            packet = filters.Packet(ids, counts[:, None, None] * R_inv, dy, counts)
+            self.maps.add_own(w, packet)
+            self.step_obs[w] = int(mine.sum())
+
+    def _decision_phase(self) -> None:
+        """Fuse over each group's Dijkstra tree, share positions and utilities, update the fused map, plan."""
+        n, c, maps = self.n_agents, self.cfg, self.maps
+        L = c.n_landmarks
+        self.links = world.vehicle_links(self.pos, c.d_comms)
+        self.labels, self.parent = world.spanning_forest(self.pos, self.links)
+        self.n_groups = int(self.labels.max()) + 1
+        bits = np.zeros(n)
+        self.group = self.labels[:, None] == self.labels[None, :]
+        messages = 0
+        own = np.arange(n)
+        self.known_pos[own, own] = self.pos  # a vehicle always knows where it is
+        self.known_phase[own, own] = self.phases
+        for g in range(self.n_groups):
+            members = np.flatnonzero(self.labels == g)
+            if len(members) == 1:  # alone: nothing to send
+                continue
+            sent = maps.fuse_group(members, self.parent)
+            sides = filters.subtree_sides(members, self.parent)
+            messages += 2 * len(sides)
+            for a, side in sides.items():
+                b = int(self.parent[a])
+                # per direction: version vector, then the map packets the other side lacks, then the positions
+                # and the utility vectors (eq. 1) of the vehicles on the sender's side
+                per_vehicle = POSITION_BITS + L * filters.FLOAT_BITS
+                bits[a] += n * filters.COUNT_BITS + sent[(a, b)] + len(side) * per_vehicle
+                bits[b] += n * filters.COUNT_BITS + sent[(b, a)] + (len(members) - len(side)) * per_vehicle
+            self.known_pos[np.ix_(members, members)] = self.pos[members][None, :, :]
+            self.known_phase[np.ix_(members, members)] = self.phases
+        self.ledger.record(bits, messages=messages)
+        if maps.update_common():
+            self.fused_logdet = float(filters.logdet2(maps.common_Y).sum())
+        self._estimates = filters.mean_of(maps.Y, maps.y)
+        self._plan()
+        self._views = None
+
+    def _plan(self) -> None:
+        """Each group's recommendation phase (§IV) on its shared map; candidates and masks per vehicle."""
+        n, c, K, maps = self.n_agents, self.cfg, self.K, self.maps
+        self.assignment = np.full(n, -1, dtype=np.int64)
+        self.in_main = np.zeros(n, dtype=bool)
+        self.central = np.zeros(n, dtype=np.int64)
+        self.plan_connected = np.zeros(n, dtype=bool)
+        # every vehicle's eq. (1) row from its own map; members of a group hold the same map after fusion, so
+        # a group's rows form the utility matrix its members assemble from the shared vectors (§IV-A)
+        self.utility = protocol.utility_matrix(
+            maps.Y,
+            maps.count,
+            self.pos,
+            self._estimates,
+            c.speed,
+            c.t_window,
+            self.r_info,
+            c.obs_rate,
+            c.obs_per_landmark,
+        )
+        for g in range(self.n_groups):
+            members = np.flatnonzero(self.labels == g)
+            rec = protocol.recommend(self.utility[members], self._estimates[int(members[0])], c.d_comms)
+            self.assignment[members] = rec.assignment
+            self.in_main[members] = rec.in_main
+            self.plan_connected[members] = rec.connected
+            if len(members) == n:  # the whole team planned together: its l_c is the regroup point from now on
+                self.central[members] = rec.central
+                self.regroup[:] = rec.central
+            else:  # a split team regroups where it last agreed to meet (our rule; §V assumes no split)
+                self.central[members] = self.regroup[members]
+        self.candidates, self.candidate_utility = candidate_lists(self.utility, self.assignment, K)
+        self.mask = np.ones((n, K + 2), dtype=bool)
+        self.mask[:, :K] = self.candidates >= 0
+
+    # ----------------------------------------------------------------- queries
+    def action_masks(self) -> np.ndarray:
+        """(N, K + 2) bool: the feasible actions of every vehicle (sb3-contrib's MaskablePPO reads this)."""
+        return self.mask.copy()
+
+    def info_fraction(self) -> float:
+        return (self.fused_logdet - self.logdet0) / self.available
+
+    def own_info_fraction(self) -> np.ndarray:
+        return (filters.logdet2(self.maps.Y).sum(-1) - self.logdet0) / self.available
+
+    def clustering(self, radius: float) -> float:
+        key = f"{radius:.9g}"
+        if key not in self._clustering:
+            self._clustering[key] = world.clustering_coefficient(self.landmarks, radius)
+        return self._clustering[key]
+
+    # ----------------------------------------------------------------- views
+    def _local_view(self) -> dict:
+        if self._views is None:
+            self._views = {
+                "position": self.pos,
+                "phase": np.full(self.n_agents, self.phases),
+                "map_information": self.maps.Y,
+                "map_vector": self.maps.y,
+                "map_count": self.maps.count,
+                "landmark_estimates": self._estimates,
+                "known_positions": self.known_pos,
+                "known_phase": self.known_phase,
+                "group": self.group,
+                "candidates": self.candidates,
+                "candidate_utility": self.candidate_utility,
+                "recommended_landmark": self.assignment,
+                "in_main_cluster": self.in_main,
+                "rendezvous_landmark": self.central,
+                "plan_connected": self.plan_connected,
+                "action_mask": self.mask,
+            }
+        return self._views
+
+    def _observe(self) -> np.ndarray:
+        n, K, c = self.n_agents, self.K, self.cfg
+        side, T, u = self.side, c.t_window, c.speed
+        rows = np.arange(n)
+
+        def rel(d):  # relative offsets to [0, 1], 0.5 = here
+            return np.clip(d / (2.0 * side) + 0.5, 0.0, 1.0)
+
+        def travel(dist):  # travel time over (travel time + window): 0 here, 0.5 at d_max, → 1 far away
+            t = dist / u
+            return t / (t + T)
+
+        head = np.column_stack(
+            [
+                np.clip(self.pos / side, 0.0, 1.0),
+                np.full(n, min(self.phases / c.max_cycles, 1.0)),
+                self.group.sum(1) / n,
+                np.full(n, float(self.n_groups == 1)),
+                np.clip(self.own_info_fraction(), 0.0, 1.0),
+            ]
+        )
+        valid = self.candidates >= 0
+        cand = np.where(valid, self.candidates, 0)
+        cpos = self._estimates[rows[:, None], cand]  # (n, K, 2)
+        off = cpos - self.pos[:, None, :]
+        cand_feats = (
+            np.concatenate(
+                [
+                    rel(off),
+                    np.clip(self.candidate_utility / self.u_max, 0.0, 1.0)[..., None],
+                    travel(np.hypot(off[..., 0], off[..., 1]))[..., None],
+                    self.in_main[:, None].repeat(K, 1)[..., None] & (cand == self.assignment[:, None])[..., None],
+                    (cand == self.assignment[:, None])[..., None],
+                    valid[..., None],
+                ],
+                axis=-1,
+            )
+            * valid[..., None]
+        )
+        lc = self._estimates[rows, self.central]
+        lp = self._estimates[rows, np.maximum(self.assignment, 0)]
+        d1 = np.hypot(*(lp - self.pos).T)
+        d2 = np.hypot(*(lc - lp).T)
+        fits = (self.assignment >= 0) & (d1 + d2 < self.d_max)
+        lc_off = lc - self.pos
+        rdv = np.column_stack([rel(lc_off), travel(np.hypot(*lc_off.T)), fits, self.plan_connected])
+        # the K nearest other vehicles at their last known positions
+        others = self.known_pos - self.pos[:, None, :]
+        dist = np.hypot(others[..., 0], others[..., 1])
+        dist[rows, rows] = np.inf
+        order = np.argsort(dist, axis=1, kind="stable")[:, :K]
+        k_real = min(K, n - 1)
+        near = np.zeros((n, K, 5))
+        if k_real > 0:
+            idx = order[:, :k_real]
+            age = self.phases - self.known_phase[rows[:, None], idx]
+            near[:, :k_real] = np.concatenate(
+                [
+                    rel(others[rows[:, None], idx]),
+                    self.group[rows[:, None], idx][..., None],
+                    (age / (age + 1.0))[..., None],
+                    np.ones((n, k_real, 1)),
+                ],
+                axis=-1,
+            )
+        return np.concatenate([head, cand_feats.reshape(n, -1), rdv, near.reshape(n, -1)], axis=1).astype(np.float32)
+
+    def _agent_infos(self) -> dict:
+        out = {
+            "bits_sent": self.ledger.step_bits,
+            "own_info_fraction": self.own_info_fraction(),
+            "group_share": self.group.sum(1) / self.n_agents,
+            "action_kind": self.action_kind,
+            "action_feasible": self.action_ok,
+            "observations": self.step_obs,
+        }
+        for i, key in enumerate(self._mask_keys):
+            out[key] = self.mask[:, i]
+        return out
+
+    def _terminated(self) -> bool:
+        return bool(self.info_fraction() >= 1.0 - 1e-9)
+
+    def _state(self) -> np.ndarray:
+        return self._observe().reshape(-1)
+
+    def metrics(self) -> dict[str, float]:
+        c = self.cfg
+        frac = self.info_fraction()
+        log_ratio = -(self.fused_logdet - self.logdet0)  # ln det P − ln det P₀ of the whole map
+        return {
+            "iterations_to_half_info": self.half_phase,
+            "info_fraction": frac,
+            "normalized_det": math.exp(log_ratio / c.n_landmarks),
+            "log10_det_ratio": log_ratio / math.log(10.0),
+            "connected_fraction": self.connected_phases / self.phases if self.phases else 1.0,
+            "bits_sent": float(self.ledger.total_bits.sum()),
+            "own_info_fraction": float(self.own_info_fraction().mean()),
+            "rendezvous_fraction": self.rendezvous_windows / (self.phases * self.n_agents) if self.phases else 0.0,
+            "clustering_dcomms": self.clustering(c.d_comms) if math.isfinite(c.d_comms) else 1.0,
+            "clustering_dmax": self.clustering(self.d_max),
+        }
+
+    def _render(self, ax) -> None:
+        from matplotlib.collections import LineCollection
+
+        lm = self.landmarks
+        est = self._estimates[0]
+        if math.isfinite(self.cfg.d_comms) and self.cfg.d_comms > 0:
+            ii, jj = np.nonzero(np.triu(world.landmark_graph(est, self.cfg.d_comms)))
+            ax.add_collection(LineCollection(np.stack([est[ii], est[jj]], 1), colors="0.85", linewidths=0.5, zorder=1))
+        sat = self.maps.common_count / self.cfg.obs_per_landmark
+        sc = ax.scatter(lm[:, 0], lm[:, 1], c=sat, cmap="viridis", vmin=0, vmax=1, marker="x", s=18, zorder=2)
+        ax.figure.colorbar(sc, ax=ax, label="fused observations / floor")
+        ax.scatter(
+            self.pos[:, 0], self.pos[:, 1], c=self.labels, cmap="tab10", marker="s", s=40, zorder=3, edgecolors="k"
+        )
+        lc = self._estimates[np.arange(self.n_agents), self.central]
+        ax.scatter(lc[:, 0], lc[:, 1], marker="*", s=120, facecolors="none", edgecolors="r", zorder=4)
+        ax.set_xlim(-0.02 * self.side, 1.02 * self.side)
+        ax.set_ylim(-0.02 * self.side, 1.02 * self.side)
+        ax.set_aspect("equal")
+        ax.set_title(
+            f"phase {self.phases}: fused {100 * self.info_fraction():.0f} % of the information, "
+            f"{self.n_groups} group(s)"
+        )
+
+
+def candidate_lists(utility: np.ndarray, assignment: np.ndarray, K: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n, K) candidate landmarks and their utilities: the recommended landmark first (when assigned and worth
+    anything), then the highest-utility others; landmarks worth nothing (believed exhausted) are left out, empty
+    slots are −1."""
+    n, L = utility.shape
+    k = min(K, L)
+    work = utility.copy()
+    rows = np.arange(n)
+    has_rec = (assignment >= 0) & (utility[rows, np.maximum(assignment, 0)] > 0)
+    work[rows[has_rec], assignment[has_rec]] = np.inf  # the recommendation ranks first
+    top = np.argpartition(-work, k - 1, axis=1)[:, :k] if k < L else np.tile(np.arange(L), (n, 1))
+    top_u = work[rows[:, None], top]
+    order = np.lexsort((top, -top_u), axis=1)
+    top = top[rows[:, None], order]
+    cand = np.full((n, K), -1, dtype=np.int64)
+    cand_u = np.zeros((n, K))
+    real = utility[rows[:, None], top]
+    keep = real > 0
+    cand[:, :k] = np.where(keep, top, -1)
+    cand_u[:, :k] = np.where(keep, real, 0.0)
+    # compact: valid slots first (the ordering keeps them first already, as utility ≤ 0 sorts last)
+    return cand, cand_u

@@ -1,0 +1,421 @@
+"""RendezvousMapping-v0 (paper 004): filters, fusion without double counting, the §IV module, masks, bad input."""
+
+from __future__ import annotations
+
+import math
+
+import networkx as nx
+import numpy as np
+import pytest
+from filterpy.kalman import InformationFilter
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.optimize import linear_sum_assignment
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
+
+import mrcomm_env
+from baselines.rendezvous_mapping import POLICIES, PaperProtocol, action_module
+from mrcomm_env.rendezvous import filters, protocol, theory, world
+from mrcomm_env.rendezvous.env import HOLD, RendezvousMappingEnv
+
+EPS = np.finfo(float).eps
+
+
+def random_spd(rng, scale=1.0):
+    a = rng.normal(size=(2, 2))
+    return scale * (a @ a.T + 0.2 * np.eye(2))
+
+
+# ------------------------------------------------------------------------------------------------ filter
+def test_vectorised_information_filter_matches_filterpy_on_the_same_observations():
+    rng = np.random.default_rng(4)
+    L, m = 6, 80
+    Y0 = np.stack([random_spd(rng, 0.05) for _ in range(L)])
+    mu0 = rng.uniform(0, 100, size=(L, 2))
+    y0 = np.einsum("lij,lj->li", Y0, mu0)
+    landmarks = rng.integers(0, L, size=m)
+    R_inv = np.stack([np.linalg.inv(random_spd(rng, 4.0)) for _ in range(m)])
+    z = mu0[landmarks] + rng.normal(0, 2.0, size=(m, 2))
+    Y, y = Y0.copy(), y0.copy()
+    filters.observe(Y, y, landmarks, z, R_inv)
+    for lm in range(L):
+        f = InformationFilter(dim_x=2, dim_z=2)
+        f.x = mu0[lm].copy()
+        f.P_inv = Y0[lm].copy()
+        f.H = np.eye(2)
+        for k in np.flatnonzero(landmarks == lm):
+            f.update(z[k], R_inv=R_inv[k])
+        # the two differ only by round-off: a sum of k terms (relative k·ε) and one 2×2 solve (cond·ε) on
+        # values of size |μ|
+        n_obs = max(int((landmarks == lm).sum()), 1)
+        cond = np.linalg.cond(Y[lm])
+        np.testing.assert_allclose(Y[lm], f.P_inv, rtol=0, atol=8 * n_obs * EPS * np.abs(f.P_inv).max())
+        mean = filters.mean_of(Y[lm], y[lm])
+        np.testing.assert_allclose(mean, f.x.ravel(), rtol=0, atol=16 * n_obs * cond * EPS * np.abs(mu0).max())
+
+
+def test_logdet_and_mean_of_match_numpy():
+    rng = np.random.default_rng(0)
+    Y = np.stack([random_spd(rng) for _ in range(20)])
+    y = rng.normal(size=(20, 2))
+    np.testing.assert_allclose(filters.logdet2(Y), np.linalg.slogdet(Y)[1], rtol=1e-12)
+    np.testing.assert_allclose(filters.mean_of(Y, y), np.linalg.solve(Y, y[..., None])[..., 0], rtol=1e-10)
+
+
+# ------------------------------------------------------------------------------------------------ fusion
+def make_packet(rng, L):
+    m = int(rng.integers(1, 4))
+    ids = np.sort(rng.choice(L, size=m, replace=False))
+    return filters.Packet(
+        ids, np.stack([random_spd(rng) for _ in range(m)]), rng.normal(size=(m, 2)), rng.integers(1, 4, size=m)
+    )
+
+
+def check_no_double_counting(maps: filters.TeamMaps):
+    """Every map equals prior + each packet it holds, summed once afresh."""
+    for w in range(maps.n):
+        Y, y = maps.information_of(maps.known[w])
+        tol = 64 * EPS * max(1.0, np.abs(Y).max())
+        np.testing.assert_allclose(maps.Y[w], Y, rtol=0, atol=tol)
+        np.testing.assert_allclose(maps.y[w], y, rtol=0, atol=tol * 10)
+    Yc, _ = maps.information_of(maps.known.min(0))
+    np.testing.assert_allclose(maps.common_Y, Yc, rtol=0, atol=64 * EPS * max(1.0, np.abs(Yc).max()))
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31), n=st.integers(2, 6), events=st.integers(1, 25))
+def test_fused_map_over_any_meeting_sequence_equals_the_centralized_sum(seed, n, events):
+    rng = np.random.default_rng(seed)
+    L = 7
+    Y0 = np.broadcast_to(np.eye(2) * 0.04, (L, 2, 2)).copy()
+    maps = filters.TeamMaps(n, Y0, rng.normal(size=(L, 2)))
+    for _ in range(events):
+        for v in range(n):  # some vehicles gather something in this window
+            if rng.random() < 0.6:
+                maps.add_own(v, make_packet(rng, L))
+        # a random set of meetings: random groups, each fused over a random tree
+        pos = rng.uniform(0, 30, size=(n, 2))
+        links = world.vehicle_links(pos, float(rng.uniform(0, 30)))
+        labels, parent = world.spanning_forest(pos, links)
+        for g in range(labels.max() + 1):
+            members = np.flatnonzero(labels == g)
+            maps.fuse_group(members, parent)
+            assert (maps.known[members] == maps.known[members].max(0)).all()
+        maps.update_common()
+        check_no_double_counting(maps)
+    # everyone meets at last: every map and the fused global map are the centralised sum
+    star = np.r_[-1, np.zeros(n - 1, dtype=np.int64)]
+    maps.fuse_group(np.arange(n), star)
+    maps.update_common()
+    Yc, yc = maps.centralized()
+    for w in range(n):
+        np.testing.assert_allclose(maps.Y[w], Yc, rtol=0, atol=64 * EPS * np.abs(Yc).max())
+        np.testing.assert_allclose(maps.y[w], yc, rtol=0, atol=640 * EPS * max(1.0, np.abs(yc).max()))
+    np.testing.assert_allclose(maps.common_Y, Yc, rtol=0, atol=64 * EPS * np.abs(Yc).max())
+
+
+def test_channel_filter_is_the_common_information_and_fusion_adds_only_the_difference():
+    rng = np.random.default_rng(7)
+    L = 5
+    maps = filters.TeamMaps(3, np.broadcast_to(np.eye(2), (L, 2, 2)).copy(), np.zeros((L, 2)))
+    for v in range(3):
+        maps.add_own(v, make_packet(rng, L))
+    maps.fuse_group(np.array([0, 1]), np.array([-1, 0, -1]))
+    maps.add_own(0, make_packet(rng, L))
+    maps.add_own(2, make_packet(rng, L))
+    common_Y, _ = maps.channel_information(0, 2)
+    union_Y, _ = maps.information_of(np.maximum(maps.known[0], maps.known[2]))
+    # Y_a + Y_b − common = union: the channel filter removes exactly what would be counted twice
+    np.testing.assert_allclose(maps.Y[0] + maps.Y[2] - common_Y, union_Y, rtol=1e-12)
+
+
+def test_a_reconnecting_vehicle_sends_only_what_the_others_lack():
+    rng = np.random.default_rng(3)
+    L = 6
+    maps = filters.TeamMaps(3, np.broadcast_to(np.eye(2), (L, 2, 2)).copy(), np.zeros((L, 2)))
+    chain = np.array([-1, 0, 1])  # 0 — 1 — 2
+    for v in range(3):
+        maps.add_own(v, make_packet(rng, L))
+    maps.fuse_group(np.arange(3), chain)
+    # vehicle 2 is cut off and gathers two packets; 0 and 1 gather one each and fuse without it
+    p2 = [make_packet(rng, L), make_packet(rng, L)]
+    for p in p2:
+        maps.add_own(2, p)
+    maps.add_own(0, make_packet(rng, L))
+    maps.add_own(1, make_packet(rng, L))
+    maps.fuse_group(np.array([0, 1]), np.array([-1, 0, -1]))
+    sent = maps.fuse_group(np.arange(3), chain)
+    assert sent[(2, 1)] == sum(p.bits(L) for p in p2)  # only its own two new packets
+    lacking = maps.packets[0][-1].bits(L) + maps.packets[1][-1].bits(L)
+    assert sent[(1, 2)] == lacking
+    assert sent[(1, 0)] == sum(p.bits(L) for p in p2) and sent[(0, 1)] == 0
+    again = maps.fuse_group(np.arange(3), chain)  # nothing new: nothing sent
+    assert all(bits == 0 for bits in again.values())
+
+
+# ------------------------------------------------------------------------------------------------ §IV module
+def random_adjacency(rng, n, radius):
+    pos = rng.uniform(0, 40, size=(n, 2))
+    return protocol.adjacency(pos, radius), pos
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), n=st.integers(1, 40), radius=st.floats(0.0, 30.0))
+def test_clusters_are_the_fine_dulmage_mendelsohn_blocks_and_the_connected_components(seed, n, radius):
+    adj, _ = random_adjacency(np.random.default_rng(seed), n, radius)
+    k, labels = protocol.clusters(adj)
+    ours = {frozenset(np.flatnonzero(labels == b).tolist()) for b in range(k)}
+    assert ours == set(protocol.fine_dm_blocks(adj))
+    assert ours == {frozenset(c) for c in nx.connected_components(nx.from_numpy_array(adj.astype(int)))}
+    k_sp, lab_sp = connected_components(csr_matrix(adj), directed=False)
+    assert k == k_sp and (labels == lab_sp).all()  # same numbering as scipy's
+
+
+def test_central_landmark_is_networkx_eigenvector_centrality_argmax():
+    rng = np.random.default_rng(1)
+    checked = 0
+    for _ in range(200):
+        adj, pos = random_adjacency(rng, int(rng.integers(3, 15)), 15.0)
+        k, labels = protocol.clusters(adj)
+        big = np.flatnonzero(labels == np.bincount(labels).argmax())
+        sub = adj[np.ix_(big, big)].astype(int)
+        np.fill_diagonal(sub, 0)
+        if len(big) < 3:
+            continue
+        cent = nx.eigenvector_centrality_numpy(nx.from_numpy_array(sub))
+        values = np.array([cent[i] for i in range(len(big))])
+        if np.sort(values)[-1] - np.sort(values)[-2] < 1e-6:  # tie: our tie rule decides
+            continue
+        assert protocol.central_landmark(adj[np.ix_(big, big)], pos[big]) == int(np.argmax(values))
+        checked += 1
+    assert checked > 50
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), n=st.integers(1, 8), L=st.integers(8, 120))
+def test_restricted_munkres_attains_the_full_optimum(seed, n, L):
+    U = np.random.default_rng(seed).random((n, L))
+    r, c = linear_sum_assignment(U, maximize=True)
+    rows, lms = protocol.assign(U, np.arange(L))
+    assert len(set(lms.tolist())) == len(lms) == n
+    assert U[rows, lms].sum() == pytest.approx(U[r, c].sum(), rel=1e-12)
+
+
+def test_utility_is_eq1_with_eq3_eq4_and_the_epsilon_rule():
+    rng = np.random.default_rng(2)
+    L = 30
+    Y = np.stack([random_spd(rng, 0.1) for _ in range(L)])
+    count = rng.integers(0, 6, size=L)
+    lm = rng.uniform(0, 50, size=(L, 2))
+    veh = rng.uniform(0, 50, size=(3, 2))
+    speed, T, r, rate, budget = 1.5, 12.0, 0.2, 2.0, 5
+    U = protocol.utility_matrix(Y, count, veh, lm, speed, T, r, rate, budget)
+    for v in range(3):
+        for lm_id in range(L):
+            t_obs = T - np.linalg.norm(veh[v] - lm[lm_id]) / speed
+            t_obs = t_obs if t_obs > 0 else protocol.EPS_OBS_TIME
+            n_obs = min(t_obs * rate, max(budget - count[lm_id], 0))
+            gain = n_obs * r * np.eye(2)
+            ref = 0.5 * (np.linalg.slogdet(gain + Y[lm_id])[1] - np.linalg.slogdet(Y[lm_id])[1])
+            assert U[v, lm_id] == pytest.approx(ref, rel=1e-9, abs=1e-15)
+    assert (U[:, count >= budget] == 0).all()  # an exhausted landmark is worth nothing
+    assert (U >= 0).all()
+
+
+def test_partition_ends_connected_or_marked_and_follows_eq7_eq8():
+    rng = np.random.default_rng(5)
+    for _ in range(30):
+        L, n = 80, 6
+        lm = rng.uniform(0, 100, size=(L, 2))
+        U = rng.random((n, L))
+        d = float(rng.choice([0.0, 8.0, 15.0, 30.0]))
+        rec = protocol.recommend(U, lm, d, record=True)
+        assigned = rec.assignment[rec.assignment >= 0]
+        k, _ = protocol.clusters(protocol.adjacency(lm[assigned], d))
+        assert rec.connected == (k == 1)
+        for before, after in zip(rec.steps, rec.steps[1:]):
+            assert before.outlier >= 0 and before.outlier not in after.working  # l_o is cut (eq. 8)
+            assert before.central in after.working  # l_c's side is kept
+            assert set(after.working.tolist()) < set(before.working.tolist())
+            axis = lm[before.outlier] - lm[before.central]
+            kept = (lm[before.outlier] - lm[before.working]) @ axis > 0
+            assert set(before.working[kept].tolist()) == set(after.working.tolist())
+        if d == 0.0:
+            assert not rec.connected or n == 1
+
+
+def test_infinite_comms_needs_no_partition():
+    rng = np.random.default_rng(6)
+    U = rng.random((5, 40))
+    rec = protocol.recommend(U, rng.uniform(0, 100, (40, 2)), math.inf, record=True)
+    assert rec.connected and len(rec.steps) == 1 and rec.in_main.all()
+
+
+def test_action_module_follows_the_four_conditions_of_fig5():
+    est = np.array([[0.0, 0.0], [10.0, 0.0], [30.0, 0.0]])
+    rec = protocol.Recommendation(np.array([1, 2, -1]), np.array([True, False, False]), central=0, connected=False)
+    x = np.array([0.0, 0.0])
+    assert action_module(rec, 0, x, est, d_max=15.0) == 1  # in main cluster, reachable
+    assert action_module(rec, 0, x, est, d_max=5.0) == 3  # in main cluster, unreachable
+    assert action_module(rec, 1, x, est, d_max=61.0) == 2  # outside: 30 there + 30 back to l_c < 61
+    assert action_module(rec, 1, x, est, d_max=59.0) == 3
+    assert action_module(rec, 2, x, est, d_max=100.0) == 3  # not assigned
+
+
+# ------------------------------------------------------------------------------------------------ world
+def test_uniform_grid_has_zero_clustering_between_spacing_and_diagonal():
+    pos = world.jittered_grid(100, 100.0, 0.0, np.random.default_rng(0))  # 10 m spacing
+    assert world.clustering_coefficient(pos, 12.0) == 0.0  # the paper's remark on uniform grids (§VI-B.1)
+    jittered = world.jittered_grid(100, 100.0, 15.0, np.random.default_rng(0))
+    assert world.clustering_coefficient(jittered, 12.0) > 0.3
+    assert jittered.min() >= 0.0 and jittered.max() <= 100.0
+
+
+# ------------------------------------------------------------------------------------------------ env
+SMALL = {"n_vehicles": 4, "n_landmarks": 40, "area": 1600.0, "max_cycles": 40}
+
+
+def test_masks_mark_empty_slots_and_an_infeasible_action_acts_as_hold():
+    env = RendezvousMappingEnv(**SMALL, obs_per_landmark=1, k_candidates=12)
+    obs, infos = env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    saw_masked = False
+    for _ in range(40):
+        if not env.agents:
+            break
+        mask = env.action_masks()
+        assert mask.any(axis=1).all() and mask[:, -1].all()  # hold is always feasible
+        assert (mask[:, : env.K] == (env.candidates >= 0)).all()
+        assert all(
+            infos[a][f"action_mask_{i}"] == float(mask[k, i])
+            for k, a in enumerate(env.agents)
+            for i in range(env.K + 2)
+        )
+        masked = np.argwhere(~mask)
+        actions = {a: int(rng.choice(np.flatnonzero(mask[k]))) for k, a in enumerate(env.agents)}
+        if len(masked):
+            saw_masked = True
+            v, bad = masked[0]
+            actions[env.agents[v]] = int(bad)
+            before = env.pos[v].copy()
+            obs, _, _, _, infos = env.step(actions)
+            assert infos[env.possible_agents[v]]["action_feasible"] == 0.0
+            assert env.action_kind[v] == HOLD and np.allclose(env.pos[v], before)
+        else:
+            obs, _, _, _, infos = env.step(actions)
+    assert saw_masked
+
+
+def test_reward_is_the_fused_information_gain_and_unfused_information_does_not_count():
+    env = RendezvousMappingEnv(**SMALL, d_comms=0.0)
+    env.reset(seed=1)
+    total = 0.0
+    greedy = POLICIES["greedy"]()
+    views = env.local_views()
+    greedy.reset(views, 0)
+    obs = env._observations()
+    for _ in range(5):
+        obs, rewards, *_ = env.step(greedy.act(obs, views))
+        total += rewards["robot_0"]
+    assert total * env.reward_scale == pytest.approx(env.fused_logdet - env.logdet0, abs=1e-9)
+    if env.n_groups == env.n_agents:  # greedy vehicles apart: they gathered but nothing is fused
+        assert env.own_info_fraction().max() > 0.0
+    env2 = RendezvousMappingEnv(**SMALL, d_comms=math.inf)
+    obs, _ = env2.reset(seed=1)
+    total = 0.0
+    for _ in range(5):
+        obs, rewards, *_ = env2.step(greedy.act(obs, env2.local_views()))
+        total += rewards["robot_0"]
+    union = float(filters.logdet2(env2.maps.centralized()[0]).sum()) - env2.logdet0
+    assert total * env2.reward_scale == pytest.approx(union, rel=1e-9)  # always connected: all is fused
+
+
+def test_paper_protocol_plans_what_the_env_plans():
+    env = RendezvousMappingEnv(**SMALL, d_comms=10.0)
+    obs, _ = env.reset(seed=2)
+    policy = PaperProtocol()
+    views = env.local_views()
+    policy.reset(views, 2)
+    for _ in range(10):
+        actions = policy.act(obs, views)
+        for root, rec in policy.last_plans.items():
+            members = np.flatnonzero(env.labels == env.labels[root])
+            assert (rec.assignment == env.assignment[members]).all()
+            if len(members) == env.n_agents:  # a split team regroups at the last whole-team l_c instead
+                assert (env.central[members] == rec.central).all()
+            else:
+                assert (policy.last_actions[members] == 4).all()
+        # the recommendation is candidate 0 unless it is worth nothing (believed exhausted)
+        rows = np.flatnonzero(env.assignment >= 0)
+        worth = env.utility[rows, env.assignment[rows]] > 0
+        assert (env.candidates[rows[worth], 0] == env.assignment[rows[worth]]).all()
+        obs, *_ = env.step(actions)
+
+
+def test_budget_caps_information_and_fraction_stays_in_unit_interval():
+    env = RendezvousMappingEnv(n_vehicles=2, n_landmarks=4, area=100.0, d_comms=math.inf, max_cycles=60)
+    obs, _ = env.reset(seed=0)
+    policy = POLICIES["no_partition"]()
+    views = env.local_views()
+    policy.reset(views, 0)
+    while env.agents:
+        obs, *_ = env.step(policy.act(obs, views))
+    assert (env.world_count <= env.cfg.obs_per_landmark).all()
+    assert env.metrics()["info_fraction"] == pytest.approx(1.0)  # every landmark observed to the floor
+    assert env.step_count < 60  # terminated once everything available was fused
+    per = theory.available_information(env.cfg.prior_sigma, env.cfg.obs_sigma, env.cfg.obs_per_landmark)
+    assert env.fused_logdet - env.logdet0 == pytest.approx(4 * per)
+
+
+def test_metric_and_argument_names_and_alias():
+    env = mrcomm_env.make("RendezvousMapping-v0", max_phases=7, **{k: v for k, v in SMALL.items() if k != "max_cycles"})
+    assert env.cfg.max_cycles == 7
+    env.reset(seed=0)
+    for name in ("iterations_to_half_info", "info_fraction", "normalized_det", "connected_fraction", "bits_sent"):
+        assert name in env.metrics()
+    for name in (
+        "n_vehicles",
+        "n_landmarks",
+        "area",
+        "speed",
+        "t_window",
+        "d_comms",
+        "sigma",
+        "k_candidates",
+        "max_cycles",
+    ):
+        assert name in RendezvousMappingEnv.PARAMS
+
+
+@pytest.mark.parametrize(
+    ("arg", "value"),
+    [
+        ("n_vehicles", 0),
+        ("n_landmarks", 3),
+        ("speed", 0.0),
+        ("speed", -1.0),
+        ("t_window", 0.0),
+        ("d_comms", -0.1),
+        ("sigma", -1.0),
+        ("k_candidates", 0),
+    ],
+)
+def test_bad_inputs_raise_value_error_naming_the_argument(arg, value):
+    kwargs = {"n_vehicles": 4, "n_landmarks": 40, arg: value}
+    with pytest.raises(ValueError, match=f"'{arg}'"):
+        RendezvousMappingEnv(**kwargs)
+
+
+def test_bits_are_counted_for_utility_vectors_and_map_updates():
+    env = RendezvousMappingEnv(**SMALL, d_comms=math.inf)
+    env.reset(seed=0)
+    L, n = SMALL["n_landmarks"], SMALL["n_vehicles"]
+    # at reset: one tree of n − 1 edges; each direction carries a version vector, and every vehicle's position
+    # and utility vector crosses every edge once, no map update yet
+    per_vehicle = 2 * filters.FLOAT_BITS + L * filters.FLOAT_BITS
+    expected = 2 * (n - 1) * n * filters.COUNT_BITS + (n - 1) * n * per_vehicle
+    assert env.ledger.total_bits.sum() == expected
+    env.step({a: 0 for a in env.agents})
+    gathered = sum(p.bits(L) for ps in env.maps.packets for p in ps)
+    assert env.ledger.step_bits.sum() >= expected + gathered  # each packet crosses at least one edge
