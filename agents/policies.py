@@ -73,8 +73,11 @@ class CandidatePolicy(ActorCriticPolicy):
 
     def _build_mlp_extractor(self) -> None:
         self.mlp_extractor = CandidateExtractor(
-            self.layout["candidates"], self.layout["features"], self.layout["globals"],
-            self.layout.get("extra_actions", 0), self.hidden,
+            self.layout["candidates"],
+            self.layout["features"],
+            self.layout["globals"],
+            self.layout.get("extra_actions", 0),
+            self.hidden,
         )
 
     def _build(self, lr_schedule) -> None:

@@ -73,8 +73,10 @@ class TrainConfig:
             raise ValueError(f"argument 'policy' must be 'mlp' or 'candidates', got {self.policy!r}")
         env = make(self.env_id, **self.env_kwargs)  # the env's own arguments are checked before any work
         if self.policy == "candidates" and env.observation_layout() is None:
-            raise ValueError(f"policy 'candidates' needs an observation of candidates; {self.env_id} with "
-                             f"{self.env_kwargs} has a flat one")
+            raise ValueError(
+                f"policy 'candidates' needs an observation of candidates; {self.env_id} with "
+                f"{self.env_kwargs} has a flat one"
+            )
         env.close()
         return self
 

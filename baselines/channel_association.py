@@ -33,8 +33,13 @@ class BernoulliPolicy(Policy):
     """Each robot independently emits a message pair with probability ``p`` every step."""
 
     name = "bernoulli"
-    PARAMS = {"p": Param(0.5, "probability of emitting a message pair each step",
-                         Real(0.0, 1.0, lo_open=True, hi_open=True, fuzz=(0.05, 0.95)))}
+    PARAMS = {
+        "p": Param(
+            0.5,
+            "probability of emitting a message pair each step",
+            Real(0.0, 1.0, lo_open=True, hi_open=True, fuzz=(0.05, 0.95)),
+        )
+    }
 
     #: uniform draws taken from the generator at once (for several steps of a small team). The generator
     #: fills doubles in order, so the coins are exactly those of one ``random(len(agents))`` per step.
@@ -46,17 +51,17 @@ class BernoulliPolicy(Policy):
 
     def _start(self, p: float) -> None:
         self._p = p
-        self._coins, self._at = [], 0                       # drawn coins (0/1 ints) and the next unused one
+        self._coins, self._at = [], 0  # drawn coins (0/1 ints) and the next unused one
 
     def act(self, observations, views):
         agents = list(observations)
         k, at = len(agents), self._at
-        if at + k > len(self._coins):                       # refill, keeping the unused coins first
+        if at + k > len(self._coins):  # refill, keeping the unused coins first
             fresh = self.rng.random(max(k, self.BLOCK)) < self._p
             self._coins = self._coins[at:] + fresh.view(np.int8).tolist()
             at = 0
         self._at = at + k
-        return dict(zip(agents, self._coins[at:at + k], strict=True))
+        return dict(zip(agents, self._coins[at : at + k], strict=True))
 
 
 class CoinFlipPolicy(BernoulliPolicy):
@@ -86,17 +91,19 @@ class IdBitsPolicy(Policy):
         self.B = b
         if b == dense:
             ids = np.arange(n, dtype=np.uint64)
-        else:                                                # distinct random addresses in a 2^B space
+        else:  # distinct random addresses in a 2^B space
             ids = np.empty(0, dtype=np.uint64)
             while len(ids) < n:
-                ids = np.unique(np.concatenate((ids, self.rng.integers(0, 2**b, size=n, dtype=np.uint64,
-                                                                         endpoint=False))))
+                ids = np.unique(
+                    np.concatenate((ids, self.rng.integers(0, 2**b, size=n, dtype=np.uint64, endpoint=False)))
+                )
             ids = self.rng.permutation(ids)[:n]
         self.addresses = ids
         shifts = np.arange(b, dtype=np.uint64)
         #: (B + 1, N) schedule: row t = emissions in step t of each cycle; the last row is the beacon
-        self.table = np.vstack((((ids[None, :] >> shifts[:, None]) & np.uint64(1)).astype(np.int64),
-                                np.ones((1, n), dtype=np.int64)))
+        self.table = np.vstack(
+            (((ids[None, :] >> shifts[:, None]) & np.uint64(1)).astype(np.int64), np.ones((1, n), dtype=np.int64))
+        )
         self._index = {a: views.index(a) for a in views.possible_agents}
 
     def act(self, observations, views):

@@ -82,8 +82,13 @@ class LocationBased(Policy):
     """Algorithm 1 with persistent counters (§3.2), one counter row per robot."""
 
     name = "location_based"
-    PARAMS = {"rule": Param("text", "`text`: take the lowest counter (§3.2); `listing`: argmax as printed in "
-                            "Algorithm 1", Choice(("text", "listing")))}
+    PARAMS = {
+        "rule": Param(
+            "text",
+            "`text`: take the lowest counter (§3.2); `listing`: argmax as printed in Algorithm 1",
+            Choice(("text", "listing")),
+        )
+    }
 
     def reset(self, views, seed=None):
         super().reset(views, seed)

@@ -29,8 +29,12 @@ def set_reference(n, modes_seq, links_seq):
             offer = {(v, k) for (v, k) in before[j] if mode[j] == QINF or v == j}
             for i in np.nonzero(adj[j])[0]:
                 held[i] |= offer
-        frontiers.append([min(max(k for (v, k) in held[i] if v == r) if any(v == r for v, _ in held[i]) else -1
-                              for r in range(n)) for i in range(n)])
+        frontiers.append(
+            [
+                min(max(k for (v, k) in held[i] if v == r) if any(v == r for v, _ in held[i]) else -1 for r in range(n))
+                for i in range(n)
+            ]
+        )
         for i in range(n):
             held[i].add((i, t + 1))
     return frontiers
@@ -133,8 +137,13 @@ def test_dense_pairwise_and_compiled_exchanges_agree(compiled):
 
 
 def test_bit_budget_truncates_oldest_first():
-    env = parallel_env(n_robots=2, link_probability=1.0, estimation=False, modes=["silent", "scheme2_qinf"],
-                       bit_budget=float(HEADER_BITS + 2 * LIST_ENTRY_BITS + 2 * 176))
+    env = parallel_env(
+        n_robots=2,
+        link_probability=1.0,
+        estimation=False,
+        modes=["silent", "scheme2_qinf"],
+        bit_budget=float(HEADER_BITS + 2 * LIST_ENTRY_BITS + 2 * 176),
+    )
     env.reset(seed=0)
     for _ in range(6):
         env.step({"robot_0": 0, "robot_1": 0})
@@ -182,8 +191,12 @@ def test_theory_reproduces_the_papers_scheme1_column_and_eq_18_is_exact():
         # sums, the printed eq. (17)-(18) N terms of ≤ N + 5 factors; their roundings are the operation count
         pairs = n * (n - 1) // 2
         ops = 2**pairs + 2 ** (n - 1) + pairs + n * (n + 5) + 3
-        assert_close_conditioned(theory.p_delay_eq1_as_printed(n, 0.5), theory.p_delay_eq1_exact(n, 0.5),
-                                 tolerance(1.0, ops), err_msg=f"N={n}")
+        assert_close_conditioned(
+            theory.p_delay_eq1_as_printed(n, 0.5),
+            theory.p_delay_eq1_exact(n, 0.5),
+            tolerance(1.0, ops),
+            err_msg=f"N={n}",
+        )
     # eq. (15)-(16) for p = 1: delay 0 always; for p → 0 the delay grows
     assert theory.scheme2_qinf_n3_expected_delay(1.0) == 0.0
     assert theory.scheme2_qinf_n3_expected_delay(0.1) > theory.scheme2_qinf_n3_expected_delay(0.5)
@@ -227,8 +240,7 @@ def test_random_modes_with_a_tiny_memory_stay_finite():
 
 
 def test_baselines_run_and_use_their_mode():
-    for name in ("scheme1", "scheme2_q1", "scheme2_q2", "scheme2_q4", "scheme2_q8", "scheme2_qinf", "silent",
-                 "random"):
+    for name in ("scheme1", "scheme2_q1", "scheme2_q2", "scheme2_q4", "scheme2_q8", "scheme2_qinf", "silent", "random"):
         env = parallel_env(max_cycles=15)
         pol = make_policy("mrcomm/AsyncCL-v0", name)
         obs, _ = env.reset(seed=1)
@@ -242,9 +254,20 @@ def test_baselines_run_and_use_their_mode():
         make_policy("mrcomm/AsyncCL-v0", "scheme1").reset(parallel_env(modes=["silent"]).local_views(), 0)
 
 
-@pytest.mark.parametrize("arg,bad", [("n_robots", 1), ("link_probability", 1.5), ("link_probability", -0.1),
-                                     ("modes", ["scheme2_q0"]), ("modes", ["broadcast"]), ("sigma_v", -0.01),
-                                     ("sigma_theta_deg", -1.0), ("sigma_d", -0.5), ("sigma_omega_deg", -2.0)])
+@pytest.mark.parametrize(
+    "arg,bad",
+    [
+        ("n_robots", 1),
+        ("link_probability", 1.5),
+        ("link_probability", -0.1),
+        ("modes", ["scheme2_q0"]),
+        ("modes", ["broadcast"]),
+        ("sigma_v", -0.01),
+        ("sigma_theta_deg", -1.0),
+        ("sigma_d", -0.5),
+        ("sigma_omega_deg", -2.0),
+    ],
+)
 def test_bad_input_names_the_argument(arg, bad):
     with pytest.raises(ValueError, match=f"'{arg}'"):
         parallel_env(**{arg: bad})

@@ -66,8 +66,10 @@ def _propagation_tolerances(X, P, ud):
     roundings of |x| + |v dt|; every entry of F P Fᵀ + Γ Q Γᵀ is bounded by (1 + |v dt|)²·max|P| + 2·|σ dt|² (a row
     of F holds 1 and v dt·sin φ or cos φ; Γ√Q holds σ_v dt, σ_ω dt), and each sums at most 3N products."""
     u = np.abs(ud).max()
-    return (tolerance(np.abs(X).max() + u, ops=4),
-            tolerance((1.0 + u) ** 2 * np.abs(P).max() + 2.0 * u * u, ops=X.shape[-1]))
+    return (
+        tolerance(np.abs(X).max() + u, ops=4),
+        tolerance((1.0 + u) ** 2 * np.abs(P).max() + 2.0 * u * u, ops=X.shape[-1]),
+    )
 
 
 def _information_tolerance(X, geo, A, inv_sd, inv_sth):
@@ -115,15 +117,18 @@ def test_kernels_agree(n, G, full):
     assert_close_conditioned(Ab, Aa, _information_tolerance(X, geo, Aa, 1.0 / SD, 1.0 / STH), err_msg="information")
 
     Yp = ekf.inv(P)  # LU versus Cholesky: forward errors of c·n·ε·κ(P)·‖P⁻¹‖ each
-    assert_close_conditioned(ekf_numba.inv(P), Yp, solve_tolerance(P, np.linalg.norm(Yp, 2, axis=(1, 2)).max()),
-                             err_msg="inv")
+    assert_close_conditioned(
+        ekf_numba.inv(P), Yp, solve_tolerance(P, np.linalg.norm(Yp, 2, axis=(1, 2)).max()), err_msg="inv"
+    )
 
     hold = rng.random((G + 2, 2 * geo.m)) < 0.7
     hold[0] = True
     # own priors, one shared prior (broadcast), and an explicit prior index per filter
-    cases = [((X[:1].repeat(G + 2, 0), Yp[:1].repeat(G + 2, 0), Aa[:1].repeat(G + 2, 0)), None),
-             ((X[0], Yp[0], Aa[0]), None),
-             ((X, Yp, Aa), rng.integers(0, G, G + 2))]
+    cases = [
+        ((X[:1].repeat(G + 2, 0), Yp[:1].repeat(G + 2, 0), Aa[:1].repeat(G + 2, 0)), None),
+        ((X[0], Yp[0], Aa[0]), None),
+        ((X, Yp, Aa), rng.integers(0, G, G + 2)),
+    ]
     for (xp, yp, a), prior in cases:
         ref = ekf.update(xp, yp, a, hold, prior)
         got = ekf_numba.update(xp, yp, a, hold, prior, geo)
@@ -144,14 +149,18 @@ def test_kernels_agree(n, G, full):
     kappa = condition(Pa) + condition(information_matrices(Xp_r, Yp_r, A_r, hold, prior))
     ops = 3 * n + 2 * geo.m
     assert_close_conditioned(got[0], Xp_r, tol_prop_x, HEADINGS, "column: x⁻")
-    assert_close_conditioned(got[1], Yp_r, solve_tolerance(Pa, np.linalg.norm(Yp_r, 2, axis=(1, 2)).max()),
-                             err_msg="column: Y⁻")
-    assert_close_conditioned(got[2], A_r, _information_tolerance(Xa, geo, A_r, 1.0 / SD, 1.0 / STH), err_msg="column: A")
+    assert_close_conditioned(
+        got[1], Yp_r, solve_tolerance(Pa, np.linalg.norm(Yp_r, 2, axis=(1, 2)).max()), err_msg="column: Y⁻"
+    )
+    assert_close_conditioned(
+        got[2], A_r, _information_tolerance(Xa, geo, A_r, 1.0 / SD, 1.0 / STH), err_msg="column: A"
+    )
     dx = _wrapped(Xn_r - Xp_r[prior])
     scale_x = (np.linalg.norm(dx, axis=1) + np.linalg.norm(Xn_r, axis=1)).max()
     assert_close_conditioned(got[3], Xn_r, tolerance(scale_x, ops, kappa), HEADINGS, "column: x")
-    assert_close_conditioned(got[4], Pn_r, tolerance(np.linalg.norm(Pn_r, 2, axis=(1, 2)).max(), ops, kappa),
-                             err_msg="column: P")
+    assert_close_conditioned(
+        got[4], Pn_r, tolerance(np.linalg.norm(Pn_r, 2, axis=(1, 2)).max(), ops, kappa), err_msg="column: P"
+    )
 
 
 def test_update_agrees_on_an_lu_inverted_ill_conditioned_prior():
@@ -204,8 +213,16 @@ def _episode(seed, kw, compiled, monkeypatch, log=None, ulp=False):
             if log is not None:
                 log.step = env.tables.t
             _, rew, _, _, infos = env.step({a: int(rng.integers(n_modes)) for a in env.agents})
-            record.append((env.est.X.copy(), env.est.P.copy(), env.tables.latest.copy(), env.tables.known.copy(),
-                           rew["robot_0"], [infos[a]["bits_sent"] for a in env.agents]))
+            record.append(
+                (
+                    env.est.X.copy(),
+                    env.est.P.copy(),
+                    env.tables.latest.copy(),
+                    env.tables.known.copy(),
+                    rew["robot_0"],
+                    [infos[a]["bits_sent"] for a in env.agents],
+                )
+            )
         return record, env.metrics()
 
 
@@ -218,10 +235,14 @@ BETA_EQUIVALENT = 1e-3  # budget below which the backends agree within 10⁻³·
 ESTIMATE_METRICS = ("rms_position", "rms_orientation")  # functions of the estimates: within the bound; others exact
 
 
-@pytest.mark.parametrize("seed,kw", [(0, {"max_cycles": 150}),
-                                     (1, {"max_cycles": 120, "link_probability": 0.3, "packet_loss": 0.2}),
-                                     (2, {"n_robots": 3, "trajectory": "waypoint", "sensing_radius": 3.0,
-                                          "max_cycles": 120, "max_history": 12})])
+@pytest.mark.parametrize(
+    "seed,kw",
+    [
+        (0, {"max_cycles": 150}),
+        (1, {"max_cycles": 120, "link_probability": 0.3, "packet_loss": 0.2}),
+        (2, {"n_robots": 3, "trajectory": "waypoint", "sensing_radius": 3.0, "max_cycles": 120, "max_history": 12}),
+    ],
+)
 def test_whole_episodes_agree_across_backends(seed, kw, monkeypatch):
     fast, m_fast = _episode(seed, kw, True, monkeypatch)
     log = ConditionLog()
@@ -259,8 +280,10 @@ NEAR_NOISELESS = {"sigma_d": 0.001, "sigma_theta_deg": 0.01, "max_cycles": 60}  
 
 def _separation(a, b):
     """Largest distance (m) between the position estimates of two runs, over steps, robots and team members."""
-    return max(float(np.abs(x1.reshape(len(x1), -1, 3)[..., :2] - x2.reshape(len(x2), -1, 3)[..., :2]).max())
-               for (x1, *_), (x2, *_) in zip(a, b, strict=True))
+    return max(
+        float(np.abs(x1.reshape(len(x1), -1, 3)[..., :2] - x2.reshape(len(x2), -1, 3)[..., :2]).max())
+        for (x1, *_), (x2, *_) in zip(a, b, strict=True)
+    )
 
 
 @pytest.mark.parametrize("initial_sigma", [0.05, 5.0])

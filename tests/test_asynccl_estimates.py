@@ -40,7 +40,7 @@ def ref_propagate(x, P, u, dt, qv=None, qw=None):
         F[3 * v + 1, 3 * v + 2] = vel * math.cos(phi) * dt
         G = np.array([[math.cos(phi) * dt, 0.0], [math.sin(phi) * dt, 0.0], [0.0, dt]])
         Q = np.diag([(SV * vel) ** 2 if qv is None else qv[v], SW**2 if qw is None else qw[v]])
-        GQG[3 * v:3 * v + 3, 3 * v:3 * v + 3] = G @ Q @ G.T
+        GQG[3 * v : 3 * v + 3, 3 * v : 3 * v + 3] = G @ Q @ G.T
         x[3 * v] += vel * math.cos(phi) * dt
         x[3 * v + 1] += vel * math.sin(phi) * dt
         x[3 * v + 2] = _wrap(phi + om * dt)
@@ -76,7 +76,11 @@ def ref_update(x, P, meas):
 
 
 def all_meas(pk, rows=None, k=None):
-    return [(int(a), int(b), pk.z[e]) for e, (a, b) in enumerate(zip(pk.a, pk.b, strict=True)) if rows is None or rows[a] >= k]
+    return [
+        (int(a), int(b), pk.z[e])
+        for e, (a, b) in enumerate(zip(pk.a, pk.b, strict=True))
+        if rows is None or rows[a] >= k
+    ]
 
 
 def run_recorded(seed, steps, n=4, policy_modes=None, **kw):
@@ -92,8 +96,16 @@ def run_recorded(seed, steps, n=4, policy_modes=None, **kw):
         t = env.tables.t
         acts = {a: int(rng.integers(space_n)) if policy_modes is None else policy_modes for a in env.agents}
         env.step(acts)
-        trace.append((t, env.tables.c.copy(), env.tables.latest.copy(), {c: env.est.central[c] for c in set(env.tables.c.tolist()) if c >= -1},
-                      env.est.X.copy(), env.est.P.copy()))
+        trace.append(
+            (
+                t,
+                env.tables.c.copy(),
+                env.tables.latest.copy(),
+                {c: env.est.central[c] for c in set(env.tables.c.tolist()) if c >= -1},
+                env.est.X.copy(),
+                env.est.P.copy(),
+            )
+        )
         packets[env.tables.t] = env.est.packets[env.tables.t]
     return env, x0.copy(), P0.copy(), packets, trace
 
@@ -118,8 +130,10 @@ def ops(n):
 
 def bounds(chain_kappa, x, P, n):
     """Bounds for x and P after a chain with accumulated Σκ (``episode_tolerance`` with a single entry)."""
-    return (float(episode_tolerance([chain_kappa], np.linalg.norm(x), ops(n))[0]),
-            float(episode_tolerance([chain_kappa], np.linalg.norm(P, 2), ops(n))[0]))
+    return (
+        float(episode_tolerance([chain_kappa], np.linalg.norm(x), ops(n))[0]),
+        float(episode_tolerance([chain_kappa], np.linalg.norm(P, 2), ops(n))[0]),
+    )
 
 
 @pytest.mark.parametrize("seed,kw", [(0, {}), (1, {"packet_loss": 0.2, "link_probability": 0.3})])

@@ -17,8 +17,14 @@ from mrcomm_env.asynccl import estimator as est_mod
 from mrcomm_env.asynccl_v0 import parallel_env
 
 
-@pytest.mark.parametrize("seed,kw", [(0, {}), (1, {"link_probability": 0.25, "packet_loss": 0.3}),
-                                     (2, {"n_robots": 3, "trajectory": "waypoint", "sensing_radius": 3.0})])
+@pytest.mark.parametrize(
+    "seed,kw",
+    [
+        (0, {}),
+        (1, {"link_probability": 0.25, "packet_loss": 0.3}),
+        (2, {"n_robots": 3, "trajectory": "waypoint", "sensing_radius": 3.0}),
+    ],
+)
 def test_fast_step_equals_general_step(seed, kw, monkeypatch):
     compared = []
     fast = est_mod.Estimators._step_recent
@@ -37,10 +43,12 @@ def test_fast_step_equals_general_step(seed, kw, monkeypatch):
             Xf, Pf, res_f = out
             Xg, Pg = np.array(X)[res_of], np.array(P)[res_of]
             kappa, ops = max(log.kappa.values()), 3 * self.n + 2 * self.n * (self.n - 1)
-            assert_close_conditioned(Xf[res_f], Xg, tolerance(np.linalg.norm(Xg, axis=1).max(), ops, kappa), HEADINGS,
-                                     f"x at step {t}")
-            assert_close_conditioned(Pf[res_f], Pg, tolerance(np.linalg.norm(Pg, 2, axis=(1, 2)).max(), ops, kappa),
-                                     err_msg=f"P at step {t}")
+            assert_close_conditioned(
+                Xf[res_f], Xg, tolerance(np.linalg.norm(Xg, axis=1).max(), ops, kappa), HEADINGS, f"x at step {t}"
+            )
+            assert_close_conditioned(
+                Pf[res_f], Pg, tolerance(np.linalg.norm(Pg, 2, axis=(1, 2)).max(), ops, kappa), err_msg=f"P at step {t}"
+            )
             compared.append(len(set(res_of)))
         return out
 

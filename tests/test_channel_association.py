@@ -46,12 +46,24 @@ def test_aec_api_and_seed():
     parallel_seed_test(lambda: parallel_env(n_robots=12))
 
 
-@pytest.mark.parametrize("kwargs", [
-    {"scene": "neighborhood", "w": 0}, {"scene": "neighborhood", "w": 3, "v": 4}, {"separation": 0.0},
-    {"separation": -1.0}, {"mobile_fraction": 1.5}, {"mobile_fraction": -0.1}, {"wireless_range": 0.0},
-    {"visual_range": -2.0}, {"visual_range": 20.0, "wireless_range": 16.0}, {"miss_probability": 1.0},
-    {"drop_time": 0}, {"scene": "grid"}, {"bogus": 1},
-])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"scene": "neighborhood", "w": 0},
+        {"scene": "neighborhood", "w": 3, "v": 4},
+        {"separation": 0.0},
+        {"separation": -1.0},
+        {"mobile_fraction": 1.5},
+        {"mobile_fraction": -0.1},
+        {"wireless_range": 0.0},
+        {"visual_range": -2.0},
+        {"visual_range": 20.0, "wireless_range": 16.0},
+        {"miss_probability": 1.0},
+        {"drop_time": 0},
+        {"scene": "grid"},
+        {"bogus": 1},
+    ],
+)
 def test_bad_arguments_raise(kwargs):
     with pytest.raises(ValueError):
         parallel_env(**kwargs)
@@ -61,7 +73,7 @@ def test_observation_contents_and_bounds():
     env = parallel_env(n_robots=20, max_cycles=30)
     obs, _ = env.reset(seed=3)
     nb = math.ceil(math.log2(20))
-    for i, agent in enumerate(env.possible_agents):      # own wireless ID as bits
+    for i, agent in enumerate(env.possible_agents):  # own wireless ID as bits
         bits = obs[agent][:nb]
         assert int(sum(int(b) << k for k, b in enumerate(bits))) == i
     pol = POLICIES["coin_flip"]()
@@ -71,7 +83,7 @@ def test_observation_contents_and_bounds():
         obs, *_ = env.step(acts)
         for agent, o in obs.items():
             assert env.observation_space(agent).contains(o)
-            assert o[nb + 2] == acts[agent]             # newest own emission comes first
+            assert o[nb + 2] == acts[agent]  # newest own emission comes first
 
 
 # ----------------------------------------------------------------------------- filter semantics
@@ -118,18 +130,18 @@ def test_tolerance_and_conflict_repair():
     f = DenseFilter(1, 2, 1, tolerance=1)
     f.init_known(np.ones((1, 2), bool), np.ones((1, 1), bool))
     on, off = np.array([[True, False]]), np.array([[False, True]])
-    f.step(on, np.array([[False]]))                      # wireless 0 disagrees once: survives (k = 1)
+    f.step(on, np.array([[False]]))  # wireless 0 disagrees once: survives (k = 1)
     assert f.E[0, :, 0].tolist() == [True, True]
-    f.step(on, np.array([[False]]))                      # second disagreement: eliminated
+    f.step(on, np.array([[False]]))  # second disagreement: eliminated
     assert f.E[0, :, 0].tolist() == [False, True]
-    f.step(on, np.array([[True]]))                       # wireless 1 disagrees once
-    f.step(on, np.array([[True]]))                       # and twice → no candidate left → detected
-    assert f.E[0, :, 0].tolist() == [True, False]        # re-opened to the wireless IDs received with it
+    f.step(on, np.array([[True]]))  # wireless 1 disagrees once
+    f.step(on, np.array([[True]]))  # and twice → no candidate left → detected
+    assert f.E[0, :, 0].tolist() == [True, False]  # re-opened to the wireless IDs received with it
     assert f.conflicts == 1
     g = BitsetFilter(1, 2, 1)
     g.init_known(np.ones((1, 2), bool), np.ones((1, 1), bool))
-    g.step(off, np.array([[True]]))                      # only wireless 1 agrees
-    g.step(on, np.array([[True]]))                       # now it disagrees too: contradiction, re-open
+    g.step(off, np.array([[True]]))  # only wireless 1 agrees
+    g.step(on, np.array([[True]]))  # now it disagrees too: contradiction, re-open
     assert g.E[0, :, 0].tolist() == [True, False] and g.conflicts == 1
 
 
@@ -170,8 +182,7 @@ def test_dense_bitset_sparse_agree(extra):
     for recv, vact, vin in random_inputs(rng, b, n, 60):
         dense.step(recv, vact, vin, lists=True)
         bits.step(recv, vact, vin, lists=True)
-        sparse.step(np.sort(keys[recv]), np.sort(keys[vact]),
-                    lambda k, vin=vin: vin.ravel()[k], lists=True)
+        sparse.step(np.sort(keys[recv]), np.sort(keys[vact]), lambda k, vin=vin: vin.ravel()[k], lists=True)
         assert np.array_equal(dense.E, bits.E)
         Es = np.zeros_like(dense.E)
         Es[sparse.ev // n, sparse.ew % n, sparse.ev % n] = True
@@ -182,8 +193,7 @@ def test_dense_bitset_sparse_agree(extra):
 
 
 def test_env_backends_agree_and_batch_driver_matches_env():
-    kw = dict(n_robots=48, separation=4.0, mobile_fraction=0.25, wireless_range=12.0, visual_range=12.0,
-              max_cycles=40)
+    kw = dict(n_robots=48, separation=4.0, mobile_fraction=0.25, wireless_range=12.0, visual_range=12.0, max_cycles=40)
 
     class SparseEnv(ChannelAssociationEnv):
         DENSE_MAX_N = 0
@@ -219,16 +229,16 @@ def test_algorithm2_list_operations():
     f.step(nothing, nothing, t, lists=True)
     assert not f.vt.any() and not f.wt.any()
     lit = np.array([[False, True, True]])
-    f.step(lit, lit, t, lists=True)                       # robots 1, 2 enter together: new × new edges
+    f.step(lit, lit, t, lists=True)  # robots 1, 2 enter together: new × new edges
     assert f.E[0].sum() == 4 and f.new_ids[0] == 4
     f.step(np.array([[False, True, False]]), np.array([[False, True, False]]), t, lists=True)
-    assert f.E[0].sum() == 2                              # observation split them: matched
+    assert f.E[0].sum() == 2  # observation split them: matched
     gone = np.array([[True, True, False]])
-    f.step(nothing, nothing, gone, lists=True)            # robot 2 left visual range: removed
+    f.step(nothing, nothing, gone, lists=True)  # robot 2 left visual range: removed
     assert not f.vt[0, 2] and f.E[0, :, 2].sum() == 0
-    assert f.wt[0, 2]                                     # its wireless ID lingers (silent 2 < drop_time)
-    f.step(nothing, nothing, gone, lists=True)            # silent for drop_time = 3 steps: dropped
-    assert not f.wt[0, 2] and f.wt[0, 1]                  # robot 1 was heard 2 steps ago: kept
+    assert f.wt[0, 2]  # its wireless ID lingers (silent 2 < drop_time)
+    f.step(nothing, nothing, gone, lists=True)  # silent for drop_time = 3 steps: dropped
+    assert not f.wt[0, 2] and f.wt[0, 1]  # robot 1 was heard 2 steps ago: kept
 
 
 # ----------------------------------------------------------------------------- theory
@@ -297,11 +307,11 @@ def test_overlap_geometry():
     cond = 1.0 / math.sqrt(1.0 - x[x < 1].max() ** 2)
     tol = tolerance(disk, 6 * (len(A) + 1), cond)
     assert_close_conditioned(A.sum(), disk, tol)
-    assert (np.diff(A) <= tol).all()                     # regions shrink with age (Fig. 19)
+    assert (np.diff(A) <= tol).all()  # regions shrink with age (Fig. 19)
     # Monte-Carlo check of eq. (5)
     rng = np.random.default_rng(0)
     pts = rng.uniform(-r, r, size=(200000, 2))
-    inside = (pts ** 2).sum(1) <= r * r
+    inside = (pts**2).sum(1) <= r * r
     both = inside & (((pts - [1.5, 0]) ** 2).sum(1) <= r * r)
     assert theory.overlap_area(r, 1.5) == pytest.approx(both.mean() * 4 * r * r, rel=0.02)
 
@@ -324,7 +334,7 @@ def test_id_bits_solves_in_exactly_log2_id_space_steps():
         run_episode(env, POLICIES["id_bits"](), 0)
         assert env.metrics()["completion_time"] == math.ceil(math.log2(w + 1))
         env = parallel_env(scene="neighborhood", w=w, v=v, max_cycles=200)
-        pol = POLICIES["id_bits"](bits=16)                   # sparse random 16-bit addresses
+        pol = POLICIES["id_bits"](bits=16)  # sparse random 16-bit addresses
         run_episode(env, pol, 0)
         addr = pol.addresses.astype(np.int64)
         # solved at the first t where every visible robot's t-bit prefix is unique among the w robots
@@ -365,14 +375,14 @@ def test_local_visual_labels_are_per_observer_and_stable():
     env = parallel_env(n_robots=25, mobile_fraction=0.0, max_cycles=50)
     env.reset(seed=5)
     first = {a: env.associations(a) for a in ("robot_0", "robot_1")}
-    assert set(first["robot_0"]).isdisjoint(first["robot_1"])     # labels are drawn by each observer
+    assert set(first["robot_0"]).isdisjoint(first["robot_1"])  # labels are drawn by each observer
     pol = POLICIES["coin_flip"]()
     obs, _ = env.reset(seed=5)
     labels0 = set(env.associations("robot_0"))
     pol.reset(env.local_views(), 5)
     for _ in range(5):
         obs, *_ = env.step(pol.act(obs, env.local_views()))
-        assert set(env.associations("robot_0")) == labels0        # stationary: same tracks, same labels
+        assert set(env.associations("robot_0")) == labels0  # stationary: same tracks, same labels
     # candidates shrink but always contain the true robot (perfect channel)
     cands = env.associations("robot_0")
     assert all(len(c) >= 1 for c in cands.values())

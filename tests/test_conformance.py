@@ -189,9 +189,11 @@ def batch_sampler(space, rng):
     if isinstance(space, spaces.Discrete):
         return lambda agents: dict(zip(agents, (rng.integers(0, space.n, len(agents)) + space.start).tolist()))
     if hasattr(space, "high"):
+
         def sample(agents):
             draws = rng.uniform(space.low, space.high, size=(len(agents), *space.shape)).astype(space.dtype)
             return dict(zip(agents, draws))
+
         return sample
     return lambda agents: {a: space.sample() for a in agents}
 
@@ -312,8 +314,9 @@ def _strategy(validator):
         return None if inner is None else st.one_of(st.none(), inner)
     if isinstance(validator, Int) and validator.fuzz:
         edges = [validator.lo] if validator.lo is not None else []
-        return st.one_of(st.integers(*validator.fuzz), st.sampled_from(edges)) if edges else st.integers(
-            *validator.fuzz)
+        return (
+            st.one_of(st.integers(*validator.fuzz), st.sampled_from(edges)) if edges else st.integers(*validator.fuzz)
+        )
     if isinstance(validator, Real) and validator.fuzz:
         return st.one_of(st.floats(*validator.fuzz, allow_nan=False), st.sampled_from(_real_edges(validator)))
     if isinstance(validator, Choice):
@@ -324,9 +327,7 @@ def _strategy(validator):
 
 
 def _config_strategy(env_id):
-    fields = {
-        arg: s for arg, spec in env_class(env_id).PARAMS.items() if (s := _strategy(spec.check)) is not None
-    }
+    fields = {arg: s for arg, spec in env_class(env_id).PARAMS.items() if (s := _strategy(spec.check)) is not None}
     return st.fixed_dictionaries({}, optional=fields)
 
 

@@ -8,7 +8,9 @@ DOCS = Path(__file__).resolve().parent.parent / "docs"
 
 
 def test_committed_docs_match_generator():
-    stale = [str(p.relative_to(DOCS)) for p, text in expected_docs(DOCS).items() if not p.exists() or p.read_text() != text]
+    stale = [
+        str(p.relative_to(DOCS)) for p, text in expected_docs(DOCS).items() if not p.exists() or p.read_text() != text
+    ]
     assert not stale, f"docs out of date, run `mrcomm docs`: {stale}"
 
 

@@ -70,9 +70,11 @@ def test_text_rule_is_round_robin_for_equal_importance():
     counters = np.ones((1, n))
     known = np.ones((1, n), dtype=bool)
     f = np.ones((1, n))
-    picks = [int(proto.location_based_select(counters, f, known, np.array([0]), 2, "text")[0, 1]) for _ in range(3 * (n - 1))]
+    picks = [
+        int(proto.location_based_select(counters, f, known, np.array([0]), 2, "text")[0, 1]) for _ in range(3 * (n - 1))
+    ]
     for start in range(0, len(picks), n - 1):
-        assert sorted(picks[start:start + n - 1]) == list(range(1, n))
+        assert sorted(picks[start : start + n - 1]) == list(range(1, n))
 
 
 def test_text_rule_sends_closer_estimates_more_often():
@@ -116,8 +118,9 @@ def test_frame_time_and_rate_in_real_units():
     env.step({a: env.action_space(a).sample() for a in env.agents})
     # the env adds the slot duration nine times (one rounding each); the formulas round a few times
     assert_close_conditioned(env.t, 9 * 2 * 100 / 1000.0, tolerance(env.t, 9 + 3), err_msg="frame time")
-    assert_close_conditioned(env.metrics()["frame_rate"], 1000.0 / (2 * 9 * 100), tolerance(1.0 / env.t, 6),
-                             err_msg="frame rate")
+    assert_close_conditioned(
+        env.metrics()["frame_rate"], 1000.0 / (2 * 9 * 100), tolerance(1.0 / env.t, 6), err_msg="frame rate"
+    )
     # §4: nine robots, 192 bits, 3000 baud: about 1.7, 0.6 and 0.2 Hz
     for m, hz in theory.paper_frame_rates().items():
         assert 3000.0 / (m * 9 * 192) == pytest.approx(hz, rel=0.15)
@@ -164,8 +167,12 @@ def test_flooding_cold_start_matches_set_based_reference():
     assert_times_match(env.first_known, first, slot)
     blk = proto.centred_block(side, 2)
     worst = first[np.ix_(blk, blk)].max()
-    assert_close_conditioned(env.metrics()["propagation_time_2x2"], worst * slot, tolerance(worst * slot, worst + 1),
-                             err_msg="propagation_time_2x2")
+    assert_close_conditioned(
+        env.metrics()["propagation_time_2x2"],
+        worst * slot,
+        tolerance(worst * slot, worst + 1),
+        err_msg="propagation_time_2x2",
+    )
     assert env.metrics()["propagation_time_6x6"] != env.metrics()["propagation_time_6x6"]  # nan: does not fit
 
 
@@ -325,9 +332,20 @@ def test_slot_order_random_per_episode_and_seeded():
     assert not np.array_equal(a, env.tdma.order)
 
 
-@pytest.mark.parametrize("bad", [dict(scene="field", n_robots=1), dict(slot_size=0), dict(slot_size=101),
-                                 dict(alpha=0.0), dict(alpha=-1.0), dict(bits_per_estimate=0), dict(baud=0.0),
-                                 dict(baud=-5.0), dict(scene="coverage", slot_size=10)])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        dict(scene="field", n_robots=1),
+        dict(slot_size=0),
+        dict(slot_size=101),
+        dict(alpha=0.0),
+        dict(alpha=-1.0),
+        dict(bits_per_estimate=0),
+        dict(baud=0.0),
+        dict(baud=-5.0),
+        dict(scene="coverage", slot_size=10),
+    ],
+)
 def test_bad_arguments_raise(bad):
     with pytest.raises(ValueError):
         MultiHopEnv(**bad)
@@ -420,8 +438,12 @@ def test_flooding_fresh_stamp_time_equals_cold_start_time():
     end = max(res["cold"][k][0].max() + res["steady"][k][0].max() for k in blocks) + (2 + 2) * frame
     for k in blocks:
         for stat in (0, 1):
-            assert_close_conditioned(res["cold"][k][stat], res["steady"][k][stat], tolerance(end, int(end / slot) + 1),
-                                     err_msg=f"block {k}, stat {stat}")
+            assert_close_conditioned(
+                res["cold"][k][stat],
+                res["steady"][k][stat],
+                tolerance(end, int(end / slot) + 1),
+                err_msg=f"block {k}, stat {stat}",
+            )
     # m = 1 never completes a subgraph with non-adjacent pairs (the 2×2's diagonals)
     res1 = grid_propagation(4, 1, 2, seed=9, blocks={2: blocks[2]}, steady=False, max_frames=20)
     assert np.all(np.isinf(res1["cold"][2][0]))

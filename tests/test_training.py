@@ -26,8 +26,16 @@ ROLLOUT = HYPER["n_steps"] * N_AGENTS
 
 
 def config(timesteps: int, **kw) -> TrainConfig:
-    settings = dict(env_id=ENV, timesteps=timesteps, seed=3, env_kwargs=dict(ENV_KWARGS), hyperparams=dict(HYPER),
-                    n_envs=1, net_arch=[16], checkpoint_every=ROLLOUT)
+    settings = dict(
+        env_id=ENV,
+        timesteps=timesteps,
+        seed=3,
+        env_kwargs=dict(ENV_KWARGS),
+        hyperparams=dict(HYPER),
+        n_envs=1,
+        net_arch=[16],
+        checkpoint_every=ROLLOUT,
+    )
     settings.update(kw)
     return TrainConfig(**settings)
 
@@ -111,8 +119,10 @@ def test_evaluate_accepts_a_trained_model_with_the_same_json(tmp_path):
     run = train(config(ROLLOUT), tmp_path / "run", progress=False)
     out = tmp_path / "eval.json"
     params = [arg for k, v in ENV_KWARGS.items() for arg in ("--param", f"{k}={v}")]
-    assert main(["evaluate", ENV, "--policy", f"ppo:{run}", "--episodes", "2", "--quiet", *params,
-                 "--json", str(out)]) == 0
+    assert (
+        main(["evaluate", ENV, "--policy", f"ppo:{run}", "--episodes", "2", "--quiet", *params, "--json", str(out)])
+        == 0
+    )
     record = json.loads(out.read_text())
     assert record["policy"] == f"ppo:{run}" and record["episodes"] == 2
     assert set(record["metrics"]) >= {"fraction_matched", "bits_sent", "episode_return"}

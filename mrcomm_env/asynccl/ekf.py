@@ -54,7 +54,7 @@ def _prop_templates(n: int, G: int):
     fa = np.zeros((n3, na))
     fa[:, :n3] = np.eye(n3)
     pa = np.zeros((na, na))
-    pa[n3:5 * n, n3:5 * n] = np.eye(2 * n)
+    pa[n3 : 5 * n, n3 : 5 * n] = np.eye(2 * n)
     tgt = np.full((n, 3, 4), 5 * n)  # (row 0, spare column)
     tgt[:, 0, 0] = (3 * v + 1) * na + 3 * v + 2  # ∂y/∂φ = v dt cos φ
     tgt[:, 0, 1] = 3 * v * na + 3 * v + 2  # ∂x/∂φ = −v dt sin φ
@@ -117,10 +117,21 @@ class Geometry:
         self.template[2 * rows + 1, 3 * a + 2] = -inv_sth  # bearing row: −1 on the observer's heading
         rng_row, brg_row = 2 * rows * K, (2 * rows + 1) * K
         # where ``information``'s ten numbers per measurement go (its buffer ``B``, shape (m, 2, 5))
-        self._pos = np.stack([rng_row + 3 * b, rng_row + 3 * b + 1, brg_row + 3 * a, brg_row + 3 * a + 1,
-                              rng_row + 3 * n,
-                              rng_row + 3 * a, rng_row + 3 * a + 1, brg_row + 3 * b, brg_row + 3 * b + 1,
-                              brg_row + 3 * n], axis=1).ravel()
+        self._pos = np.stack(
+            [
+                rng_row + 3 * b,
+                rng_row + 3 * b + 1,
+                brg_row + 3 * a,
+                brg_row + 3 * a + 1,
+                rng_row + 3 * n,
+                rng_row + 3 * a,
+                rng_row + 3 * a + 1,
+                brg_row + 3 * b,
+                brg_row + 3 * b + 1,
+                brg_row + 3 * n,
+            ],
+            axis=1,
+        ).ravel()
         self._flat: dict = {}
 
     def positions(self, G):
@@ -206,7 +217,6 @@ def update(Xp, Yp, A, hold, prior=None, geo=None):
     return Xn, Pn
 
 
-
 @cache
 def backend(name: str | None = None) -> types.SimpleNamespace:
     """The EKF kernels (``propagate``, ``information``, ``inv``, ``update``, ``column``): the numba twins of ``ekf_numba.py``
@@ -216,5 +226,11 @@ def backend(name: str | None = None) -> types.SimpleNamespace:
         from mrcomm_env.asynccl import ekf_numba as module
     else:
         module = sys.modules[__name__]
-    return types.SimpleNamespace(name=name, propagate=module.propagate, information=module.information,
-                                 inv=module.inv, update=module.update, column=module.column)
+    return types.SimpleNamespace(
+        name=name,
+        propagate=module.propagate,
+        information=module.information,
+        inv=module.inv,
+        update=module.update,
+        column=module.column,
+    )

@@ -251,5 +251,6 @@ def _column(Xs, Ps, ud, a, b, z, inv_sd, inv_sth, hold, prior):
 
 def column(Xs, Ps, ud, geo, z, inv_sd, inv_sth, hold, prior):
     """``ekf.column``: propagate, linearise, invert and update in one compiled call."""
-    return _column(_c(Xs), _c(Ps), _c(ud), geo.a, geo.b, _c(z), inv_sd, inv_sth, _c(hold),
-                   _c(np.asarray(prior, dtype=np.int64)))
+    return _column(
+        _c(Xs), _c(Ps), _c(ud), geo.a, geo.b, _c(z), inv_sd, inv_sth, _c(hold), _c(np.asarray(prior, dtype=np.int64))
+    )

@@ -108,7 +108,7 @@ def mode_code(name: str) -> int:
         return SCHEME1
     if name == "scheme2_qinf":
         return QINF
-    return int(name[len("scheme2_q"):])
+    return int(name[len("scheme2_q") :])
 
 
 class ModeName(Validator):
@@ -123,8 +123,10 @@ class ModeName(Validator):
                 q = int(match.group(1))
                 if 1 <= q <= MAX_Q:
                     return f"scheme2_q{q}"
-                raise ValueError(f"argument '{name}': q of {value!r} must be in [1, {MAX_Q}] or inf (no table holds "
-                                 f"more than max_history ≤ {MAX_Q} columns, so a larger q would mean the same)")
+                raise ValueError(
+                    f"argument '{name}': q of {value!r} must be in [1, {MAX_Q}] or inf (no table holds "
+                    f"more than max_history ≤ {MAX_Q} columns, so a larger q would mean the same)"
+                )
         self._fail(name, value)
 
     def describe(self):
@@ -136,47 +138,80 @@ class AsyncCLEnv(MrcommParallelEnv):
     DESCRIPTION = "Which information-transfer scheme each robot uses per step in asynchronous multi-centralized CL"
     metadata = {"name": "asynccl_v0", "render_modes": ["rgb_array", "human"], "render_fps": 10}
     PARAMS = {
-        "n_robots": Param(5, f"number of robots N; at most {MAX_ROBOTS_ESTIMATING} with `estimation` (every robot runs a "
-                          "centralized EKF of the whole team: memory grows as N⁴), at most "
-                          f"{MAX_ROBOTS} delay-only (Table I needs ≤ 100)",
-                          Int(lo=2, hi=MAX_ROBOTS, fuzz=(2, 6))),
-        "link_model": Param("bernoulli", "`bernoulli` (each pair linked with probability p per step, Table I), "
-                            "`disk` (within `comm_radius`) or `combined` (both)",
-                            Choice(("bernoulli", "disk", "combined"))),
+        "n_robots": Param(
+            5,
+            f"number of robots N; at most {MAX_ROBOTS_ESTIMATING} with `estimation` (every robot runs a "
+            "centralized EKF of the whole team: memory grows as N⁴), at most "
+            f"{MAX_ROBOTS} delay-only (Table I needs ≤ 100)",
+            Int(lo=2, hi=MAX_ROBOTS, fuzz=(2, 6)),
+        ),
+        "link_model": Param(
+            "bernoulli",
+            "`bernoulli` (each pair linked with probability p per step, Table I), "
+            "`disk` (within `comm_radius`) or `combined` (both)",
+            Choice(("bernoulli", "disk", "combined")),
+        ),
         "link_probability": Param(0.5, "p: probability of a link per pair and step", Real(0.0, 1.0, fuzz=(0.0, 1.0))),
-        "comm_radius": Param(3.0, "r: communication radius (m) of the disk model", Real(0.0, lo_open=True,
-                                                                                        fuzz=(0.5, 6.0))),
-        "sensing_radius": Param(10.0, "d_max: sensing radius (m) for range and bearing", Real(
-            0.0, lo_open=True, allow_inf=True, fuzz=(0.5, 10.0))),
-        "packet_loss": Param(0.0, "probability that a directed delivery is lost", Real(0.0, 1.0, hi_open=True,
-                                                                                        fuzz=(0.0, 0.5))),
-        "bit_budget": Param(None, "per-link bit budget per step; the payload is truncated oldest data first",
-                            Optional(Real(0.0, fuzz=(50.0, 5000.0)))),
+        "comm_radius": Param(
+            3.0, "r: communication radius (m) of the disk model", Real(0.0, lo_open=True, fuzz=(0.5, 6.0))
+        ),
+        "sensing_radius": Param(
+            10.0,
+            "d_max: sensing radius (m) for range and bearing",
+            Real(0.0, lo_open=True, allow_inf=True, fuzz=(0.5, 10.0)),
+        ),
+        "packet_loss": Param(
+            0.0, "probability that a directed delivery is lost", Real(0.0, 1.0, hi_open=True, fuzz=(0.0, 0.5))
+        ),
+        "bit_budget": Param(
+            None,
+            "per-link bit budget per step; the payload is truncated oldest data first",
+            Optional(Real(0.0, fuzz=(50.0, 5000.0))),
+        ),
         "modes": Param(ALL_MODES, "the transfer modes an action indexes", ListOf(ModeName())),
-        "lam": Param(0.05, "λ: reward cost of one kbit sent per robot and step (at most 1e6, so that λ times the "
-                     "bits of any step stays a finite reward)", Real(0.0, 1e6, fuzz=(0.0, 1.0))),
-        "reward": Param("delay", "what the reward charges besides bits: `delay` (the team's mean t − c_i in units "
-                        "of 10 steps, eq. (7)'s quantity) or `position` (the causal estimates' mean RMS position "
-                        "error, m; needs `estimation`)", Choice(("delay", "position"))),
+        "lam": Param(
+            0.05,
+            "λ: reward cost of one kbit sent per robot and step (at most 1e6, so that λ times the "
+            "bits of any step stays a finite reward)",
+            Real(0.0, 1e6, fuzz=(0.0, 1.0)),
+        ),
+        "reward": Param(
+            "delay",
+            "what the reward charges besides bits: `delay` (the team's mean t − c_i in units "
+            "of 10 steps, eq. (7)'s quantity) or `position` (the causal estimates' mean RMS position "
+            "error, m; needs `estimation`)",
+            Choice(("delay", "position")),
+        ),
         "estimation": Param(True, "run the EKFs (false: delay-only bookkeeping, as for Table I)", Bool()),
         "max_cycles": Param(500, "episode length in time steps", Int(lo=1, fuzz=(1, 60))),
-        "max_history": Param(500, "time steps of packets kept in memory; a robot still missing a column that "
-                             "leaves memory abandons it", Int(lo=2, hi=MAX_HISTORY, fuzz=(2, 50))),
-        "trajectory": Param("sinusoid", "`sinusoid` (phase-shifted figure-eights, §IV) or `waypoint`",
-                            Choice(("sinusoid", "waypoint"))),
+        "max_history": Param(
+            500,
+            "time steps of packets kept in memory; a robot still missing a column that leaves memory abandons it",
+            Int(lo=2, hi=MAX_HISTORY, fuzz=(2, 50)),
+        ),
+        "trajectory": Param(
+            "sinusoid", "`sinusoid` (phase-shifted figure-eights, §IV) or `waypoint`", Choice(("sinusoid", "waypoint"))
+        ),
         "dt": Param(0.05, "time step (s)", Real(0.0, 1.0, lo_open=True, fuzz=(0.01, 0.2))),
         "sigma_v": Param(0.02, "σ_v as a fraction of v", Real(0.0, 1.0, fuzz=(0.0, 0.1))),
         "sigma_omega_deg": Param(1.0, "σ_ω (deg/s)", Real(0.0, 90.0, fuzz=(0.0, 5.0))),
         "sigma_d": Param(0.02, "σ_d as a fraction of d", Real(0.0, 1.0, fuzz=(0.0, 0.1))),
         "sigma_theta_deg": Param(1.0, "σ_θ (deg)", Real(0.0, 90.0, fuzz=(0.0, 5.0))),
-        "q_rule": Param("paper", "reading of Scheme 2's q oldest time steps: `paper` (the sender's q oldest "
-                        "non-discarded columns, discard by the rules of §III-B.3), `oracle` (a column is discarded "
-                        "as soon as every robot has it) or `receiver` (the q oldest columns in which the receiver "
-                        "lacks something)", Choice(("paper", "oracle", "receiver"))),
-        "initial_sigma": Param(0.05, "std of the initial pose prior (m and rad); at least the filter's noise floor "
-                               f"{SIGMA_FLOOR:g} (a prior far tighter than every noise makes the information matrix "
-                               "singular: 1e-8 still ran, 1e-12 did not)",
-                               Real(SIGMA_FLOOR, 10.0, fuzz=(0.01, 0.5))),
+        "q_rule": Param(
+            "paper",
+            "reading of Scheme 2's q oldest time steps: `paper` (the sender's q oldest "
+            "non-discarded columns, discard by the rules of §III-B.3), `oracle` (a column is discarded "
+            "as soon as every robot has it) or `receiver` (the q oldest columns in which the receiver "
+            "lacks something)",
+            Choice(("paper", "oracle", "receiver")),
+        ),
+        "initial_sigma": Param(
+            0.05,
+            "std of the initial pose prior (m and rad); at least the filter's noise floor "
+            f"{SIGMA_FLOOR:g} (a prior far tighter than every noise makes the information matrix "
+            "singular: 1e-8 still ran, 1e-12 did not)",
+            Real(SIGMA_FLOOR, 10.0, fuzz=(0.01, 0.5)),
+        ),
     }
     METRICS = {
         "mean_delay": "eq. (7): mean steps from k until a robot can compute x̂_{k|k} (complete steps only)",
@@ -207,35 +242,63 @@ class AsyncCLEnv(MrcommParallelEnv):
     DOCUMENTED_CONFIGS = {
         "default": {},
         "delay_only_n20": {"n_robots": 20, "estimation": False, "max_cycles": 200},
-        "disk_budget": {"n_robots": 4, "link_model": "combined", "comm_radius": 3.0, "bit_budget": 3000.0,
-                        "packet_loss": 0.1, "trajectory": "waypoint", "max_cycles": 100},
+        "disk_budget": {
+            "n_robots": 4,
+            "link_model": "combined",
+            "comm_radius": 3.0,
+            "bit_budget": 3000.0,
+            "packet_loss": 0.1,
+            "trajectory": "waypoint",
+            "max_cycles": 100,
+        },
     }
     #: configurations at the documented maxima (``tests/test_limits.py``, ``experiments/limits.py``)
     LIMIT_CONFIGS = {
         "max_robots_delay_only": {"n_robots": MAX_ROBOTS, "estimation": False},
-        "max_robots_delay_only_max_history": {"n_robots": MAX_ROBOTS, "estimation": False, "max_history": MAX_HISTORY,
-                                              "modes": ["scheme2_qinf", f"scheme2_q{MAX_Q}"], "lam": 1e6},
-        "max_robots_delay_only_budget": {"n_robots": MAX_ROBOTS, "estimation": False, "bit_budget": 5000.0,
-                                         "link_model": "combined", "q_rule": "receiver"},
+        "max_robots_delay_only_max_history": {
+            "n_robots": MAX_ROBOTS,
+            "estimation": False,
+            "max_history": MAX_HISTORY,
+            "modes": ["scheme2_qinf", f"scheme2_q{MAX_Q}"],
+            "lam": 1e6,
+        },
+        "max_robots_delay_only_budget": {
+            "n_robots": MAX_ROBOTS,
+            "estimation": False,
+            "bit_budget": 5000.0,
+            "link_model": "combined",
+            "q_rule": "receiver",
+        },
         "max_robots_estimating": {"n_robots": MAX_ROBOTS_ESTIMATING, "initial_sigma": 10.0},
-        "max_history_estimating": {"max_history": MAX_HISTORY, "initial_sigma": SIGMA_FLOOR, "sigma_v": 0.0,
-                                   "sigma_omega_deg": 0.0, "sigma_d": 0.0, "sigma_theta_deg": 0.0},
+        "max_history_estimating": {
+            "max_history": MAX_HISTORY,
+            "initial_sigma": SIGMA_FLOOR,
+            "sigma_v": 0.0,
+            "sigma_omega_deg": 0.0,
+            "sigma_d": 0.0,
+            "sigma_theta_deg": 0.0,
+        },
     }
     VERSION_HISTORY = [
         ("v0", "first version: Scheme 1, Scheme 2 (q ≥ 1 and ∞) and silence as per-step actions"),
-        ("v0 rev 2", "learnable: the reward charges the mean delay (`reward=delay`, default; the v0 position error "
-         "is `reward=position`) and `lam` prices kbit per robot (was per team bit at 1e-6: 0.002 per step, "
-         "noise); the observation is agent-relative per other robot (linked now, how far behind my copy of its "
-         "row is, what it lacks as far as I know), with the clock and a log-scale covariance trace"),
+        (
+            "v0 rev 2",
+            "learnable: the reward charges the mean delay (`reward=delay`, default; the v0 position error "
+            "is `reward=position`) and `lam` prices kbit per robot (was per team bit at 1e-6: 0.002 per step, "
+            "noise); the observation is agent-relative per other robot (linked now, how far behind my copy of its "
+            "row is, what it lacks as far as I know), with the clock and a log-scale covariance trace",
+        ),
     ]
 
     def _setup(self) -> None:
         cfg = self.cfg
         n = self.n_agents = cfg["n_robots"]
         if cfg["estimation"] and n > MAX_ROBOTS_ESTIMATING:
-            raise ValueError(f"argument 'n_robots' must be at most {MAX_ROBOTS_ESTIMATING} when 'estimation' is true "
-                             f"(every robot's EKF of the whole team needs memory growing as N⁴), got n_robots={n}; "
-                             f"pass estimation=False for delay-only runs of up to {MAX_ROBOTS} robots")
+            raise ValueError(
+                f"argument 'n_robots' must be at most {MAX_ROBOTS_ESTIMATING} when 'estimation' is true "
+                f"(every robot's EKF of the whole team needs memory growing as N⁴), got n_robots={n}; "
+                f"pass estimation=False for delay-only runs of up to {MAX_ROBOTS} robots"
+            )
         if cfg["reward"] == "position" and not cfg["estimation"]:
             raise ValueError("argument 'reward' = 'position' needs estimation=True (no estimates, no position error)")
         self.mode_names = tuple(cfg["modes"])
@@ -245,13 +308,27 @@ class AsyncCLEnv(MrcommParallelEnv):
         self._others = (np.arange(n)[:, None] + np.arange(1, n)[None, :]) % n
         self._others_flat = (self._others + np.arange(n)[:, None] * n).ravel()
         self._act_space = spaces.Discrete(len(self.mode_names))
-        self.world = World(n, cfg["dt"], cfg["trajectory"], cfg["sensing_radius"], cfg["sigma_v"],
-                           math.radians(cfg["sigma_omega_deg"]), cfg["sigma_d"], math.radians(cfg["sigma_theta_deg"]),
-                           cfg["estimation"])
+        self.world = World(
+            n,
+            cfg["dt"],
+            cfg["trajectory"],
+            cfg["sensing_radius"],
+            cfg["sigma_v"],
+            math.radians(cfg["sigma_omega_deg"]),
+            cfg["sigma_d"],
+            math.radians(cfg["sigma_theta_deg"]),
+            cfg["estimation"],
+        )
         self.tables = InfoTables(n, cfg["max_history"], cfg["q_rule"])
-        self.est = Estimators(n, cfg["dt"], max(cfg["sigma_v"], SIGMA_FLOOR),
-                              max(math.radians(cfg["sigma_omega_deg"]), SIGMA_FLOOR), max(cfg["sigma_d"], SIGMA_FLOOR),
-                              max(math.radians(cfg["sigma_theta_deg"]), SIGMA_FLOOR), cfg["max_history"])
+        self.est = Estimators(
+            n,
+            cfg["dt"],
+            max(cfg["sigma_v"], SIGMA_FLOOR),
+            max(math.radians(cfg["sigma_omega_deg"]), SIGMA_FLOOR),
+            max(cfg["sigma_d"], SIGMA_FLOOR),
+            max(math.radians(cfg["sigma_theta_deg"]), SIGMA_FLOOR),
+            cfg["max_history"],
+        )
         self.ledger = BitLedger(n)
         # flat index of P_i[3i+d, 3i+d] in robot i's covariance: the diagonal of its own-pose block
         self._own_rows = np.arange(n)[:, None]

@@ -287,12 +287,22 @@ class Estimators:
                     Lr = Lx[[1 + g for g in running]]
                     pk = self.packets[k]
                     geo = self._geometry(pk)
-                    parts.append(self.k.column(Xc, Pc, self.ud_ring[self._slots(np.minimum(Lr, k - 1)), ar], geo,
-                                               pk.z, self._inv_sd, self._inv_sth, Lr[:, geo.obs_of_row] >= k,
-                                               np.arange(len(running)))[3:])
+                    parts.append(
+                        self.k.column(
+                            Xc,
+                            Pc,
+                            self.ud_ring[self._slots(np.minimum(Lr, k - 1)), ar],
+                            geo,
+                            pk.z,
+                            self._inv_sd,
+                            self._inv_sth,
+                            Lr[:, geo.obs_of_row] >= k,
+                            np.arange(len(running)),
+                        )[3:]
+                    )
                 start = [g for g, ci in enumerate(c_r) if ci + 1 == k]
                 if start:  # first column: the central prior of column k with the rows they hold
-                    Ls = Lx[1:1 + nr] if len(start) == nr else Lx[[1 + g for g in start]]
+                    Ls = Lx[1 : 1 + nr] if len(start) == nr else Lx[[1 + g for g in start]]
                     geo = self._geometry(self.packets[k])
                     parts.append(self.k.update(*lin[(k, ("C", k - 1), b"")], Ls[:, geo.obs_of_row] >= k, geo=geo))
                     running = running + start
@@ -309,7 +319,7 @@ class Estimators:
             Xs.append(self.X[src_e])
             Ps.append(self.P[src_e])
         if nown:  # the central row of Lx gives the odometry of t-1 of everyone
-            ud = self.ud_ring[self._slots(np.minimum(Lx[:1 + nown], t - 1)), ar]
+            ud = self.ud_ring[self._slots(np.minimum(Lx[: 1 + nown], t - 1)), ar]
             Xp, Pp = np.concatenate(Xs), np.concatenate(Ps)
         else:
             ud = self.ud_ring[(t - 1) % W][None]

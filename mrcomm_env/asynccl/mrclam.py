@@ -62,7 +62,7 @@ def load_mrclam(path: str | Path | None = None, dt: float = 0.05, duration: floa
     steps, obs, tgt, z = [], [], [], []
     for i in range(N_ROBOTS):
         m = mea[i]
-        for (tm, subj, rng, brg) in m:
+        for tm, subj, rng, brg in m:
             j = robot_of_barcode.get(int(subj))
             s = int(round((tm - t0) / dt))
             if j is None or j == i or not 0 <= s < k:
@@ -74,5 +74,13 @@ def load_mrclam(path: str | Path | None = None, dt: float = 0.05, duration: floa
     steps, obs, tgt = np.array(steps, dtype=np.int64), np.array(obs, dtype=np.int64), np.array(tgt, dtype=np.int64)
     z = np.array(z, dtype=float).reshape(-1, 2)
     order = np.lexsort((tgt, obs, steps))
-    return {"truth": truth, "odometry": odometry, "meas_step": steps[order], "meas_a": obs[order],
-            "meas_b": tgt[order], "meas_z": z[order], "dt": dt, "t0": t0}
+    return {
+        "truth": truth,
+        "odometry": odometry,
+        "meas_step": steps[order],
+        "meas_a": obs[order],
+        "meas_b": tgt[order],
+        "meas_z": z[order],
+        "dt": dt,
+        "t0": t0,
+    }

@@ -149,9 +149,25 @@ class InfoTables:
 
         hi_s = self.latest if _min(modes, axis=None) >= QINF else self._offers(modes)
         bits, links, latest, known, c, disc, self.delay_sum, added, any_link = exchange_dense(
-            np.asarray(modes, dtype=np.int64), adj, delivered, hi_s, self.latest, self.disc, self.known, self.c,
-            self.cum_bits, self.W, SILENT, QINF, float(HEADER_BITS), float(LIST_ENTRY_BITS), self.t, self._hist_diff,
-            self.delay_sum, self.q_rule == "oracle")
+            np.asarray(modes, dtype=np.int64),
+            adj,
+            delivered,
+            hi_s,
+            self.latest,
+            self.disc,
+            self.known,
+            self.c,
+            self.cum_bits,
+            self.W,
+            SILENT,
+            QINF,
+            float(HEADER_BITS),
+            float(LIST_ENTRY_BITS),
+            self.t,
+            self._hist_diff,
+            self.delay_sum,
+            self.q_rule == "oracle",
+        )
         if any_link:  # (with no link nothing changes, and ``_exchange_dense`` does not settle either)
             self.latest, self.known, self.c, self.disc = latest, known, c, disc
             self.delay_count += added
@@ -178,8 +194,9 @@ class InfoTables:
             lacks = full_hi > lo[e]
             first = np.where(lacks, lo[e] + 1, np.iinfo(np.int64).max).min(axis=1)
             hi[e] = np.where(lacks, np.minimum(full_hi, (first + modes[send[e]] - 1)[:, None]), -1)
-        hdr_s = np.where(modes >= QINF, HEADER_BITS + LIST_ENTRY_BITS * np.sum(latest > disc[:, None], axis=1),
-                         HEADER_BITS).astype(float)
+        hdr_s = np.where(
+            modes >= QINF, HEADER_BITS + LIST_ENTRY_BITS * np.sum(latest > disc[:, None], axis=1), HEADER_BITS
+        ).astype(float)
         header = hdr_s[send]
         W = self.W
         if budget is not None:

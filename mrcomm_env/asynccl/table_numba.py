@@ -19,8 +19,26 @@ NO_ROW_LIMIT = 2**62  # larger than any step index (a plain constant: numba free
 
 
 @njit(cache=True)
-def exchange_dense(modes, adj, delivered, hi_s, latest, disc, known, c, cum_bits, W, silent, qinf,
-                   header_bits, entry_bits, t, hist_diff, delay_sum, oracle):
+def exchange_dense(
+    modes,
+    adj,
+    delivered,
+    hi_s,
+    latest,
+    disc,
+    known,
+    c,
+    cum_bits,
+    W,
+    silent,
+    qinf,
+    header_bits,
+    entry_bits,
+    t,
+    hist_diff,
+    delay_sum,
+    oracle,
+):
     """Bits and links per sender, the new ``latest``, ``known``, ``c`` and ``disc``, and the delay statistics.
 
     Returns (bits, links, latest, known, c, disc, delay_sum, added delay count, any_link); ``hist_diff`` is

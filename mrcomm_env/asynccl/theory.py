@@ -80,8 +80,9 @@ def scheme2_qinf_n3_expected_delay(p: float, tmax: int = 2000) -> float:
 
 def p_delay_gt1_as_printed(n: int, p: float) -> float:
     """eq. (17) exactly as printed."""
-    return sum(math.comb(n - 1, r) * (1 - p) ** r * p ** (n - 1 - r) * (1 - (1 - (1 - p) ** (n - r)) ** r)
-               for r in range(1, n))
+    return sum(
+        math.comb(n - 1, r) * (1 - p) ** r * p ** (n - 1 - r) * (1 - (1 - (1 - p) ** (n - r)) ** r) for r in range(1, n)
+    )
 
 
 def p_delay_eq1_as_printed(n: int, p: float) -> float:

@@ -62,8 +62,9 @@ class Packets:
 
 
 class World:
-    def __init__(self, n, dt, trajectory, sensing_radius, sigma_v_frac, sigma_omega, sigma_d_frac, sigma_theta,
-                 estimation):
+    def __init__(
+        self, n, dt, trajectory, sensing_radius, sigma_v_frac, sigma_omega, sigma_d_frac, sigma_theta, estimation
+    ):
         self.n, self.dt, self.trajectory = n, dt, trajectory
         self.sensing_radius = sensing_radius
         self.sigma_v_frac, self.sigma_omega = sigma_v_frac, sigma_omega
@@ -80,8 +81,9 @@ class World:
             self.centre = rng.uniform(-1.0, 1.0, (n, 2))
             s = self.phase
             xd, yd = SIN_A * SIN_W * np.cos(s), 2.0 * SIN_B * SIN_W * np.cos(2.0 * s)
-            self.x = np.column_stack([self.centre[:, 0] + SIN_A * np.sin(s),
-                                      self.centre[:, 1] + SIN_B * np.sin(2.0 * s), np.arctan2(yd, xd)])
+            self.x = np.column_stack(
+                [self.centre[:, 0] + SIN_A * np.sin(s), self.centre[:, 1] + SIN_B * np.sin(2.0 * s), np.arctan2(yd, xd)]
+            )
             self._chunk_start = 0
             self._build_chunk(rng, self.x)
             return
@@ -115,16 +117,21 @@ class World:
         d = np.sqrt(diff[..., 0] ** 2 + diff[..., 1] ** 2)  # (C, M)
         keep = (d >= MIN_RANGE) & (d <= self.sensing_radius)
         self._keep, self._all_kept = keep, keep.all(axis=1)
-        self._n_meas = np.stack([np.bincount(a, weights=kp, minlength=n) for kp in keep]).astype(np.int64) \
-            if not keep.all() else np.full((C, n), n - 1, dtype=np.int64)
+        self._n_meas = (
+            np.stack([np.bincount(a, weights=kp, minlength=n) for kp in keep]).astype(np.int64)
+            if not keep.all()
+            else np.full((C, n), n - 1, dtype=np.int64)
+        )
         if self.estimation:
             noise = rng.standard_normal((C, n, 2))
-            self._u = np.stack([v + self.sigma_v_frac * v * noise[..., 0], om + self.sigma_omega * noise[..., 1]],
-                               axis=2)
+            self._u = np.stack(
+                [v + self.sigma_v_frac * v * noise[..., 0], om + self.sigma_omega * noise[..., 1]], axis=2
+            )
             nz = rng.standard_normal((C, len(a), 2))
             bearing = np.arctan2(diff[..., 1], diff[..., 0]) - xs[:C, a, 2]
-            self._z = np.stack([d * (1.0 + self.sigma_d_frac * nz[..., 0]),
-                                wrap(bearing + self.sigma_theta * nz[..., 1])], axis=2)
+            self._z = np.stack(
+                [d * (1.0 + self.sigma_d_frac * nz[..., 0]), wrap(bearing + self.sigma_theta * nz[..., 1])], axis=2
+            )
         self._chunk_start = self.k
         self.x = self._xs[0]
         self.u_true = self._u_true[0]
@@ -159,8 +166,13 @@ class World:
             return
         v, w = self.u_true[:, 0], self.u_true[:, 1]
         phi = self.x[:, 2]
-        self.x = np.column_stack([self.x[:, 0] + v * np.cos(phi) * self.dt, self.x[:, 1] + v * np.sin(phi) * self.dt,
-                                  wrap(phi + w * self.dt)])
+        self.x = np.column_stack(
+            [
+                self.x[:, 0] + v * np.cos(phi) * self.dt,
+                self.x[:, 1] + v * np.sin(phi) * self.dt,
+                wrap(phi + w * self.dt),
+            ]
+        )
         self.k += 1
         self.u_true = self._controls(rng)
 

@@ -151,9 +151,12 @@ class ChannelAssociationEnv(MrcommParallelEnv):
     }
     VERSION_HISTORY = [
         ("v0", "first release: scenes neighborhood and field, Algorithms 1–2, misses"),
-        ("v0 rev 2", "learnable: the reward is −(1 − fraction matched) per step (was its increase, so every "
-         "policy's return was 1 and only discounting rewarded speed); the observation gains the clock phase "
-         "one-hot of step mod (⌈log2 N⌉ + 1), which a blink code needs"),
+        (
+            "v0 rev 2",
+            "learnable: the reward is −(1 − fraction matched) per step (was its increase, so every "
+            "policy's return was 1 and only discounting rewarded speed); the observation gains the clock phase "
+            "one-hot of step mod (⌈log2 N⌉ + 1), which a blink code needs",
+        ),
     ]
 
     #: populations up to this size use slot-per-robot filters (bit sets, or the literal (N, N, N) 0/1

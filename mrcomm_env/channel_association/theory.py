@@ -56,7 +56,7 @@ def completion_cdf(w: int, v: int, t: int) -> float:
     """Exact P(T ≤ t) for p = ½ (see the module docstring)."""
     if not 1 <= v <= w:
         raise ValueError(f"need 1 ≤ v ≤ w, got w={w}, v={v}")
-    M = 2.0 ** t
+    M = 2.0**t
     if M < v:
         return 0.0
     logp = sum(math.log1p(-i / M) for i in range(1, v)) if v > 1 else 0.0
@@ -104,7 +104,7 @@ def markov_completion_time(w: int, v: int, p: float = 0.5) -> float:
         for a1 in range(a + 1):
             for b1 in range(b + 1):
                 k = a1 + b1
-                pr = math.comb(a, a1) * math.comb(b, b1) * p ** k * q ** (a + b - k)
+                pr = math.comb(a, a1) * math.comb(b, b1) * p**k * q ** (a + b - k)
                 out.append((pr, ((a1, b1), (a - a1, b - b1))))
         return out
 
@@ -116,7 +116,7 @@ def markov_completion_time(w: int, v: int, p: float = 0.5) -> float:
         if not state:
             return 0.0
         dist: dict = {(): 1.0}
-        for a, b in state:                                  # convolve the independent splits
+        for a, b in state:  # convolve the independent splits
             nxt: dict = {}
             for rest, pr0 in dist.items():
                 for pr, parts in splits(a, b):
@@ -169,40 +169,56 @@ def age_region_areas(r: float, d: float) -> np.ndarray:
     return overlap_area(r, (k - 1) * d) - overlap_area(r, k * d)
 
 
-def two_region_model(r: float, d: float, rho: float, var_new: float, steps: int = 400,
-                     m_t: float = 1.0, m_f: float = 0.5, start=(0.0, 0.0), true_exit: str = "paper") -> dict:
+def two_region_model(
+    r: float,
+    d: float,
+    rho: float,
+    var_new: float,
+    steps: int = 400,
+    m_t: float = 1.0,
+    m_f: float = 0.5,
+    start=(0.0, 0.0),
+    true_exit: str = "paper",
+) -> dict:
     """Eq. (6)–(11). Returns per-step true/false edges and the ratio of total to true edges.
 
     ``true_exit="paper"`` uses eq. (11) for both edge types; ``"single"`` lets a true edge (both IDs
     are one robot) leave with probability v_exit/v_rest only.
     """
     area = math.pi * r * r
-    a_f = area - float(overlap_area(r, d))                  # frontier (= exit) area
+    a_f = area - float(overlap_area(r, d))  # frontier (= exit) area
     e_new = rho * a_f
-    lam_t = e_new                                           # λ_T+ = v_new
-    lam_f = var_new + e_new ** 2 - e_new                    # eq. (10)
-    x = (rho * a_f) / (rho * (area - a_f))                  # v_exit / v_rest (= w_exit / w_rest)
-    p_out = 2 * x - x * x                                   # eq. (11)
+    lam_t = e_new  # λ_T+ = v_new
+    lam_f = var_new + e_new**2 - e_new  # eq. (10)
+    x = (rho * a_f) / (rho * (area - a_f))  # v_exit / v_rest (= w_exit / w_rest)
+    p_out = 2 * x - x * x  # eq. (11)
     p_t = p_out if true_exit == "paper" else x
     M = np.array([[1.0, lam_t, lam_f], [0.0, m_t * (1 - p_t), 0.0], [0.0, 0.0, m_f * (1 - p_out)]])
     P = np.array([1.0, *start])
     hist = np.empty((steps, 3))
-    for i in range(steps):                                  # eq. (8): P_{i+1} = P_i M
+    for i in range(steps):  # eq. (8): P_{i+1} = P_i M
         P = P @ M
         hist[i] = P
     e_t, e_f = hist[:, 1], hist[:, 2]
-    return {"true": e_t, "false": e_f, "ratio": (e_t + e_f) / np.maximum(e_t, 1e-12),
-            "steady_ratio": 1.0 + (lam_f / (1 - m_f * (1 - p_out))) / (lam_t / (1 - m_t * (1 - p_t))),
-            "lambda_t": lam_t, "lambda_f": lam_f, "p_out": p_out}
+    return {
+        "true": e_t,
+        "false": e_f,
+        "ratio": (e_t + e_f) / np.maximum(e_t, 1e-12),
+        "steady_ratio": 1.0 + (lam_f / (1 - m_f * (1 - p_out))) / (lam_t / (1 - m_t * (1 - p_t))),
+        "lambda_t": lam_t,
+        "lambda_f": lam_f,
+        "p_out": p_out,
+    }
 
 
-def multi_region_model(r: float, d: float, rho: float, var_new: float, steps: int = 400,
-                       m_t: float = 1.0, m_f: float = 0.5) -> dict:
+def multi_region_model(
+    r: float, d: float, rho: float, var_new: float, steps: int = 400, m_t: float = 1.0, m_f: float = 0.5
+) -> dict:
     """Eq. (12)–(13): one edge type per age region; survival to the next region A_(k+1)/A_k."""
     A = age_region_areas(r, d)
     e_new = rho * A[0]
-    lam = {"true": e_new, "false": var_new + e_new ** 2 - e_new}
-    surv = np.append(A[1:] / A[:-1], 0.0)                   # the last region leaves the range
+    lam = {"true": e_new, "false": var_new + e_new**2 - e_new}
+    surv = np.append(A[1:] / A[:-1], 0.0)  # the last region leaves the range
     out = {}
     for kind, m in (("true", m_t), ("false", m_f)):
         pop = np.zeros(len(A))
@@ -222,5 +238,5 @@ def mobile_fraction_matched_model(r: float, d: float, rho: float, m: float = 0.5
     k = np.arange(1, len(A) + 1)
     v = rho * A
     with np.errstate(divide="ignore", invalid="ignore"):
-        p = np.where(v > 1.0, ((v - 1.0) / v) ** ((v * v - v) * m ** k), 1.0)
+        p = np.where(v > 1.0, ((v - 1.0) / v) ** ((v * v - v) * m**k), 1.0)
     return float(np.sum(A * p) / np.sum(A))

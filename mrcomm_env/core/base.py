@@ -58,8 +58,11 @@ class MrcommParallelEnv(ParallelEnv):
         if DEPRECATED_HORIZON in kwargs:
             if "max_cycles" in kwargs:
                 raise ValueError(f"pass the horizon as 'max_cycles' only ('{DEPRECATED_HORIZON}' is its old name)")
-            warnings.warn(f"argument '{DEPRECATED_HORIZON}' is deprecated; use 'max_cycles' (PettingZoo's name)",
-                          DeprecationWarning, stacklevel=2)
+            warnings.warn(
+                f"argument '{DEPRECATED_HORIZON}' is deprecated; use 'max_cycles' (PettingZoo's name)",
+                DeprecationWarning,
+                stacklevel=2,
+            )
             kwargs["max_cycles"] = kwargs.pop(DEPRECATED_HORIZON)
         self.cfg: Config = validate_config(self.PARAMS, kwargs, owner=self.ENV_ID or type(self).__name__)
         self._setup()
@@ -131,7 +134,8 @@ class MrcommParallelEnv(ParallelEnv):
         if space is None:
             obs = self._obs_space
             space = self._state_space = spaces.Box(
-                np.repeat(obs.low[None], self.n_agents, 0).ravel(), np.repeat(obs.high[None], self.n_agents, 0).ravel(),
+                np.repeat(obs.low[None], self.n_agents, 0).ravel(),
+                np.repeat(obs.high[None], self.n_agents, 0).ravel(),
                 dtype=obs.dtype,
             )
         return space
@@ -227,9 +231,7 @@ class MrcommParallelEnv(ParallelEnv):
         try:
             return self._agent_index[agent]
         except (KeyError, TypeError):
-            raise ValueError(
-                f"unknown agent {agent!r}; valid agents are robot_0 … robot_{self.n_agents - 1}"
-            ) from None
+            raise ValueError(f"unknown agent {agent!r}; valid agents are robot_0 … robot_{self.n_agents - 1}") from None
 
     def _observations(self) -> dict[str, np.ndarray]:
         obs = self._observe()

@@ -97,9 +97,7 @@ class Choice(Validator):
 
     def __call__(self, name: str, value: Any) -> Any:
         if isinstance(value, bool) or value not in self.options:
-            raise ValueError(
-                f"argument '{name}' must be one of {', '.join(map(repr, self.options))}; got {value!r}"
-            )
+            raise ValueError(f"argument '{name}' must be one of {', '.join(map(repr, self.options))}; got {value!r}")
         return value
 
     def describe(self) -> str:

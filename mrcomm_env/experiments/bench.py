@@ -34,8 +34,10 @@ def train_section(targets: list[str], params: dict, timesteps: int, progress: bo
 
 
 def _train_line(result: dict) -> str:
-    return (f"{result['agent_steps_per_s']:,.0f} PPO agent-steps/s ({result['slots']} slots), "
-            f"{100 * result['env_step_share']:.0f} % of wall time in env.step")
+    return (
+        f"{result['agent_steps_per_s']:,.0f} PPO agent-steps/s ({result['slots']} slots), "
+        f"{100 * result['env_step_share']:.0f} % of wall time in env.step"
+    )
 
 
 def limits_section(targets: list[str], seconds: float) -> dict[str, Any]:
@@ -47,8 +49,10 @@ def limits_section(targets: list[str], seconds: float) -> dict[str, Any]:
         for name, config in limit_configs(env_id).items():
             result = measure_limit(env_id, config, seconds=seconds)
             out[f"{env_id}:{name}"] = {"config": config, **result}
-            print(f"limit  {env_id} {name}: {result.get('steps_per_s', float('nan')):,.2f} steps/s, "
-                  f"peak {result.get('peak_rss_mb', float('nan')):,.0f} MB")
+            print(
+                f"limit  {env_id} {name}: {result.get('steps_per_s', float('nan')):,.2f} steps/s, "
+                f"peak {result.get('peak_rss_mb', float('nan')):,.0f} MB"
+            )
     return out
 
 
@@ -63,5 +67,9 @@ def extras_section(targets: list[str]) -> dict[str, Any]:
             continue
         out[env_id] = measure()
         for name, value in out[env_id].items():
-            print(f"extra  {env_id} {name}: {value:.6g}" if isinstance(value, float) else f"extra  {env_id} {name}: {value}")
+            print(
+                f"extra  {env_id} {name}: {value:.6g}"
+                if isinstance(value, float)
+                else f"extra  {env_id} {name}: {value}"
+            )
     return out

@@ -102,8 +102,16 @@ def env_page(env_id: str) -> str:
         "| --- | --- |",
     ]
     lines += [f"| {exp} | {_cell(doc)} |" for exp, doc in reproduction_module(env_id).EXPERIMENTS.items()]
-    lines += ["", "## Documented configurations (run by the conformance suite)", "", "| name | arguments |", "| --- | --- |"]
-    lines += [f"| {cfg} | {_cell(kwargs) if kwargs else 'defaults'} |" for cfg, kwargs in cls.DOCUMENTED_CONFIGS.items()]
+    lines += [
+        "",
+        "## Documented configurations (run by the conformance suite)",
+        "",
+        "| name | arguments |",
+        "| --- | --- |",
+    ]
+    lines += [
+        f"| {cfg} | {_cell(kwargs) if kwargs else 'defaults'} |" for cfg, kwargs in cls.DOCUMENTED_CONFIGS.items()
+    ]
     lines += ["", "## Version history", "", "| version | change |", "| --- | --- |"]
     lines += [f"| {v} | {_cell(change)} |" for v, change in cls.VERSION_HISTORY]
     env.close()

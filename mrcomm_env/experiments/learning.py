@@ -77,8 +77,13 @@ def cmd_train(args: argparse.Namespace) -> int:
     timesteps = args.timesteps if args.timesteps is not None else run.pop("timesteps", 200_000)
     run.pop("timesteps", None)
     config = TrainConfig(
-        env_id=env_id, algo=args.algo, timesteps=timesteps, seed=args.seed, env_kwargs=env_kwargs,
-        hyperparams=hyper, **run,
+        env_id=env_id,
+        algo=args.algo,
+        timesteps=timesteps,
+        seed=args.seed,
+        env_kwargs=env_kwargs,
+        hyperparams=hyper,
+        **run,
     )
     train(config, out, progress=not args.quiet)
     print(f"wrote {out}/model.zip, {out}/config.json, {out}/progress.csv")
@@ -176,10 +181,23 @@ def reproduce_learning(env_id: str, out_dir: Path, workers: int = 1, quick: bool
     tasks = []
     for cost in spec["costs"]:
         for seed in seeds:
-            config = dict(env_id=env_id, algo=algo, timesteps=timesteps, seed=seed, hyperparams=hyper,
-                          env_kwargs={**env_kwargs, cost_param: cost}, **run_settings)
-            tasks.append({"out": str(out_dir / "runs" / f"{cost_param}={cost}" / f"s{seed}"), "config": config,
-                          "cost": cost, "seed": seed})
+            config = dict(
+                env_id=env_id,
+                algo=algo,
+                timesteps=timesteps,
+                seed=seed,
+                hyperparams=hyper,
+                env_kwargs={**env_kwargs, cost_param: cost},
+                **run_settings,
+            )
+            tasks.append(
+                {
+                    "out": str(out_dir / "runs" / f"{cost_param}={cost}" / f"s{seed}"),
+                    "config": config,
+                    "cost": cost,
+                    "seed": seed,
+                }
+            )
     bar = tqdm(total=len(tasks), desc=f"training {short_name_of(env_id)}", disable=not progress)
     if workers > 1:
         with ProcessPoolExecutor(workers) as pool:
@@ -233,15 +251,33 @@ def plot_comparison(rows: list[dict], spec: dict, title: str, path: Path) -> Non
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     learned = [r for r in rows if r["cost"] is not None]
-    ax.errorbar([r["bits"] for r in learned], [r["metric"] for r in learned],
-                xerr=[r["bits_ci95"] for r in learned], yerr=[r["metric_ci95"] for r in learned],
-                fmt="o-", color="tab:red", label=f"learned ({spec['algo']}), one point per {spec['cost_param']}")
+    ax.errorbar(
+        [r["bits"] for r in learned],
+        [r["metric"] for r in learned],
+        xerr=[r["bits_ci95"] for r in learned],
+        yerr=[r["metric_ci95"] for r in learned],
+        fmt="o-",
+        color="tab:red",
+        label=f"learned ({spec['algo']}), one point per {spec['cost_param']}",
+    )
     for r in learned:
-        ax.annotate(f"{spec['cost_param']}={r['cost']:g}", (r["bits"], r["metric"]), fontsize=7,
-                    xytext=(4, 4), textcoords="offset points")
+        ax.annotate(
+            f"{spec['cost_param']}={r['cost']:g}",
+            (r["bits"], r["metric"]),
+            fontsize=7,
+            xytext=(4, 4),
+            textcoords="offset points",
+        )
     for k, r in enumerate(r for r in rows if r["cost"] is None):
-        ax.errorbar([r["bits"]], [r["metric"]], xerr=[r["bits_ci95"]], yerr=[r["metric_ci95"]], fmt="s",
-                    color=f"C{k % 10}", label=r["policy"])
+        ax.errorbar(
+            [r["bits"]],
+            [r["metric"]],
+            xerr=[r["bits_ci95"]],
+            yerr=[r["metric_ci95"]],
+            fmt="s",
+            color=f"C{k % 10}",
+            label=r["policy"],
+        )
     ax.set_xlabel("bits sent per agent per step")
     ax.set_ylabel(spec["metric"] + (" (lower is better)" if spec.get("lower_is_better") else " (higher is better)"))
     ax.set_title(title, fontsize=10)
@@ -269,8 +305,11 @@ def learning_section(env_id: str, rows: list[dict], spec: dict, figure: str) -> 
     ]
     for r in rows:
         cost = "—" if r["cost"] is None else f"{r['cost']:g}"
-        lines.append(f"| {r['policy']} | {cost} | {r['metric']:.4g} ± {r['metric_ci95']:.2g} "
-                     f"| {r['bits']:.4g} ± {r['bits_ci95']:.2g} | {r['n']} |")
+        lines.append(
+            f"| {r['policy']} | {cost} | {r['metric']:.4g} ± {r['metric_ci95']:.2g} "
+            f"| {r['bits']:.4g} ± {r['bits_ci95']:.2g} | {r['n']} |"
+        )
+
     def verdict(text: str, baseline: dict) -> str:
         beats = [r for r in learned if dominates(r, baseline, lower)]
         where = ", ".join(f"{r['cost']:g}" for r in beats)
@@ -282,8 +321,13 @@ def learning_section(env_id: str, rows: list[dict], spec: dict, figure: str) -> 
             verdicts.insert(0, verdict("Beats random at equal or fewer bits", b))
         else:
             verdicts.append(verdict(f"Matches or beats `{b['policy']}` at equal or fewer bits", b))
-    lines += ["", "Outcome (computed from the table: a learned point counts when it sends at most 5 % more bits "
-              "and its metric is not worse beyond the two confidence intervals):", "", *verdicts]
+    lines += [
+        "",
+        "Outcome (computed from the table: a learned point counts when it sends at most 5 % more bits "
+        "and its metric is not worse beyond the two confidence intervals):",
+        "",
+        *verdicts,
+    ]
     if spec.get("notes"):
         lines += ["", spec["notes"]]
     return "\n".join(lines) + "\n"
@@ -307,8 +351,9 @@ def cmd_reproduce_learning(args: argparse.Namespace) -> int:
     sections = []
     for env_id in targets:
         name = short_name_of(env_id)
-        rows, spec = reproduce_learning(env_id, out / name, workers=args.workers, quick=args.quick,
-                                        progress=not args.quiet)
+        rows, spec = reproduce_learning(
+            env_id, out / name, workers=args.workers, quick=args.quick, progress=not args.quiet
+        )
         csv_path = docs / "learning" / f"{name}.csv"
         tmp = csv_path.with_name(f".{csv_path.name}.tmp")
         with open(tmp, "w", newline="") as fh:
@@ -410,5 +455,10 @@ def train_throughput(env_fns, timesteps: int, seed: int = 0) -> dict[str, float]
     model.learn(total_timesteps=timesteps)
     wall = time.perf_counter() - start
     venv.close()
-    return {"agent_steps_per_s": model.num_timesteps / wall, "env_step_share": in_step[0] / wall,
-            "agent_steps": model.num_timesteps, "seconds": wall, "slots": venv.num_envs}
+    return {
+        "agent_steps_per_s": model.num_timesteps / wall,
+        "env_step_share": in_step[0] / wall,
+        "agent_steps": model.num_timesteps,
+        "seconds": wall,
+        "slots": venv.num_envs,
+    }

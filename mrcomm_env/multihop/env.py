@@ -62,56 +62,112 @@ class MultiHopEnv(MrcommParallelEnv):
     metadata = {"name": "multihop_v0", "render_modes": ["rgb_array", "human"], "render_fps": 4}
     STEP_UNIT = ("slot", True)  # one env step is one TDMA frame: N slots
     PARAMS = {
-        "scene": Param("grid", "`grid` (stationary 4-neighbour grid, Fig. 2), `field` (disk links, optional motion) "
-                       "or `coverage` (Voronoi coverage by flying robots, Fig. 3)", Choice(("grid", "field", "coverage"))),
-        "n_robots": Param(None, "number of robots n; default grid_side² (grid), 20 (field), 9 (coverage); "
-                          "in the grid scene robots fill rows of grid_side columns (a partial last row is allowed); at most "
-                          f"{MAX_COVERAGE_ROBOTS} in the coverage scene (the paper flies 9)", Optional(Int(lo=2, hi=1024, fuzz=(4, 12)))),
-        "grid_side": Param(10, "columns of the grid scene (robots at unit spacing; a square grid by default)", Int(lo=2, hi=32, fuzz=(2, 5))),
-        "slot_size": Param(None, "m: estimates per TDMA slot, 1 <= m <= n (m = n is flooding, m = 1 no hop); "
-                           "default min(7, n), 7 being the paper's choice for the 10×10 grid",
-                           Optional(Int(lo=1, hi=1024, fuzz=(1, 4)))),
-        "alpha": Param(1.0, "α of the importance d^-α, eq. (1) (at most 1000: d^-α is evaluated in log form, and beyond "
-                       "that only the nearest robot counts at any distance ratio above 1.0007)",
-                       Real(lo=0.0, hi=MAX_ALPHA, lo_open=True, fuzz=(0.25, 3.0))),
-        "bits_per_estimate": Param(192, "b: bits per estimate incl. time stamp (six 32-bit integers, §4)",
-                                   Int(lo=1, hi=1_000_000, fuzz=(8, 256))),
-        "baud": Param(3000.0, "r_b: channel bit rate (bits/s, §4); 1 bit/s to 1 Tbit/s keeps slot times and ages "
-                      "finite and well above round-off", Real(lo=1.0, hi=1e12, fuzz=(300.0, 1e5))),
-        "max_cycles": Param(400, "episode length in TDMA frames (400 lets the 8×8 cold start finish at m = 7)",
-                           Int(lo=1, fuzz=(1, 30))),
-        "arena_size": Param(100.0, "side of the square (m), field and coverage scenes (1 m to 1000 km: squared "
-                            "distances stay finite)", Real(lo=1.0, hi=1e6, fuzz=(10.0, 200.0))),
-        "comm_range": Param(40.0, "disk link radius (m), field and coverage scenes (above 1e7 m every robot of the "
-                            "largest arena is linked anyway)", Real(lo=0.0, hi=1e7, lo_open=True, fuzz=(5.0, 200.0))),
-        "speed": Param(0.0, "field scene: random-waypoint speed (m/s), 0 = stationary", Real(lo=0.0, hi=MAX_SPEED,
-                                                                                             fuzz=(0.0, 5.0))),
-        "max_speed": Param(5.0, "coverage scene: speed limit of the flying robots (m/s)",
-                           Real(lo=0.0, hi=MAX_SPEED, lo_open=True, fuzz=(0.5, 5.0))),
-        "control_gain": Param(1.0, "coverage scene: k of ṗ = k (C_i − p_i) (1/s)",
-                              Real(lo=0.0, hi=1000.0, lo_open=True, fuzz=(0.1, 2.0))),
-        "layout": Param("relative", "`relative`: agent-relative candidates ranked by estimated distance, one "
-                        "select bit each (MultiBinary); `absolute`: v0's priority per robot index (Box)",
-                        Choice(("relative", "absolute"))),
-        "lam": Param(0.0, "λ: reward cost of the share of slot capacity used (bits / (N m b) per frame)",
-                     Real(lo=0.0, hi=100.0, fuzz=(0.0, 2.0))),
-        "reward_mode": Param("team", "`team`: one team reward; `neighbourhood`: each robot gets the weighted age "
-                             "its neighbours hold and its own bit cost", Choice(("team", "neighbourhood"))),
+        "scene": Param(
+            "grid",
+            "`grid` (stationary 4-neighbour grid, Fig. 2), `field` (disk links, optional motion) "
+            "or `coverage` (Voronoi coverage by flying robots, Fig. 3)",
+            Choice(("grid", "field", "coverage")),
+        ),
+        "n_robots": Param(
+            None,
+            "number of robots n; default grid_side² (grid), 20 (field), 9 (coverage); "
+            "in the grid scene robots fill rows of grid_side columns (a partial last row is allowed); at most "
+            f"{MAX_COVERAGE_ROBOTS} in the coverage scene (the paper flies 9)",
+            Optional(Int(lo=2, hi=1024, fuzz=(4, 12))),
+        ),
+        "grid_side": Param(
+            10,
+            "columns of the grid scene (robots at unit spacing; a square grid by default)",
+            Int(lo=2, hi=32, fuzz=(2, 5)),
+        ),
+        "slot_size": Param(
+            None,
+            "m: estimates per TDMA slot, 1 <= m <= n (m = n is flooding, m = 1 no hop); "
+            "default min(7, n), 7 being the paper's choice for the 10×10 grid",
+            Optional(Int(lo=1, hi=1024, fuzz=(1, 4))),
+        ),
+        "alpha": Param(
+            1.0,
+            "α of the importance d^-α, eq. (1) (at most 1000: d^-α is evaluated in log form, and beyond "
+            "that only the nearest robot counts at any distance ratio above 1.0007)",
+            Real(lo=0.0, hi=MAX_ALPHA, lo_open=True, fuzz=(0.25, 3.0)),
+        ),
+        "bits_per_estimate": Param(
+            192,
+            "b: bits per estimate incl. time stamp (six 32-bit integers, §4)",
+            Int(lo=1, hi=1_000_000, fuzz=(8, 256)),
+        ),
+        "baud": Param(
+            3000.0,
+            "r_b: channel bit rate (bits/s, §4); 1 bit/s to 1 Tbit/s keeps slot times and ages "
+            "finite and well above round-off",
+            Real(lo=1.0, hi=1e12, fuzz=(300.0, 1e5)),
+        ),
+        "max_cycles": Param(
+            400, "episode length in TDMA frames (400 lets the 8×8 cold start finish at m = 7)", Int(lo=1, fuzz=(1, 30))
+        ),
+        "arena_size": Param(
+            100.0,
+            "side of the square (m), field and coverage scenes (1 m to 1000 km: squared distances stay finite)",
+            Real(lo=1.0, hi=1e6, fuzz=(10.0, 200.0)),
+        ),
+        "comm_range": Param(
+            40.0,
+            "disk link radius (m), field and coverage scenes (above 1e7 m every robot of the "
+            "largest arena is linked anyway)",
+            Real(lo=0.0, hi=1e7, lo_open=True, fuzz=(5.0, 200.0)),
+        ),
+        "speed": Param(
+            0.0, "field scene: random-waypoint speed (m/s), 0 = stationary", Real(lo=0.0, hi=MAX_SPEED, fuzz=(0.0, 5.0))
+        ),
+        "max_speed": Param(
+            5.0,
+            "coverage scene: speed limit of the flying robots (m/s)",
+            Real(lo=0.0, hi=MAX_SPEED, lo_open=True, fuzz=(0.5, 5.0)),
+        ),
+        "control_gain": Param(
+            1.0, "coverage scene: k of ṗ = k (C_i − p_i) (1/s)", Real(lo=0.0, hi=1000.0, lo_open=True, fuzz=(0.1, 2.0))
+        ),
+        "layout": Param(
+            "relative",
+            "`relative`: agent-relative candidates ranked by estimated distance, one "
+            "select bit each (MultiBinary); `absolute`: v0's priority per robot index (Box)",
+            Choice(("relative", "absolute")),
+        ),
+        "lam": Param(
+            0.0,
+            "λ: reward cost of the share of slot capacity used (bits / (N m b) per frame)",
+            Real(lo=0.0, hi=100.0, fuzz=(0.0, 2.0)),
+        ),
+        "reward_mode": Param(
+            "team",
+            "`team`: one team reward; `neighbourhood`: each robot gets the weighted age "
+            "its neighbours hold and its own bit cost",
+            Choice(("team", "neighbourhood")),
+        ),
     }
     METRICS = {
-        **{f"propagation_time_{k}x{k}": f"cold start: seconds until every member of the centred {k}×{k} subgraph "
-           "holds an estimate of every other member (square grid scene; nan if it does not fit or is not complete)"
-           for k in SUBGRAPHS},
+        **{
+            f"propagation_time_{k}x{k}": f"cold start: seconds until every member of the centred {k}×{k} subgraph "
+            "holds an estimate of every other member (square grid scene; nan if it does not fit or is not complete)"
+            for k in SUBGRAPHS
+        },
         "mean_age": "time-average over frame ends of the mean age (s) of the estimates of all pairs i≠j "
-                    "(unknown = age since the start)",
+        "(unknown = age since the start)",
         "weighted_mean_age": "time-average over frame ends of the d^-α-weighted mean age (s) of eq. (1)",
-        **{f"mean_age_hop{h}": f"time-average over frame ends of the mean age (s) of estimates of robots at hop "
-           f"distance {h.replace('plus', ' or more')}" for h in HOP_BUCKETS},
-        **{f"max_age_hop{h}": f"largest age (s) of an estimate of a robot at hop distance "
-           f"{h.replace('plus', ' or more')} seen at any frame end" for h in HOP_BUCKETS},
+        **{
+            f"mean_age_hop{h}": f"time-average over frame ends of the mean age (s) of estimates of robots at hop "
+            f"distance {h.replace('plus', ' or more')}"
+            for h in HOP_BUCKETS
+        },
+        **{
+            f"max_age_hop{h}": f"largest age (s) of an estimate of a robot at hop distance "
+            f"{h.replace('plus', ' or more')} seen at any frame end"
+            for h in HOP_BUCKETS
+        },
         "frame_rate": "r_f = r_b / (m n b) (Hz)",
         "coverage_cost": "mean squared distance (m²) from the square to the nearest robot, H/area "
-                         "(true positions; coverage and field scenes, nan on the grid)",
+        "(true positions; coverage and field scenes, nan on the grid)",
         "known_fraction": "fraction of pairs i≠j holding an estimate",
         "bits_sent": "bits broadcast in the episode (all robots)",
     }
@@ -136,38 +192,65 @@ class MultiHopEnv(MrcommParallelEnv):
         "field_moving": {"scene": "field", "n_robots": 12, "speed": 2.0, "comm_range": 35.0, "max_cycles": 40},
         "coverage": {"scene": "coverage", "slot_size": 3, "max_cycles": 40},
         "absolute_layout": {"grid_side": 4, "slot_size": 3, "max_cycles": 30, "layout": "absolute"},
-        "neighbourhood_reward": {"grid_side": 5, "slot_size": 4, "max_cycles": 30, "lam": 0.5,
-                                 "reward_mode": "neighbourhood"},
+        "neighbourhood_reward": {
+            "grid_side": 5,
+            "slot_size": 4,
+            "max_cycles": 30,
+            "lam": 0.5,
+            "reward_mode": "neighbourhood",
+        },
     }
     #: configurations at the documented maxima (``tests/test_limits.py``, ``experiments/limits.py``)
     LIMIT_CONFIGS = {
         "max_grid_flooding": {"grid_side": 32, "slot_size": 1024},
-        "max_field_moving": {"scene": "field", "n_robots": 1024, "speed": MAX_SPEED, "arena_size": 1e6,
-                             "comm_range": 1e7, "alpha": MAX_ALPHA, "baud": 1e12},
-        "max_coverage": {"scene": "coverage", "n_robots": MAX_COVERAGE_ROBOTS, "alpha": MAX_ALPHA,
-                         "max_speed": MAX_SPEED, "control_gain": 1000.0},
-        "slowest_channel_coverage": {"scene": "coverage", "baud": 1.0, "bits_per_estimate": 1_000_000,
-                                     "slot_size": 9, "arena_size": 1.0},
+        "max_field_moving": {
+            "scene": "field",
+            "n_robots": 1024,
+            "speed": MAX_SPEED,
+            "arena_size": 1e6,
+            "comm_range": 1e7,
+            "alpha": MAX_ALPHA,
+            "baud": 1e12,
+        },
+        "max_coverage": {
+            "scene": "coverage",
+            "n_robots": MAX_COVERAGE_ROBOTS,
+            "alpha": MAX_ALPHA,
+            "max_speed": MAX_SPEED,
+            "control_gain": 1000.0,
+        },
+        "slowest_channel_coverage": {
+            "scene": "coverage",
+            "baud": 1.0,
+            "bits_per_estimate": 1_000_000,
+            "slot_size": 9,
+            "arena_size": 1.0,
+        },
     }
     VERSION_HISTORY = [
         ("v0", "first version: grid, field and coverage scenes; one step = one TDMA frame"),
-        ("v0 rev 2", "learnable by a shared policy: default `layout=relative` (MultiBinary select bits over "
-         "candidates ranked by estimated distance, agent-relative observation with the freshness gained since "
-         "the last broadcast, so sending fewer estimates saves bits); reward in units of ten frames plus "
-         "`lam` × share of slot capacity used (was seconds, −40 to −1470 per step); `reward_mode` "
-         "`neighbourhood`; v0's layout stays as `layout=absolute`"),
+        (
+            "v0 rev 2",
+            "learnable by a shared policy: default `layout=relative` (MultiBinary select bits over "
+            "candidates ranked by estimated distance, agent-relative observation with the freshness gained since "
+            "the last broadcast, so sending fewer estimates saves bits); reward in units of ten frames plus "
+            "`lam` × share of slot capacity used (was seconds, −40 to −1470 per step); `reward_mode` "
+            "`neighbourhood`; v0's layout stays as `layout=absolute`",
+        ),
     ]
 
     # ----------------------------------------------------------------- setup
     def _setup(self) -> None:
         c = self.cfg
         if c.scene == "grid":
-            n = c.grid_side ** 2 if c.n_robots is None else c.n_robots
+            n = c.grid_side**2 if c.n_robots is None else c.n_robots
         else:
             n = c.n_robots if c.n_robots is not None else (9 if c.scene == "coverage" else 20)
         if c.scene == "coverage" and n > MAX_COVERAGE_ROBOTS:
-            raise ValueError(f"argument 'n_robots' must be at most {MAX_COVERAGE_ROBOTS} when 'scene' is 'coverage' "
-                             f"(every robot's Voronoi controller runs at every slot: O(n³) per frame), got {n}")
+            raise ValueError(
+                f"argument 'n_robots' must be at most {MAX_COVERAGE_ROBOTS} when 'scene' is 'coverage' "
+                f"(every robot's Voronoi controller runs at every slot: O(n³) per frame), got {n}"
+            )
         m = min(7, n) if c.slot_size is None else c.slot_size
         if m > n:
             raise ValueError(f"argument 'slot_size' must be in [1, n_robots = {n}], got {m}")
@@ -354,8 +437,9 @@ class MultiHopEnv(MrcommParallelEnv):
             dist = np.linalg.norm(delta, axis=1)
             step = c.speed * duration
             arrive = dist <= step
-            self.pos = np.where(arrive[:, None], self.waypoint,
-                                self.pos + delta * (step / np.maximum(dist, 1e-12))[:, None])
+            self.pos = np.where(
+                arrive[:, None], self.waypoint, self.pos + delta * (step / np.maximum(dist, 1e-12))[:, None]
+            )
             if arrive.any():
                 self.waypoint[arrive] = self.np_random.uniform(0.0, self.side, size=(int(arrive.sum()), 2))
         else:

@@ -121,8 +121,9 @@ def gumbel_ranks(rng: np.random.Generator, f: np.ndarray) -> np.ndarray:
     return logf + rng.gumbel(size=f.shape)
 
 
-def probabilistic_select(rng: np.random.Generator, f: np.ndarray, known: np.ndarray, own: np.ndarray,
-                         m: int) -> np.ndarray:
+def probabilistic_select(
+    rng: np.random.Generator, f: np.ndarray, known: np.ndarray, own: np.ndarray, m: int
+) -> np.ndarray:
     """Eq. (2) for a batch: own estimate, then ``m - 1`` draws without replacement ∝ ``f`` among known
     estimates. Returns ``order`` (B, m), ``-1`` padded."""
     rows = np.arange(len(own))
@@ -134,8 +135,9 @@ def probabilistic_select(rng: np.random.Generator, f: np.ndarray, known: np.ndar
     return np.where(ok, cand, -1)
 
 
-def age_aware_select(f: np.ndarray, stamps: np.ndarray, sent: np.ndarray, known: np.ndarray, own: np.ndarray,
-                     m: int) -> np.ndarray:
+def age_aware_select(
+    f: np.ndarray, stamps: np.ndarray, sent: np.ndarray, known: np.ndarray, own: np.ndarray, m: int
+) -> np.ndarray:
     """Our rule (beyond the paper): rank estimates by ``f_ij × (t_ij − s_ij)``, the eq. (1) importance
     times the freshness the robot gained since it last broadcast ``j`` (``s_ij``: the stamp it sent then).
 
@@ -190,8 +192,9 @@ def priority_ranking(priority: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return rank, (p > 0.0).sum(axis=1)
 
 
-def deliver_one(stamps: np.ndarray, sender: int, receivers: np.ndarray, idx: np.ndarray,
-                positions: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def deliver_one(
+    stamps: np.ndarray, sender: int, receivers: np.ndarray, idx: np.ndarray, positions: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`deliver` for a single run (``stamps`` (n, n)), with the selection as indices ``idx``.
 
     Same rule (receivers keep the newest stamp); flat indexing keeps the per-slot cost to a few numpy
@@ -211,8 +214,14 @@ def deliver_one(stamps: np.ndarray, sender: int, receivers: np.ndarray, idx: np.
     return flat, old.ravel(), upd
 
 
-def deliver(stamps: np.ndarray, bi: np.ndarray, sender: np.ndarray, receivers: np.ndarray, sel: np.ndarray,
-            positions: np.ndarray | None = None) -> None:
+def deliver(
+    stamps: np.ndarray,
+    bi: np.ndarray,
+    sender: np.ndarray,
+    receivers: np.ndarray,
+    sel: np.ndarray,
+    positions: np.ndarray | None = None,
+) -> None:
     """One TDMA slot for a batch: ``sender`` (B,) broadcasts the estimates in mask ``sel`` (B, n) to
     ``receivers`` (B, K) (row indices into ``stamps``; a dummy row may pad). Each receiver keeps the
     newest time stamp per robot (§2.1); ``positions`` (B, R, n, d) follow their stamps."""
@@ -228,8 +237,14 @@ def deliver(stamps: np.ndarray, bi: np.ndarray, sender: np.ndarray, receivers: n
         positions[b2, receivers] = np.where(upd[..., None], src, positions[b2, receivers])
 
 
-def record_arrivals(arrival: np.ndarray, stamps: np.ndarray, bi: np.ndarray, receivers: np.ndarray,
-                    threshold: float | np.ndarray, now: float | np.ndarray) -> None:
+def record_arrivals(
+    arrival: np.ndarray,
+    stamps: np.ndarray,
+    bi: np.ndarray,
+    receivers: np.ndarray,
+    threshold: float | np.ndarray,
+    now: float | np.ndarray,
+) -> None:
     """Set ``arrival[b, r, j] = now`` where receiver ``r`` first holds a stamp of ``j`` ``>= threshold``."""
     b2 = bi[:, None]
     a = arrival[b2, receivers]

@@ -41,8 +41,17 @@ def _neighbour_table(adj: np.ndarray) -> np.ndarray:
 class GridSim:
     """B runs of the stationary grid, each with its own random slot order, advanced slot by slot."""
 
-    def __init__(self, side: int, m: int, runs: int, seed: int, selector: str = "text", alpha: float = 1.0,
-                 bits: float = 192, baud: float = 3000.0):
+    def __init__(
+        self,
+        side: int,
+        m: int,
+        runs: int,
+        seed: int,
+        selector: str = "text",
+        alpha: float = 1.0,
+        bits: float = 192,
+        baud: float = 3000.0,
+    ):
         if selector not in SELECTORS:
             raise ValueError(f"selector must be one of {SELECTORS}, got {selector!r}")
         n = side * side
@@ -100,7 +109,7 @@ class GridSim:
 
     def propagate(self, blocks: dict[int, np.ndarray], threshold: float, max_frames: int) -> dict[int, np.ndarray]:
         """Frames until every block is complete in every run. Per block ``(max, mean)`` over its ordered pairs
-    of the delay (s from now) until the pair holds the stamp, one value per run (``inf``: not in time)."""
+        of the delay (s from now) until the pair holds the stamp, one value per run (``inf``: not in time)."""
         n, t0 = self.n, self.t
         r = np.arange(n)
         arrival = np.full((self.runs, n + 1, n), np.inf)
@@ -118,9 +127,20 @@ class GridSim:
         return out
 
 
-def grid_propagation(side: int, m: int, runs: int, seed: int, blocks: dict[int, np.ndarray],
-                     selector: str = "text", alpha: float = 1.0, bits: float = 192, baud: float = 3000.0,
-                     warm_frames: int = 5, max_frames: int = 2000, steady: bool = True) -> dict:
+def grid_propagation(
+    side: int,
+    m: int,
+    runs: int,
+    seed: int,
+    blocks: dict[int, np.ndarray],
+    selector: str = "text",
+    alpha: float = 1.0,
+    bits: float = 192,
+    baud: float = 3000.0,
+    warm_frames: int = 5,
+    max_frames: int = 2000,
+    steady: bool = True,
+) -> dict:
     """Propagation times (s) per subgraph size for ``runs`` random slot orders.
 
     Returns ``{"cold": {k: (max, mean)}, "steady": {k: (max, mean)}}``, arrays over runs of the
