@@ -667,3 +667,8 @@ n ≫ 2d·k·log2(100n)·log2 n; here at {", ".join(table_info["bisection_below_
 
 {pol}
 """
+
+
+def benchmarks() -> dict[str, float]:
+    """For ``mrcomm bench``: Protocol 1 at n = 1024, k = 7 (goal < 1 ms; the paper took 3.17 s)."""
+    return {"protocol1_ms_n1024_k7": 1e3 * protocol1_seconds(1024, 7, repeats=500)}

@@ -504,3 +504,9 @@ def run(out_dir: Path, quick: bool) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def benchmarks() -> dict[str, float]:
+    """For ``mrcomm bench``: one decision phase, 10 vehicles and 200 landmarks, ``paper_protocol`` (goal < 50 ms)."""
+    timing = time_decision_phase(phases=20, seed=0)
+    return {k: float(v) for k, v in timing.items() if k.endswith("ms")}
