@@ -33,12 +33,19 @@ def has_pretrained(env_id: str) -> bool:
 
 
 class LearnedPolicy(Policy):
-    """A parameter-shared SB3 policy: one network acts for every agent, deterministically."""
+    """A parameter-shared SB3 policy: one network acts for every agent.
+
+    ``deterministic`` (default) takes each agent's most likely action; otherwise actions are sampled, seeded by
+    ``reset``. Sampling matters where identical robots must break symmetry (two robots with the same observation
+    and a deterministic shared policy always act alike)."""
 
     name = "learned"
 
-    def __init__(self, run: str | Path, env_id: str, algo: str | None = None):
+    def __init__(self, run: str | Path, env_id: str, algo: str | None = None, deterministic: bool = True):
         super().__init__()
+        if not isinstance(deterministic, bool):
+            raise RunError(f"parameter 'deterministic' must be true or false, got {deterministic!r}")
+        self.deterministic = deterministic
         run = Path(run)
         self.run = run
         config_path = run / "config.json"
@@ -75,10 +82,14 @@ class LearnedPolicy(Policy):
                     self.normalizer = pickle.load(fh)
             except (pickle.UnpicklingError, EOFError, AttributeError) as exc:
                 raise RunError(f"cannot load {stats}: {type(exc).__name__}") from None
-        self.params = {"run": str(run), "algo": self.algo}
+        self.params = {"run": str(run), "algo": self.algo, "deterministic": deterministic}
 
     def reset(self, views: LocalViews, seed: int | None = None) -> None:
         super().reset(views, seed)
+        if not self.deterministic:
+            import torch
+
+            torch.manual_seed(int(self.rng.integers(2**63)))  # SB3 samples from torch's global generator
         model_obs, model_act = self.model.observation_space, self.model.action_space
         if model_obs.shape != views.observation_space.shape or model_act != views.action_space:
             raise RunError(
@@ -96,22 +107,25 @@ class LearnedPolicy(Policy):
         if self._masked:
             masks = views.team(MASK_FIELD)
             kwargs["action_masks"] = np.stack([masks[views.index(a)] for a in agents])
-        actions, _ = self.model.predict(obs, deterministic=True, **kwargs)
+        actions, _ = self.model.predict(obs, deterministic=self.deterministic, **kwargs)
         if np.ndim(actions) == 1:
             return {a: int(x) for a, x in zip(agents, actions)}
         return dict(zip(agents, np.asarray(actions, dtype=np.float32)))
 
 
-def load_policy(spec: str, env_id: str) -> LearnedPolicy:
-    """``ppo:PATH``, ``maskable_ppo:PATH``, ``dqn:PATH`` or ``pretrained``."""
+def load_policy(spec: str, env_id: str, **params) -> LearnedPolicy:
+    """``ppo:PATH``, ``maskable_ppo:PATH``, ``dqn:PATH`` or ``pretrained``; ``params``: ``deterministic``."""
+    unknown = set(params) - {"deterministic"}
+    if unknown:
+        raise RunError(f"a learned policy takes only the parameter 'deterministic', got {sorted(unknown)}")
     if spec == "pretrained":
         if not has_pretrained(env_id):
             raise RunError(f"no pretrained model ships for {canonical_id(env_id)}")
-        return LearnedPolicy(pretrained_dir(env_id), env_id)
+        return LearnedPolicy(pretrained_dir(env_id), env_id, **params)
     algo, _, path = spec.partition(":")
     if algo not in ALGORITHMS or not path:
         raise RunError(f"a learned policy is ALGO:PATH with ALGO one of {', '.join(ALGORITHMS)}, got {spec!r}")
-    return LearnedPolicy(path, env_id, algo)
+    return LearnedPolicy(path, env_id, algo, **params)
 
 
 def is_learned(spec: str) -> bool:

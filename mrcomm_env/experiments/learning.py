@@ -25,9 +25,7 @@ def make_any_policy(env_id: str, name: str, **params):
             raise ValueError("learned policies need the training extra: pip install 'mrcomm-env[train]'") from None
         raise
     if is_learned(name):
-        if params:
-            raise ValueError(f"a learned policy takes no --policy-param, got {sorted(params)}")
-        return load_policy(name, env_id)
+        return load_policy(name, env_id, **params)
     raise ValueError(
         f"unknown policy {name!r} for {canonical_id(env_id)}; valid policies are: "
         f"{', '.join(policy_names(env_id))}, pretrained, or ALGO:RUN_FOLDER with ALGO ppo, maskable_ppo or dqn"
@@ -114,13 +112,18 @@ def short_name_of(env_id: str) -> str:
     return short_name(env_id)
 
 
-def bits_per_agent_step(env, metrics: dict) -> float:
-    steps = max(env.step_count, 1)
+def bits_per_agent(env, metrics: dict, per: str = "step") -> float:
+    """Bits sent per agent, per step (``per="step"``) or over the whole episode (``"episode"``: for envs whose
+    episodes end when the task is done, where a per-step rate would hide that a slow policy sends longer)."""
+    steps = max(env.step_count, 1) if per == "step" else 1
     return float(metrics["bits_sent"]) / (env.n_agents * steps)
 
 
-def evaluate_policy(env_id: str, env_kwargs: dict, policy, seeds: list[int], metric: str) -> dict[str, list[float]]:
-    """Per episode: the task metric, bits per agent per step and the return."""
+def evaluate_policy(env_id: str, env_kwargs: dict, policy, seeds: list[int], spec: dict) -> dict[str, list[float]]:
+    """Per episode: the task metric, bits per agent (per step or per episode) and the return.
+
+    ``spec["unfinished"]``: the value a metric that reports −1 or nan for "not done within the episode" (a
+    completion time) counts as, so that never finishing is not mistaken for finishing at once."""
     from mrcomm_env.experiments.evaluation import run_episode
     from mrcomm_env.registry import make
 
@@ -128,8 +131,11 @@ def evaluate_policy(env_id: str, env_kwargs: dict, policy, seeds: list[int], met
     out = {"metric": [], "bits": [], "return": []}
     for seed in seeds:
         metrics = run_episode(env, policy, seed)
-        out["metric"].append(float(metrics[metric]))
-        out["bits"].append(bits_per_agent_step(env, metrics))
+        value = float(metrics[spec["metric"]])
+        if "unfinished" in spec and not value >= 0:  # −1 or nan: not done within the episode
+            value = float(spec["unfinished"])
+        out["metric"].append(value)
+        out["bits"].append(bits_per_agent(env, metrics, spec.get("bits_per", "step")))
         out["return"].append(float(metrics["episode_return"]))
     env.close()
     return out
@@ -177,7 +183,7 @@ def reproduce_learning(env_id: str, out_dir: Path, workers: int = 1, quick: bool
         timesteps = spec.get("quick_timesteps", max(timesteps // 10, 1))
     seeds = list(range(spec.get("seeds", 3)))
     eval_seeds = [10_000 + k for k in range(spec.get("eval_episodes", 10))]
-    cost_param, metric = spec["cost_param"], spec["metric"]
+    cost_param = spec["cost_param"]
     tasks = []
     for cost in spec["costs"]:
         for seed in seeds:
@@ -212,19 +218,28 @@ def reproduce_learning(env_id: str, out_dir: Path, workers: int = 1, quick: bool
     rows = []
     learned: dict[float, list[dict]] = {}
     for task in tqdm(tasks, desc="evaluating learned", disable=not progress, leave=False):
-        policy = LearnedPolicy(task["out"], env_id, algo)
-        result = evaluate_policy(env_id, {**env_kwargs, cost_param: task["cost"]}, policy, eval_seeds, metric)
+        policy = LearnedPolicy(task["out"], env_id, algo, deterministic=spec.get("deterministic", True))
+        result = evaluate_policy(env_id, {**env_kwargs, cost_param: task["cost"]}, policy, eval_seeds, spec)
         learned.setdefault(task["cost"], []).append(result)
     for cost, results in learned.items():
         # one point per training seed (its mean over the evaluation episodes): the CI is over training seeds
         per_seed_metric = [float(np.nanmean(r["metric"])) for r in results]
         per_seed_bits = [float(np.mean(r["bits"])) for r in results]
         rows.append(_row(f"learned ({algo})", cost, per_seed_metric, per_seed_bits, len(results), mean_ci95))
+    # a baseline's actions do not depend on the price of bits, so it is evaluated once, unless the swept argument
+    # changes the setting itself (``baselines_per_cost``: e.g. the communication range)
+    costs = spec["costs"] if spec.get("baselines_per_cost") else [None]
     for name, params in tqdm(spec["baselines"], desc="evaluating baselines", disable=not progress, leave=False):
-        policy = make_policy(env_id, name, **params)
-        result = evaluate_policy(env_id, env_kwargs, policy, eval_seeds, metric)
-        label = name + (" " + ", ".join(f"{k}={v}" for k, v in params.items()) if params else "")
-        rows.append(_row(label, None, result["metric"], result["bits"], len(eval_seeds), mean_ci95))
+        for cost in costs:
+            policy = make_policy(env_id, name, **params)
+            kwargs = env_kwargs if cost is None else {**env_kwargs, cost_param: cost}
+            result = evaluate_policy(env_id, kwargs, policy, eval_seeds, spec)
+            label = name + (" " + ", ".join(f"{k}={v}" for k, v in params.items()) if params else "")
+            row = _row(label, None, result["metric"], result["bits"], len(eval_seeds), mean_ci95)
+            row["setting"] = cost
+            rows.append(row)
+    for row in rows:
+        row.setdefault("setting", row["cost"])
     return rows, spec
 
 
@@ -276,9 +291,9 @@ def plot_comparison(rows: list[dict], spec: dict, title: str, path: Path) -> Non
             yerr=[r["metric_ci95"]],
             fmt="s",
             color=f"C{k % 10}",
-            label=r["policy"],
+            label=r["policy"] if r["setting"] is None else f"{r['policy']} ({spec['cost_param']}={r['setting']:g})",
         )
-    ax.set_xlabel("bits sent per agent per step")
+    ax.set_xlabel(f"bits sent per agent per {spec.get('bits_per', 'step')}")
     ax.set_ylabel(spec["metric"] + (" (lower is better)" if spec.get("lower_is_better") else " (higher is better)"))
     ax.set_title(title, fontsize=10)
     ax.legend(fontsize=7)
@@ -300,27 +315,36 @@ def learning_section(env_id: str, rows: list[dict], spec: dict, figure: str) -> 
         "",
         f"![{spec['metric']} against bits]({figure})",
         "",
-        f"| policy | {spec['cost_param']} | {spec['metric']} (mean ± 95 % CI) | bits / agent / step | n |",
+        f"| policy | {spec['cost_param']} | {spec['metric']} (mean ± 95 % CI) | bits / agent / {spec.get('bits_per', 'step')} | n |",
         "| --- | --- | --- | --- | --- |",
     ]
     for r in rows:
-        cost = "—" if r["cost"] is None else f"{r['cost']:g}"
+        cost = "—" if r["setting"] is None else f"{r['setting']:g}"
         lines.append(
             f"| {r['policy']} | {cost} | {r['metric']:.4g} ± {r['metric_ci95']:.2g} "
             f"| {r['bits']:.4g} ± {r['bits_ci95']:.2g} | {r['n']} |"
         )
 
-    def verdict(text: str, baseline: dict) -> str:
-        beats = [r for r in learned if dominates(r, baseline, lower)]
+    per_setting = bool(spec.get("baselines_per_cost"))
+
+    def verdict(text: str, name: str) -> str:
+        # with per-setting baselines a learned point is compared with the baseline in its own setting only
+        candidates = [b for b in baselines if b["policy"] == name]
+        beats = [
+            r
+            for r in learned
+            for b in candidates
+            if (not per_setting or b["setting"] == r["cost"]) and dominates(r, b, lower)
+        ]
         where = ", ".join(f"{r['cost']:g}" for r in beats)
         return f"- {text}: **{'yes' if beats else 'no'}**" + (f" ({spec['cost_param']} = {where})" if beats else "")
 
     verdicts = []
-    for b in baselines:
-        if b["policy"] == "random":
-            verdicts.insert(0, verdict("Beats random at equal or fewer bits", b))
+    for name in dict.fromkeys(b["policy"] for b in baselines):
+        if name == "random":
+            verdicts.insert(0, verdict("Beats random at equal or fewer bits", name))
         else:
-            verdicts.append(verdict(f"Matches or beats `{b['policy']}` at equal or fewer bits", b))
+            verdicts.append(verdict(f"Matches or beats `{name}` at equal or fewer bits", name))
     lines += [
         "",
         "Outcome (computed from the table: a learned point counts when it sends at most 5 % more bits "
