@@ -36,8 +36,8 @@ def channel_kwargs(n_robots: int = 3, horizon: int = 6) -> dict:
 
 
 def multihop_kwargs(horizon: int = 8) -> dict:
-    """MultiHop-v0 on a 2×2 grid: four agents with Box actions, episodes end by truncation."""
-    return {"grid_side": 2, HORIZON_ARG: horizon}
+    """MultiHop-v0 on a 2×2 grid in its v0 layout: four agents with Box actions, episodes end by truncation."""
+    return {"grid_side": 2, "layout": "absolute", HORIZON_ARG: horizon}
 
 
 def random_actions(rng: np.random.Generator, space: spaces.Space, count: int) -> np.ndarray:

@@ -71,38 +71,43 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         ),
         "area": Param(
             10_000.0,
-            "mapping area (m²) of the square map, side √area (§VI-A)",
-            Real(lo=0.0, lo_open=True, fuzz=(400.0, 20_000.0)),
+            "mapping area (m²) of the square map, side √area (§VI-A); 1 m² to 100 km²",
+            Real(lo=1.0, hi=1e8, fuzz=(400.0, 20_000.0)),
         ),
-        "speed": Param(1.0, "u: vehicle speed (m/s); d_max = u·t_window", Real(lo=0.0, lo_open=True, fuzz=(0.2, 3.0))),
+        "speed": Param(
+            1.0, "u: vehicle speed (m/s), 1 mm/s to 1 km/s; d_max = u·t_window", Real(lo=1e-3, hi=1e3, fuzz=(0.2, 3.0))
+        ),
         "t_window": Param(
             15.0,
-            "t_window: time between decision phases (s); d_max = 15 m by default (§VI-B)",
-            Real(lo=0.0, lo_open=True, fuzz=(1.0, 40.0)),
+            "t_window: time between decision phases (s), 10 ms to a day; d_max = 15 m by default (§VI-B)",
+            Real(lo=1e-2, hi=86_400.0, fuzz=(1.0, 40.0)),
         ),
         "d_comms": Param(
             10.0,
             "maximum communication distance (m): `inf` (§VI-B.2), 0 = co-located only (§VI-B.3) or finite (§VI-B.4)",
-            Real(lo=0.0, allow_inf=True, fuzz=(0.0, 40.0)),
+            Real(lo=0.0, hi=1e6, allow_inf=True, fuzz=(0.0, 40.0)),
         ),
         "sigma": Param(
             3.0,
-            "σ (m) of the N(0, σ²) shift of the landmark grid (§VI-B.1); sets the clustering C",
-            Real(lo=0.0, fuzz=(0.0, 30.0)),
+            "σ (m) of the N(0, σ²) shift of the landmark grid (§VI-B.1), at most 10 km; sets the clustering C",
+            Real(lo=0.0, hi=1e4, fuzz=(0.0, 30.0)),
         ),
         "k_candidates": Param(5, "K: candidate landmarks listed per vehicle", Int(lo=1, hi=64, fuzz=(1, 8))),
         "prior_sigma": Param(
             5.0,
-            "σ₀ (m): std of every landmark's common prior estimate, per axis",
-            Real(lo=0.0, lo_open=True, fuzz=(0.5, 20.0)),
+            "σ₀ (m): std of every landmark's common prior estimate, per axis (1 mm to 10 km: the information "
+            "1/σ₀² and its log det stay finite and well above round-off)",
+            Real(lo=1e-3, hi=1e4, fuzz=(0.5, 20.0)),
         ),
         "obs_sigma": Param(
-            3.0, "σ_obs (m): std of one position observation, per axis", Real(lo=0.0, lo_open=True, fuzz=(0.2, 10.0))
+            3.0,
+            "σ_obs (m): std of one position observation, per axis (1 mm to 10 km, as σ₀)",
+            Real(lo=1e-3, hi=1e4, fuzz=(0.2, 10.0)),
         ),
         "obs_rate": Param(
             1.0,
-            "observations per second while at a landmark (I_obs = rate·R⁻¹, eq. 3)",
-            Real(lo=0.0, lo_open=True, fuzz=(0.2, 4.0)),
+            "observations per second while at a landmark (I_obs = rate·R⁻¹, eq. 3), 0.001 to 1000",
+            Real(lo=1e-3, hi=1e3, fuzz=(0.2, 4.0)),
         ),
         "obs_per_landmark": Param(
             5,
