@@ -13,7 +13,7 @@ export MPLBACKEND := Agg
 
 EXTRAS := train,dev,bench,fast
 
-.PHONY: demo test install bench docs lint format lock clean
+.PHONY: demo test install bench docs learn lint format lock clean
 
 # constraints.txt pins every package to the versions CI tested, so a new machine gets those
 $(STAMP): pyproject.toml constraints.txt
@@ -34,6 +34,11 @@ bench: $(STAMP)
 
 docs: $(STAMP)
 	$(BIN)/mrcomm docs
+
+# learned policies against every baseline at equal bits: trains 3 seeds per cost value and env (about an hour
+# on two cores), then regenerates docs/learning.md; reruns skip the runs already done
+learn: $(STAMP)
+	$(BIN)/mrcomm reproduce-learning --workers 2 --out results/learning
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
