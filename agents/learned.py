@@ -94,7 +94,8 @@ class LearnedPolicy(Policy):
         if model_obs.shape != views.observation_space.shape or model_act != views.action_space:
             raise RunError(
                 f"the model in {self.run} expects observations {model_obs.shape} and actions {model_act}, but "
-                f"this env has {views.observation_space.shape} and {views.action_space} (other env arguments?)"
+                f"this env has {views.observation_space.shape} and {views.action_space}; it was trained with the "
+                f"env arguments {self.env_kwargs}"
             )
         self._masked = MASK_FIELD in views.fields
 

@@ -220,7 +220,9 @@ def reproduce_learning(env_id: str, out_dir: Path, workers: int = 1, quick: bool
     for task in tqdm(tasks, desc="evaluating learned", disable=not progress, leave=False):
         policy = LearnedPolicy(task["out"], env_id, algo, deterministic=spec.get("deterministic", True))
         result = evaluate_policy(env_id, {**env_kwargs, cost_param: task["cost"]}, policy, eval_seeds, spec)
+        task["score"] = float(np.nanmean(result["metric"]))
         learned.setdefault(task["cost"], []).append(result)
+    spec["best_run"] = _best(tasks, spec)
     for cost, results in learned.items():
         # one point per training seed (its mean over the evaluation episodes): the CI is over training seeds
         per_seed_metric = [float(np.nanmean(r["metric"])) for r in results]
@@ -241,6 +243,29 @@ def reproduce_learning(env_id: str, out_dir: Path, workers: int = 1, quick: bool
     for row in rows:
         row.setdefault("setting", row["cost"])
     return rows, spec
+
+
+def _best(tasks: list[dict], spec: dict) -> str:
+    """The run with the best task metric on the evaluation episodes (the model ``--export-pretrained`` ships)."""
+    sign = 1.0 if spec.get("lower_is_better") else -1.0
+    return min(tasks, key=lambda t: (sign * t["score"], t["cost"], t["seed"]))["out"]
+
+
+def export_pretrained(run: str | Path, env_id: str) -> Path:
+    """Copy a run's model, statistics and config into ``agents/pretrained/<Name>-v0/`` (shipped in the package;
+    ``mrcomm evaluate ID --policy pretrained``). Checkpoints and logs stay behind: well under 1 MB."""
+    import shutil
+
+    from agents.learned import pretrained_dir
+
+    target = pretrained_dir(env_id)
+    target.mkdir(parents=True, exist_ok=True)
+    for name in ("model.zip", "vecnormalize.pkl", "config.json"):
+        if (Path(run) / name).exists():
+            tmp = target / f".{name}.tmp"
+            shutil.copyfile(Path(run) / name, tmp)
+            tmp.replace(target / name)
+    return target
 
 
 def _row(policy, cost, metric_values, bits_values, n, mean_ci95) -> dict:
@@ -388,6 +413,8 @@ def cmd_reproduce_learning(args: argparse.Namespace) -> int:
         figure = docs / "learning" / f"{name}.png"
         plot_comparison(rows, spec, f"{env_id}: learned vs scripted at equal bits", figure)
         sections.append(learning_section(env_id, rows, spec, f"learning/{name}.png"))
+        if args.export_pretrained:
+            print(f"shipped {spec['best_run']} as {export_pretrained(spec['best_run'], env_id)}")
     header = LEARNING_HEADER.format(command="mrcomm reproduce-learning" + (" --quick" if args.quick else ""))
     page = docs / "learning.md"
     tmp = page.with_name(".learning.md.tmp")
@@ -439,6 +466,7 @@ def add_learning_parsers(command) -> None:
     p.add_argument("--docs", default="docs", help="where learning.md and its figures go")
     p.add_argument("--workers", type=positive_int, default=1, help="training runs at once (one core each)")
     p.add_argument("--quick", action="store_true", help="a tenth of the training budget (a smoke run)")
+    p.add_argument("--export-pretrained", action="store_true", help="ship each env's best run in agents/pretrained")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_reproduce_learning)
 

@@ -1,0 +1,117 @@
+"""The learned-vs-scripted comparison (``mrcomm reproduce-learning``) and the shipped pretrained models."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+import torch
+
+from agents.learned import PRETRAINED_DIR, load_policy
+from agents.training import CONFIG_DIR
+from mrcomm_env.experiments import learning
+from mrcomm_env.experiments.cli import main
+from mrcomm_env.registry import env_ids, short_name
+
+torch.set_num_threads(1)
+
+
+def point(metric, bits, metric_ci=0.0, bits_ci=0.0, cost=None):
+    return {"metric": metric, "metric_ci95": metric_ci, "bits": bits, "bits_ci95": bits_ci, "cost": cost}
+
+
+@pytest.mark.parametrize(
+    "learned,baseline,lower,expected",
+    [
+        (point(5.0, 10.0), point(6.0, 10.0), True, True),  # better at equal bits
+        (point(5.0, 12.0), point(6.0, 10.0), True, False),  # better, but 20 % more bits
+        (point(5.0, 10.4), point(6.0, 10.0), True, True),  # within the 5 % bit slack
+        (point(7.0, 8.0, 0.5), point(6.0, 10.0, 0.4), True, False),  # worse beyond both intervals
+        (point(6.5, 8.0, 0.5), point(6.0, 10.0, 0.4), True, True),  # worse, but within the intervals
+        (point(0.9, 1.0), point(0.8, 1.0), False, True),  # higher is better
+    ],
+)
+def test_dominates_means_no_more_bits_and_no_worse_metric(learned, baseline, lower, expected):
+    assert learning.dominates(learned, baseline, lower) is expected
+
+
+@pytest.mark.parametrize("env_id", env_ids())
+def test_every_env_has_a_learning_configuration_its_baselines_exist(env_id):
+    from baselines import policy_names
+
+    spec = learning.comparison_spec(env_id)
+    assert spec["baselines"] and spec["costs"] and spec["seeds"] >= 3
+    assert {name for name, _ in spec["baselines"]} <= set(policy_names(env_id))
+    assert "random" in {name for name, _ in spec["baselines"]}
+    algo = spec.get("algo", "ppo")
+    assert algo in spec["settings"], f"no {algo} settings"
+
+
+def test_reproduce_learning_end_to_end_on_a_tiny_budget(tmp_path, monkeypatch):
+    tiny = {
+        "ppo": {
+            "env_kwargs": {"n_robots": 4, "mobile_fraction": 0.0, "max_cycles": 12},
+            "timesteps": 64,
+            "n_envs": 1,
+            "net_arch": [8],
+            "n_steps": 16,
+            "batch_size": 32,
+            "n_epochs": 1,
+        },
+        "comparison": {
+            "setting": "tiny",
+            "cost_param": "emission_cost",
+            "costs": [0.0, 0.5],
+            "metric": "completion_time",
+            "lower_is_better": True,
+            "unfinished": 12,
+            "bits_per": "episode",
+            "seeds": 1,
+            "eval_episodes": 2,
+            "deterministic": False,
+            "baselines": [["coin_flip", {}], ["random", {}]],
+        },
+    }
+    config_dir = tmp_path / "configs"
+    config_dir.mkdir()
+    (config_dir / "ChannelAssociation-v0.json").write_text(json.dumps(tiny))
+    monkeypatch.setattr("agents.training.CONFIG_DIR", config_dir)
+    monkeypatch.setattr("agents.learned.PRETRAINED_DIR", tmp_path / "pretrained")
+    docs = tmp_path / "docs"
+    code = main(["reproduce-learning", "ChannelAssociation-v0", "--out", str(tmp_path / "runs"), "--docs", str(docs),
+                 "--quiet", "--export-pretrained"])
+    assert code == 0
+    page = (docs / "learning.md").read_text()
+    assert "learning/ChannelAssociation-v0.png" in page and "Beats random at equal or fewer bits" in page
+    rows = (docs / "learning" / "ChannelAssociation-v0.csv").read_text().splitlines()
+    assert len(rows) == 1 + 2 + 2  # header, one learned row per cost, two baselines
+    assert (docs / "learning" / "ChannelAssociation-v0.png").stat().st_size > 0
+    shipped = tmp_path / "pretrained" / "ChannelAssociation-v0"
+    assert {p.name for p in shipped.iterdir()} == {"model.zip", "vecnormalize.pkl", "config.json"}
+    # a rerun trains nothing again: every run folder is finished
+    runs = sorted((tmp_path / "runs").rglob("done.json"))
+    assert len(runs) == 2
+    before = [p.stat().st_mtime_ns for p in runs]
+    main(["reproduce-learning", "ChannelAssociation-v0", "--out", str(tmp_path / "runs"), "--docs", str(docs), "--quiet"])
+    assert [p.stat().st_mtime_ns for p in runs] == before
+
+
+SHIPPED = [e for e in env_ids() if (PRETRAINED_DIR / short_name(e) / "model.zip").exists()]
+
+
+@pytest.mark.parametrize("env_id", SHIPPED)
+def test_pretrained_model_is_small_and_evaluates(env_id, tmp_path):
+    folder = PRETRAINED_DIR / short_name(env_id)
+    assert sum(p.stat().st_size for p in folder.iterdir()) < 1_000_000
+    out = tmp_path / "eval.json"
+    assert main(["evaluate", env_id, "--policy", "pretrained", "--episodes", "1", "--quiet", "--json", str(out)]) == 0
+    metrics = json.loads(out.read_text())["metrics"]
+    assert all(v["mean"] is None or math.isfinite(v["mean"]) for v in metrics.values())
+    trained = json.loads((folder / "config.json").read_text())
+    assert trained["env_id"] == env_id and load_policy("pretrained", env_id).env_kwargs == trained["env_kwargs"]
+
+
+def test_every_env_with_a_learning_configuration_ships_a_pretrained_model():
+    configured = [e for e in env_ids() if (CONFIG_DIR / f"{short_name(e)}.json").exists()]
+    assert configured and set(configured) <= set(SHIPPED), f"missing: {sorted(set(configured) - set(SHIPPED))}"
