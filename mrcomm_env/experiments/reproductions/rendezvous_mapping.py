@@ -192,12 +192,9 @@ def fig4(out: Path) -> str:
         ax.set_xticks([])
         ax.set_yticks([])
 
-    shape = (rows_n, cols)
-    with figure(out / "fig4_partition.png", figsize=(4 * cols, 4 * rows_n), nrows=rows_n, ncols=cols, dpi=110) as (
-        fig,
-        grid,
-    ):
-        axes = np.asarray(grid, dtype=object).reshape(shape)  # one row of panels comes back one-dimensional
+    size_in = (4 * cols, 4 * rows_n)
+    with figure(out / "fig4_partition.png", figsize=size_in, nrows=rows_n, ncols=cols, dpi=110) as (fig, grid):
+        axes = np.asarray(grid, dtype=object).reshape(rows_n, cols)  # one row of panels comes back one-dimensional
         base(axes[0, 0], np.arange(L))
         axes[0, 0].set_title("1: vehicles (squares), landmarks, d_comms graph", fontsize=8)
         for k, st in enumerate(steps):
