@@ -1,9 +1,9 @@
 """Reproduction of Alsayegh et al. (paper 002): Propositions 1–2, Algorithm 1's bits, Figs 2–7, the bits table.
 
-``run(out_dir, quick)`` writes CSV/JSON and PNGs into ``out_dir`` and returns a markdown section with the paper's
-numbers beside ours. The protocol experiments call :mod:`mrcomm_env.mapsync.protocol` directly (as the paper's
-numerical simulations run the protocols alone, §V-A/B); Fig. 7 and the policy table drive the environment with
-the scripted baselines.
+``run(out_dir, quick, tiny=False)`` writes CSV/JSON and PNGs into ``out_dir`` and returns a markdown section
+with the paper's numbers beside ours. The protocol experiments call :mod:`mrcomm_env.mapsync.protocol` directly
+(as the paper's numerical simulations run the protocols alone, §V-A/B); Fig. 7 and the policy table drive the
+environment with the scripted baselines, through the shared episode loop (:func:`.common.run_episode`).
 
 :func:`protocol1_seconds` and :func:`env_steps_per_second` are the two speed measurements for ``mrcomm bench``.
 """
@@ -11,14 +11,24 @@ the scripted baselines.
 from __future__ import annotations
 
 import csv
-import json
 import math
 import time
 from pathlib import Path
 
 import numpy as np
 
+from baselines import default_policy, make_policy, policy_names
 from mrcomm_env.core.stats import mean_ci95
+from mrcomm_env.experiments.reproductions.common import (
+    atomic_open,
+    atomic_write_json,
+    figure,
+    label_axes,
+    pick,
+    progress,
+    run_episode,
+    size_of,
+)
 from mrcomm_env.mapsync import protocol as proto
 from mrcomm_env.mapsync import theory
 from mrcomm_env.mapsync.philox import SharedStrings
@@ -43,23 +53,31 @@ PAPER_FIG7_DETECTIONS = (20, 40, 110, 120)
 PAPER_FIG3 = {(16, None): 0.04, (1024, 7): 3.17}  # seconds, §V-A (minimum at n = 16, maximum at n = 1024, k = 7)
 FIG2_N = (16, 32, 64, 128, 256, 512, 1024)
 FIG2_K = tuple(range(3, 11))
+ENV_ID = "mrcomm/MapSync-v0"
+ARTIFACTS = (
+    "props_1_2.csv",
+    "props_1_2.png",
+    "alg1_worst_case.csv",
+    "fig2_success_rate.csv",
+    "fig2_success_rate.png",
+    "fig3_runtime.csv",
+    "fig3_runtime.png",
+    "figs4_6_corrected.csv",
+    "figs4_6_corrected.png",
+    "fig7_case_study.json",
+    "bits_table.csv",
+    "bits_table.png",
+    "sketch_false_accept.csv",
+    "policies.csv",
+    "summary.json",
+)
 
 
 def _write_csv(path: Path, rows: list[dict]) -> None:
-    with open(path, "w", newline="") as fh:
+    with atomic_open(path, "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-
-
-def _figure(width=6.0, height=4.0, cols=1):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(width, height))
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(1, cols)
-    return fig, axes
 
 
 def _random_pair(rng, n, d):
@@ -90,20 +108,19 @@ def protocol1_seconds(n: int = 1024, k: int = 7, repeats: int = 2000, seed: int 
 
 def env_steps_per_second(seconds: float = 3.0, policy: str | None = None, seed: int = 0, **env_kwargs) -> float:
     """Env steps per second of MapSync-v0 driven by a scripted baseline (default: the paper's case study)."""
-    from baselines import default_policy, make_policy
     from mrcomm_env.experiments.evaluation import steps_per_second
     from mrcomm_env.registry import make
 
-    env = make("mrcomm/MapSync-v0", **env_kwargs)
-    pol = make_policy("mrcomm/MapSync-v0", policy or default_policy("mrcomm/MapSync-v0"))
+    env = make(ENV_ID, **env_kwargs)
+    pol = make_policy(ENV_ID, policy or default_policy(ENV_ID))
     views = env.local_views()
     eps, _ = steps_per_second(env, lambda obs: pol.act(obs, views), seconds, seed, lambda s: pol.reset(views, s))
     return eps
 
 
 # ----------------------------------------------------------------------------------------------- Props 1–2
-def props_1_2(out: Path, quick: bool, progress) -> str:
-    trials = 400 if quick else 20000
+def props_1_2(out: Path, size: str) -> str:
+    trials = pick(size, full=20000, quick=400, tiny=20)
     rows = []
     rng = np.random.default_rng(12)
     n = 256
@@ -136,23 +153,20 @@ def props_1_2(out: Path, quick: bool, progress) -> str:
             }
         )
     _write_csv(out / "props_1_2.csv", rows)
-    fig, ax = _figure()
-    ks = [r["k"] for r in rows]
-    ax.semilogy(ks, [r["bound_2^-k"] for r in rows], "k--", label="Prop. 2 bound 2^−k")
-    ax.errorbar(
-        ks,
-        [max(r["false_equal_rate"], 1e-6) for r in rows],
-        yerr=[
-            [r["false_equal_rate"] - r["ci95_lo"] for r in rows],
-            [r["ci95_hi"] - r["false_equal_rate"] for r in rows],
-        ],
-        fmt="o",
-        label=f"simulated, {trials} pairs with one difference",
-    )
-    ax.set_xlabel("k")
-    ax.set_ylabel('P("equal" | X ≠ Y)')
-    ax.legend()
-    fig.savefig(out / "props_1_2.png", dpi=120)
+    with figure(out / "props_1_2.png", figsize=(6, 4), dpi=120) as (_, ax):
+        ks = [r["k"] for r in rows]
+        ax.semilogy(ks, [r["bound_2^-k"] for r in rows], "k--", label="Prop. 2 bound 2^−k")
+        ax.errorbar(
+            ks,
+            [max(r["false_equal_rate"], 1e-6) for r in rows],
+            yerr=[
+                [r["false_equal_rate"] - r["ci95_lo"] for r in rows],
+                [r["ci95_hi"] - r["false_equal_rate"] for r in rows],
+            ],
+            fmt="o",
+            label=f"simulated, {trials} pairs with one difference",
+        )
+        label_axes(ax, xlabel="k", ylabel='P("equal" | X ≠ Y)', legend=10)
     lines = [
         '| k | bits counted | Prop. 1 k(⌈log2 100n⌉+1) | false "equal" (X≠Y, 1 cell) | 95 % CI | Prop. 2 bound 2^−k | errors on X=Y |',
         "| --- | --- | --- | --- | --- | --- | --- |",
@@ -174,8 +188,8 @@ def _wilson(successes: int, trials: int, z: float = 1.96) -> tuple[float, float]
 
 
 # ----------------------------------------------------------------------------------------------- Algorithm 1 bits
-def alg1_worst_case(out: Path, quick: bool, progress) -> str:
-    trials = 3 if quick else 20
+def alg1_worst_case(out: Path, size: str) -> str:
+    trials = pick(size, full=20, quick=3, tiny=1)
     k, res = 10, 1
     rows = []
     rng = np.random.default_rng(21)
@@ -217,9 +231,9 @@ def alg1_worst_case(out: Path, quick: bool, progress) -> str:
 
 
 # ----------------------------------------------------------------------------------------------- Fig. 2
-def fig2(out: Path, quick: bool, progress) -> tuple[str, dict]:
-    runs_paper = 50
-    runs_big = 50 if quick else 5000
+def fig2(out: Path, size: str) -> tuple[str, dict]:
+    runs_big = pick(size, full=5000, quick=50, tiny=2)
+    runs_paper = min(50, runs_big)  # §V-A: 50 runs per cell
     rows = []
     rng = np.random.default_rng(2)
     for n in progress(FIG2_N, desc="Fig 2: n"):
@@ -247,18 +261,17 @@ def fig2(out: Path, quick: bool, progress) -> tuple[str, dict]:
                 }
             )
     _write_csv(out / "fig2_success_rate.csv", rows)
-    fig, axes = _figure(11, 4, cols=2)
-    for ax, key, title in ((axes[0], "sr_50_runs", "50 runs (as the paper)"), (axes[1], "sr_many", f"{runs_big} runs")):
-        grid = np.array([[next(r[key] for r in rows if r["n"] == n and r["k"] == k) for n in FIG2_N] for k in FIG2_K])
-        im = ax.imshow(grid, vmin=0.8, vmax=1.0, cmap="viridis", origin="lower", aspect="auto")
-        ax.set_xticks(range(len(FIG2_N)), [str(n) for n in FIG2_N])
-        ax.set_yticks(range(len(FIG2_K)), [str(k) for k in FIG2_K])
-        ax.set_xlabel("n")
-        ax.set_ylabel("k")
-        ax.set_title(f"Protocol 1 success rate, {title}")
-        fig.colorbar(im, ax=ax)
-    fig.tight_layout()
-    fig.savefig(out / "fig2_success_rate.png", dpi=120)
+    panels = (("sr_50_runs", f"{runs_paper} runs (as the paper)"), ("sr_many", f"{runs_big} runs"))
+    with figure(out / "fig2_success_rate.png", figsize=(11, 4), ncols=2, dpi=120) as (fig, axes):
+        for ax, (key, title) in zip(axes, panels, strict=True):
+            grid = np.array(
+                [[next(r[key] for r in rows if r["n"] == n and r["k"] == k) for n in FIG2_N] for k in FIG2_K]
+            )
+            im = ax.imshow(grid, vmin=0.8, vmax=1.0, cmap="viridis", origin="lower", aspect="auto")
+            ax.set_xticks(range(len(FIG2_N)), [str(n) for n in FIG2_N])
+            ax.set_yticks(range(len(FIG2_K)), [str(k) for k in FIG2_K])
+            label_axes(ax, xlabel="n", ylabel="k", title=f"Protocol 1 success rate, {title}")
+            fig.colorbar(im, ax=ax)
     below90 = [(r["n"], r["k"]) for r in rows if r["sr_50_runs"] <= 0.9]
     lines = [
         "| k | theory 1−2^−k | ours, 50 runs: min … max over n | ours, many runs: min … max over n | printed step 4, 50 runs |",
@@ -275,27 +288,24 @@ def fig2(out: Path, quick: bool, progress) -> tuple[str, dict]:
 
 
 # ----------------------------------------------------------------------------------------------- Fig. 3
-def fig3(out: Path, quick: bool, progress) -> tuple[str, dict]:
-    repeats = 40 if quick else 2000
+def fig3(out: Path, size: str) -> tuple[str, dict]:
+    repeats = pick(size, full=2000, quick=40, tiny=20)
     rows = []
     for n in progress(FIG2_N, desc="Fig 3: run time"):
         for k in (3, 7, 10):
             rows.append({"n": n, "k": k, "seconds": protocol1_seconds(n, k, repeats)})
     _write_csv(out / "fig3_runtime.csv", rows)
-    fig, ax = _figure()
-    for k in (3, 7, 10):
-        sel = [r for r in rows if r["k"] == k]
-        ax.loglog([r["n"] for r in sel], [r["seconds"] for r in sel], "o-", label=f"ours, k = {k}")
-    ax.loglog(
-        [16, 1024],
-        [PAPER_FIG3[(16, None)], PAPER_FIG3[(1024, 7)]],
-        "k^",
-        label="paper: 0.04 s (n=16), 3.17 s (n=1024, k=7)",
-    )
-    ax.set_xlabel("n")
-    ax.set_ylabel("seconds per Protocol 1")
-    ax.legend()
-    fig.savefig(out / "fig3_runtime.png", dpi=120)
+    with figure(out / "fig3_runtime.png", figsize=(6, 4), dpi=120) as (_, ax):
+        for k in (3, 7, 10):
+            sel = [r for r in rows if r["k"] == k]
+            ax.loglog([r["n"] for r in sel], [r["seconds"] for r in sel], "o-", label=f"ours, k = {k}")
+        ax.loglog(
+            [16, 1024],
+            [PAPER_FIG3[(16, None)], PAPER_FIG3[(1024, 7)]],
+            "k^",
+            label="paper: 0.04 s (n=16), 3.17 s (n=1024, k=7)",
+        )
+        label_axes(ax, xlabel="n", ylabel="seconds per Protocol 1", legend=10)
     ours = next(r["seconds"] for r in rows if r["n"] == 1024 and r["k"] == 7)
     ours16 = min(r["seconds"] for r in rows if r["n"] == 16)
     text = (
@@ -308,8 +318,8 @@ def fig3(out: Path, quick: bool, progress) -> tuple[str, dict]:
 
 
 # ----------------------------------------------------------------------------------------------- Figs 4–6
-def figs4_6(out: Path, quick: bool, progress) -> str:
-    runs = 6 if quick else 50
+def figs4_6(out: Path, size: str) -> str:
+    runs = pick(size, full=50, quick=6, tiny=1)
     sweeps = [
         ("fig4", "k", [(128, k, 5) for k in (7, 8, 9, 10)]),
         ("fig5", "n", [(n, 10, 5) for n in (256, 512, 1024, 2048)]),
@@ -343,19 +353,15 @@ def figs4_6(out: Path, quick: bool, progress) -> str:
                 }
             )
     _write_csv(out / "figs4_6_corrected.csv", rows)
-    fig, axes = _figure(12, 3.6, cols=3)
-    for ax, (name, var, _) in zip(axes, sweeps):
-        sel = [r for r in rows if r["figure"] == name]
-        xs = [str(r[var]) for r in sel]
-        ax.bar(xs, [100 * r["corrected_mean"] for r in sel], yerr=[100 * r["std"] for r in sel], capsize=3)
-        ax.axhline(80, color="r", ls="--", label="paper: always > 80 %")
-        ax.set_ylim(0, 105)
-        ax.set_xlabel(var)
-        ax.set_ylabel("% differences corrected")
-        ax.set_title(name)
-        ax.legend(loc="lower right")
-    fig.tight_layout()
-    fig.savefig(out / "figs4_6_corrected.png", dpi=120)
+    with figure(out / "figs4_6_corrected.png", figsize=(12, 3.6), ncols=3, dpi=120) as (_, axes):
+        for ax, (name, var, _) in zip(axes, sweeps, strict=True):
+            sel = [r for r in rows if r["figure"] == name]
+            xs = [str(r[var]) for r in sel]
+            ax.bar(xs, [100 * r["corrected_mean"] for r in sel], yerr=[100 * r["std"] for r in sel], capsize=3)
+            ax.axhline(80, color="r", ls="--", label="paper: always > 80 %")
+            ax.set_ylim(0, 105)
+            label_axes(ax, xlabel=var, ylabel="% differences corrected", title=name)
+            ax.legend(loc="lower right")
     lines = [
         "| figure | n | k | differences | corrected, mean ± std | worst run | expected (1 − 2^−k)^⌈log2 n⌉ | paper |",
         "| --- | --- | --- | --- | --- | --- | --- | --- |",
@@ -369,18 +375,16 @@ def figs4_6(out: Path, quick: bool, progress) -> str:
 
 
 # ----------------------------------------------------------------------------------------------- Fig. 7
-def fig7(out: Path, quick: bool, progress) -> tuple[str, dict]:
-    from baselines import make_policy
-    from mrcomm_env.experiments.evaluation import run_episode
+def fig7(out: Path, size: str) -> tuple[str, dict]:
     from mrcomm_env.registry import make
 
-    seeds = range(2) if quick else range(50)
+    seeds = range(pick(size, full=50, quick=2, tiny=1))
     records = []
     for seed in progress(seeds, desc="Fig 7: case study"):
-        env = make("mrcomm/MapSync-v0", preset="paper")
-        metrics = run_episode(env, make_policy("mrcomm/MapSync-v0", "periodic_equality_then_bisection"), seed)
+        env = make(ENV_ID, preset="paper")
+        metrics = run_episode(env, make_policy(ENV_ID, "periodic_equality_then_bisection"), seed)
         records.append({"seed": seed, "detection_steps": [s for s, *_ in env.detections], **metrics})
-    (out / "fig7_case_study.json").write_text(json.dumps(records, indent=1))
+    atomic_write_json(out / "fig7_case_study.json", records, indent=1)
     tested = sum(r["equality_tests"] for r in records)
     missed = sum(r["false_equal"] for r in records)
     counts = [len(r["detection_steps"]) for r in records]
@@ -405,13 +409,16 @@ def fig7(out: Path, quick: bool, progress) -> tuple[str, dict]:
 
 
 # ----------------------------------------------------------------------------------------------- bits table
-def bits_table(out: Path, quick: bool, progress) -> tuple[str, dict]:
+def bits_table(out: Path, size: str) -> tuple[str, dict]:
     k, res = 10, 1
     rng = np.random.default_rng(77)
     rows = []
-    configs = [(n, d) for n in (256, 1024, 4096, 65536) for d in (1, 4, 16, 64)]
+    # tiny keeps one size at and above 1024, where the report reads the sketch's worst ratio
+    sizes = pick(size, full=(256, 1024, 4096, 65536), quick=(256, 1024, 4096, 65536), tiny=(256, 1024))
+    differences = pick(size, full=(1, 4, 16, 64), quick=(1, 4, 16, 64), tiny=(1, 4))
+    configs = [(n, d) for n in sizes for d in differences]
     for n, d in progress(configs, desc="bits table"):
-        trials = 1 if (quick and n >= 4096) else (2 if quick else 10)
+        trials = pick(size, full=10, quick=1 if n >= 4096 else 2, tiny=1)
         strings = SharedStrings(n, 9)
         bis, sk, sk_strict, exact = [], [], [], 0
         for t in range(trials):
@@ -447,22 +454,18 @@ def bits_table(out: Path, quick: bool, progress) -> tuple[str, dict]:
             }
         )
     _write_csv(out / "bits_table.csv", rows)
-    fig, ax = _figure(7, 4.5)
-    labels = [f"{r['n']}\nd={r['d']}" for r in rows]
-    xs = np.arange(len(rows))
-    for off, key, label in (
-        (-0.3, "full", "full"),
-        (-0.1, "bisection", "bisection (k=10, res=1)"),
-        (0.1, "sketch", "sketch"),
-        (0.3, "bound", "log2 C(n, d)"),
-    ):
-        ax.bar(xs + off, [r[key] for r in rows], width=0.2, label=label)
-    ax.set_yscale("log")
-    ax.set_xticks(xs, labels, fontsize=6)
-    ax.set_ylabel("bits to exact agreement (one way)")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "bits_table.png", dpi=120)
+    with figure(out / "bits_table.png", figsize=(7, 4.5), dpi=120) as (_, ax):
+        labels = [f"{r['n']}\nd={r['d']}" for r in rows]
+        xs = np.arange(len(rows))
+        for off, key, label in (
+            (-0.3, "full", "full"),
+            (-0.1, "bisection", "bisection (k=10, res=1)"),
+            (0.1, "sketch", "sketch"),
+            (0.3, "bound", "log2 C(n, d)"),
+        ):
+            ax.bar(xs + off, [r[key] for r in rows], width=0.2, label=label)
+        ax.set_xticks(xs, labels, fontsize=6)
+        label_axes(ax, yscale="log", ylabel="bits to exact agreement (one way)", legend=7)
     lines = [
         "| n | d | full | bisection | sketch | log2 C(n, d) | sketch / bound | sketch, 1 feedback bit per syndrome |",
         "| --- | --- | --- | --- | --- | --- | --- | --- |",
@@ -483,8 +486,8 @@ def bits_table(out: Path, quick: bool, progress) -> tuple[str, dict]:
 
 
 # ----------------------------------------------------------------------------------------------- sketch errors
-def sketch_false_accept(out: Path, quick: bool, progress) -> str:
-    runs = 300 if quick else 5000
+def sketch_false_accept(out: Path, size: str) -> str:
+    runs = pick(size, full=5000, quick=300, tiny=5)
     rng = np.random.default_rng(31)
     rows = []
     for n, d in progress([(256, 2), (1024, 2), (1024, 8), (4096, 2)], desc="sketch false acceptance"):
@@ -521,17 +524,16 @@ def sketch_false_accept(out: Path, quick: bool, progress) -> str:
 
 
 # ----------------------------------------------------------------------------------------------- policies
-def policies(out: Path, quick: bool, progress) -> str:
-    from baselines import make_policy, policy_names
+def policies(out: Path, size: str) -> str:
     from mrcomm_env.experiments.evaluation import evaluate
     from mrcomm_env.registry import make
 
-    episodes = 1 if quick else 20
+    episodes = pick(size, full=20, quick=1)
     rows = []
-    for name in progress(policy_names("mrcomm/MapSync-v0"), desc="policies"):
+    for name in progress(policy_names(ENV_ID), desc="policies"):
         summary = evaluate(
-            lambda: make("mrcomm/MapSync-v0", preset="paper"),
-            make_policy("mrcomm/MapSync-v0", name),
+            lambda: make(ENV_ID, preset="paper"),
+            make_policy(ENV_ID, name),
             episodes,
             seed=1000,
             progress=False,
@@ -561,20 +563,15 @@ def policies(out: Path, quick: bool, progress) -> str:
 
 
 # ----------------------------------------------------------------------------------------------- report
-def run(out_dir: Path, quick: bool) -> str:
-    from tqdm.auto import tqdm
-
+def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-
-    def progress(it, desc):
-        return tqdm(it, desc=desc, leave=False)
-
+    size = size_of(quick, tiny)
     timing: dict[str, float] = {}
 
     def timed(name, fn):
         start = time.perf_counter()
-        result = fn(out, quick, progress)
+        result = fn(out, size)
         timing[name] = time.perf_counter() - start
         return result
 
@@ -588,22 +585,31 @@ def run(out_dir: Path, quick: bool) -> str:
     false_accept = timed("sketch_false_accept", sketch_false_accept)
     pol = timed("policies", policies)
     summary = {"timing_s": timing, **f2_info, **f3_info, **f7_info, **table_info, "quick": quick}
-    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    atomic_write_json(out / "summary.json", summary, indent=1, default=float)
     below = ", ".join(f"(n={n}, k={k})" for n, k in f2_info["below_90_at_50_runs"]) or "none"
-    return f"""# MapSync-v0 — Alsayegh et al., *Lightweight Multi-robot Communication Protocols* (paper 002)
+    name = out.name
+    size_note = pick(
+        size,
+        full="",
+        quick="Quick run (fewer runs and trials): numbers are indicative only. ",
+        tiny="Tiny run (smoke-test sizes): the numbers mean nothing. ",
+    )
+    return f"""## MapSync-v0 — Alsayegh et al., *Lightweight Multi-robot Communication Protocols* (paper 002)
 
-Protocol 1 runs with step 4 fixed ("counter greater than zero" means different; as printed, "≥ 0", it answers
+{size_note}Protocol 1 runs with step 4 fixed ("counter greater than zero" means different; as printed, "≥ 0", it answers
 "different" always); r_i come from a counter-based Philox4x32-10 generator keyed by a shared seed (the paper's
 database of 100n strings is virtual). Algorithm 1 runs as request/response rounds, one per recursion level.
 
-## Propositions 1–2 (n = 256)
+### Propositions 1–2 (n = 256)
 
 {props}
+
+![Props 1–2]({name}/props_1_2.png)
 
 Bits match Proposition 1 exactly, equal maps are never called different, and the false-"equal" rate sits at
 2^−k: Proposition 2's bound is attained (a uniform r_i splits any X ≠ Y with probability exactly ½).
 
-## Algorithm 1: bits against §IV-B's worst case (k = 10, res = 1)
+### Algorithm 1: bits against §IV-B's worst case (k = 10, res = 1)
 
 {alg1}
 
@@ -612,41 +618,49 @@ tested different, each at the full k(⌈log2 100n⌉+1): even one difference cos
 about twice the formula, and d differences up to 2d tests per level. The formula is not an upper bound; the
 true worst case (segment tree, at most 2·min(#segments, d) visits per level) is, and it is attained at d = 1.
 
-## Fig. 2: success rate of Protocol 1
+### Fig. 2: success rate of Protocol 1
 
 {f2}
+
+![Fig. 2]({name}/fig2_success_rate.png)
 
 Paper: "> 90 % except with k = 3 and n = 128" (50 runs). Ours at 50 runs, ≤ 90 % at: {below}. With more runs
 every cell converges to 1 − 2^−k whatever n (random X, Y differ, so success = detection). With the printed step
 4 the success rate on these (different) pairs is 100 %: the paper's sub-100 % numbers imply its code used the
 fixed rule.
 
-## Fig. 3: run time of Protocol 1
+### Fig. 3: run time of Protocol 1
 
 {f3}
+
+![Fig. 3]({name}/fig3_runtime.png)
 
 GF(2) inner products on bit-packed words (popcount), r_i generated on demand (no database, no cache); inner
 loop: {f3_info["backend"]} (`MRCOMM_BACKEND`).
 
-## Figs 4–6: differences corrected by Algorithm 1 (res = 1)
+### Figs 4–6: differences corrected by Algorithm 1 (res = 1)
 
 {f46}
+
+![Figs 4–6]({name}/figs4_6_corrected.png)
 
 The paper reports ≥ 80 %. A difference is corrected when every test on the ⌈log2 n⌉ segments on its path from
 the root says "different", each with probability 1 − 2^−k (Proposition 2), so in expectation a fraction
 (1 − 2^−k)^⌈log2 n⌉ is corrected: 94.7 % at n = 128, k = 7 and 99 % at n = 1024, k = 10. One miss high in the
 tree loses every difference below it, hence the spread between runs.
 
-## Fig. 7: case study (preset `paper`, every 10 moves, k = 10)
+### Fig. 7: case study (preset `paper`, every 10 moves, k = 10)
 
 {f7}
 
 Our random walk is not the paper's, so the steps differ; detections only happen at sync times (multiples of 10),
 at about the paper's rate.
 
-## Bits to exact agreement (one way: Bob learns Alice's map)
+### Bits to exact agreement (one way: Bob learns Alice's map)
 
 {table}
+
+![Bits to exact agreement]({name}/bits_table.png)
 
 `sketch`: streaming PinSketch over GF(2^⌈log2 n⌉) verified by v public-coin parity bits (v = 8 below n = 1024,
 ⌊2 log2 n⌋ − ⌈log2 n⌉ − 2 from there: 8, 10, 14) and a 1-bit stop, with no knowledge of d; worst sketch/bound
@@ -659,11 +673,11 @@ instead of relying on the short round trip. `bisection` at res = 1 pays k(⌈log
 2d·log2(n)·k·log2(100n) bits for d spread differences, so it sends fewer bits than `full` only where
 n ≫ 2d·k·log2(100n)·log2 n; here at {", ".join(table_info["bisection_below_full"]) or "none of these sizes"}.
 
-### How often the sketch accepts a wrong map
+#### How often the sketch accepts a wrong map
 
 {false_accept}
 
-## Baselines in the env (preset `paper`)
+### Baselines in the env (preset `paper`)
 
 {pol}
 """

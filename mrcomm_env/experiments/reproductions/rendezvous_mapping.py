@@ -1,6 +1,7 @@
 """Reproduction of Chapman & Sukkarieh (paper 004): Fig. 4 partition, Fig. 6 sample run, Figs 8–10 sweeps.
 
-``run(out_dir, quick)`` writes CSV/JSON and PNGs into ``out_dir`` and returns a markdown section. The paper's
+``run(out_dir, quick, tiny=False)`` writes CSV/JSON and PNGs into ``out_dir`` and returns a markdown section; every
+episode runs through the shared episode loop (:func:`.common.run_episode`). The paper's
 figures are plots without tabulated values (and the text of the paper we have carries none of their
 numbers), so the comparison is with the paper's *statements*, checked one by one.
 
@@ -18,7 +19,6 @@ numbers), so the comparison is with the paper's *statements*, checked one by one
 from __future__ import annotations
 
 import csv
-import json
 import math
 import statistics
 import time
@@ -27,6 +27,16 @@ from pathlib import Path
 import numpy as np
 
 from baselines import make_policy
+from mrcomm_env.experiments.reproductions.common import (
+    atomic_open,
+    atomic_write_json,
+    figure,
+    label_axes,
+    pick,
+    progress,
+    run_episode,
+    size_of,
+)
 from mrcomm_env.rendezvous import protocol, theory, world
 from mrcomm_env.rendezvous.env import RendezvousMappingEnv
 
@@ -46,30 +56,39 @@ SCENARIOS = {
     "fig10_long_window": {"d_comms": 10.0, "t_window": 30.0, "graph": "d_comms", "figure": "Fig. 10"},
 }
 PLANNERS = ("paper_protocol", "no_partition", "always_rendezvous", "greedy")
+ENV_ID = "mrcomm/RendezvousMapping-v0"
+ARTIFACTS = (
+    "fig4_partition.png",
+    "fig4_partition.json",
+    "fig6_sample_run.csv",
+    "fig6_sample_run.png",
+    *(f"{name}.png" for name in SCENARIOS),
+    "figs8_10_sweeps.csv",
+    "results.json",
+)
 
 
 # ----------------------------------------------------------------------------------- one run
 def phases_to_half(env_kwargs: dict, policy_name: str, seed: int, cap: int) -> tuple[float, float, float]:
     """(phases to 50 % fused information or ``cap`` if not reached, C of the d_max graph, C of the d_comms graph)."""
     env = RendezvousMappingEnv(max_cycles=cap, **env_kwargs)
-    policy = make_policy("RendezvousMapping-v0", policy_name)
-    obs, _ = env.reset(seed=seed)
-    views = env.local_views()
-    policy.reset(views, seed)
-    while env.agents and math.isnan(env.half_phase):
-        obs, *_ = env.step(policy.act(obs, views))
+    # the run ends as soon as the fused map holds half the information (or at the cap, the env's horizon)
+    run_episode(env, make_policy(ENV_ID, policy_name), seed, on_step=lambda *_: not math.isnan(env.half_phase))
     reached = env.half_phase if not math.isnan(env.half_phase) else float(cap)
     c_dmax = env.clustering(env.d_max)
     c_dcomms = env.clustering(env_kwargs["d_comms"]) if math.isfinite(env_kwargs["d_comms"]) else 1.0
     return reached, c_dmax, c_dcomms
 
 
-def sweep(name: str, quick: bool, progress) -> list[dict]:
+def sweep(name: str, size: str) -> list[dict]:
     spec = SCENARIOS[name]
-    sigmas = [0.0, 12.0] if quick else [0.0, 2.0, 4.0, 8.0, 12.0, 20.0]
-    draws = 1 if quick else 3
-    planners = ("paper_protocol", "greedy") if quick else PLANNERS
-    cap = (40 if quick else 150) if spec["d_comms"] > 0 else (80 if quick else 200)
+    sigmas = pick(size, full=[0.0, 2.0, 4.0, 8.0, 12.0, 20.0], quick=[0.0, 12.0])
+    draws = pick(size, full=3, quick=1)
+    planners = pick(size, full=PLANNERS, quick=("paper_protocol", "greedy"))
+    if spec["d_comms"] > 0:
+        cap = pick(size, full=150, quick=40, tiny=3)
+    else:  # vehicles that never talk fuse only at rendezvous: a longer cap
+        cap = pick(size, full=200, quick=80, tiny=3)
     rows = []
     jobs = [(s, d, p) for s in sigmas for d in range(draws) for p in planners]
     for sigma, draw, planner in progress(jobs, f"{spec['figure']}: σ × draws × planners"):
@@ -131,7 +150,7 @@ def spearman(x, y) -> float:
 
 # ----------------------------------------------------------------------------------- Fig. 4
 def fig4(out: Path) -> str:
-    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
 
     rng = np.random.default_rng(4)
     side, L, n, d_comms, t_window = 100.0, 200, 10, 10.0, 15.0
@@ -150,10 +169,8 @@ def fig4(out: Path) -> str:
     panels = 1 + len(steps)
     cols = min(panels, 4)
     rows_n = math.ceil(panels / cols)
-    fig, axes = plt.subplots(rows_n, cols, figsize=(4 * cols, 4 * rows_n), squeeze=False)
     adj = world.landmark_graph(landmarks, d_comms)
     ii, jj = np.nonzero(np.triu(adj))
-    from matplotlib.collections import LineCollection
 
     def base(ax, working):
         ax.add_collection(LineCollection(np.stack([landmarks[ii], landmarks[jj]], 1), colors="0.88", linewidths=0.4))
@@ -175,36 +192,37 @@ def fig4(out: Path) -> str:
         ax.set_xticks([])
         ax.set_yticks([])
 
-    base(axes[0, 0], np.arange(L))
-    axes[0, 0].set_title("1: vehicles (squares), landmarks, d_comms graph", fontsize=8)
-    for k, st in enumerate(steps):
-        ax = axes[(k + 1) // cols, (k + 1) % cols]
-        base(ax, st.working)
-        for v in range(n):
-            lm = st.assignment[v]
-            colour = "tab:green" if st.cluster_of[v] == st.main else "tab:orange"
-            ax.plot([vehicles[v, 0], landmarks[lm, 0]], [vehicles[v, 1], landmarks[lm, 1]], ":", c=colour, lw=1)
-            ax.scatter(*landmarks[lm], marker="D", s=18, c=colour, zorder=3)
-        ax.scatter(*landmarks[st.central], marker="*", s=160, c="gold", edgecolors="k", zorder=4)
-        if st.outlier >= 0:
-            ax.scatter(*landmarks[st.outlier], marker="o", s=90, facecolors="none", edgecolors="tab:red", lw=1.5)
-            axis = landmarks[st.outlier] - landmarks[st.central]
-            normal = np.array([-axis[1], axis[0]]) / max(np.hypot(*axis), 1e-9)
-            line = np.stack([landmarks[st.outlier] - 200 * normal, landmarks[st.outlier] + 200 * normal])
-            ax.plot(line[:, 0], line[:, 1], "--", c="tab:red", lw=0.8)
-        state = "connected" if st.outlier < 0 else f"cut l_o = {st.outlier}"
-        ax.set_title(f"{k + 2}: pass {k + 1}, |l_w| = {len(st.working)}, l_c = {st.central}, {state}", fontsize=8)
-    for k in range(panels, rows_n * cols):
-        axes[k // cols, k % cols].axis("off")
-    fig.suptitle(
-        "Fig. 4: partition passes (green: main cluster μ_max, orange: other clusters, star: l_c, "
-        "red circles: cut landmarks)",
-        fontsize=9,
-    )
-    fig.tight_layout()
-    fig.savefig(out / "fig4_partition.png", dpi=110)
-    plt.close(fig)
-    json.dump(
+    size_in = (4 * cols, 4 * rows_n)
+    with figure(out / "fig4_partition.png", figsize=size_in, nrows=rows_n, ncols=cols, dpi=110) as (fig, grid):
+        axes = np.asarray(grid, dtype=object).reshape(rows_n, cols)  # one row of panels comes back one-dimensional
+        base(axes[0, 0], np.arange(L))
+        axes[0, 0].set_title("1: vehicles (squares), landmarks, d_comms graph", fontsize=8)
+        for k, st in enumerate(steps):
+            ax = axes[(k + 1) // cols, (k + 1) % cols]
+            base(ax, st.working)
+            for v in range(n):
+                lm = st.assignment[v]
+                colour = "tab:green" if st.cluster_of[v] == st.main else "tab:orange"
+                ax.plot([vehicles[v, 0], landmarks[lm, 0]], [vehicles[v, 1], landmarks[lm, 1]], ":", c=colour, lw=1)
+                ax.scatter(*landmarks[lm], marker="D", s=18, c=colour, zorder=3)
+            ax.scatter(*landmarks[st.central], marker="*", s=160, c="gold", edgecolors="k", zorder=4)
+            if st.outlier >= 0:
+                ax.scatter(*landmarks[st.outlier], marker="o", s=90, facecolors="none", edgecolors="tab:red", lw=1.5)
+                axis = landmarks[st.outlier] - landmarks[st.central]
+                normal = np.array([-axis[1], axis[0]]) / max(np.hypot(*axis), 1e-9)
+                line = np.stack([landmarks[st.outlier] - 200 * normal, landmarks[st.outlier] + 200 * normal])
+                ax.plot(line[:, 0], line[:, 1], "--", c="tab:red", lw=0.8)
+            state = "connected" if st.outlier < 0 else f"cut l_o = {st.outlier}"
+            ax.set_title(f"{k + 2}: pass {k + 1}, |l_w| = {len(st.working)}, l_c = {st.central}, {state}", fontsize=8)
+        for k in range(panels, rows_n * cols):
+            axes[k // cols, k % cols].axis("off")
+        fig.suptitle(
+            "Fig. 4: partition passes (green: main cluster μ_max, orange: other clusters, star: l_c, "
+            "red circles: cut landmarks)",
+            fontsize=9,
+        )
+    atomic_write_json(
+        out / "fig4_partition.json",
         {
             "passes": len(steps),
             "connected": rec.connected,
@@ -212,53 +230,48 @@ def fig4(out: Path) -> str:
             "central": [s.central for s in steps],
             "outliers": [s.outlier for s in steps],
         },
-        open(out / "fig4_partition.json", "w"),
         indent=2,
     )
     return (
-        f"Fig. 4 (`fig4_partition.png`): {len(steps)} passes, working set "
+        f"Fig. 4: {len(steps)} passes, working set "
         f"{' → '.join(str(len(s.working)) for s in steps)} landmarks, "
         f"{'connected' if rec.connected else 'marked unconnected'} at the end."
     )
 
 
 # ----------------------------------------------------------------------------------- Fig. 6
-def fig6(out: Path, quick: bool, progress) -> tuple[str, dict]:
-    import matplotlib.pyplot as plt
-
-    phases = 25 if quick else 120
-    planners = ("paper_protocol", "greedy") if quick else PLANNERS
+def fig6(out: Path, size: str) -> tuple[str, dict]:
+    phases = pick(size, full=120, quick=25, tiny=3)
+    planners = pick(size, full=PLANNERS, quick=("paper_protocol", "greedy"))
     curves = {}
     for planner in progress(planners, "Fig. 6: sample runs"):
         env = RendezvousMappingEnv(max_cycles=phases)
-        policy = make_policy("RendezvousMapping-v0", planner)
-        obs, _ = env.reset(seed=6)
-        views = env.local_views()
-        policy.reset(views, 6)
-        log10 = [0.0]
-        while env.agents:
-            obs, *_ = env.step(policy.act(obs, views))
+        log10 = [0.0]  # det P = det P0 before the first phase
+
+        def record(*_, env=env, log10=log10):
             log10.append(env.metrics()["log10_det_ratio"])
+
+        run_episode(env, make_policy(ENV_ID, planner), 6, on_step=record)
         curves[planner] = log10
-    with open(out / "fig6_sample_run.csv", "w", newline="") as f:
+    with atomic_open(out / "fig6_sample_run.csv", "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["phase", *curves])
         for k in range(max(len(c) for c in curves.values())):
             w.writerow([k, *[c[k] if k < len(c) else "" for c in curves.values()]])
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for planner, c in curves.items():
-        ax.plot(range(len(c)), c, label=planner)
-    ax.set_xlabel("decision phase")
-    ax.set_ylabel("log10 det(P) / det(P0) of the fused map")
-    ax.set_title("Fig. 6: 10 vehicles, 200 landmarks, d_comms = 10, d_max = 15")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "fig6_sample_run.png", dpi=110)
-    plt.close(fig)
+    with figure(out / "fig6_sample_run.png", figsize=(6, 4), dpi=110) as (_, ax):
+        for planner, c in curves.items():
+            ax.plot(range(len(c)), c, label=planner)
+        label_axes(
+            ax,
+            xlabel="decision phase",
+            ylabel="log10 det(P) / det(P0) of the fused map",
+            title="Fig. 6: 10 vehicles, 200 landmarks, d_comms = 10, d_max = 15",
+            legend=8,
+        )
     paper = curves["paper_protocol"]
     monotone = all(b <= a + 1e-12 for a, b in zip(paper, paper[1:]))
     md = (
-        f"Fig. 6 (`fig6_sample_run.png`): under `paper_protocol` log₁₀ det P/det P₀ falls from 0 to "
+        f"Fig. 6: under `paper_protocol` log₁₀ det P/det P₀ falls from 0 to "
         f"{paper[-1]:.1f} in {len(paper) - 1} phases, never rising ({'holds' if monotone else 'FAILS'}: fused "
         "information never decreases). The paper plots the same decreasing curve without numbers in the text."
     )
@@ -266,26 +279,24 @@ def fig6(out: Path, quick: bool, progress) -> tuple[str, dict]:
 
 
 def plot_sweep(out: Path, name: str, table: dict) -> None:
-    import matplotlib.pyplot as plt
-
     spec = SCENARIOS[name]
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for planner, rows in table.items():
-        ax.errorbar(
-            [r["C"] for r in rows],
-            [r["median"] for r in rows],
-            yerr=[[r["median"] - r["min"] for r in rows], [r["max"] - r["median"] for r in rows]],
-            marker="o",
-            capsize=3,
-            label=planner,
+    with figure(out / f"{name}.png", figsize=(6, 4), dpi=110) as (_, ax):
+        for planner, rows in table.items():
+            ax.errorbar(
+                [r["C"] for r in rows],
+                [r["median"] for r in rows],
+                yerr=[[r["median"] - r["min"] for r in rows], [r["max"] - r["median"] for r in rows]],
+                marker="o",
+                capsize=3,
+                label=planner,
+            )
+        label_axes(
+            ax,
+            xlabel=f"mean clustering coefficient C of the {spec['graph']} graph",
+            ylabel="decision phases to 50 % of the information",
+            title=f"{spec['figure']}: d_comms = {spec['d_comms']:g}, d_max = {spec['t_window']:g}",
+            legend=8,
         )
-    ax.set_xlabel(f"mean clustering coefficient C of the {spec['graph']} graph")
-    ax.set_ylabel("decision phases to 50 % of the information")
-    ax.set_title(f"{spec['figure']}: d_comms = {spec['d_comms']:g}, d_max = {spec['t_window']:g}")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / f"{name}.png", dpi=110)
-    plt.close(fig)
 
 
 # ----------------------------------------------------------------------------------- claims
@@ -381,6 +392,27 @@ def check_claims(tables: dict, rows: dict) -> list[dict]:
 
 
 # ----------------------------------------------------------------------------------- timing
+class _TimedPolicy:
+    """A policy whose ``act`` is clocked, so that the shared episode loop can split a phase into planning and
+    env step: the env step is the time from the end of ``act`` to the loop's ``on_step``."""
+
+    def __init__(self, policy):
+        self.policy = policy
+        self.act_start_cpu = math.nan
+        self.act_start = math.nan
+        self.act_end = math.nan
+
+    def reset(self, views, seed):
+        self.policy.reset(views, seed)
+
+    def act(self, observations, views):
+        self.act_start_cpu = time.process_time()
+        self.act_start = time.perf_counter()
+        actions = self.policy.act(observations, views)
+        self.act_end = time.perf_counter()
+        return actions
+
+
 def time_decision_phase(phases: int = 30, seed: int = 0, **env_kwargs) -> dict[str, float]:
     """Median time (ms) of one decision phase under ``paper_protocol`` (10 vehicles, 200 landmarks by
     default): the policy's planning, the env step (window, fusion, the env's own plan), and both, in wall time
@@ -389,23 +421,16 @@ def time_decision_phase(phases: int = 30, seed: int = 0, **env_kwargs) -> dict[s
     This is the benchmark for the issue's goal of < 50 ms on one core; ``mrcomm bench`` can call it.
     """
     env = RendezvousMappingEnv(max_cycles=phases + 1, **env_kwargs)
-    policy = make_policy("RendezvousMapping-v0", "paper_protocol")
-    obs, _ = env.reset(seed=seed)
-    views = env.local_views()
-    policy.reset(views, seed)
+    policy = _TimedPolicy(make_policy(ENV_ID, "paper_protocol"))
     t_policy, t_env, cpu = [], [], []
-    for _ in range(phases):
-        c0 = time.process_time()
-        t0 = time.perf_counter()
-        actions = policy.act(obs, views)
-        t1 = time.perf_counter()
-        obs, *_ = env.step(actions)
-        t2 = time.perf_counter()
-        cpu.append(1e3 * (time.process_time() - c0))
-        t_policy.append(1e3 * (t1 - t0))
-        t_env.append(1e3 * (t2 - t1))
-        if not env.agents:
-            break
+
+    def record(step, *_):
+        t_env.append(1e3 * (time.perf_counter() - policy.act_end))
+        cpu.append(1e3 * (time.process_time() - policy.act_start_cpu))
+        t_policy.append(1e3 * (policy.act_end - policy.act_start))
+        return step + 1 >= phases
+
+    run_episode(env, policy, seed, on_step=record)
     total = [a + b for a, b in zip(t_policy, t_env)]
     return {
         "policy_ms": statistics.median(t_policy),
@@ -418,34 +443,31 @@ def time_decision_phase(phases: int = 30, seed: int = 0, **env_kwargs) -> dict[s
 
 
 # ----------------------------------------------------------------------------------- report
-def run(out_dir: Path, quick: bool) -> str:
-    from tqdm.auto import tqdm
-
+def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
     from mrcomm_env.experiments.evaluation import limit_threads
 
     limit_threads()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    size = size_of(quick, tiny)
     start = time.perf_counter()
 
-    def progress(it, desc):
-        return tqdm(it, desc=desc, leave=False)
-
     fig4_md = fig4(out)
-    fig6_md, fig6_res = fig6(out, quick, progress)
+    fig6_md, fig6_res = fig6(out, size)
     rows, tables = {}, {}
-    for name in SCENARIOS:
-        rows[name] = sweep(name, quick, progress)
-        tables[name] = summarise(rows[name])
-        plot_sweep(out, name, tables[name])
-    all_rows = [r for name in SCENARIOS for r in rows[name]]
-    with open(out / "figs8_10_sweeps.csv", "w", newline="") as f:
+    for scenario in SCENARIOS:
+        rows[scenario] = sweep(scenario, size)
+        tables[scenario] = summarise(rows[scenario])
+        plot_sweep(out, scenario, tables[scenario])
+    all_rows = [r for scenario in SCENARIOS for r in rows[scenario]]
+    with atomic_open(out / "figs8_10_sweeps.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(all_rows[0]))
         w.writeheader()
         w.writerows(all_rows)
     claims = check_claims(tables, rows)
-    timing = time_decision_phase(phases=10 if quick else 40)
-    json.dump(
+    timing = time_decision_phase(phases=pick(size, full=40, quick=10, tiny=2))
+    atomic_write_json(
+        out / "results.json",
         {
             "fig6": fig6_res,
             "tables": tables,
@@ -454,39 +476,50 @@ def run(out_dir: Path, quick: bool) -> str:
             "quick": quick,
             "seconds": time.perf_counter() - start,
         },
-        open(out / "results.json", "w"),
         indent=2,
         default=float,
     )
 
+    name = out.name
     lines = ["## RendezvousMapping-v0 — Chapman & Sukkarieh, decentralised mapping with limited connectivity", ""]
-    if quick:
+    if size == "quick":
         lines += [
             "*Quick run: two σ values, one landmark draw each, two planners, a 40-phase cap (80 at "
             "d_comms = 0). Run without `--quick` for the full sweep.*",
             "",
         ]
-    lines += [fig4_md, "", fig6_md, ""]
-    for name, spec in SCENARIOS.items():
+    elif size == "tiny":
+        lines += ["*Tiny run (smoke-test sizes, a 3-phase cap): the numbers mean nothing.*", ""]
+    lines += [
+        fig4_md,
+        "",
+        f"![Fig. 4]({name}/fig4_partition.png)",
+        "",
+        fig6_md,
+        "",
+        f"![Fig. 6]({name}/fig6_sample_run.png)",
+        "",
+    ]
+    for scenario, spec in SCENARIOS.items():
         lines += [
-            f"**{spec['figure']}** (`{name}.png`): d_comms = {spec['d_comms']:g}, "
+            f"**{spec['figure']}**: d_comms = {spec['d_comms']:g}, "
             f"d_max = {spec['t_window']:g} m; phases to 50 % of the information, median [min–max] over "
             "landmark draws (a censored run did not get there within the cap) against C of the "
             + spec["graph"]
             + " graph.",
             "",
             "| planner | "
-            + " | ".join(f"σ = {r['sigma']:g} (C = {r['C']:.2f})" for r in next(iter(tables[name].values())))
+            + " | ".join(f"σ = {r['sigma']:g} (C = {r['C']:.2f})" for r in next(iter(tables[scenario].values())))
             + " |",
-            "| --- |" + " --- |" * len(next(iter(tables[name].values()))),
+            "| --- |" + " --- |" * len(next(iter(tables[scenario].values()))),
         ]
-        for planner, rs in tables[name].items():
+        for planner, rs in tables[scenario].items():
             cells = [
                 f"{r['median']:g} [{r['min']:g}–{r['max']:g}]" + (f" ({r['censored']} cens.)" if r["censored"] else "")
                 for r in rs
             ]
             lines.append(f"| `{planner}` | " + " | ".join(cells) + " |")
-        lines.append("")
+        lines += ["", f"![{spec['figure']}]({name}/{scenario}.png)", ""]
     lines += [
         "**The paper's statements** (its figures give no numbers in the text; each statement is tested on our runs):",
         "",
