@@ -452,6 +452,9 @@ A learned policy sees only its observation. The scripted baselines read their ro
 | MultiHop-v0 | `age_aware` | its estimate list and the stamp it last broadcast for each robot (`sent_stamp`) |
 | MultiHop-v0 | `probabilistic` | its estimate list |
 | MultiHop-v0 | `flooding` | a frame counter |
+| MapSync-v0 | `periodic_*` | the step clock (every 10 moves) and when it last tested, kept across steps |
+| RendezvousMapping-v0 | `paper_protocol` | its group's fused map (landmark estimates, information, counts) and the positions it knows, to run §IV's planner; the last actions |
+| RendezvousMapping-v0 | `greedy`, `no_partition` | the candidate utilities of its local view |
 """
 
 
