@@ -16,8 +16,8 @@ SMALL = {
 }
 
 
-def small_env(env_id):
-    env = mrcomm_env.make(env_id, **SMALL.get(env_id, {"max_cycles": 5}))
+def small_env(env_id, **overrides):
+    env = mrcomm_env.make(env_id, **{**SMALL.get(env_id, {"max_cycles": 5}), **overrides})
     env.reset(seed=0)
     return env
 
@@ -55,8 +55,9 @@ def discrete_envs():
     return [e for e in env_ids() if isinstance(small_env(e).action_space("robot_0"), spaces.Discrete)]
 
 
-def box_envs():
-    return [e for e in env_ids() if isinstance(small_env(e).action_space("robot_0"), spaces.Box)]
+#: Box actions: MultiHop's v0 layout (its default layout is MultiBinary)
+BOX_CASES = [("mrcomm/MultiHop-v0", {"layout": "absolute"})]
+MULTIBINARY_CASES = [("mrcomm/MultiHop-v0", {"layout": "relative"})]
 
 
 @pytest.mark.parametrize("env_id", discrete_envs())
@@ -76,9 +77,10 @@ def test_discrete_accepts_numpy_integers(env_id):
     env.step({a: np.int64(0) for a in env.agents})
 
 
-@pytest.mark.parametrize("env_id", box_envs())
-def test_box_actions_name_the_agent_at_fault(env_id):
-    env = small_env(env_id)
+@pytest.mark.parametrize(("env_id", "kwargs"), BOX_CASES)
+def test_box_actions_name_the_agent_at_fault(env_id, kwargs):
+    env = small_env(env_id, **kwargs)
+    assert isinstance(env.action_space("robot_0"), spaces.Box)
     shape = env.action_space("robot_0").shape
     victim = env.agents[len(env.agents) // 2]
     for bad, words in [
@@ -92,3 +94,20 @@ def test_box_actions_name_the_agent_at_fault(env_id):
         actions[victim] = bad
         with pytest.raises(ValueError, match=f"action of {victim} .*{words}"):
             env.step(actions)
+
+
+@pytest.mark.parametrize(("env_id", "kwargs"), MULTIBINARY_CASES)
+def test_multibinary_actions_name_the_agent_at_fault(env_id, kwargs):
+    env = small_env(env_id, **kwargs)
+    space = env.action_space("robot_0")
+    assert isinstance(space, spaces.MultiBinary)
+    victim = env.agents[1]
+    for bad in (np.full(space.shape, 2), np.zeros(space.shape[0] + 1, dtype=np.int8), np.full(space.shape, 0.5),
+                np.zeros(space.shape) + 1j, "0101"):
+        assert not space.contains(bad)  # gymnasium agrees these are not actions
+        actions = {a: np.zeros(space.shape, dtype=np.int8) for a in env.agents}
+        actions[victim] = bad
+        with pytest.raises(ValueError, match=f"action of {victim}"):
+            env.step(actions)
+    # float 0/1 arrays are actions, as gymnasium's MultiBinary.contains says (SB3 sends float32)
+    env.step({a: np.ones(space.shape, dtype=np.float32) for a in env.agents})
