@@ -60,12 +60,14 @@ largest κ(P_{k|k}) of the centralized estimate) flags it: ≈ 4 by default, ≤
 from __future__ import annotations
 
 import math
+import os
 import re
 
 import numpy as np
 from gymnasium import spaces
 from numpy.linalg import _umath_linalg
 
+from mrcomm_env.asynccl import mrclam
 from mrcomm_env.asynccl.estimator import Estimators
 from mrcomm_env.asynccl.table import QINF, SCHEME1, SILENT, InfoTables
 from mrcomm_env.asynccl.world import World, wrap
@@ -79,6 +81,7 @@ from mrcomm_env.core import (
 )
 from mrcomm_env.core.config import Bool, Choice, Int, ListOf, Optional, Param, Real, Validator
 
+PAPER_SIGMA_V, PAPER_SIGMA_OMEGA_DEG, PAPER_SIGMA_D, PAPER_SIGMA_THETA_DEG = 0.02, 1.0, 0.02, 1.0  # §IV
 ALL_MODES = ("silent", "scheme1", "scheme2_q1", "scheme2_q2", "scheme2_q4", "scheme2_q8", "scheme2_qinf")
 AGE_SCALE, BITS_SCALE, EMA = 10.0, 1.0e4, 0.2
 OTHER_FEATURES, OWN_FEATURES = 3, 5  # per other robot: linked, row lag, what it lacks; then five of my own
@@ -131,6 +134,20 @@ class ModeName(Validator):
 
     def describe(self):
         return f"`silent`, `scheme1`, `scheme2_q<q>` (integer 1 ≤ q ≤ {MAX_Q}) or `scheme2_qinf`"
+
+
+class DataDir(Validator):
+    """None or a folder path (``str`` or ``os.PathLike``); whether it holds the data is checked when it is used."""
+
+    def __call__(self, name, value):
+        if value is None or isinstance(value, os.PathLike):
+            return value
+        if isinstance(value, str) and value.strip():
+            return value
+        self._fail(name, value)
+
+    def describe(self):
+        return "None or a folder path"
 
 
 class AsyncCLEnv(MrcommParallelEnv):
@@ -190,13 +207,34 @@ class AsyncCLEnv(MrcommParallelEnv):
             Int(lo=2, hi=MAX_HISTORY, fuzz=(2, 50)),
         ),
         "trajectory": Param(
-            "sinusoid", "`sinusoid` (phase-shifted figure-eights, §IV) or `waypoint`", Choice(("sinusoid", "waypoint"))
+            "sinusoid",
+            "`sinusoid` (phase-shifted figure-eights, §IV), `waypoint`, or `mrclam`: a window of the UTIAS MRCLAM "
+            "Dataset 6 recording (5 real robots; see `data_dir`)",
+            Choice(("sinusoid", "waypoint", "mrclam")),
         ),
-        "dt": Param(0.05, "time step (s)", Real(0.0, 1.0, lo_open=True, fuzz=(0.01, 0.2))),
-        "sigma_v": Param(0.02, "σ_v as a fraction of v", Real(0.0, 1.0, fuzz=(0.0, 0.1))),
-        "sigma_omega_deg": Param(1.0, "σ_ω (deg/s)", Real(0.0, 90.0, fuzz=(0.0, 5.0))),
-        "sigma_d": Param(0.02, "σ_d as a fraction of d", Real(0.0, 1.0, fuzz=(0.0, 0.1))),
-        "sigma_theta_deg": Param(1.0, "σ_θ (deg)", Real(0.0, 90.0, fuzz=(0.0, 5.0))),
+        "data_dir": Param(
+            None,
+            "folder of MRCLAM Dataset 6 for `trajectory='mrclam'` (None: `$MRCLAM_DIR`, else "
+            "`shared/data/MRCLAM_Dataset6` beside the checkout); ignored by the synthetic trajectories",
+            DataDir(),
+        ),
+        "dt": Param(0.05, "time step (s); at least 0.01 on `mrclam`", Real(0.0, 1.0, lo_open=True, fuzz=(0.01, 0.2))),
+        "sigma_v": Param(
+            None,
+            "σ_v as a fraction of v (None: §IV's 0.02, or the value measured from the data on `mrclam`)",
+            Optional(Real(0.0, 1.0, fuzz=(0.0, 0.1))),
+        ),
+        "sigma_omega_deg": Param(
+            None, "σ_ω (deg/s) (None: §IV's 1, or measured on `mrclam`)", Optional(Real(0.0, 90.0, fuzz=(0.0, 5.0)))
+        ),
+        "sigma_d": Param(
+            None,
+            "σ_d as a fraction of d (None: §IV's 0.02, or measured on `mrclam`)",
+            Optional(Real(0.0, 1.0, fuzz=(0.0, 0.1))),
+        ),
+        "sigma_theta_deg": Param(
+            None, "σ_θ (deg) (None: §IV's 1, or measured on `mrclam`)", Optional(Real(0.0, 90.0, fuzz=(0.0, 5.0)))
+        ),
         "q_rule": Param(
             "paper",
             "reading of Scheme 2's q oldest time steps: `paper` (the sender's q oldest "
@@ -290,6 +328,21 @@ class AsyncCLEnv(MrcommParallelEnv):
         ),
     ]
 
+    def _replay(self) -> mrclam.MrclamReplay:
+        """The recording of ``trajectory='mrclam'`` (its 5 robots; a window of ``max_cycles`` steps of ``dt``)."""
+        cfg = self.cfg
+        if cfg["n_robots"] != mrclam.N_ROBOTS:
+            raise ValueError(
+                f"argument 'n_robots' must be {mrclam.N_ROBOTS} on trajectory='mrclam' (the recording's robots), "
+                f"got {cfg['n_robots']}"
+            )
+        if cfg["dt"] < mrclam.MIN_DT:
+            raise ValueError(
+                f"argument 'dt' must be at least {mrclam.MIN_DT} s on trajectory='mrclam' (motion capture at "
+                f"≈ 100 Hz, odometry at ≈ 67 Hz), got {cfg['dt']!r}"
+            )
+        return mrclam.MrclamReplay(cfg["data_dir"], cfg["dt"], cfg["max_cycles"], cfg["sensing_radius"])
+
     def _setup(self) -> None:
         cfg = self.cfg
         n = self.n_agents = cfg["n_robots"]
@@ -308,27 +361,32 @@ class AsyncCLEnv(MrcommParallelEnv):
         self._others = (np.arange(n)[:, None] + np.arange(1, n)[None, :]) % n
         self._others_flat = (self._others + np.arange(n)[:, None] * n).ravel()
         self._act_space = spaces.Discrete(len(self.mode_names))
-        self.world = World(
-            n,
-            cfg["dt"],
-            cfg["trajectory"],
-            cfg["sensing_radius"],
+        source = None
+        if cfg["trajectory"] == "mrclam":
+            source = self._replay()
+            measured = mrclam.measured_noise(source.root, cfg["dt"])
+            defaults = (measured.sigma_v, measured.sigma_omega, measured.sigma_d, measured.sigma_theta)
+        else:
+            defaults = (
+                PAPER_SIGMA_V,
+                math.radians(PAPER_SIGMA_OMEGA_DEG),
+                PAPER_SIGMA_D,
+                math.radians(PAPER_SIGMA_THETA_DEG),
+            )
+        given = (
             cfg["sigma_v"],
-            math.radians(cfg["sigma_omega_deg"]),
+            None if cfg["sigma_omega_deg"] is None else math.radians(cfg["sigma_omega_deg"]),
             cfg["sigma_d"],
-            math.radians(cfg["sigma_theta_deg"]),
-            cfg["estimation"],
+            None if cfg["sigma_theta_deg"] is None else math.radians(cfg["sigma_theta_deg"]),
+        )
+        #: σ_v (of v), σ_ω (rad/s), σ_d (of d), σ_θ (rad): the world's noise on the synthetic trajectories (on
+        #: ``mrclam`` the data's own), and before the floor below the noise the filters assume
+        self.noise = tuple(float(d if g is None else g) for g, d in zip(given, defaults, strict=True))
+        self.world = World(
+            n, cfg["dt"], cfg["trajectory"], cfg["sensing_radius"], *self.noise, cfg["estimation"], source
         )
         self.tables = InfoTables(n, cfg["max_history"], cfg["q_rule"])
-        self.est = Estimators(
-            n,
-            cfg["dt"],
-            max(cfg["sigma_v"], SIGMA_FLOOR),
-            max(math.radians(cfg["sigma_omega_deg"]), SIGMA_FLOOR),
-            max(cfg["sigma_d"], SIGMA_FLOOR),
-            max(math.radians(cfg["sigma_theta_deg"]), SIGMA_FLOOR),
-            cfg["max_history"],
-        )
+        self.est = Estimators(n, cfg["dt"], *(max(s, SIGMA_FLOOR) for s in self.noise), cfg["max_history"])
         self.ledger = BitLedger(n)
         # flat index of P_i[3i+d, 3i+d] in robot i's covariance: the diagonal of its own-pose block
         self._own_rows = np.arange(n)[:, None]
