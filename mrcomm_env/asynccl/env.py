@@ -6,9 +6,10 @@
 | Actions | `Discrete(len(modes))` per robot: the transfer mode it uses on all its links this step, an index into `modes` (default `silent`, `scheme1`, `scheme2_q1`, `scheme2_q2`, `scheme2_q4`, `scheme2_q8`, `scheme2_qinf`) |
 | Observations | `Box(0, 1, (3(N − 1) + 5,))`, agent-relative: for each other robot, in the order i+1, i+2, … (mod N): linked in the coming exchange (0/1), how many steps behind my copy of its row is `b/(b+10)`, how far behind its complete frontier is as far as I know (what it lacks) `a/(a+10)`; then my own delay `d/(d+10)`, the episode clock `t/max_cycles`, my own-pose covariance trace on a log scale `(log10 tr + 6)/8` (clipped), my neighbours now `/(N−1)`, bits I sent recently (EMA) `e/(e+10⁴)` |
 | Reward | team reward `−(mean delay t − c_i)/10` (`reward="delay"`, default) or `−mean_i RMS_pos` of the causal team estimates in metres (`reward="position"`), minus `lam` × kbit sent per robot this step |
-| Arguments | `n_robots`, `link_model`, `link_probability`, `comm_radius`, `sensing_radius`, `packet_loss`, `bit_budget`, `modes`, `lam`, `estimation`, `max_cycles`, `max_history`, `trajectory`, `dt`, `sigma_v`, `sigma_omega_deg`, `sigma_d`, `sigma_theta_deg`, `q_rule`, `initial_sigma` |
+| Arguments | `n_robots`, `link_model`, `link_probability`, `comm_radius`, `sensing_radius`, `packet_loss`, `bit_budget`, `modes`, `lam`, `reward`, `estimation`, `max_cycles`, `max_history`, `trajectory`, `data_dir`, `dt`, `sigma_v`, `sigma_omega_deg`, `sigma_d`, `sigma_theta_deg`, `q_rule`, `initial_sigma` |
 
-N robots move in 2D on unicycle paths (phase-shifted sinusoids of §IV, or random waypoints), measure
+N robots move in 2D on unicycle paths (phase-shifted sinusoids of §IV, random waypoints, or the recorded paths of
+five real robots), measure
 their odometry and the range and bearing to every robot within ``sensing_radius``, and communicate over
 time-varying bidirectional links: independent Bernoulli(p) links per pair and step (Table I's model),
 disk links of radius ``comm_radius``, or both. Each robot keeps the information table T of §II (robots ×
@@ -26,6 +27,22 @@ error) against bits.
 ``mean_delay`` is eq. (7): steps from k until robot i can compute x̂_{k|k}, over k and robots, ignoring
 steps still incomplete when the episode ends. ``estimation=False`` skips the EKF (delay-only runs,
 Table I); the error terms are then 0.
+
+**Real robots** (``trajectory="mrclam"``, ``mrclam.py``): the team is the five robots of UTIAS MRCLAM Dataset 6
+(Leung et al., IJRR 2011; ``n_robots`` must be 5) and an episode replays a window of ``max_cycles`` steps of
+``dt`` of the recording, its start drawn from the seed, inside Robot1's ground truth (the shortest, ≈ 756 s of
+common recording): the true poses are the motion-capture ground truth, the odometry the robots' recorded
+[v, ω], the measurements their recorded robot-to-robot range/bearing (landmark sightings are not used: the
+paper's model has relative robot measurements only; misreadings — a wrong barcode — and ranges beyond
+``sensing_radius`` are dropped). Nothing is random but the window, the prior and the links. The links stay the
+link models above: the data do not record who could talk to whom. The filters' noise is the one measured from
+the data against ground truth (``mrclam.measured_noise``, cached per folder and ``dt``): at dt = 0.05 s
+σ_v = 0.817 of v, σ_ω = 10.4 deg/s (odometry, white noise matching one-second dead-reckoning errors),
+σ_d = 0.0427 of d, σ_θ = 0.520 deg (120 of 3711 measurements are misreadings), against §IV's 0.02, 1 deg/s,
+0.02, 1 deg; an explicit ``sigma_*`` argument sets what the filters assume instead. ``data_dir`` (default
+``$MRCLAM_DIR``, else ``shared/data/MRCLAM_Dataset6`` beside the checkout) names the folder; without it the
+env raises ``mrclam.MrclamNotFoundError`` (a ``FileNotFoundError`` and a ``ValueError``) saying where it looked
+and where to download the data.
 
 One env step = one time step k: the exchange of step k with the chosen modes, the estimates of step k,
 then the world moves to k+1 and every robot adds its new packet M_{k+1}^i. The links of the coming
@@ -325,6 +342,12 @@ class AsyncCLEnv(MrcommParallelEnv):
             "is `reward=position`) and `lam` prices kbit per robot (was per team bit at 1e-6: 0.002 per step, "
             "noise); the observation is agent-relative per other robot (linked now, how far behind my copy of its "
             "row is, what it lacks as far as I know), with the clock and a log-scale covariance trace",
+        ),
+        (
+            "v0 rev 3",
+            "`trajectory=mrclam` replays UTIAS MRCLAM Dataset 6 (5 real robots, `data_dir`) with the noise measured "
+            "from it; the `sigma_*` arguments default to None, meaning §IV's values on the synthetic trajectories "
+            "(as before) and the measured ones on `mrclam`",
         ),
     ]
 
