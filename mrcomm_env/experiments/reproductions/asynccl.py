@@ -445,7 +445,8 @@ def _real_discussion(by: dict, facts: dict) -> list[str]:
     lines.append(line)
     gap = rmse(real, "scheme2_qinf") / rmse(sim_measured, "scheme2_qinf")
     lines.append(
-        f"**At the same noise, the recording is harder than the simulation.** With the measured noise the simulated q = ∞ RMSE grows "
+        f"**At the same noise, the recording is {'harder' if gap > 1.0 else 'no harder'} than the simulation.** "
+        f"With the measured noise the simulated q = ∞ RMSE grows "
         f"{rmse(sim_measured, 'scheme2_qinf') / rmse(sim, 'scheme2_qinf'):.1f}× over §IV's; on the recording it "
         f"is {gap:.2f}× the simulated value at the same noise"
         + (
