@@ -49,8 +49,8 @@ ARTIFACTS = ("table1.csv", "table2.csv", "figs7_8.json", "fig7_rms_position.png"
 #: the three worlds of the real-data section: (label, env arguments beyond the common ones)
 WORLDS = (
     ("MRCLAM (real)", {"trajectory": "mrclam"}),
-    ("simulated, §IV noise", {"trajectory": "sinusoid"}),
-    ("simulated, measured noise", {"trajectory": "sinusoid"}),  # the noise arguments are filled in from the data
+    ("simulated (§IV noise)", {"trajectory": "sinusoid"}),
+    ("simulated (measured noise)", {"trajectory": "sinusoid"}),  # the noise arguments are filled in from the data
 )
 
 
