@@ -176,7 +176,13 @@ def load_mrclam(path: str | os.PathLike | None = None, dt: float = 0.05, duratio
 
 @lru_cache(maxsize=8)
 def _load_cached(root: Path, dt: float) -> dict:
-    return load_mrclam(root, dt)
+    """One resampling per folder and dt, shared by every env of the process: read-only, so that no env can
+    change another's recording (the replay hands out views of these arrays, not copies)."""
+    data = load_mrclam(root, dt)
+    for value in data.values():
+        if isinstance(value, np.ndarray):
+            value.setflags(write=False)
+    return data
 
 
 def _wrap(angle):
