@@ -6,9 +6,10 @@
 | Actions | `Discrete(len(modes))` per robot: the transfer mode it uses on all its links this step, an index into `modes` (default `silent`, `scheme1`, `scheme2_q1`, `scheme2_q2`, `scheme2_q4`, `scheme2_q8`, `scheme2_qinf`) |
 | Observations | `Box(0, 1, (3(N − 1) + 5,))`, agent-relative: for each other robot, in the order i+1, i+2, … (mod N): linked in the coming exchange (0/1), how many steps behind my copy of its row is `b/(b+10)`, how far behind its complete frontier is as far as I know (what it lacks) `a/(a+10)`; then my own delay `d/(d+10)`, the episode clock `t/max_cycles`, my own-pose covariance trace on a log scale `(log10 tr + 6)/8` (clipped), my neighbours now `/(N−1)`, bits I sent recently (EMA) `e/(e+10⁴)` |
 | Reward | team reward `−(mean delay t − c_i)/10` (`reward="delay"`, default) or `−mean_i RMS_pos` of the causal team estimates in metres (`reward="position"`), minus `lam` × kbit sent per robot this step |
-| Arguments | `n_robots`, `link_model`, `link_probability`, `comm_radius`, `sensing_radius`, `packet_loss`, `bit_budget`, `modes`, `lam`, `estimation`, `max_cycles`, `max_history`, `trajectory`, `dt`, `sigma_v`, `sigma_omega_deg`, `sigma_d`, `sigma_theta_deg`, `q_rule`, `initial_sigma` |
+| Arguments | `n_robots`, `link_model`, `link_probability`, `comm_radius`, `sensing_radius`, `packet_loss`, `bit_budget`, `modes`, `lam`, `reward`, `estimation`, `max_cycles`, `max_history`, `trajectory`, `data_dir`, `dt`, `sigma_v`, `sigma_omega_deg`, `sigma_d`, `sigma_theta_deg`, `q_rule`, `initial_sigma` |
 
-N robots move in 2D on unicycle paths (phase-shifted sinusoids of §IV, or random waypoints), measure
+N robots move in 2D on unicycle paths (phase-shifted sinusoids of §IV, random waypoints, or the recorded paths of
+five real robots), measure
 their odometry and the range and bearing to every robot within ``sensing_radius``, and communicate over
 time-varying bidirectional links: independent Bernoulli(p) links per pair and step (Table I's model),
 disk links of radius ``comm_radius``, or both. Each robot keeps the information table T of §II (robots ×
@@ -26,6 +27,22 @@ error) against bits.
 ``mean_delay`` is eq. (7): steps from k until robot i can compute x̂_{k|k}, over k and robots, ignoring
 steps still incomplete when the episode ends. ``estimation=False`` skips the EKF (delay-only runs,
 Table I); the error terms are then 0.
+
+**Real robots** (``trajectory="mrclam"``, ``mrclam.py``): the team is the five robots of UTIAS MRCLAM Dataset 6
+(Leung et al., IJRR 2011; ``n_robots`` must be 5) and an episode replays a window of ``max_cycles`` steps of
+``dt`` of the recording, its start drawn from the seed, inside Robot1's ground truth (the shortest, ≈ 756 s of
+common recording): the true poses are the motion-capture ground truth, the odometry the robots' recorded
+[v, ω], the measurements their recorded robot-to-robot range/bearing (landmark sightings are not used: the
+paper's model has relative robot measurements only; misreadings — a wrong barcode — and ranges beyond
+``sensing_radius`` are dropped). Nothing is random but the window, the prior and the links. The links stay the
+link models above: the data do not record who could talk to whom. The filters' noise is the one measured from
+the data against ground truth (``mrclam.measured_noise``, cached per folder and ``dt``): at dt = 0.05 s
+σ_v = 0.817 of v, σ_ω = 10.4 deg/s (odometry, white noise matching one-second dead-reckoning errors),
+σ_d = 0.0427 of d, σ_θ = 0.520 deg (120 of 3711 measurements are misreadings), against §IV's 0.02, 1 deg/s,
+0.02, 1 deg; an explicit ``sigma_*`` argument sets what the filters assume instead. ``data_dir`` (default
+``$MRCLAM_DIR``, else ``shared/data/MRCLAM_Dataset6`` beside the checkout) names the folder; without it the
+env raises ``mrclam.MrclamNotFoundError`` (a ``FileNotFoundError`` and a ``ValueError``) saying where it looked
+and where to download the data.
 
 One env step = one time step k: the exchange of step k with the chosen modes, the estimates of step k,
 then the world moves to k+1 and every robot adds its new packet M_{k+1}^i. The links of the coming
@@ -60,12 +77,14 @@ largest κ(P_{k|k}) of the centralized estimate) flags it: ≈ 4 by default, ≤
 from __future__ import annotations
 
 import math
+import os
 import re
 
 import numpy as np
 from gymnasium import spaces
 from numpy.linalg import _umath_linalg
 
+from mrcomm_env.asynccl import mrclam
 from mrcomm_env.asynccl.estimator import Estimators
 from mrcomm_env.asynccl.table import QINF, SCHEME1, SILENT, InfoTables
 from mrcomm_env.asynccl.world import World, wrap
@@ -79,6 +98,7 @@ from mrcomm_env.core import (
 )
 from mrcomm_env.core.config import Bool, Choice, Int, ListOf, Optional, Param, Real, Validator
 
+PAPER_SIGMA_V, PAPER_SIGMA_OMEGA_DEG, PAPER_SIGMA_D, PAPER_SIGMA_THETA_DEG = 0.02, 1.0, 0.02, 1.0  # §IV
 ALL_MODES = ("silent", "scheme1", "scheme2_q1", "scheme2_q2", "scheme2_q4", "scheme2_q8", "scheme2_qinf")
 AGE_SCALE, BITS_SCALE, EMA = 10.0, 1.0e4, 0.2
 OTHER_FEATURES, OWN_FEATURES = 3, 5  # per other robot: linked, row lag, what it lacks; then five of my own
@@ -131,6 +151,20 @@ class ModeName(Validator):
 
     def describe(self):
         return f"`silent`, `scheme1`, `scheme2_q<q>` (integer 1 ≤ q ≤ {MAX_Q}) or `scheme2_qinf`"
+
+
+class DataDir(Validator):
+    """None or a folder path (``str`` or ``os.PathLike``); whether it holds the data is checked when it is used."""
+
+    def __call__(self, name, value):
+        if value is None or isinstance(value, os.PathLike):
+            return value
+        if isinstance(value, str) and value.strip():
+            return value
+        self._fail(name, value)
+
+    def describe(self):
+        return "None or a folder path"
 
 
 class AsyncCLEnv(MrcommParallelEnv):
@@ -190,13 +224,34 @@ class AsyncCLEnv(MrcommParallelEnv):
             Int(lo=2, hi=MAX_HISTORY, fuzz=(2, 50)),
         ),
         "trajectory": Param(
-            "sinusoid", "`sinusoid` (phase-shifted figure-eights, §IV) or `waypoint`", Choice(("sinusoid", "waypoint"))
+            "sinusoid",
+            "`sinusoid` (phase-shifted figure-eights, §IV), `waypoint`, or `mrclam`: a window of the UTIAS MRCLAM "
+            "Dataset 6 recording (5 real robots; see `data_dir`)",
+            Choice(("sinusoid", "waypoint", "mrclam")),
         ),
-        "dt": Param(0.05, "time step (s)", Real(0.0, 1.0, lo_open=True, fuzz=(0.01, 0.2))),
-        "sigma_v": Param(0.02, "σ_v as a fraction of v", Real(0.0, 1.0, fuzz=(0.0, 0.1))),
-        "sigma_omega_deg": Param(1.0, "σ_ω (deg/s)", Real(0.0, 90.0, fuzz=(0.0, 5.0))),
-        "sigma_d": Param(0.02, "σ_d as a fraction of d", Real(0.0, 1.0, fuzz=(0.0, 0.1))),
-        "sigma_theta_deg": Param(1.0, "σ_θ (deg)", Real(0.0, 90.0, fuzz=(0.0, 5.0))),
+        "data_dir": Param(
+            None,
+            "folder of MRCLAM Dataset 6 for `trajectory='mrclam'` (None: `$MRCLAM_DIR`, else "
+            "`shared/data/MRCLAM_Dataset6` beside the checkout); ignored by the synthetic trajectories",
+            DataDir(),
+        ),
+        "dt": Param(0.05, "time step (s); at least 0.01 on `mrclam`", Real(0.0, 1.0, lo_open=True, fuzz=(0.01, 0.2))),
+        "sigma_v": Param(
+            None,
+            "σ_v as a fraction of v (None: §IV's 0.02, or the value measured from the data on `mrclam`)",
+            Optional(Real(0.0, 1.0, fuzz=(0.0, 0.1))),
+        ),
+        "sigma_omega_deg": Param(
+            None, "σ_ω (deg/s) (None: §IV's 1, or measured on `mrclam`)", Optional(Real(0.0, 90.0, fuzz=(0.0, 5.0)))
+        ),
+        "sigma_d": Param(
+            None,
+            "σ_d as a fraction of d (None: §IV's 0.02, or measured on `mrclam`)",
+            Optional(Real(0.0, 1.0, fuzz=(0.0, 0.1))),
+        ),
+        "sigma_theta_deg": Param(
+            None, "σ_θ (deg) (None: §IV's 1, or measured on `mrclam`)", Optional(Real(0.0, 90.0, fuzz=(0.0, 5.0)))
+        ),
         "q_rule": Param(
             "paper",
             "reading of Scheme 2's q oldest time steps: `paper` (the sender's q oldest "
@@ -288,7 +343,28 @@ class AsyncCLEnv(MrcommParallelEnv):
             "noise); the observation is agent-relative per other robot (linked now, how far behind my copy of its "
             "row is, what it lacks as far as I know), with the clock and a log-scale covariance trace",
         ),
+        (
+            "v0 rev 3",
+            "`trajectory=mrclam` replays UTIAS MRCLAM Dataset 6 (5 real robots, `data_dir`) with the noise measured "
+            "from it; the `sigma_*` arguments default to None, meaning §IV's values on the synthetic trajectories "
+            "(as before) and the measured ones on `mrclam`",
+        ),
     ]
+
+    def _replay(self) -> mrclam.MrclamReplay:
+        """The recording of ``trajectory='mrclam'`` (its 5 robots; a window of ``max_cycles`` steps of ``dt``)."""
+        cfg = self.cfg
+        if cfg["n_robots"] != mrclam.N_ROBOTS:
+            raise ValueError(
+                f"argument 'n_robots' must be {mrclam.N_ROBOTS} on trajectory='mrclam' (the recording's robots), "
+                f"got {cfg['n_robots']}"
+            )
+        if cfg["dt"] < mrclam.MIN_DT:
+            raise ValueError(
+                f"argument 'dt' must be at least {mrclam.MIN_DT} s on trajectory='mrclam' (motion capture at "
+                f"≈ 100 Hz, odometry at ≈ 67 Hz), got {cfg['dt']!r}"
+            )
+        return mrclam.MrclamReplay(cfg["data_dir"], cfg["dt"], cfg["max_cycles"], cfg["sensing_radius"])
 
     def _setup(self) -> None:
         cfg = self.cfg
@@ -308,27 +384,32 @@ class AsyncCLEnv(MrcommParallelEnv):
         self._others = (np.arange(n)[:, None] + np.arange(1, n)[None, :]) % n
         self._others_flat = (self._others + np.arange(n)[:, None] * n).ravel()
         self._act_space = spaces.Discrete(len(self.mode_names))
-        self.world = World(
-            n,
-            cfg["dt"],
-            cfg["trajectory"],
-            cfg["sensing_radius"],
+        source = None
+        if cfg["trajectory"] == "mrclam":
+            source = self._replay()
+            measured = mrclam.measured_noise(source.root, cfg["dt"])
+            defaults = (measured.sigma_v, measured.sigma_omega, measured.sigma_d, measured.sigma_theta)
+        else:
+            defaults = (
+                PAPER_SIGMA_V,
+                math.radians(PAPER_SIGMA_OMEGA_DEG),
+                PAPER_SIGMA_D,
+                math.radians(PAPER_SIGMA_THETA_DEG),
+            )
+        given = (
             cfg["sigma_v"],
-            math.radians(cfg["sigma_omega_deg"]),
+            None if cfg["sigma_omega_deg"] is None else math.radians(cfg["sigma_omega_deg"]),
             cfg["sigma_d"],
-            math.radians(cfg["sigma_theta_deg"]),
-            cfg["estimation"],
+            None if cfg["sigma_theta_deg"] is None else math.radians(cfg["sigma_theta_deg"]),
+        )
+        #: σ_v (of v), σ_ω (rad/s), σ_d (of d), σ_θ (rad): the world's noise on the synthetic trajectories (on
+        #: ``mrclam`` the data's own), and before the floor below the noise the filters assume
+        self.noise = tuple(float(d if g is None else g) for g, d in zip(given, defaults, strict=True))
+        self.world = World(
+            n, cfg["dt"], cfg["trajectory"], cfg["sensing_radius"], *self.noise, cfg["estimation"], source
         )
         self.tables = InfoTables(n, cfg["max_history"], cfg["q_rule"])
-        self.est = Estimators(
-            n,
-            cfg["dt"],
-            max(cfg["sigma_v"], SIGMA_FLOOR),
-            max(math.radians(cfg["sigma_omega_deg"]), SIGMA_FLOOR),
-            max(cfg["sigma_d"], SIGMA_FLOOR),
-            max(math.radians(cfg["sigma_theta_deg"]), SIGMA_FLOOR),
-            cfg["max_history"],
-        )
+        self.est = Estimators(n, cfg["dt"], *(max(s, SIGMA_FLOOR) for s in self.noise), cfg["max_history"])
         self.ledger = BitLedger(n)
         # flat index of P_i[3i+d, 3i+d] in robot i's covariance: the diagonal of its own-pose block
         self._own_rows = np.arange(n)[:, None]

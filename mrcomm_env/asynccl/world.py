@@ -3,6 +3,8 @@
 Truth follows the unicycle model ``x_{k+1} = f(x_k, u_k)`` (eq. (1)) with dt = 0.05 s. The true controls
 come from a phase-shifted sinusoidal path (the default of §IV: every robot runs the same figure-eight
 ``x = A sin s, y = B sin 2s`` with its own phase ``s = w t + φ_i``) or from a random-waypoint controller.
+With ``trajectory="mrclam"`` a recording replaces all three: truth, odometry and range/bearing are those of
+five real robots (``mrclam.MrclamReplay``, a window of UTIAS MRCLAM Dataset 6), and nothing is drawn here.
 
 The measurement packet ``M_k^i`` of eq. (3) holds the odometry ``u_k^i = [v_m, ω_m]`` and the range/bearing
 ``z_k^{i,j}`` to every robot within the sensing radius (eq. (2)). Noise follows §IV: σ_v = 2 % of v,
@@ -63,9 +65,20 @@ class Packets:
 
 class World:
     def __init__(
-        self, n, dt, trajectory, sensing_radius, sigma_v_frac, sigma_omega, sigma_d_frac, sigma_theta, estimation
+        self,
+        n,
+        dt,
+        trajectory,
+        sensing_radius,
+        sigma_v_frac,
+        sigma_omega,
+        sigma_d_frac,
+        sigma_theta,
+        estimation,
+        source=None,
     ):
         self.n, self.dt, self.trajectory = n, dt, trajectory
+        self.source = source  # a recorded trajectory (``mrclam.MrclamReplay``) when trajectory == "mrclam"
         self.sensing_radius = sensing_radius
         self.sigma_v_frac, self.sigma_omega = sigma_v_frac, sigma_omega
         self.sigma_d_frac, self.sigma_theta = sigma_d_frac, sigma_theta
@@ -76,6 +89,10 @@ class World:
     def reset(self, rng: np.random.Generator) -> None:
         n = self.n
         self.k = 0
+        if self.source is not None:  # a recording: truth, odometry and measurements are replayed, not drawn
+            self.source.reset(rng)
+            self.x = self.source.pose(0)
+            return
         if self.trajectory == "sinusoid":
             self.phase = 2.0 * np.pi * np.arange(n) / n + rng.uniform(-0.1, 0.1, n)
             self.centre = rng.uniform(-1.0, 1.0, (n, 2))
@@ -155,6 +172,10 @@ class World:
 
     def advance(self, rng) -> None:
         """Unicycle step of eq. (1) with the true controls, then the controls of the new step."""
+        if self.source is not None:
+            self.k += 1
+            self.x = self.source.pose(self.k)
+            return
         if self.trajectory == "sinusoid":
             self.k += 1
             j = self.k - self._chunk_start
@@ -179,6 +200,11 @@ class World:
     # ------------------------------------------------------------------ measurements, eq. (2)-(3)
     def measure(self, rng) -> Packets:
         n = self.n
+        if self.source is not None:
+            a, b, z, n_meas = self.source.measurements(self.k)
+            if not self.estimation:
+                return Packets(None, a, b, None, n_meas)
+            return Packets(self.source.odometry_at(self.k), a, b, z, n_meas)
         if self.trajectory == "sinusoid":
             j = self.k - self._chunk_start
             a, b = self._pairs_a, self._pairs_b
