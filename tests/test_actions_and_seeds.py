@@ -102,8 +102,13 @@ def test_multibinary_actions_name_the_agent_at_fault(env_id, kwargs):
     space = env.action_space("robot_0")
     assert isinstance(space, spaces.MultiBinary)
     victim = env.agents[1]
-    for bad in (np.full(space.shape, 2), np.zeros(space.shape[0] + 1, dtype=np.int8), np.full(space.shape, 0.5),
-                np.zeros(space.shape) + 1j, "0101"):
+    for bad in (
+        np.full(space.shape, 2),
+        np.zeros(space.shape[0] + 1, dtype=np.int8),
+        np.full(space.shape, 0.5),
+        np.zeros(space.shape) + 1j,
+        "0101",
+    ):
         assert not space.contains(bad)  # gymnasium agrees these are not actions
         actions = {a: np.zeros(space.shape, dtype=np.int8) for a in env.agents}
         actions[victim] = bad

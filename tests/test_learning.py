@@ -79,8 +79,18 @@ def test_reproduce_learning_end_to_end_on_a_tiny_budget(tmp_path, monkeypatch):
     monkeypatch.setattr("agents.training.CONFIG_DIR", config_dir)
     monkeypatch.setattr("agents.learned.PRETRAINED_DIR", tmp_path / "pretrained")
     docs = tmp_path / "docs"
-    code = main(["reproduce-learning", "ChannelAssociation-v0", "--out", str(tmp_path / "runs"), "--docs", str(docs),
-                 "--quiet", "--export-pretrained"])
+    code = main(
+        [
+            "reproduce-learning",
+            "ChannelAssociation-v0",
+            "--out",
+            str(tmp_path / "runs"),
+            "--docs",
+            str(docs),
+            "--quiet",
+            "--export-pretrained",
+        ]
+    )
     assert code == 0
     page = (docs / "learning.md").read_text()
     assert "learning/ChannelAssociation-v0.png" in page and "Beats random at equal or fewer bits" in page
@@ -93,7 +103,9 @@ def test_reproduce_learning_end_to_end_on_a_tiny_budget(tmp_path, monkeypatch):
     runs = sorted((tmp_path / "runs").rglob("done.json"))
     assert len(runs) == 2
     before = [p.stat().st_mtime_ns for p in runs]
-    main(["reproduce-learning", "ChannelAssociation-v0", "--out", str(tmp_path / "runs"), "--docs", str(docs), "--quiet"])
+    main(
+        ["reproduce-learning", "ChannelAssociation-v0", "--out", str(tmp_path / "runs"), "--docs", str(docs), "--quiet"]
+    )
     assert [p.stat().st_mtime_ns for p in runs] == before
 
 
