@@ -36,6 +36,20 @@ def test_dominates_means_no_more_bits_and_no_worse_metric(learned, baseline, low
     assert learning.dominates(learned, baseline, lower) is expected
 
 
+@pytest.mark.parametrize(
+    "learned,baseline,expected",
+    [
+        (point(5.0, 10.0, 0.3), point(6.0, 10.0, 0.3), True),  # better beyond both intervals
+        (point(5.8, 10.0, 0.3), point(6.0, 10.0, 0.3), False),  # better, but within the intervals
+        (point(6.0, 5.0, 0.3, 0.5), point(6.0, 10.0, 0.3, 0.5), True),  # same metric, clearly fewer bits
+        (point(6.0, 9.5, 0.3, 0.5), point(6.0, 10.0, 0.3, 0.5), False),  # fewer bits, within the intervals
+        (point(7.0, 5.0, 0.3), point(6.0, 10.0, 0.3), False),  # fewer bits but a worse metric
+    ],
+)
+def test_beats_needs_a_margin_beyond_the_intervals(learned, baseline, expected):
+    assert learning.beats(learned, baseline, lower_is_better=True) is expected
+
+
 @pytest.mark.parametrize("env_id", env_ids())
 def test_every_env_has_a_learning_configuration_its_baselines_exist(env_id):
     from baselines import policy_names
@@ -93,7 +107,7 @@ def test_reproduce_learning_end_to_end_on_a_tiny_budget(tmp_path, monkeypatch):
     )
     assert code == 0
     page = (docs / "learning.md").read_text()
-    assert "learning/ChannelAssociation-v0.png" in page and "Beats random at equal or fewer bits" in page
+    assert "learning/ChannelAssociation-v0.png" in page and "- `random`: **" in page and "- `coin_flip`: **" in page
     rows = (docs / "learning" / "ChannelAssociation-v0.csv").read_text().splitlines()
     assert len(rows) == 1 + 2 + 2  # header, one learned row per cost, two baselines
     assert (docs / "learning" / "ChannelAssociation-v0.png").stat().st_size > 0

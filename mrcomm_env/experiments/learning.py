@@ -275,12 +275,23 @@ def _row(policy, cost, metric_values, bits_values, n, mean_ci95) -> dict:
 
 
 def dominates(learned: dict, baseline: dict, lower_is_better: bool) -> bool:
-    """The learned point sends no more bits than the baseline (5 % slack for the bits' own noise) and its task
-    metric is at least as good, beyond the two 95 % intervals when it claims to be better."""
+    """*Matches*: the learned point sends no more bits than the baseline (5 % slack for the bits' own noise) and
+    its task metric is not worse beyond the two 95 % intervals."""
     if learned["bits"] > baseline["bits"] * 1.05 + 1e-9:
         return False
     sign = -1.0 if lower_is_better else 1.0
     return sign * (learned["metric"] - baseline["metric"]) >= -(learned["metric_ci95"] + baseline["metric_ci95"])
+
+
+def beats(learned: dict, baseline: dict, lower_is_better: bool) -> bool:
+    """*Beats*: it matches the baseline and, beyond the two 95 % intervals, either has the better task metric or
+    sends fewer bits."""
+    if not dominates(learned, baseline, lower_is_better):
+        return False
+    sign = -1.0 if lower_is_better else 1.0
+    better = sign * (learned["metric"] - baseline["metric"]) > learned["metric_ci95"] + baseline["metric_ci95"]
+    cheaper = baseline["bits"] - learned["bits"] > learned["bits_ci95"] + baseline["bits_ci95"]
+    return better or cheaper
 
 
 def plot_comparison(rows: list[dict], spec: dict, title: str, path: Path) -> None:
@@ -352,28 +363,33 @@ def learning_section(env_id: str, rows: list[dict], spec: dict, figure: str) -> 
 
     per_setting = bool(spec.get("baselines_per_cost"))
 
-    def verdict(text: str, name: str) -> str:
+    def verdict(name: str) -> str:
         # with per-setting baselines a learned point is compared with the baseline in its own setting only
         candidates = [b for b in baselines if b["policy"] == name]
-        beats = [
-            r
-            for r in learned
-            for b in candidates
-            if (not per_setting or b["setting"] == r["cost"]) and dominates(r, b, lower)
-        ]
-        where = ", ".join(f"{r['cost']:g}" for r in beats)
-        return f"- {text}: **{'yes' if beats else 'no'}**" + (f" ({spec['cost_param']} = {where})" if beats else "")
 
-    verdicts = []
-    for name in dict.fromkeys(b["policy"] for b in baselines):
-        if name == "random":
-            verdicts.insert(0, verdict("Beats random at equal or fewer bits", name))
-        else:
-            verdicts.append(verdict(f"Matches or beats `{name}` at equal or fewer bits", name))
+        def where(test) -> str:
+            hits = [
+                r
+                for r in learned
+                for b in candidates
+                if (not per_setting or b["setting"] == r["cost"]) and test(r, b, lower)
+            ]
+            return ", ".join(f"{r['cost']:g}" for r in hits)
+
+        won, matched = where(beats), where(dominates)
+        if won:
+            return f"- `{name}`: **beaten** at equal or fewer bits ({spec['cost_param']} = {won})"
+        if matched:
+            return f"- `{name}`: **matched** (not worse, not better) at equal or fewer bits ({spec['cost_param']} = {matched})"
+        return f"- `{name}`: **not matched** at equal or fewer bits"
+
+    names = list(dict.fromkeys(b["policy"] for b in baselines))
+    verdicts = [verdict(n) for n in sorted(names, key=lambda n: n != "random")]
     lines += [
         "",
-        "Outcome (computed from the table: a learned point counts when it sends at most 5 % more bits "
-        "and its metric is not worse beyond the two confidence intervals):",
+        "Outcome, computed from the table. A learned point *matches* a baseline when it sends at most 5 % more "
+        "bits and its metric is not worse beyond the two 95 % intervals; it *beats* it when, in addition, its "
+        "metric is better or it sends fewer bits, beyond the intervals:",
         "",
         *verdicts,
     ]
