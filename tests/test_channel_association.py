@@ -409,3 +409,23 @@ def test_edge_recursion_eq4_fixed_point():
     # 60 steps of T ← T/2 + 3 from 3: 3·2^-60 short of 6, roundings of 2 operations amplified by 1/(1 − ½)
     assert T[0] == 3.0 and T[1] == 4.5
     assert_close_conditioned(T[-1], 6.0, tolerance(6.0, 2, 2.0) + 3.0 * 0.5**60)
+
+
+def test_individual_reward_is_the_share_of_observers_that_singled_the_robot_out():
+    env = parallel_env(n_robots=9, mobile_fraction=0.0, reward_mode="individual", emission_cost=0.25, max_cycles=30)
+    env.reset(seed=2)
+    rng = np.random.default_rng(2)
+    while env.agents:
+        acts = {a: int(rng.integers(2)) for a in env.agents}
+        _, rewards, *_ = env.step(acts)
+        # from each observer's own i-state (its visual label → candidate wireless IDs) and the ground truth
+        singled, seen = np.zeros(9), np.zeros(9)
+        for o in range(9):
+            for label, candidates in env.associations(f"robot_{o}").items():
+                slot = int(np.flatnonzero(env.filter.vlabel[o] == label)[0])  # whose blob carries the label
+                robot = int(env.scene.visual_robot(np.array([slot]))[0])
+                seen[robot] += bool(candidates)
+                singled[robot] += candidates == [robot]
+        for j in range(9):
+            share = singled[j] / seen[j] if seen[j] else 1.0
+            assert rewards[f"robot_{j}"] == pytest.approx(share - 1.0 - 0.25 * acts[f"robot_{j}"], abs=1e-12)

@@ -123,6 +123,12 @@ class ChannelAssociationEnv(MrcommParallelEnv):
             0, "disagreements an edge survives before elimination (0 = Algorithm 1)", Int(0, 200, fuzz=(0, 3))
         ),
         "max_cycles": Param(100, "episode length limit", Int(1, 10_000_000, fuzz=(1, 60))),
+        "reward_mode": Param(
+            "team",
+            "`team`: one reward, −(1 − mean fraction matched); `individual`: robot j gets −(1 − the fraction of the "
+            "observers that see it which have singled it out), the part of the association its own blinking decides",
+            Choice(("team", "individual")),
+        ),
         "emission_cost": Param(0.0, "reward cost per emission (team-averaged)", Real(0.0, 1e6, fuzz=(0.0, 1.0))),
     }
     METRICS = {
@@ -145,6 +151,14 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         "default": {},
         "neighborhood": {"scene": "neighborhood", "w": 8, "v": 6},
         "stationary_field": {"scene": "field", "n_robots": 25, "mobile_fraction": 0.0},
+        "individual_reward": {
+            "scene": "field",
+            "n_robots": 25,
+            "separation": 6.0,
+            "mobile_fraction": 0.0,
+            "reward_mode": "individual",
+            "emission_cost": 0.1,
+        },
         "large_field": {"scene": "field", "n_robots": 80, "separation": 5.0},
         "wide_wireless": {"scene": "field", "n_robots": 30, "wireless_range": 22.0, "visual_range": 10.0},
         "noisy": {"scene": "neighborhood", "w": 6, "v": 5, "miss_probability": 0.05, "miss_tolerance": 1},
@@ -155,7 +169,8 @@ class ChannelAssociationEnv(MrcommParallelEnv):
             "v0 rev 2",
             "learnable: the reward is −(1 − fraction matched) per step (was its increase, so every "
             "policy's return was 1 and only discounting rewarded speed); the observation gains the clock phase "
-            "one-hot of step mod (⌈log2 N⌉ + 1), which a blink code needs",
+            "one-hot of step mod (⌈log2 N⌉ + 1), which a blink code needs; `reward_mode=individual` gives each "
+            "robot the share of the observers that see it which have singled it out (what its own blinking decides)",
         ),
     ]
 
@@ -270,7 +285,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         return self.scene.n_stat
 
     # ------------------------------------------------------------------ step
-    def _step_world(self, actions: list) -> float:
+    def _step_world(self, actions: list) -> float | np.ndarray:
         n = self.n_agents
         emit = np.array(actions, dtype=bool)
         self._emit = emit
@@ -281,7 +296,11 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         self._ledger.record(emit * self._msg_bits_f, n_emit)
         self.scene.step(emit, n_emit)
         self._refresh()
-        reward = self._team_score - 1.0 - self._cost * n_emit / n
+        if self.cfg.reward_mode == "individual":  # each robot: the observers that have singled it out
+            singled, seen = self.scene.singled_out()
+            reward = np.where(seen > 0, singled / np.maximum(seen, 1), 1.0) - 1.0 - self._cost * emit
+        else:
+            reward = self._team_score - 1.0 - self._cost * n_emit / n
         if self._completion < 0 and not self.scene.mobile and not self._stats[3].any():
             self._completion = self.step_count + 1
         return reward

@@ -133,6 +133,18 @@ class Scene:
         o, h, s = self.filter.edges()
         return np.bincount(o[self.wireless_robot(h) == self.visual_robot(s)], minlength=self.n)
 
+    def singled_out(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per robot j: how many observers hold j's visual ID with j's wireless ID as its one candidate, and how
+        many hold j's visual ID at all (with candidates left). What robot j's own emissions decide."""
+        n = self.n
+        o, h, s = self.filter.edges()
+        seen_pairs = np.unique(o.astype(np.int64) * n + self.visual_robot(s))
+        seen = np.bincount(seen_pairs % n, minlength=n)
+        mo, mh, ms = self.filter.matches()
+        right = self.wireless_robot(mh) == self.visual_robot(ms)
+        singled = np.bincount(self.visual_robot(ms)[right], minlength=n)
+        return singled, seen
+
     def wrong_matches(self) -> tuple[int, int]:
         """(wrong, all) unique matches, against the ground truth."""
         o, h, s = self.filter.matches()
