@@ -61,7 +61,7 @@ import math
 import numpy as np
 from gymnasium import spaces
 
-from mrcomm_env.channel_association.limits import check_field_footprint
+from mrcomm_env.channel_association.limits import check_field_footprint, documented_maxima
 from mrcomm_env.channel_association.scenes import (
     DenseFieldScene,
     NeighborhoodScene,
@@ -378,3 +378,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         ax.add_patch(Circle(pos[0], r, fill=False, color="tab:blue"))
         ax.set_aspect("equal")
         ax.set_title(f"{self.ENV_ID} step {self.step_count}  matched {self._team_score:.2f}")
+
+
+# the documented maxima live beside the memory model that sets them (``limits.py``); read once the class exists
+ChannelAssociationEnv.LIMIT_CONFIGS = documented_maxima()

@@ -185,6 +185,16 @@ class MapSyncEnv(MrcommParallelEnv):
         "linked": "(N,) link to each robot this step",
         "busy": "1 while this robot is in a sync",
     }
+    #: configurations at the documented maxima (``tests/test_limits.py``, ``mrcomm bench --limits``)
+    LIMIT_CONFIGS = {
+        "largest_team_and_map": {
+            "grid_size": 256,
+            "n_robots": 64,
+            "k": 64,
+            "n_obstacles": 1000,
+            "database_seed": 2**63 - 1,
+        },
+    }
     DOCUMENTED_CONFIGS = {
         "default": {},
         "paper": {"preset": "paper"},

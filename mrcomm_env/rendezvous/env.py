@@ -161,6 +161,17 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         "plan_connected": "the group's plan ended connected (not marked unconnected, §IV-D)",
         "action_mask": "(K + 2,) bool: feasible actions",
     }
+    #: configurations at the documented maxima (``tests/test_limits.py``, ``mrcomm bench --limits``)
+    LIMIT_CONFIGS = {
+        "largest_team_and_map": {
+            "n_vehicles": 64,
+            "n_landmarks": 5000,
+            "k_candidates": 64,
+            "obs_per_landmark": 10_000,
+            "area": 1e8,
+            "d_comms": math.inf,
+        },
+    }
     DOCUMENTED_CONFIGS = {
         "default": {"max_cycles": 40},
         "infinite_comms": {"d_comms": math.inf, "n_landmarks": 60, "n_vehicles": 4, "area": 2500.0, "max_cycles": 30},
