@@ -73,3 +73,16 @@ def test_action_mask_wrapper_leaves_unmasked_envs_alone():
     bare = mrcomm_env.make("MapSync-v0", max_cycles=3)
     assert env.reset(seed=0)[1] == bare.reset(seed=0)[1]
     assert env.state_space == bare.state_space and np.array_equal(env.state(), bare.state())
+
+
+def test_benchmarl_task_family_without_benchmarl_names_the_extra(monkeypatch):
+    # the task family subclasses BenchMARL's classes, so the module itself needs the framework
+    for name in [
+        m for m in list(sys.modules) if m.split(".")[0] == "benchmarl" or m == "mrcomm_env.integrations.benchmarl"
+    ]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "benchmarl", None)
+    with pytest.raises(ImportError) as error:
+        importlib.import_module("mrcomm_env.integrations.benchmarl")
+    message = str(error.value)
+    assert "pip install 'mrcomm-env[benchmarl]'" in message and "\n" not in message
