@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-# torchrl 0.14 renamed SyncDataCollector to Collector (same single-process synchronous collector)
+# torchrl 0.14 has only the new name Collector for the single-process SyncDataCollector
 from torchrl.collectors import Collector
 from torchrl.envs import PettingZooWrapper
 from torchrl.envs.utils import check_env_specs
