@@ -1,6 +1,7 @@
 # Two commands do everything on a machine that has python3 and pip:
 #   make demo   create .venv, install, reproduce the papers with the scripted baselines into results/
 #   make test   the whole test suite
+# and, each in its own venv, the MARL framework integrations: make test-torchrl | test-rllib | test-benchmarl
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -13,7 +14,7 @@ export MPLBACKEND := Agg
 
 EXTRAS := train,dev,bench,fast
 
-.PHONY: demo test install bench docs learn lint format lock clean
+.PHONY: demo test install bench docs learn lint format lock clean test-torchrl test-rllib test-benchmarl
 
 # constraints.txt pins every package to the versions CI tested, so a new machine gets those
 $(STAMP): pyproject.toml constraints.txt
@@ -28,6 +29,23 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -n 2 --dist loadgroup -q
+
+# The MARL framework integrations, each in its own venv (.venv-torchrl, .venv-rllib, .venv-benchmarl) because
+# their pins clash (ray: gymnasium 1.2.2; benchmarl: torchrl < 0.12). torch goes in first, pinned like the
+# train extra, so no framework's looser torch requirement resolves to another (CUDA) build.
+TORCH := torch==2.13.0
+
+.venv-%/.installed: pyproject.toml
+	test -x .venv-$*/bin/python || $(PYTHON) -m venv .venv-$*
+	.venv-$*/bin/python -m pip install --quiet "$(TORCH)"
+	.venv-$*/bin/python -m pip install --quiet -e ".[$*]" "pytest>=8"
+	touch $@
+
+# keep the stamp: make would otherwise delete it as an intermediate file and reinstall next time
+.PRECIOUS: .venv-%/.installed
+
+test-torchrl test-rllib test-benchmarl: test-%: .venv-%/.installed
+	.venv-$*/bin/python -m pytest tests/integrations/test_$*.py -q -p no:cacheprovider
 
 bench: $(STAMP)
 	$(BIN)/mrcomm bench
@@ -56,4 +74,4 @@ lock:
 	mv constraints.txt.new constraints.txt && rm -rf .lock-venv
 
 clean:
-	rm -rf $(VENV) .lock-venv results .pytest_cache .hypothesis
+	rm -rf $(VENV) .venv-torchrl .venv-rllib .venv-benchmarl .lock-venv results .pytest_cache .hypothesis

@@ -1,0 +1,145 @@
+"""BenchMARL: the task family ``mrcomm`` — one task per registered env, run by ``benchmarl.experiment.Experiment``.
+
+    from benchmarl.algorithms import MappoConfig
+    from benchmarl.experiment import Experiment, ExperimentConfig
+    from benchmarl.models import MlpConfig
+    from mrcomm_env.integrations.benchmarl import MrcommTask
+
+    task = MrcommTask.MAPSYNC.get_from_yaml()          # or .get_task({"n_robots": 3, "max_cycles": 100})
+    Experiment(task=task, algorithm_config=MappoConfig.get_from_yaml(), model_config=MlpConfig.get_from_yaml(),
+               critic_model_config=MlpConfig.get_from_yaml(), seed=0, config=ExperimentConfig.get_from_yaml()).run()
+
+A task's config holds the env's own arguments; the yaml files in ``benchmarl_conf/`` (one per task) give the
+defaults. All robots form one group ``"robot"``; MAPPO's critic reads the env's global ``state()``; the action
+mask (RendezvousMapping-v0) is handed to BenchMARL, whose policies then sample feasible actions only.
+
+BenchMARL 1.5 needs torchrl < 0.12: install the ``benchmarl`` extra in its own environment, not beside ``torchrl``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from mrcomm_env.integrations import require
+from mrcomm_env.registry import ENTRIES
+
+EXTRA = "benchmarl"
+CONF_DIR = Path(__file__).with_name("benchmarl_conf")
+
+_common = require("benchmarl.environments.common", EXTRA)
+_spaces = require("gymnasium.spaces", EXTRA)
+_specs = require("torchrl.data", EXTRA)
+
+
+def task_name(env_id: str) -> str:
+    """BenchMARL's name of the task for ``env_id``: the env's shim module without its version, upper case."""
+    return ENTRIES[env_id].env.rsplit(".", 1)[1].rsplit("_v", 1)[0].upper()
+
+
+#: task enum name → env id, e.g. ``"MAPSYNC"`` → ``"mrcomm/MapSync-v0"``
+ENV_ID_OF_TASK = {task_name(env_id): env_id for env_id in ENTRIES}
+
+
+class MrcommClass(_common.TaskClass):
+    """How BenchMARL builds one of our envs and reads its specs (see ``benchmarl.environments.common``)."""
+
+    def __init__(self, name: str, config: dict | None):
+        super().__init__(name, config)
+        from mrcomm_env.registry import make
+
+        # build the env once, now: a bad argument fails here with the env's own ValueError, not mid-experiment,
+        # and the action space may depend on the config (MultiHop-v0's layout)
+        env = make(self.env_id, **self.config)
+        self._action_space = env.action_space(env.possible_agents[0])
+        if not isinstance(self._action_space, (_spaces.Discrete, _spaces.Box)):
+            raise ValueError(
+                f"argument 'config' of task {name}: {self.env_id} then acts in {self._action_space}, but BenchMARL's "
+                "algorithms need Discrete or Box actions (see benchmarl_conf/multihop.yaml: layout: absolute)"
+            )
+
+    @property
+    def env_id(self) -> str:
+        return ENV_ID_OF_TASK[self.name]
+
+    def get_env_fun(self, num_envs, continuous_actions, seed, device):
+        from mrcomm_env.integrations.torchrl import make_env
+
+        config = dict(self.config)
+        env_id = self.env_id
+        # BenchMARL runs num_envs copies in a SerialEnv/ParallelEnv itself; each copy is one env
+        return lambda: make_env(env_id, device=device, seed=seed, render_mode="rgb_array", **config)
+
+    def supports_continuous_actions(self) -> bool:
+        return isinstance(self._action_space, _spaces.Box)
+
+    def supports_discrete_actions(self) -> bool:
+        return isinstance(self._action_space, _spaces.Discrete)
+
+    def has_state(self) -> bool:
+        return True  # every env has state() and state_space (docs/architecture.md)
+
+    def has_render(self, env) -> bool:
+        return True  # render_mode="rgb_array": evaluation videos when the experiment asks for them
+
+    def max_steps(self, env) -> int:
+        return int(env._env.unwrapped.cfg["max_cycles"])
+
+    def group_map(self, env):
+        return env.group_map
+
+    def _group_entries(self, env, keep: str):
+        spec = env.observation_spec.clone()
+        for group in self.group_map(env):
+            for key in list(spec[group].keys()):
+                if key != keep:
+                    del spec[group][key]
+            if spec[group].is_empty():
+                del spec[group]
+        if "state" in spec.keys():
+            del spec["state"]
+        return spec
+
+    def observation_spec(self, env):
+        return self._group_entries(env, "observation")
+
+    def info_spec(self, env):
+        return self._group_entries(env, "info")
+
+    def action_mask_spec(self, env):
+        spec = self._group_entries(env, "action_mask")
+        return None if spec.is_empty() else spec
+
+    def state_spec(self, env):
+        return _specs.Composite({"state": env.observation_spec["state"].clone()})
+
+    def action_spec(self, env):
+        return env.full_action_spec
+
+    @staticmethod
+    def env_name() -> str:
+        return "mrcomm"
+
+
+class MrcommTask(_common.Task):
+    """The mrcomm tasks, one per registered env (``ENV_ID_OF_TASK``); configs from ``benchmarl_conf/<task>.yaml``."""
+
+    ASYNCCL = None
+    CHANNEL_ASSOCIATION = None
+    MAPSYNC = None
+    MULTIHOP = None
+    RENDEZVOUS_MAPPING = None
+
+    @staticmethod
+    def associated_class():
+        return MrcommClass
+
+    def get_from_yaml(self, path: str | None = None):
+        # our yaml files live in this package, not in benchmarl/conf/task
+        return super().get_from_yaml(str(CONF_DIR / f"{self.name.lower()}.yaml") if path is None else path)
+
+    @classmethod
+    def from_env_id(cls, env_id: str) -> MrcommTask:
+        """``MrcommTask.from_env_id("MapSync-v0")`` → ``MrcommTask.MAPSYNC``; unknown ids raise ``ValueError``."""
+        from mrcomm_env.registry import canonical_id
+
+        return cls[task_name(canonical_id(env_id))]

@@ -1,0 +1,101 @@
+"""Every registered env as a BenchMARL task (``make test-benchmarl``): the task family covers the registry, its
+yaml configs are valid env arguments, and ``Experiment`` trains MAPPO and IPPO on every task for a few hundred
+frames, updating the policy."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+import yaml
+from benchmarl.algorithms import IppoConfig, MappoConfig
+from benchmarl.experiment import Experiment, ExperimentConfig
+from benchmarl.models import MlpConfig
+
+import mrcomm_env
+from mrcomm_env.integrations.benchmarl import CONF_DIR, ENV_ID_OF_TASK, MrcommTask
+from mrcomm_env.registry import env_class
+
+FRAMES_PER_BATCH = 100
+N_BATCHES = 2
+SHORT = {"max_cycles": 10}  # 100-frame batches hold whole episodes, so every batch has finished ones
+# MultiHop-v0's default team is 100 robots (a 10×10 grid); its documented small grid keeps the run to seconds
+SMALL = {"MULTIHOP": {"grid_side": 4}}
+
+
+def test_the_task_family_has_one_task_per_registered_env():
+    assert {task.name for task in MrcommTask} == set(ENV_ID_OF_TASK)
+    assert set(ENV_ID_OF_TASK.values()) == set(mrcomm_env.env_ids())
+    assert MrcommTask.from_env_id("MapSync-v0") is MrcommTask.MAPSYNC
+    with pytest.raises(ValueError, match="unknown environment id"):
+        MrcommTask.from_env_id("NoSuchEnv-v0")
+
+
+@pytest.mark.parametrize("task", list(MrcommTask), ids=lambda t: t.name)
+def test_yaml_config_holds_env_arguments_only(task):
+    path = CONF_DIR / f"{task.name.lower()}.yaml"
+    config = yaml.safe_load(path.read_text())
+    assert set(config) <= set(env_class(ENV_ID_OF_TASK[task.name]).PARAMS)
+    loaded = task.get_from_yaml()
+    assert loaded.config == config
+    env = loaded.get_env_fun(num_envs=1, continuous_actions=False, seed=0, device="cpu")()
+    assert loaded.max_steps(env) == config["max_cycles"]
+    assert loaded.group_map(env) == {"robot": list(mrcomm_env.make(ENV_ID_OF_TASK[task.name]).possible_agents)}
+    assert loaded.supports_discrete_actions() != loaded.supports_continuous_actions()
+    assert list(loaded.state_spec(env).keys()) == ["state"]
+    assert set(loaded.observation_spec(env)["robot"].keys()) == {"observation"}
+    mask = loaded.action_mask_spec(env)
+    assert (mask is not None) == callable(getattr(mrcomm_env.make(ENV_ID_OF_TASK[task.name]), "action_masks", None))
+
+
+def test_multibinary_layout_is_refused_with_the_fix():
+    with pytest.raises(ValueError, match="config.*MultiBinary.*layout: absolute"):
+        MrcommTask.MULTIHOP.get_task({"layout": "relative"})
+
+
+def test_bad_env_argument_fails_when_the_task_is_made():
+    with pytest.raises(ValueError, match="n_robots"):
+        MrcommTask.MAPSYNC.get_task({"n_robots": -1})
+
+
+def small_experiment(task, algorithm_config, tmp_path) -> Experiment:
+    config = ExperimentConfig.get_from_yaml()
+    config.max_n_frames = N_BATCHES * FRAMES_PER_BATCH
+    config.on_policy_collected_frames_per_batch = FRAMES_PER_BATCH
+    config.on_policy_n_envs_per_worker = 2
+    config.on_policy_minibatch_size = FRAMES_PER_BATCH // 2
+    config.on_policy_n_minibatch_iters = 1
+    config.evaluation = False
+    config.render = False
+    config.loggers = []
+    config.create_json = False
+    config.save_folder = str(tmp_path)
+    return Experiment(
+        task=task,
+        algorithm_config=algorithm_config,
+        model_config=MlpConfig.get_from_yaml(),
+        critic_model_config=MlpConfig.get_from_yaml(),
+        seed=0,
+        config=config,
+    )
+
+
+@pytest.mark.parametrize("algorithm", [MappoConfig, IppoConfig], ids=["mappo", "ippo"])
+@pytest.mark.parametrize("task", list(MrcommTask), ids=lambda t: t.name)
+def test_experiment_trains_on_every_task(task, algorithm, tmp_path):
+    yaml_config = task.get_from_yaml().config
+    experiment = small_experiment(
+        task.get_task({**yaml_config, **SHORT, **SMALL.get(task.name, {})}), algorithm.get_from_yaml(), tmp_path
+    )
+    before = [p.detach().clone() for p in experiment.policy.parameters()]
+    experiment.run()
+    after = list(experiment.policy.parameters())
+    assert experiment.total_frames == N_BATCHES * FRAMES_PER_BATCH
+    assert experiment.n_iters_performed == N_BATCHES
+    assert any(not torch.equal(b, a) for b, a in zip(before, after)), "training did not change the policy"
+    assert all(torch.isfinite(p).all() for p in after)
+    # MAPPO's centralised critic reads the env's global state(); IPPO's critics read each robot's own observation
+    critic_reads_state = "state" in experiment.losses["robot"].critic_network.in_keys
+    assert critic_reads_state == (algorithm is MappoConfig)
+    assert math.isfinite(float(experiment.mean_return))
