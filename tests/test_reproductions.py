@@ -175,6 +175,9 @@ def test_reproduce_killed_by_sigint_leaves_no_report(tmp_path):
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        # a shell without job control starts background jobs with SIGINT ignored, and Python keeps an ignored
+        # SIGINT ignored: give the child the default disposition, so Ctrl-C means KeyboardInterrupt there
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
         deadline = time.monotonic() + 300
