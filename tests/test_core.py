@@ -144,3 +144,21 @@ def test_mean_ci95_matches_t_interval():
     assert mean == 2.5
     assert_close_conditioned(half, (hi - lo) / 2, tolerance(2.5 + half, 32), err_msg="CI half-width")
     assert mean_ci95([5.0]) == (5.0, 0.0)
+
+
+def test_local_views_are_read_only_and_follow_every_step_and_reset():
+    import mrcomm_env
+
+    env = mrcomm_env.make("MultiHop-v0", grid_side=3, slot_size=3, max_cycles=4)
+    env.reset(seed=0)
+    views = env.local_views()
+    before = views.team("stamps").copy()
+    with pytest.raises(ValueError):
+        views.team("stamps")[0, 0] = 1.0  # read-only: a policy cannot write into the env
+    env.step({a: np.ones(8, dtype=np.int8) for a in env.agents})
+    after = views.team("stamps")
+    assert not np.array_equal(before, after), "the view kept the state of the previous step"
+    np.testing.assert_array_equal(after, env.stamps)
+    env.reset(seed=1)
+    np.testing.assert_array_equal(views.team("stamps"), env.stamps)
+    assert views["robot_2"]["slot"] == env.tdma.slot_of[2]

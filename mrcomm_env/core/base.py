@@ -71,6 +71,7 @@ class MrcommParallelEnv(ParallelEnv):
         self._agent_index = {a: i for i, a in enumerate(self.possible_agents)}
         self.np_random, self.np_random_seed = seeding.np_random(None)
         self.step_count = 0
+        self._state_version = 0  # bumped by every reset and step: what a policy's local view caches on
         self._figure = None
         self._check_action = _action_checker(self._act_space)
 
@@ -158,6 +159,7 @@ class MrcommParallelEnv(ParallelEnv):
                 raise ValueError(f"argument 'seed' must be None or an integer ≥ 0, got {seed!r}")
             self.np_random, self.np_random_seed = seeding.np_random(int(seed))
         self.agents = list(self.possible_agents)
+        self._state_version += 1
         self._live = dict.fromkeys(self.agents)  # key view compared with each step's actions in C
         self.step_count = 0
         self._reset_world()
@@ -180,6 +182,7 @@ class MrcommParallelEnv(ParallelEnv):
             )
         acts = self._check_action(self.agents, [actions[agent] for agent in self.agents])
         rewards = self._step_world(acts)
+        self._state_version += 1
         self.step_count += 1
         truncated = self.step_count >= self.cfg["max_cycles"]
         terminated = bool(self._terminated())

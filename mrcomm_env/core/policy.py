@@ -52,6 +52,14 @@ class LocalViews:
         self.action_space = env.action_space(first)
         self.observation_space = env.observation_space(first)
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
+        self._cache: tuple[int, dict[str, Any]] | None = None
+
+    def _fields(self) -> dict[str, Any]:
+        """The env's local-view fields, computed once per env step however many fields a policy reads."""
+        version = self._env._state_version
+        if self._cache is None or self._cache[0] != version:
+            self._cache = (version, self._env._local_view())
+        return self._cache[1]
 
     @property
     def agents(self) -> list[str]:
@@ -71,11 +79,11 @@ class LocalViews:
         """Field ``name`` for every robot at once; row i is what robot i knows."""
         if name not in self.fields:
             raise ValueError(f"unknown local-view field {name!r}; {self._env.ENV_ID} offers: {', '.join(self.fields)}")
-        return _read_only(self._env._local_view()[name])
+        return _read_only(self._fields()[name])
 
     def __getitem__(self, agent: str) -> Mapping[str, Any]:
         i = self._env._index_of(agent)
-        return MappingProxyType({k: _read_only(np.asarray(v)[i]) for k, v in self._env._local_view().items()})
+        return MappingProxyType({k: _read_only(np.asarray(v)[i]) for k, v in self._fields().items()})
 
 
 class Policy:
