@@ -24,9 +24,12 @@ def train_section(targets: list[str], params: dict, timesteps: int, progress: bo
 
     out = {"timesteps": timesteps, "reference": train_throughput([reference] * 4, timesteps)}
     print(f"train  reference simple_spread_v3: {_train_line(out['reference'])}")
+    slots = out["reference"]["slots"]
     out["envs"] = {}
     for env_id in tqdm(targets, desc="PPO throughput", leave=False, disable=not progress):
-        result = train_throughput([lambda env_id=env_id: make(env_id, **params)], timesteps)
+        # about as many agent slots as the reference, so the policy's batch (and its cost per agent-step) match
+        copies = max(1, round(slots / make(env_id, **params).n_agents))
+        result = train_throughput([lambda env_id=env_id: make(env_id, **params)] * copies, timesteps)
         result["ratio_to_reference"] = result["agent_steps_per_s"] / out["reference"]["agent_steps_per_s"]
         out["envs"][env_id] = result
         print(f"train  {env_id}: {_train_line(result)}, ratio {result['ratio_to_reference']:.2f}")
