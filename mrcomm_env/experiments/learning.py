@@ -308,7 +308,7 @@ def plot_comparison(rows: list[dict], spec: dict, title: str, path: Path) -> Non
         xerr=[r["bits_ci95"] for r in learned],
         yerr=[r["metric_ci95"] for r in learned],
         fmt="o-",
-        color="tab:red",
+        color="black",
         label=f"learned ({spec['algo']}), one point per {spec['cost_param']}",
     )
     for r in learned:
