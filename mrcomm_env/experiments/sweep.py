@@ -1,0 +1,308 @@
+"""One runner for every sweep: reproductions' Monte-Carlo runs, ``reproduce-learning`` and ``mrcomm train --seeds``.
+
+A sweep is a list of independent :class:`Task` s. A task names an importable function (``"module:function"``)
+and its keyword arguments, which hold everything that decides its result: env id, arguments, policy and seed.
+The runner only decides *where* a task runs; it never seeds anything, so a sweep gives identical numbers
+whatever the backend, and results always come back in task order (the merge order is the list's order).
+
+Backends, chosen by one flag of the CLI (:func:`add_runner_arguments`):
+
+* ``--workers 1`` — serially in this process (tests and debugging: a breakpoint works);
+* ``--workers N`` — ``N`` local processes (:class:`concurrent.futures.ProcessPoolExecutor`, ``spawn``), each
+  with one BLAS/torch thread; the default is one per core;
+* ``--ray auto|ADDRESS`` — one Ray task per sweep task on an existing cluster (the ``ray`` extra;
+  docs/scaling.md). Ray schedules; we do not.
+
+Every backend shows one progress bar over the tasks and retries a failed task once (Ray through its own
+``max_retries``/``retry_exceptions``). With a ``cache`` folder, each result is written there atomically as soon
+as its task ends, under a name that includes a hash of the task, and a rerun loads it instead of running
+the task again: an interrupted sweep resumes where it stopped, and a task whose arguments changed runs anew.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import functools
+import hashlib
+import importlib
+import importlib.util
+import json
+import os
+import re
+import sys
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mrcomm_env.experiments.io import atomic_write_text
+
+#: attempts per task: the first run and one retry
+ATTEMPTS = 2
+
+
+class SweepError(RuntimeError):
+    """Tasks that failed twice; the message names each with its arguments (completed results are kept)."""
+
+
+@dataclass(frozen=True)
+class Task:
+    """``fn(**kwargs)``, where ``fn`` is ``"package.module:function"`` (importable on every worker) and kwargs and
+    the result are JSON data. ``name`` labels the task in progress output, errors and the cache."""
+
+    fn: str
+    kwargs: dict[str, Any] = field(default_factory=dict)
+    name: str = ""
+
+    def key(self) -> str:
+        """A file-safe name that changes whenever the function, any argument or the package's code does."""
+        blob = json.dumps([self.fn, self.kwargs, code_version()], sort_keys=True, default=str)
+        digest = hashlib.sha1(blob.encode()).hexdigest()[:12]
+        label = re.sub(r"[^A-Za-z0-9_.=,-]+", "_", self.name or self.fn.rsplit(":", 1)[-1])[:80]
+        return f"{label}-{digest}"
+
+    def describe(self) -> str:
+        return f"{self.name or self.fn} {json.dumps(self.kwargs, sort_keys=True, default=str)}"
+
+
+@functools.lru_cache(maxsize=1)
+def code_version() -> str:
+    """A hash of every Python source of the installed packages (env, baselines, agents): a cached result is
+    reused only by the code that computed it, so an edit never mixes old numbers into a new run."""
+    digest = hashlib.sha1()
+    for package in ("mrcomm_env", "baselines", "agents"):
+        spec = importlib.util.find_spec(package)  # located, not imported: importing agents loads torch
+        if spec is None or spec.origin is None:
+            continue
+        root = Path(spec.origin).parent
+        for path in sorted(root.rglob("*.py")):
+            digest.update(str(path.relative_to(root)).encode())
+            digest.update(path.read_bytes())
+    return digest.hexdigest()[:12]
+
+
+def execute(fn: str, kwargs: dict[str, Any]) -> Any:
+    """Run one task in the current process (what every backend calls on its worker)."""
+    module, _, name = fn.partition(":")
+    if not name:
+        raise ValueError(f"task function must be 'module:function', got {fn!r}")
+    return getattr(importlib.import_module(module), name)(**kwargs)
+
+
+def _one_thread() -> None:
+    """Each worker process uses one core: BLAS and torch would otherwise start one thread per core each."""
+    os.environ["OMP_NUM_THREADS"] = "1"
+    os.environ["MKL_NUM_THREADS"] = "1"
+    # torch reads OMP_NUM_THREADS when it is first imported (and ``mrcomm train`` sets one thread itself); a
+    # worker that already has torch loaded is told directly. Importing torch here would cost each worker ~2 s.
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(1)
+
+
+def _plain(value: Any) -> Any:
+    """numpy scalars and arrays as Python numbers and lists (``json`` calls this for what it cannot encode)."""
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    raise TypeError(f"a task result must be JSON data (numbers, strings, lists, dicts), got {type(value).__name__}")
+
+
+def _normalise(result: Any) -> Any:
+    """The result as JSON gives it back: a cached, a remote and a serial result are then the same values
+    (floats survive exactly: ``json`` writes the shortest repr that reads back as the same double)."""
+    return json.loads(json.dumps(result, default=_plain))
+
+
+@dataclass
+class Runner:
+    """Where tasks run: ``workers`` local processes (1 = serially, here), or the Ray cluster at ``ray``."""
+
+    workers: int = 1
+    ray: str | None = None
+    progress: bool = True
+    #: what the last :meth:`map` did: tasks run here or remotely, loaded from the cache, and retried
+    stats: dict[str, int] = field(default_factory=dict, compare=False)
+
+    def __post_init__(self):
+        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:
+            raise ValueError(f"argument 'workers' must be an integer ≥ 1, got {self.workers!r}")
+        if self.ray is not None and (not isinstance(self.ray, str) or not self.ray.strip()):
+            raise ValueError(
+                f"argument 'ray' must be 'auto' or a cluster address such as 'HOST:6379', got {self.ray!r}"
+            )
+
+    @property
+    def backend(self) -> str:
+        return "ray" if self.ray else "serial" if self.workers == 1 else f"processes×{self.workers}"
+
+    def map(self, tasks: Sequence[Task], cache: str | Path | None = None, desc: str = "tasks") -> list[Any]:
+        """The results of ``tasks``, in their order. Raises :class:`SweepError` after all others have finished
+        when any task failed twice."""
+        tasks = list(tasks)
+        keys = [t.key() for t in tasks]
+        if len(set(keys)) != len(keys):
+            dup = next(t for t, k in zip(tasks, keys) if keys.count(k) > 1)
+            raise ValueError(f"a sweep must not hold the same task twice: {dup.describe()}")
+        results: list[Any] = [None] * len(tasks)
+        done = [False] * len(tasks)
+        cache_dir = Path(cache) if cache is not None else None
+        if cache_dir is not None:
+            for i, key in enumerate(keys):
+                path = cache_dir / f"{key}.json"
+                if path.exists():
+                    results[i], done[i] = json.loads(path.read_text())["result"], True
+        todo = [i for i in range(len(tasks)) if not done[i]]
+        failures: list[str] = []
+        self.stats = {"run": len(todo), "cached": len(tasks) - len(todo), "retried": 0}
+
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), desc=desc, disable=not self.progress)
+
+        def finished(i: int, result: Any = None, error: BaseException | None = None) -> None:
+            bar.update()
+            if error is not None:
+                failures.append(f"{tasks[i].describe()}: {type(error).__name__}: {error}")
+                return
+            results[i] = _normalise(result)
+            if cache_dir is not None:
+                cache_dir.mkdir(parents=True, exist_ok=True)
+                record = {"task": {"fn": tasks[i].fn, "kwargs": tasks[i].kwargs, "name": tasks[i].name}}
+                atomic_write_text(cache_dir / f"{keys[i]}.json", json.dumps({**record, "result": results[i]}))
+
+        try:
+            if not todo:
+                pass
+            elif self.ray:
+                self._map_ray(tasks, todo, finished)
+            elif self.workers == 1 or len(todo) == 1:
+                for i in todo:
+                    self._serial(tasks[i], i, finished)
+            else:
+                self._map_processes(tasks, todo, finished)
+        finally:
+            bar.close()
+        if failures:
+            more = f" (and {len(failures) - 1} more)" if len(failures) > 1 else ""
+            raise SweepError(f"{len(failures)} of {len(tasks)} tasks failed twice; {failures[0]}{more}")
+        return results
+
+    # ------------------------------------------------------------------------------------------ backends
+    def _serial(self, task: Task, i: int, finished) -> None:
+        for attempt in range(ATTEMPTS):
+            try:
+                result = execute(task.fn, task.kwargs)
+            except Exception as exc:  # noqa: BLE001 — a failed task is retried, then reported with its arguments
+                if attempt == ATTEMPTS - 1:
+                    finished(i, error=exc)
+                else:
+                    self.stats["retried"] += 1
+                continue
+            finished(i, result)
+            return
+
+    def _map_processes(self, tasks: Sequence[Task], todo: list[int], finished) -> None:
+        import multiprocessing
+        from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+        # spawn, not fork: a forked child inherits the parent's torch/BLAS thread pools and locks
+        context = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(min(self.workers, len(todo)), mp_context=context, initializer=_one_thread) as pool:
+            pending = {pool.submit(execute, tasks[i].fn, tasks[i].kwargs): (i, 1) for i in todo}
+            while pending:
+                complete, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for future in complete:
+                    i, attempt = pending.pop(future)
+                    error = future.exception()
+                    if error is None:
+                        finished(i, future.result())
+                    elif attempt < ATTEMPTS:
+                        self.stats["retried"] += 1
+                        pending[pool.submit(execute, tasks[i].fn, tasks[i].kwargs)] = (i, attempt + 1)
+                    else:
+                        finished(i, error=error)
+
+    def _map_ray(self, tasks: Sequence[Task], todo: list[int], finished) -> None:
+        try:
+            import ray
+        except ImportError as exc:
+            raise ValueError("argument 'ray' needs Ray: pip install 'mrcomm-env[ray]' (docs/scaling.md)") from exc
+        if not ray.is_initialized():
+            # one BLAS/torch thread per task, as for local processes; the package must be importable on every
+            # node (installed there, as docs/scaling.md shows)
+            ray.init(
+                address=self.ray,
+                runtime_env={"env_vars": {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}},
+                log_to_driver=False,
+            )
+        remote = ray.remote(num_cpus=1, max_retries=ATTEMPTS - 1, retry_exceptions=True)(_ray_execute)
+        pending = {remote.remote(tasks[i].fn, tasks[i].kwargs): i for i in todo}
+        while pending:
+            complete, _ = ray.wait(list(pending), num_returns=1)
+            for ref in complete:
+                i = pending.pop(ref)
+                try:
+                    result = ray.get(ref)
+                except Exception as exc:  # noqa: BLE001 — Ray already retried it once
+                    cause = getattr(exc, "cause", None)
+                    finished(i, error=cause if isinstance(cause, BaseException) else exc)
+                else:
+                    finished(i, result)
+
+
+def _ray_execute(fn: str, kwargs: dict[str, Any]) -> Any:
+    _one_thread()
+    return execute(fn, kwargs)
+
+
+# ---------------------------------------------------------------------------------- the runner in use
+_ACTIVE: list[Runner] = []
+
+
+def current() -> Runner:
+    """The runner chosen by the caller (:func:`using`); serial, with a progress bar, by default."""
+    return _ACTIVE[-1] if _ACTIVE else Runner()
+
+
+@contextlib.contextmanager
+def using(runner: Runner) -> Iterator[Runner]:
+    """Run every sweep inside the block (e.g. a whole reproduction) on ``runner``."""
+    _ACTIVE.append(runner)
+    try:
+        yield runner
+    finally:
+        _ACTIVE.pop()
+
+
+def run_tasks(tasks: Sequence[Task], cache: str | Path | None = None, desc: str = "tasks") -> list[Any]:
+    """``current().map(tasks, cache, desc)``: what a reproduction calls for its Monte-Carlo runs."""
+    return current().map(tasks, cache=cache, desc=desc)
+
+
+# ------------------------------------------------------------------------------------------------- CLI
+def default_workers() -> int:
+    """One worker per core this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def add_runner_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--workers N`` and ``--ray auto|ADDRESS`` (mutually exclusive)."""
+    from mrcomm_env.experiments.cli import positive_int
+
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument(
+        "--workers",
+        type=positive_int,
+        default=None,
+        help="local processes, one core each (default: one per core; 1 runs serially)",
+    )
+    group.add_argument("--ray", metavar="auto|ADDRESS", help="run each task on this Ray cluster (docs/scaling.md)")
+
+
+def runner_from_args(args: argparse.Namespace, progress: bool = True) -> Runner:
+    workers = args.workers if getattr(args, "workers", None) is not None else default_workers()
+    return Runner(workers=workers, ray=getattr(args, "ray", None), progress=progress)

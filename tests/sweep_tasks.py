@@ -1,0 +1,35 @@
+"""Task functions for tests/test_sweep.py: importable by name from a worker process (``tests`` is on the path
+of every pytest worker and, through the rootdir, of the spawned processes the runner starts)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+
+def draw(seed: int, n: int = 3) -> dict:
+    """A result that depends only on the arguments (numpy values: the runner converts them)."""
+    rng = np.random.default_rng(seed)
+    return {"seed": seed, "values": rng.random(n), "mean": np.float64(rng.random(n).mean())}
+
+
+def fail_first_time(marker: str, value: int) -> int:
+    """Fails on its first call and succeeds on the next: the marker file remembers across processes."""
+    path = Path(marker)
+    if not path.exists():
+        path.write_text(str(os.getpid()))
+        raise RuntimeError("first attempt fails")
+    return value
+
+
+def always_fail(value: int) -> int:
+    raise RuntimeError(f"task {value} cannot succeed")
+
+
+def count_calls(log: str, value: int) -> int:
+    """Appends one line per call to ``log``: how many times the task really ran."""
+    with open(log, "a") as fh:
+        fh.write(f"{value}\n")
+    return value * value

@@ -1,0 +1,92 @@
+"""The sweep runner (mrcomm_env/experiments/sweep.py): order, backends, retry, resume and errors."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+from mrcomm_env.experiments.sweep import Runner, SweepError, Task, current, using
+
+sys.path.insert(0, str(Path(__file__).parent))  # sweep_tasks must import in spawned workers too
+FN = "sweep_tasks:"
+
+
+def _tasks(n=5):
+    return [Task(FN + "draw", {"seed": s}, f"draw s={s}") for s in range(n)]
+
+
+def test_results_come_back_in_task_order_and_as_plain_data():
+    results = Runner(workers=1, progress=False).map(_tasks())
+    assert [r["seed"] for r in results] == list(range(5))
+    assert isinstance(results[0]["values"], list) and isinstance(results[0]["mean"], float)
+
+
+@pytest.mark.xdist_group("processes")
+def test_processes_give_exactly_the_serial_numbers(monkeypatch):
+    monkeypatch.setenv("PYTHONPATH", str(Path(__file__).parent))  # the spawned workers import sweep_tasks
+    tasks = _tasks(6)
+    assert Runner(workers=2, progress=False).map(tasks) == Runner(workers=1, progress=False).map(tasks)
+
+
+def test_a_failed_task_is_retried_once(tmp_path):
+    runner = Runner(workers=1, progress=False)
+    assert runner.map([Task(FN + "fail_first_time", {"marker": str(tmp_path / "m"), "value": 7})]) == [7]
+    assert runner.stats["retried"] == 1
+
+
+def test_a_task_that_fails_twice_is_reported_with_its_arguments_after_the_others(tmp_path):
+    tasks = [*_tasks(2), Task(FN + "always_fail", {"value": 41}, "doomed")]
+    runner = Runner(workers=1, progress=False)
+    with pytest.raises(SweepError, match=r"1 of 3 tasks failed twice; doomed \{\"value\": 41\}.*cannot succeed"):
+        runner.map(tasks, cache=tmp_path)
+    assert runner.stats["retried"] == 1
+    assert len(list(tmp_path.glob("*.json"))) == 2  # the two good results were kept for the rerun
+
+
+def test_a_rerun_skips_the_tasks_already_done(tmp_path):
+    log = tmp_path / "calls.log"
+    tasks = [Task(FN + "count_calls", {"log": str(log), "value": v}, f"v={v}") for v in range(4)]
+    first = Runner(workers=1, progress=False).map(tasks[:2], cache=tmp_path / "cache")  # an interrupted sweep
+    runner = Runner(workers=1, progress=False)
+    assert runner.map(tasks, cache=tmp_path / "cache") == [0, 1, 4, 9]
+    assert first == [0, 1]
+    assert log.read_text().split() == ["0", "1", "2", "3"]  # each task ran exactly once over both runs
+    assert runner.stats == {"run": 2, "cached": 2, "retried": 0}
+    record = json.loads(next((tmp_path / "cache").glob("v=3-*.json")).read_text())
+    assert record["task"]["kwargs"]["value"] == 3 and record["result"] == 9
+
+
+def test_changed_arguments_make_a_new_task():
+    a, b = Task(FN + "draw", {"seed": 1}), Task(FN + "draw", {"seed": 2})
+    assert a.key() != b.key() and a.key() == Task(FN + "draw", {"seed": 1}).key()
+
+
+def test_the_same_task_twice_is_refused():
+    with pytest.raises(ValueError, match="same task twice"):
+        Runner(progress=False).map([*_tasks(2), _tasks(1)[0]])
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [({"workers": 0}, "'workers' must be an integer ≥ 1"), ({"ray": " "}, "'ray' must be 'auto' or a cluster address")],
+)
+def test_bad_runner_arguments(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        Runner(**kwargs)
+
+
+def test_using_sets_the_runner_for_the_block():
+    runner = Runner(workers=3, progress=False)
+    assert current().workers == 1
+    with using(runner):
+        assert current() is runner
+    assert current().workers == 1
+
+
+def test_ray_without_ray_installed_says_how_to_get_it(monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray → ImportError
+    with pytest.raises(ValueError, match=r"mrcomm-env\[ray\]"):
+        Runner(ray="auto", progress=False).map(_tasks(1))
