@@ -1,7 +1,8 @@
 # Two commands do everything on a machine that has python3 and pip:
 #   make demo   create .venv, install, reproduce the papers with the scripted baselines into results/
 #   make test   the whole test suite
-# and, each in its own venv, the MARL framework integrations: make test-torchrl | test-rllib | test-benchmarl
+# and, each in its own venv, the MARL framework integrations: make test-torchrl | test-rllib | test-benchmarl,
+# and the sweep runner on a real local Ray cluster: make test-ray
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -14,7 +15,7 @@ export MPLBACKEND := Agg
 
 EXTRAS := train,dev,bench,fast
 
-.PHONY: demo test install bench docs learn lint format lock clean test-torchrl test-rllib test-benchmarl
+.PHONY: demo test install bench docs learn lint format lock clean test-torchrl test-rllib test-benchmarl test-ray
 
 # constraints.txt pins every package to the versions CI tested, so a new machine gets those
 $(STAMP): pyproject.toml constraints.txt
@@ -37,14 +38,18 @@ TORCH := torch==2.13.0
 
 .venv-%/.installed: pyproject.toml
 	test -x .venv-$*/bin/python || $(PYTHON) -m venv .venv-$*
-	.venv-$*/bin/python -m pip install --quiet "$(TORCH)"
-	.venv-$*/bin/python -m pip install --quiet -e ".[$*]" "pytest>=8"
+	$(if $(NO_TORCH_$*),,.venv-$*/bin/python -m pip install --quiet "$(TORCH)")
+	.venv-$*/bin/python -m pip install --quiet -e ".[$(or $(VENV_EXTRAS_$*),$*)]" "pytest>=8"
 	touch $@
+
+# .venv-ray (sweeps on Ray, not RLlib) runs scripted reproductions: no torch, and the dev extra for the test helpers
+NO_TORCH_ray := yes
+VENV_EXTRAS_ray := ray,dev
 
 # keep the stamp: make would otherwise delete it as an intermediate file and reinstall next time
 .PRECIOUS: .venv-%/.installed
 
-test-torchrl test-rllib test-benchmarl: test-%: .venv-%/.installed
+test-torchrl test-rllib test-benchmarl test-ray: test-%: .venv-%/.installed
 	.venv-$*/bin/python -m pytest tests/integrations/test_$*.py -q -p no:cacheprovider
 
 bench: $(STAMP)
@@ -74,4 +79,4 @@ lock:
 	mv constraints.txt.new constraints.txt && rm -rf .lock-venv
 
 clean:
-	rm -rf $(VENV) .venv-torchrl .venv-rllib .venv-benchmarl .lock-venv results .pytest_cache .hypothesis
+	rm -rf $(VENV) .venv-torchrl .venv-rllib .venv-benchmarl .venv-ray .lock-venv results .pytest_cache .hypothesis
