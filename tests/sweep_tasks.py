@@ -33,3 +33,14 @@ def count_calls(log: str, value: int) -> int:
     with open(log, "a") as fh:
         fh.write(f"{value}\n")
     return value * value
+
+
+def node_of(index: int, seconds: float) -> str:
+    """The id of the Ray node that ran this task, after holding its CPU for ``seconds`` (so that the tasks of a
+    sweep overlap and the scheduler must use every node)."""
+    import time
+
+    import ray
+
+    time.sleep(seconds)
+    return ray.get_runtime_context().get_node_id()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -90,3 +91,14 @@ def test_ray_without_ray_installed_says_how_to_get_it(monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray → ImportError
     with pytest.raises(ValueError, match=r"mrcomm-env\[ray\]"):
         Runner(ray="auto", progress=False).map(_tasks(1))
+
+
+def test_a_ray_task_refuses_to_run_on_a_node_with_other_code():
+    # what each Ray task runs first (in-process here: the check needs no cluster); the cache key holds the
+    # driver's code version, so a node with other code must not file its numbers under it
+    from mrcomm_env.experiments.sweep import CodeMismatch, _ray_execute, code_version
+
+    assert _ray_execute(FN + "count_calls", {"log": os.devnull, "value": 3}, code_version()) == 9
+    other = "0" * len(code_version())
+    with pytest.raises(CodeMismatch, match=rf"runs mrcomm-env code {code_version()}, the driver {other}"):
+        _ray_execute(FN + "count_calls", {"log": os.devnull, "value": 3}, other)

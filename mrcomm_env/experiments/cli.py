@@ -211,6 +211,8 @@ def cmd_bench(args) -> int:
     targets = [canonical_id(e) for e in args.env_ids] or env_ids()
     params = parse_params(args.param)
     out = check_writable_file(args.out, "--out")
+    if args.sweep:
+        return _bench_sweep(args, params, out)
     for env_id in targets:  # every target accepts the params, before the first timed run
         make(env_id, **params).close()
     runs = args.runs
@@ -285,6 +287,20 @@ def cmd_bench(args) -> int:
         results["limits"] = bench.limits_section(targets, args.seconds)
     atomic_write_json(out, results, indent=2)
     print(f"wrote {out} (median of {runs} runs of {args.seconds:g} s each)")
+    return 0
+
+
+def _bench_sweep(args, params: dict, out: Path) -> int:
+    """``mrcomm bench --sweep``: the sweep runner's backends instead of env-steps/s (docs/scaling.md)."""
+    from mrcomm_env.experiments import bench
+
+    if len(args.env_ids) > 1:
+        raise ValueError(f"--sweep times one env, got {len(args.env_ids)}: {' '.join(args.env_ids)}")
+    env_id = canonical_id(args.env_ids[0]) if args.env_ids else bench.SWEEP_ENV
+    make(env_id, **params).close()  # bad --param values fail here, before the first timed run
+    results = {"sweep": bench.sweep_section(env_id, bench.SWEEP_TASKS, args.runs, params)}
+    atomic_write_json(out, _json_safe(results), indent=2)
+    print(f"wrote {out} (median of {args.runs} runs per backend)")
     return 0
 
 
@@ -366,6 +382,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--train", action="store_true", help="also PPO agent-steps/s through the training VecEnv")
     p.add_argument("--train-timesteps", type=positive_int, default=20_000, help="PPO agent-steps per env (--train)")
     p.add_argument("--limits", action="store_true", help="also steps/s and peak memory at every documented maximum")
+    p.add_argument(
+        "--sweep",
+        action="store_true",
+        help="instead: wall time of 16 seeded episodes of one env (default AsyncCL-v0) on --workers 1, "
+        "--workers 2 and Ray with 2 CPUs, speed-ups and each backend's overhead (docs/scaling.md)",
+    )
     p.add_argument("--out", default="results/bench.json")
     p.set_defaults(func=cmd_bench)
 

@@ -13,8 +13,9 @@ Backends, chosen by one flag of the CLI (:func:`add_runner_arguments`):
 * ``--ray auto|ADDRESS`` — one Ray task per sweep task on an existing cluster (the ``ray`` extra;
   docs/scaling.md). Ray schedules; we do not.
 
-Every backend shows one progress bar over the tasks and retries a failed task once (Ray through its own
-``max_retries``/``retry_exceptions``). With a ``cache`` folder, each result is written there atomically as soon
+Every backend shows one progress bar over the tasks and retries a failed task once (on Ray, a task that raised
+is resubmitted by the runner; a task whose worker or node died is rerun by Ray's own ``max_retries``). On Ray,
+each task first checks that its node runs the driver's code (:func:`code_version`). With a ``cache`` folder, each result is written there atomically as soon
 as its task ends, under a name that includes a hash of the task, and a rerun loads it instead of running
 the task again: an interrupted sweep resumes where it stopped, and a task whose arguments changed runs anew.
 """
@@ -230,29 +231,63 @@ class Runner:
             raise ValueError("argument 'ray' needs Ray: pip install 'mrcomm-env[ray]' (docs/scaling.md)") from exc
         if not ray.is_initialized():
             # one BLAS/torch thread per task, as for local processes; the package must be importable on every
-            # node (installed there, as docs/scaling.md shows)
+            # node (installed there, as docs/scaling.md shows). A session the caller opened is used as it is.
             ray.init(
                 address=self.ray,
                 runtime_env={"env_vars": {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}},
                 log_to_driver=False,
             )
-        remote = ray.remote(num_cpus=1, max_retries=ATTEMPTS - 1, retry_exceptions=True)(_ray_execute)
-        pending = {remote.remote(tasks[i].fn, tasks[i].kwargs): i for i in todo}
-        while pending:
-            complete, _ = ray.wait(list(pending), num_returns=1)
-            for ref in complete:
-                i = pending.pop(ref)
-                try:
-                    result = ray.get(ref)
-                except Exception as exc:  # noqa: BLE001 — Ray already retried it once
-                    cause = getattr(exc, "cause", None)
-                    finished(i, error=cause if isinstance(cause, BaseException) else exc)
-                else:
-                    finished(i, result)
+        # Ray itself reruns a task whose worker process or node died (max_retries). A task that raised is
+        # resubmitted here instead of by Ray's retry_exceptions, so that the retry shows in ``stats`` as on the
+        # other backends.
+        remote = ray.remote(num_cpus=1, max_retries=ATTEMPTS - 1, retry_exceptions=False)(_ray_execute)
+        driver_code = code_version()
+
+        def submit(i: int):
+            return remote.options(name=tasks[i].key()).remote(tasks[i].fn, tasks[i].kwargs, driver_code)
+
+        pending = {submit(i): (i, 1) for i in todo}
+        try:
+            while pending:
+                complete, _ = ray.wait(list(pending), num_returns=1)
+                for ref in complete:
+                    i, attempt = pending.pop(ref)
+                    try:
+                        result = ray.get(ref)
+                    except ray.exceptions.RayTaskError as exc:  # the task's function raised
+                        if attempt < ATTEMPTS:
+                            self.stats["retried"] += 1
+                            pending[submit(i)] = (i, attempt + 1)
+                        else:
+                            cause = getattr(exc, "cause", None)
+                            finished(i, error=cause if isinstance(cause, BaseException) else exc)
+                    except ray.exceptions.RayError as exc:  # its worker or node died twice, or it was cancelled
+                        finished(i, error=exc)
+                    else:
+                        finished(i, result)
+        finally:
+            # an interrupted or failed driver leaves no task of its sweep running on the cluster
+            for ref in pending:
+                with contextlib.suppress(Exception):
+                    ray.cancel(ref, force=True)
 
 
-def _ray_execute(fn: str, kwargs: dict[str, Any]) -> Any:
+class CodeMismatch(RuntimeError):
+    """A Ray node runs other mrcomm-env code than the driver: its results would be cached under the wrong key."""
+
+
+def _ray_execute(fn: str, kwargs: dict[str, Any], driver_code: str | None = None) -> Any:
+    """What a Ray worker runs: :func:`execute`, after checking that this node has the driver's code (the cache
+    key holds the driver's :func:`code_version`, so a node with other code would file its numbers under it)."""
     _one_thread()
+    here = code_version()
+    if driver_code is not None and here != driver_code:
+        import socket
+
+        raise CodeMismatch(
+            f"node {socket.gethostname()} runs mrcomm-env code {here}, the driver {driver_code}: install the same "
+            "version of mrcomm-env on every node (docs/scaling.md)"
+        )
     return execute(fn, kwargs)
 
 

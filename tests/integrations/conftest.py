@@ -1,5 +1,6 @@
 """The framework tests run where their framework is installed: ``make test-torchrl``, ``make test-benchmarl``,
-``make test-rllib`` each build a venv with one framework and run its file here.
+``make test-rllib`` each build a venv with one framework and run its file here; ``make test-ray`` does the same for
+the sweep runner on a local Ray cluster.
 
 The base install (``make test``) has none of them, so there these files are not collected at all (rather than
 collected and skipped): a skipped test would claim a coverage the base run does not have.
@@ -7,6 +8,11 @@ collected and skipped): a skipped test would claim a coverage the base run does 
 
 from importlib.util import find_spec
 
-FRAMEWORK_OF = {"test_torchrl.py": "torchrl", "test_benchmarl.py": "benchmarl", "test_rllib.py": "ray"}
+FRAMEWORK_OF = {
+    "test_torchrl.py": "torchrl",
+    "test_benchmarl.py": "benchmarl",
+    "test_rllib.py": "ray",
+    "test_ray.py": "ray",
+}
 
 collect_ignore = [name for name, module in FRAMEWORK_OF.items() if find_spec(module) is None]
