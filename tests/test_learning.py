@@ -103,6 +103,8 @@ def test_reproduce_learning_end_to_end_on_a_tiny_budget(tmp_path, monkeypatch):
             str(docs),
             "--quiet",
             "--export-pretrained",
+            "--workers",
+            "1",  # the monkeypatched configuration lives in this process only
         ]
     )
     assert code == 0
@@ -118,7 +120,17 @@ def test_reproduce_learning_end_to_end_on_a_tiny_budget(tmp_path, monkeypatch):
     assert len(runs) == 2
     before = [p.stat().st_mtime_ns for p in runs]
     main(
-        ["reproduce-learning", "ChannelAssociation-v0", "--out", str(tmp_path / "runs"), "--docs", str(docs), "--quiet"]
+        [
+            "reproduce-learning",
+            "ChannelAssociation-v0",
+            "--out",
+            str(tmp_path / "runs"),
+            "--docs",
+            str(docs),
+            "--quiet",
+            "--workers",
+            "1",
+        ]
     )
     assert [p.stat().st_mtime_ns for p in runs] == before
 
