@@ -15,6 +15,7 @@ from agents import training
 from agents.learned import LearnedPolicy, load_policy
 from agents.training import RunError, TrainConfig, train
 from mrcomm_env.experiments.cli import main
+from mrcomm_env.experiments.learning import sweep_section
 
 torch.set_num_threads(1)
 
@@ -211,6 +212,15 @@ def test_train_seeds_and_grid_run_every_combination_through_the_runner(tmp_path,
         assert record["env_kwargs"]["emission_cost"] == 0.5 and record["seed"] == int(row["seed"])
         assert int(row["timesteps"]) >= ROLLOUT and np.isfinite(float(row["eval_completion_time"]))
     assert "grid points by held-out completion_time" in capsys.readouterr().out
+    record = json.loads((out / "sweep.json").read_text())
+    assert record["command"].startswith("mrcomm train ChannelAssociation-v0") and record["seeds"] == [0, 1]
+    # the recorded sweep renders as a ranked table of its grid points in docs/learning.md
+    docs = tmp_path / "docs"
+    (docs / "learning").mkdir(parents=True)
+    (docs / "learning" / f"sweep-{ENV}.csv").write_text((out / "summary.csv").read_text())
+    (docs / "learning" / f"sweep-{ENV}.json").write_text((out / "sweep.json").read_text())
+    table = [line for line in sweep_section(ENV, docs).splitlines() if line.startswith("| 0.")]
+    assert len(table) == 4  # one row per grid point (learning_rate × net_arch), seeds pooled
     # a rerun trains nothing again
     before = sorted(p.stat().st_mtime_ns for p in out.rglob("model.zip"))
     assert main([*args, *grid, "--seeds", "0,1", "--eval-episodes", "2", "--workers", "1", "--quiet"]) == 0

@@ -222,9 +222,11 @@ def train_sweep(base: dict, seeds: list[int], grid: dict[str, list], out: Path, 
     """``mrcomm train --seeds/--grid``: every run through the sweep runner, then ``summary.csv`` (one row per run)
     and a ranking of the grid points by their mean held-out score."""
     import csv
+    import shlex
+    import sys
 
     from mrcomm_env.core.stats import mean_ci95
-    from mrcomm_env.experiments.io import atomic_open
+    from mrcomm_env.experiments.io import atomic_open, atomic_write_text
     from mrcomm_env.experiments.sweep import Task, runner_from_args
 
     runs = sweep_configs(base, seeds, grid)
@@ -271,7 +273,18 @@ def train_sweep(base: dict, seeds: list[int], grid: dict[str, list], out: Path, 
         m, h = mean_ci95([r[f"eval_{metric}"] for r in group])
         b = float(np.mean([r["eval_bits"] for r in group]))
         print(f"  {label}: {metric} {m:.4g} ± {h:.2g}, bits {b:.4g} ({len(group)} seeds)")
-    print(f"wrote {out / 'summary.csv'}")
+    record = {
+        "command": "mrcomm " + " ".join(shlex.quote(a) for a in getattr(args, "argv", []) or sys.argv[1:]),
+        "algo": base["algo"],
+        "grid": grid,
+        "seeds": seeds,
+        "eval_episodes": len(eval_seeds),
+        "metric": metric,
+        "lower_is_better": bool(spec.get("lower_is_better")),
+        "bits_per": spec.get("bits_per", "step"),
+    }
+    atomic_write_text(out / "sweep.json", json.dumps(record, indent=2) + "\n")
+    print(f"wrote {out / 'summary.csv'} and {out / 'sweep.json'}")
     return 0
 
 
@@ -591,13 +604,25 @@ def cmd_reproduce_learning(args: argparse.Namespace) -> int:
 
     limit_threads()
 
+    from mrcomm_env.experiments.io import atomic_write_text
+
     targets = [canonical_id(e) for e in args.env_ids] or [
         e for e in env_ids() if (CONFIG_DIR / f"{short_name_of(e)}.json").exists()
     ]
     out = Path(args.out)
     docs = Path(args.docs)
     (docs / "learning").mkdir(parents=True, exist_ok=True)
-    sections = []
+    if args.docs_only:  # re-render every section from its recorded table (e.g. after ``make sweep``)
+        for env_id in targets:
+            name = short_name_of(env_id)
+            table = docs / "learning" / f"{name}.csv"
+            if not table.exists():
+                continue
+            rows = read_rows(table)
+            section = learning_section(env_id, rows, comparison_spec(env_id), f"learning/{name}.png")
+            atomic_write_text(docs / "learning" / f"{name}.md", section + sweep_section(env_id, docs))
+        print(f"wrote {write_learning_page(docs)}")
+        return 0
     for env_id in targets:
         name = short_name_of(env_id)
         with using(runner_from_args(args, progress=not args.quiet)):
@@ -611,16 +636,94 @@ def cmd_reproduce_learning(args: argparse.Namespace) -> int:
         tmp.replace(csv_path)
         figure = docs / "learning" / f"{name}.png"
         plot_comparison(rows, spec, f"{env_id}: learned vs scripted at equal bits", figure)
-        sections.append(learning_section(env_id, rows, spec, f"learning/{name}.png"))
+        section = learning_section(env_id, rows, spec, f"learning/{name}.png") + sweep_section(env_id, docs)
+        # one fragment per env: rerunning one env keeps the others' sections in the page
+        atomic_write_text(docs / "learning" / f"{name}.md", section)
         if args.export_pretrained:
             print(f"shipped {spec['best_run']} as {export_pretrained(spec['best_run'], env_id)}")
-    header = LEARNING_HEADER.format(command="mrcomm reproduce-learning" + (" --quick" if args.quick else ""))
-    page = docs / "learning.md"
-    tmp = page.with_name(".learning.md.tmp")
-    tmp.write_text(header + "\n".join(sections) + LEARNING_FOOTER)
-    tmp.replace(page)
+    page = write_learning_page(docs, quick=args.quick)
     print(f"wrote {page}")
     return 0
+
+
+def read_rows(path: Path) -> list[dict]:
+    """The comparison rows as ``reproduce-learning`` wrote them to ``docs/learning/<Name>-v0.csv``."""
+    import csv
+
+    def number(text: str):
+        return None if text == "" else float(text)
+
+    rows = []
+    for raw in csv.DictReader(open(path)):
+        row = {k: number(v) for k, v in raw.items() if k not in ("policy",)}
+        row["policy"], row["n"] = raw["policy"], int(float(raw["n"]))
+        rows.append(row)
+    return rows
+
+
+def write_learning_page(docs: Path, quick: bool = False) -> Path:
+    """``docs/learning.md``: the header, every env's fragment ``docs/learning/<Name>-v0.md`` (registry order) and
+    the footer."""
+    from mrcomm_env.experiments.io import atomic_write_text
+    from mrcomm_env.registry import env_ids
+
+    sections = [
+        (docs / "learning" / f"{short_name_of(e)}.md").read_text()
+        for e in env_ids()
+        if (docs / "learning" / f"{short_name_of(e)}.md").exists()
+    ]
+    header = LEARNING_HEADER.format(command="mrcomm reproduce-learning" + (" --quick" if quick else ""))
+    page = docs / "learning.md"
+    atomic_write_text(page, header + "\n".join(sections) + LEARNING_FOOTER)
+    return page
+
+
+def sweep_section(env_id: str, docs: Path) -> str:
+    """The recorded hyperparameter sweep of ``env_id`` (``make sweep``: ``docs/learning/sweep-<Name>-v0.csv`` and
+    its ``.json``), as a table of grid points ranked by their mean held-out score; empty when none is recorded."""
+    import csv
+
+    from mrcomm_env.core.stats import mean_ci95
+
+    name = short_name_of(env_id)
+    table, record = docs / "learning" / f"sweep-{name}.csv", docs / "learning" / f"sweep-{name}.json"
+    if not (table.exists() and record.exists()):
+        return ""
+    meta = json.loads(record.read_text())
+    rows = list(csv.DictReader(open(table)))
+    metric, keys = meta["metric"], list(meta["grid"])
+    groups: dict[tuple, list[dict]] = {}
+    for row in rows:
+        groups.setdefault(tuple(row[k] for k in keys), []).append(row)
+    sign = 1.0 if meta.get("lower_is_better") else -1.0
+
+    def score(group):
+        return float(np.mean([float(r[f"eval_{metric}"]) for r in group]))
+
+    lines = [
+        "",
+        "### Hyperparameter sweep",
+        "",
+        f"`{meta['command']}` ({len(rows)} runs of {int(float(rows[0]['timesteps'])):,} agent-steps; every other "
+        f"setting as in `agents/configs/{name}.json`; each run scored on {meta['eval_episodes']} held-out episodes, "
+        f"seeds apart from the comparison's). Ranked by the held-out {metric}; the interval is over training seeds.",
+        "",
+        f"| {' | '.join(keys)} | {metric} | bits / agent / {meta.get('bits_per', 'step')} | final training return "
+        "| minutes per run |",
+        "| " + " | ".join("---" for _ in range(len(keys) + 4)) + " |",
+    ]
+    for values, group in sorted(groups.items(), key=lambda kv: sign * score(kv[1])):
+        m, h = mean_ci95([float(r[f"eval_{metric}"]) for r in group])
+        bits = np.mean([float(r["eval_bits"]) for r in group])
+        ret = np.mean([float(r["final_train_return"]) for r in group])
+        minutes = np.mean([float(r["seconds"]) for r in group]) / 60
+        lines.append(f"| {' | '.join(values)} | {m:.4g} ± {h:.2g} | {bits:.4g} | {ret:.4g} | {minutes:.1f} |")
+    from agents.training import default_config
+
+    settings = default_config(env_id, meta.get("algo", "ppo"))
+    chosen = ", ".join(f"`{k}={json.dumps(settings.get(k, settings.get('env_kwargs', {}).get(k)))}`" for k in keys)
+    lines += ["", f"`agents/configs/{name}.json` trains with {chosen}."]
+    return "\n".join(lines) + "\n"
 
 
 LEARNING_HEADER = """# Learned communication against the papers' algorithms, at equal bits
@@ -668,6 +771,11 @@ def add_learning_parsers(command) -> None:
     p.add_argument("--docs", default="docs", help="where learning.md and its figures go")
     p.add_argument("--quick", action="store_true", help="a tenth of the training budget (a smoke run)")
     p.add_argument("--export-pretrained", action="store_true", help="ship each env's best run in agents/pretrained")
+    p.add_argument(
+        "--docs-only",
+        action="store_true",
+        help="no training: re-render learning.md from the recorded tables and sweeps",
+    )
     p.add_argument("--quiet", action="store_true")
     add_runner_arguments(p)
     p.set_defaults(func=cmd_reproduce_learning)
