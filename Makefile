@@ -15,7 +15,8 @@ export MPLBACKEND := Agg
 
 EXTRAS := train,dev,bench,fast
 
-.PHONY: demo test install bench docs learn lint format lock clean test-torchrl test-rllib test-benchmarl test-ray
+.PHONY: demo test install bench docs learn sweep lint format lock clean test-torchrl test-rllib test-benchmarl \
+	test-ray
 
 # constraints.txt pins every package to the versions CI tested, so a new machine gets those
 $(STAMP): pyproject.toml constraints.txt
@@ -35,6 +36,7 @@ test: $(STAMP)
 # their pins clash (ray: gymnasium 1.2.2; benchmarl: torchrl < 0.12). torch goes in first, pinned like the
 # train extra, so no framework's looser torch requirement resolves to another (CUDA) build.
 TORCH := torch==2.13.0
+comma := ,
 
 .venv-%/.installed: pyproject.toml
 	test -x .venv-$*/bin/python || $(PYTHON) -m venv .venv-$*
@@ -62,6 +64,24 @@ docs: $(STAMP)
 # on two cores), then regenerates docs/learning.md; reruns skip the runs already done
 learn: $(STAMP)
 	$(BIN)/mrcomm reproduce-learning --workers 2 --out results/learning
+
+# the recorded hyperparameter sweeps that chose agents/configs/<Name>-v0.json (a small grid around rl-zoo3's PPO
+# defaults, 2 seeds, scored on held-out episodes); each lands in docs/learning/sweep-<Name>-v0.{csv,json}, which
+# docs/learning.md shows. About two hours on two cores; reruns skip the finished runs.
+SWEEPS := results/sweeps
+define sweep
+	$(BIN)/mrcomm train $(1) --seeds 0,1 --out $(SWEEPS)/$(1) --workers 2 --quiet $(2)
+	cp $(SWEEPS)/$(1)/summary.csv docs/learning/sweep-$(1).csv
+	cp $(SWEEPS)/$(1)/sweep.json docs/learning/sweep-$(1).json
+endef
+
+sweep: $(STAMP)
+	$(call sweep,ChannelAssociation-v0,--grid learning_rate=0.0003$(comma)0.001 --grid ent_coef=0.0$(comma)0.01 --param emission_cost=0.1)
+	$(call sweep,MapSync-v0,--grid learning_rate=0.0002$(comma)0.0005 --grid ent_coef=0.0$(comma)0.01 --param lam=0.01)
+	$(call sweep,AsyncCL-v0,--grid learning_rate=0.0002$(comma)0.0005 --grid ent_coef=0.0$(comma)0.005 --param lam=0.1)
+	$(call sweep,RendezvousMapping-v0,--algo maskable_ppo --grid learning_rate=0.0002$(comma)0.0005 --grid timesteps=60000$(comma)240000 --param d_comms=1000.0)
+	$(call sweep,MultiHop-v0,--timesteps 100000 --grid learning_rate=0.0003$(comma)0.001 --grid ent_coef=0.0$(comma)0.01 --param lam=0.0)
+	$(BIN)/mrcomm reproduce-learning --docs-only
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -429,3 +429,21 @@ def test_individual_reward_is_the_share_of_observers_that_singled_the_robot_out(
         for j in range(9):
             share = singled[j] / seen[j] if seen[j] else 1.0
             assert rewards[f"robot_{j}"] == pytest.approx(share - 1.0 - 0.25 * acts[f"robot_{j}"], abs=1e-12)
+
+
+@pytest.mark.parametrize("config", [{"scene": "neighborhood", "w": 12, "v": 9}, {"n_robots": 25, "mobile_fraction": 0.0}])
+def test_the_first_id_column_is_the_bit_a_blink_code_sends_now(config):
+    # rev 3: a policy that reads only its observation (blink the first ID column; the beacon phase, the last
+    # one-hot column, blinks always) emits exactly what id_bits' schedule table emits, robot by robot
+    env = parallel_env(max_cycles=30, **config)
+    obs, _ = env.reset(seed=3)
+    views = env.local_views()
+    id_bits = POLICIES["id_bits"]()
+    id_bits.reset(views, 3)
+    steps = 0
+    while env.agents:
+        from_obs = {a: int(o[0] > 0.5 or o[-1] > 0.5) for a, o in obs.items()}
+        assert from_obs == id_bits.act(obs, views)
+        obs, *_ = env.step(from_obs)
+        steps += 1
+    assert steps >= env.unwrapped._id_bits  # every ID bit's phase was compared (the code then ends the episode)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import pytest
 import torch
@@ -103,6 +104,8 @@ def test_reproduce_learning_end_to_end_on_a_tiny_budget(tmp_path, monkeypatch):
             str(docs),
             "--quiet",
             "--export-pretrained",
+            "--workers",
+            "1",  # the monkeypatched configuration lives in this process only
         ]
     )
     assert code == 0
@@ -118,7 +121,17 @@ def test_reproduce_learning_end_to_end_on_a_tiny_budget(tmp_path, monkeypatch):
     assert len(runs) == 2
     before = [p.stat().st_mtime_ns for p in runs]
     main(
-        ["reproduce-learning", "ChannelAssociation-v0", "--out", str(tmp_path / "runs"), "--docs", str(docs), "--quiet"]
+        [
+            "reproduce-learning",
+            "ChannelAssociation-v0",
+            "--out",
+            str(tmp_path / "runs"),
+            "--docs",
+            str(docs),
+            "--quiet",
+            "--workers",
+            "1",
+        ]
     )
     assert [p.stat().st_mtime_ns for p in runs] == before
 
@@ -141,3 +154,16 @@ def test_pretrained_model_is_small_and_evaluates(env_id, tmp_path):
 def test_every_env_with_a_learning_configuration_ships_a_pretrained_model():
     configured = [e for e in env_ids() if (CONFIG_DIR / f"{short_name(e)}.json").exists()]
     assert configured and set(configured) <= set(SHIPPED), f"missing: {sorted(set(configured) - set(SHIPPED))}"
+
+
+def test_learning_page_is_current_with_its_recorded_tables_and_sweeps(tmp_path):
+    # docs/learning.md is rendered from docs/learning/<Name>-v0.csv (the comparison) and sweep-<Name>-v0.* (the
+    # hyperparameter sweeps) with the live configs: re-rendering them must give the committed page
+    import shutil
+
+    docs = Path(__file__).parents[1] / "docs"
+    shutil.copytree(docs / "learning", tmp_path / "learning")
+    for fragment in (tmp_path / "learning").glob("*.md"):
+        fragment.unlink()  # every section is rebuilt, none is copied
+    assert main(["reproduce-learning", "--docs-only", "--docs", str(tmp_path)]) == 0
+    assert (tmp_path / "learning.md").read_text() == (docs / "learning.md").read_text()

@@ -3,6 +3,7 @@ in ``mrcomm evaluate``, and one-line errors for bad runs."""
 
 from __future__ import annotations
 
+import csv
 import json
 import pickle
 
@@ -14,6 +15,7 @@ from agents import training
 from agents.learned import LearnedPolicy, load_policy
 from agents.training import RunError, TrainConfig, train
 from mrcomm_env.experiments.cli import main
+from mrcomm_env.experiments.learning import sweep_section
 
 torch.set_num_threads(1)
 
@@ -184,3 +186,59 @@ def test_learned_actions_come_from_the_network(tmp_path):
         dist = policy.model.policy.get_distribution(policy.model.policy.obs_to_tensor(stacked)[0])
         expected = dist.mode().numpy()
     assert [actions[a] for a in env.agents] == expected.tolist()
+
+
+def _tiny_config_file(tmp_path) -> str:
+    path = tmp_path / "tiny.json"
+    settings = {"env_kwargs": dict(ENV_KWARGS), "n_envs": 1, "net_arch": [16], **HYPER}
+    path.write_text(json.dumps({"ppo": settings}))
+    return str(path)
+
+
+def test_train_seeds_and_grid_run_every_combination_through_the_runner(tmp_path, capsys):
+    out = tmp_path / "sweep"
+    args = ["train", ENV, "--timesteps", str(ROLLOUT), "--config", _tiny_config_file(tmp_path), "--out", str(out)]
+    # a hyperparameter of PPO, a run setting and an environment argument, each routed to its own place
+    grid = ["--grid", "learning_rate=0.001,0.0003", "--grid", "net_arch=[8],[16,16]", "--grid", "emission_cost=0.5"]
+    code = main([*args, *grid, "--seeds", "0,1", "--eval-episodes", "2", "--workers", "1", "--quiet"])
+    assert code == 0
+    rows = list(csv.DictReader(open(out / "summary.csv")))
+    assert len(rows) == 2 * 2 * 1 * 2  # grid points × seeds
+    assert [r["seed"] for r in rows[:2]] == ["0", "1"]  # fixed order: grid values as given, then the seeds
+    for row in rows:
+        record = json.loads((out / row["run"] / "config.json").read_text())
+        assert record["hyperparams"]["learning_rate"] == float(row["learning_rate"])
+        assert record["net_arch"] == json.loads(row["net_arch"])
+        assert record["env_kwargs"]["emission_cost"] == 0.5 and record["seed"] == int(row["seed"])
+        assert int(row["timesteps"]) >= ROLLOUT and np.isfinite(float(row["eval_completion_time"]))
+    assert "grid points by held-out completion_time" in capsys.readouterr().out
+    record = json.loads((out / "sweep.json").read_text())
+    assert record["command"].startswith("mrcomm train ChannelAssociation-v0") and record["seeds"] == [0, 1]
+    # the recorded sweep renders as a ranked table of its grid points in docs/learning.md
+    docs = tmp_path / "docs"
+    (docs / "learning").mkdir(parents=True)
+    (docs / "learning" / f"sweep-{ENV}.csv").write_text((out / "summary.csv").read_text())
+    (docs / "learning" / f"sweep-{ENV}.json").write_text((out / "sweep.json").read_text())
+    table = [line for line in sweep_section(ENV, docs).splitlines() if line.startswith("| 0.")]
+    assert len(table) == 4  # one row per grid point (learning_rate × net_arch), seeds pooled
+    # a rerun trains nothing again
+    before = sorted(p.stat().st_mtime_ns for p in out.rglob("model.zip"))
+    assert main([*args, *grid, "--seeds", "0,1", "--eval-episodes", "2", "--workers", "1", "--quiet"]) == 0
+    assert sorted(p.stat().st_mtime_ns for p in out.rglob("model.zip")) == before
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--grid", "emission_cost=-1"], "emission_cost"),  # the env's own check, before any training
+        (["--grid", "learning_rate"], "--grid takes KEY=V1,V2"),
+        (["--seeds", "1,1"], "--seeds takes distinct integers"),
+    ],
+)
+def test_bad_sweeps_are_refused_in_one_line_before_any_training(tmp_path, capsys, extra, message):
+    out = tmp_path / "sweep"
+    code = main(["train", ENV, "--out", str(out), "--quiet", "--workers", "1", *extra])
+    assert code != 0
+    err = capsys.readouterr().err.strip()
+    assert message in err and "Traceback" not in err and len(err.splitlines()) <= 2
+    assert not out.exists()

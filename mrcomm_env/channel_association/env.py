@@ -4,7 +4,7 @@
 | --- | --- |
 | Agents | `neighborhood`: w + 1 (`robot_0` observes, `robot_1 … robot_w` are its neighbours); `field`: `n_robots` |
 | Actions | `Discrete(2)`: 1 = emit a message pair (light on + wireless broadcast of the own ID), 0 = stay silent |
-| Observations | `Box(0, 1, (2⌈log2 N⌉ + 11,), float32)`: own ID bits, observer flag, step/max_cycles, last 4 emissions (newest first), own i-state: fraction matched, ambiguity (edges − v)/edges, unresolved u/(u+8), new IDs this step n/(n+4); then the clock phase, one-hot of step mod (⌈log2 N⌉ + 1), which a blink code needs |
+| Observations | `Box(0, 1, (2⌈log2 N⌉ + 11,), float32)`: own ID bits rotated left by the clock phase (the first is the bit a blink code sends now), observer flag, step/max_cycles, last 4 emissions (newest first), own i-state: fraction matched, ambiguity (edges − v)/edges, unresolved u/(u+8), new IDs this step n/(n+4); then the clock phase, one-hot of step mod (⌈log2 N⌉ + 1), which a blink code needs |
 | Arguments | `scene`, `w`, `v`, `n_robots`, `separation`, `mobile_fraction`, `speed`, `wireless_range`, `visual_range`, `drop_time`, `miss_probability`, `miss_tolerance`, `max_cycles`, `emission_cost` |
 
 Every robot has a global wireless ID (its index) and sees its neighbours only as anonymous blobs to
@@ -172,6 +172,13 @@ class ChannelAssociationEnv(MrcommParallelEnv):
             "one-hot of step mod (⌈log2 N⌉ + 1), which a blink code needs; `reward_mode=individual` gives each "
             "robot the share of the observers that see it which have singled it out (what its own blinking decides)",
         ),
+        (
+            "v0 rev 3",
+            "the own ID bits are read relative to the clock: at phase p the observation holds the ID rotated left by "
+            "p, so its first column is the bit a blink code would send now (an agent-relative layout; the same "
+            "information as rev 2, which a shared PPO policy had to decode as a product of ID bit and phase and "
+            "did not find in 300,000 agent-steps)",
+        ),
     ]
 
     #: populations up to this size use slot-per-robot filters (bit sets, or the literal (N, N, N) 0/1
@@ -201,6 +208,9 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         ids = np.arange(n)
         self._id_code = ((ids[:, None] >> np.arange(self._id_bits)[None, :]) & 1).astype(np.float32)
         self._clock = self._id_bits + 1  # the phase a blink code of ⌈log2 N⌉ bits plus a beacon cycles through
+        # (clock, N, B): at phase p the ID bits rotated left by p, so that column 0 holds bit p; the beacon phase
+        # p = B is a full turn (the plain ID), and the phase one-hot tells it apart
+        self._clock_codes = np.stack([np.roll(self._id_code, -p, axis=1) for p in range(self._clock)])
         self._obs_dim = self._id_bits + 1 + HISTORY + 5 + self._clock
         self._phase_col = self._obs_dim - self._clock
         self._obs_space = spaces.Box(0.0, 1.0, shape=(self._obs_dim,), dtype=np.float32)
@@ -216,7 +226,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         else:
             self.scene = SparseFieldScene(c, n)
         observer = self.scene.observer.astype(np.float32)
-        # observation = [static: own ID bits, observer flag | dynamic: step, 4 emissions, 4 i-state stats]
+        # observation = [own ID bits (rotated by the phase in _observe), observer flag | dynamic: step, 4 emissions, 4 i-state stats]
         self._static_obs = np.concatenate((self._id_code, observer[:, None]), axis=1)
         self._n_static = self._static_obs.shape[1]
         k = np.arange(2 * n + 2, dtype=np.float64)  # counts are at most 2N (new W + new V IDs)
@@ -330,6 +340,9 @@ class ChannelAssociationEnv(MrcommParallelEnv):
 
     def _observe(self) -> np.ndarray:
         obs = self._obs
+        phase = self.step_count % self._clock
+        # the own ID read from the bit the clock points at (rev 3): column 0 is the bit a blink code sends now
+        obs[:, : self._id_bits] = self._clock_codes[phase]
         obs[:, self._n_static] = min(self.step_count / self._max_cycles, 1.0)
         obs[:, self._phase_col :] = 0.0
         obs[:, self._phase_col + self.step_count % self._clock] = 1.0

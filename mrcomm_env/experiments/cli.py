@@ -416,6 +416,7 @@ def main(argv: list[str] | None = None) -> int:
     debug = "--debug" in argv  # known before parsing, so that even a parse error can show its traceback
     try:
         args = build_parser().parse_args(argv)
+        args.argv = argv  # the command as given, for the records a command writes (e.g. a sweep's)
         debug = args.debug
         return args.func(args)
     except KeyboardInterrupt:

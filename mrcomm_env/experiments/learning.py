@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 from pathlib import Path
 
@@ -34,6 +35,7 @@ def make_any_policy(env_id: str, name: str, **params):
 
 def add_train_parser(command) -> None:
     from mrcomm_env.experiments.cli import positive_int, seed_type
+    from mrcomm_env.experiments.sweep import add_runner_arguments
 
     p = command("train", help="train one shared SB3 policy for every agent of an env")
     p.add_argument("env_id")
@@ -44,8 +46,68 @@ def add_train_parser(command) -> None:
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="environment argument (JSON value)")
     p.add_argument("--config", metavar="FILE", help="JSON settings overriding agents/configs/<Name>-v0.json")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    p.add_argument(
+        "--seeds", type=seed_list, metavar="S,S,…", help="train one run per seed (a sweep; instead of --seed)"
+    )
+    p.add_argument(
+        "--grid",
+        action="append",
+        metavar="KEY=V,V,…",
+        help="sweep KEY over the values (repeatable: every combination); KEY is a hyperparameter of --algo, a "
+        "run setting (n_envs, net_arch, timesteps, …) or else an environment argument",
+    )
+    p.add_argument(
+        "--eval-episodes",
+        type=positive_int,
+        default=5,
+        help="sweeps: held-out episodes each run is scored on (seeds 20000+, apart from reproduce-learning's)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_runner_arguments(p)
     p.set_defaults(func=cmd_train)
+
+
+def seed_list(text: str) -> list[int]:
+    """``0,1,2`` → [0, 1, 2]: distinct integers ≥ 0."""
+    from mrcomm_env.experiments.cli import seed_type
+
+    seeds = [seed_type(part.strip()) for part in text.split(",") if part.strip()]
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise argparse.ArgumentTypeError(f"--seeds takes distinct integers ≥ 0 separated by commas, got {text!r}")
+    return seeds
+
+
+def split_values(text: str) -> list[str]:
+    """Comma-separated values, where commas inside brackets belong to a value (``net_arch=[64,64],[128,128]``)."""
+    values, depth, start = [], 0, 0
+    for i, char in enumerate(text):
+        depth += char in "[{"
+        depth -= char in "]}"
+        if char == "," and depth == 0:
+            values.append(text[start:i])
+            start = i + 1
+    values.append(text[start:])
+    return [v.strip() for v in values]
+
+
+def parse_grid(pairs: list[str] | None) -> dict[str, list]:
+    """``["lam=0.01,0.1", "learning_rate=3e-4,1e-3"]`` → {key: [values]} (values read as JSON where possible)."""
+    grid: dict[str, list] = {}
+    for pair in pairs or []:
+        key, sep, text = pair.partition("=")
+        key = key.strip()
+        if not sep or not key or not text.strip():
+            raise ValueError(f"--grid takes KEY=V1,V2,…, got {pair!r}")
+        if key in grid:
+            raise ValueError(f"--grid names {key!r} twice")
+        values = []
+        for item in split_values(text):
+            try:
+                values.append(json.loads(item))
+            except json.JSONDecodeError:
+                values.append(item)
+        grid[key] = values
+    return grid
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -74,17 +136,155 @@ def cmd_train(args: argparse.Namespace) -> int:
     env_kwargs = {**run.pop("env_kwargs", {}), **parse_params(args.param)}
     timesteps = args.timesteps if args.timesteps is not None else run.pop("timesteps", 200_000)
     run.pop("timesteps", None)
-    config = TrainConfig(
-        env_id=env_id,
-        algo=args.algo,
-        timesteps=timesteps,
-        seed=args.seed,
-        env_kwargs=env_kwargs,
-        hyperparams=hyper,
-        **run,
-    )
+    base = dict(env_id=env_id, algo=args.algo, timesteps=timesteps, env_kwargs=env_kwargs, hyperparams=hyper, **run)
+    if args.seeds is not None or args.grid:
+        default_out = f"runs/{short_name(env_id)}-{args.algo}-sweep"
+        return train_sweep(base, args.seeds or [args.seed], parse_grid(args.grid), Path(args.out or default_out), args)
+    config = TrainConfig(seed=args.seed, **base)
     train(config, out, progress=not args.quiet)
     print(f"wrote {out}/model.zip, {out}/config.json, {out}/progress.csv")
+    return 0
+
+
+def grid_setting(algo: str, key: str) -> str:
+    """Where a --grid key goes: ``"run"`` (TrainConfig's own settings), ``"hyper"`` (the algorithm's constructor)
+    or ``"env"`` (an environment argument, checked by the env itself)."""
+    import inspect
+
+    from agents.training import ALGORITHMS, RUN_KEYS
+
+    if key in (*RUN_KEYS, "timesteps"):
+        return "run"
+    module, name = ALGORITHMS[algo]
+    algorithm = getattr(importlib.import_module(module), name)
+    if key in inspect.signature(algorithm.__init__).parameters and key not in ("env", "policy", "seed", "device"):
+        return "hyper"
+    return "env"
+
+
+def sweep_configs(base: dict, seeds: list[int], grid: dict[str, list]) -> list[tuple[str, dict, dict]]:
+    """One (folder, TrainConfig arguments, grid point) per combination of the grid's values and per seed, in a
+    fixed order: the grid's keys as given, each key's values as given, then the seeds."""
+    import itertools
+
+    from agents.training import TrainConfig
+
+    places = {key: grid_setting(base["algo"], key) for key in grid}
+    out = []
+    for values in itertools.product(*grid.values()):
+        point = dict(zip(grid, values))
+        config = {**base, "env_kwargs": dict(base["env_kwargs"]), "hyperparams": dict(base["hyperparams"])}
+        for key, value in point.items():
+            if places[key] == "run":
+                config[key] = value
+            elif places[key] == "hyper":
+                config["hyperparams"][key] = value
+            else:
+                config["env_kwargs"][key] = value
+        label = ",".join(f"{k}={json.dumps(v, separators=(',', ':'))}" for k, v in point.items()) or "default"
+        for seed in seeds:
+            TrainConfig(**{**config, "seed": seed}).validate()  # every bad value is reported before any training
+            out.append((f"{label}/s{seed}", {**config, "seed": seed}, point))
+    return out
+
+
+def train_and_evaluate(out: str, config: dict, eval_seeds: list[int]) -> dict:
+    """A sweep task: train one run into ``out`` (resumed, or skipped when finished) and score it on ``eval_seeds``
+    with the env's comparison metric, bits and return. Returns JSON data only, so any backend can carry it."""
+    from agents.learned import LearnedPolicy
+
+    _train_task({"out": out, "config": config})
+    summary = training_summary(Path(out))
+    try:
+        spec = comparison_spec(config["env_id"])
+    except ValueError:  # no comparison section: score by the return alone
+        spec = {"metric": "episode_return", "deterministic": True}
+    policy = LearnedPolicy(out, config["env_id"], config.get("algo"), deterministic=spec.get("deterministic", True))
+    evaluation = evaluate_policy(config["env_id"], config.get("env_kwargs", {}), policy, eval_seeds, spec)
+    return {"run": out, "training": summary, "evaluation": evaluation}
+
+
+def training_summary(run: Path) -> dict:
+    """The last logged mean training return and the run's length, from SB3's ``progress.csv``."""
+    import csv
+
+    rows = list(csv.DictReader(open(run / "progress.csv")))
+    returns = [float(r["rollout/ep_rew_mean"]) for r in rows if r.get("rollout/ep_rew_mean")]
+    last = rows[-1] if rows else {}
+    return {
+        "timesteps": int(float(last.get("time/total_timesteps") or 0)),
+        "seconds": float(last.get("time/time_elapsed") or 0.0),
+        "final_train_return": returns[-1] if returns else float("nan"),
+    }
+
+
+def train_sweep(base: dict, seeds: list[int], grid: dict[str, list], out: Path, args) -> int:
+    """``mrcomm train --seeds/--grid``: every run through the sweep runner, then ``summary.csv`` (one row per run)
+    and a ranking of the grid points by their mean held-out score."""
+    import csv
+    import shlex
+    import sys
+
+    from mrcomm_env.core.stats import mean_ci95
+    from mrcomm_env.experiments.io import atomic_open, atomic_write_text
+    from mrcomm_env.experiments.sweep import Task, runner_from_args
+
+    runs = sweep_configs(base, seeds, grid)
+    eval_seeds = [20_000 + k for k in range(args.eval_episodes)]
+    tasks = [
+        Task(
+            "mrcomm_env.experiments.learning:train_and_evaluate",
+            {"out": str(out / name), "config": config, "eval_seeds": eval_seeds},
+            name,
+        )
+        for name, config, _ in runs
+    ]
+    results = runner_from_args(args, progress=not args.quiet).map(tasks, desc=f"training {len(tasks)} runs")
+    try:
+        spec = comparison_spec(base["env_id"])
+    except ValueError:
+        spec = {"metric": "episode_return", "lower_is_better": False}
+    metric = spec["metric"]
+    rows = []
+    for (name, config, point), result in zip(runs, results):
+        evaluation = result["evaluation"]
+        rows.append(
+            {
+                **point,
+                "seed": config["seed"],
+                **result["training"],
+                f"eval_{metric}": float(np.mean(evaluation["metric"])),
+                "eval_bits": float(np.mean(evaluation["bits"])),
+                "eval_return": float(np.mean(evaluation["return"])),
+                "run": name,
+            }
+        )
+    with atomic_open(out / "summary.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    points: dict[str, list[dict]] = {}
+    for row in rows:
+        points.setdefault(row["run"].rsplit("/", 1)[0], []).append(row)
+    sign = 1.0 if spec.get("lower_is_better") else -1.0
+    ranked = sorted(points.items(), key=lambda kv: sign * float(np.mean([r[f"eval_{metric}"] for r in kv[1]])))
+    print(f"{len(rows)} runs; grid points by held-out {metric} ({'lower' if sign > 0 else 'higher'} is better):")
+    for label, group in ranked:
+        m, h = mean_ci95([r[f"eval_{metric}"] for r in group])
+        b = float(np.mean([r["eval_bits"] for r in group]))
+        print(f"  {label}: {metric} {m:.4g} ± {h:.2g}, bits {b:.4g} ({len(group)} seeds)")
+    record = {
+        "command": "mrcomm " + " ".join(shlex.quote(a) for a in getattr(args, "argv", []) or sys.argv[1:]),
+        "algo": base["algo"],
+        "grid": grid,
+        "seeds": seeds,
+        "eval_episodes": len(eval_seeds),
+        "metric": metric,
+        "lower_is_better": bool(spec.get("lower_is_better")),
+        "bits_per": spec.get("bits_per", "step"),
+    }
+    atomic_write_text(out / "sweep.json", json.dumps(record, indent=2) + "\n")
+    print(f"wrote {out / 'summary.csv'} and {out / 'sweep.json'}")
     return 0
 
 
@@ -161,14 +361,12 @@ def _train_task(task: dict) -> str:
     return str(out)
 
 
-def reproduce_learning(env_id: str, out_dir: Path, workers: int = 1, quick: bool = False, progress: bool = True):
+def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress: bool = True):
     """Train ``seeds`` policies per cost value, evaluate them and every baseline on held-out seeds, and return
-    (rows, markdown). Rows: policy, cost, metric mean ± CI, bits per agent per step mean ± CI."""
-    from concurrent.futures import ProcessPoolExecutor
-
+    (rows, markdown). Rows: policy, cost, metric mean ± CI, bits per agent per step mean ± CI. The training runs
+    (each scored on the held-out seeds where it ran) go through the sweep runner the caller chose."""
     from tqdm.auto import tqdm
 
-    from agents.learned import LearnedPolicy
     from agents.training import split_settings
     from baselines import make_policy
     from mrcomm_env.core.stats import mean_ci95
@@ -204,22 +402,20 @@ def reproduce_learning(env_id: str, out_dir: Path, workers: int = 1, quick: bool
                     "seed": seed,
                 }
             )
-    bar = tqdm(total=len(tasks), desc=f"training {short_name_of(env_id)}", disable=not progress)
-    if workers > 1:
-        with ProcessPoolExecutor(workers) as pool:
-            for _ in pool.map(_train_task, tasks):
-                bar.update()
-    else:
-        for task in tasks:
-            _train_task(task)
-            bar.update()
-    bar.close()
+    from mrcomm_env.experiments.sweep import Task, run_tasks
 
+    sweep = [
+        Task(
+            "mrcomm_env.experiments.learning:train_and_evaluate",
+            {"out": task["out"], "config": task["config"], "eval_seeds": eval_seeds},
+            f"{cost_param}={task['cost']} s{task['seed']}",
+        )
+        for task in tasks
+    ]
     rows = []
     learned: dict[float, list[dict]] = {}
-    for task in tqdm(tasks, desc="evaluating learned", disable=not progress, leave=False):
-        policy = LearnedPolicy(task["out"], env_id, algo, deterministic=spec.get("deterministic", True))
-        result = evaluate_policy(env_id, {**env_kwargs, cost_param: task["cost"]}, policy, eval_seeds, spec)
+    for task, done in zip(tasks, run_tasks(sweep, desc=f"training {short_name_of(env_id)}")):
+        result = done["evaluation"]
         task["score"] = float(np.nanmean(result["metric"]))
         learned.setdefault(task["cost"], []).append(result)
     spec["best_run"] = _best(tasks, spec)
@@ -401,11 +597,14 @@ def learning_section(env_id: str, rows: list[dict], spec: dict, figure: str) -> 
 def cmd_reproduce_learning(args: argparse.Namespace) -> int:
     import csv
 
+    from agents.training import CONFIG_DIR
     from mrcomm_env.experiments.evaluation import limit_threads
+    from mrcomm_env.experiments.sweep import runner_from_args, using
     from mrcomm_env.registry import env_ids
 
     limit_threads()
-    from agents.training import CONFIG_DIR
+
+    from mrcomm_env.experiments.io import atomic_write_text
 
     targets = [canonical_id(e) for e in args.env_ids] or [
         e for e in env_ids() if (CONFIG_DIR / f"{short_name_of(e)}.json").exists()
@@ -413,12 +612,21 @@ def cmd_reproduce_learning(args: argparse.Namespace) -> int:
     out = Path(args.out)
     docs = Path(args.docs)
     (docs / "learning").mkdir(parents=True, exist_ok=True)
-    sections = []
+    if args.docs_only:  # re-render every section from its recorded table (e.g. after ``make sweep``)
+        for env_id in targets:
+            name = short_name_of(env_id)
+            table = docs / "learning" / f"{name}.csv"
+            if not table.exists():
+                continue
+            rows = read_rows(table)
+            section = learning_section(env_id, rows, comparison_spec(env_id), f"learning/{name}.png")
+            atomic_write_text(docs / "learning" / f"{name}.md", section + sweep_section(env_id, docs))
+        print(f"wrote {write_learning_page(docs)}")
+        return 0
     for env_id in targets:
         name = short_name_of(env_id)
-        rows, spec = reproduce_learning(
-            env_id, out / name, workers=args.workers, quick=args.quick, progress=not args.quiet
-        )
+        with using(runner_from_args(args, progress=not args.quiet)):
+            rows, spec = reproduce_learning(env_id, out / name, quick=args.quick, progress=not args.quiet)
         csv_path = docs / "learning" / f"{name}.csv"
         tmp = csv_path.with_name(f".{csv_path.name}.tmp")
         with open(tmp, "w", newline="") as fh:
@@ -428,21 +636,100 @@ def cmd_reproduce_learning(args: argparse.Namespace) -> int:
         tmp.replace(csv_path)
         figure = docs / "learning" / f"{name}.png"
         plot_comparison(rows, spec, f"{env_id}: learned vs scripted at equal bits", figure)
-        sections.append(learning_section(env_id, rows, spec, f"learning/{name}.png"))
+        section = learning_section(env_id, rows, spec, f"learning/{name}.png") + sweep_section(env_id, docs)
+        # one fragment per env: rerunning one env keeps the others' sections in the page
+        atomic_write_text(docs / "learning" / f"{name}.md", section)
         if args.export_pretrained:
             print(f"shipped {spec['best_run']} as {export_pretrained(spec['best_run'], env_id)}")
-    header = LEARNING_HEADER.format(command="mrcomm reproduce-learning" + (" --quick" if args.quick else ""))
-    page = docs / "learning.md"
-    tmp = page.with_name(".learning.md.tmp")
-    tmp.write_text(header + "\n".join(sections) + LEARNING_FOOTER)
-    tmp.replace(page)
+    page = write_learning_page(docs, quick=args.quick)
     print(f"wrote {page}")
     return 0
 
 
+def read_rows(path: Path) -> list[dict]:
+    """The comparison rows as ``reproduce-learning`` wrote them to ``docs/learning/<Name>-v0.csv``."""
+    import csv
+
+    def number(text: str):
+        return None if text == "" else float(text)
+
+    rows = []
+    for raw in csv.DictReader(open(path)):
+        row = {k: number(v) for k, v in raw.items() if k not in ("policy",)}
+        row["policy"], row["n"] = raw["policy"], int(float(raw["n"]))
+        rows.append(row)
+    return rows
+
+
+def write_learning_page(docs: Path, quick: bool = False) -> Path:
+    """``docs/learning.md``: the header, every env's fragment ``docs/learning/<Name>-v0.md`` (registry order) and
+    the footer."""
+    from mrcomm_env.experiments.io import atomic_write_text
+    from mrcomm_env.registry import env_ids
+
+    sections = [
+        (docs / "learning" / f"{short_name_of(e)}.md").read_text()
+        for e in env_ids()
+        if (docs / "learning" / f"{short_name_of(e)}.md").exists()
+    ]
+    header = LEARNING_HEADER.format(command="mrcomm reproduce-learning" + (" --quick" if quick else ""))
+    page = docs / "learning.md"
+    atomic_write_text(page, header + "\n".join(sections) + LEARNING_FOOTER)
+    return page
+
+
+def sweep_section(env_id: str, docs: Path) -> str:
+    """The recorded hyperparameter sweep of ``env_id`` (``make sweep``: ``docs/learning/sweep-<Name>-v0.csv`` and
+    its ``.json``), as a table of grid points ranked by their mean held-out score; empty when none is recorded."""
+    import csv
+
+    from mrcomm_env.core.stats import mean_ci95
+
+    name = short_name_of(env_id)
+    table, record = docs / "learning" / f"sweep-{name}.csv", docs / "learning" / f"sweep-{name}.json"
+    if not (table.exists() and record.exists()):
+        return ""
+    meta = json.loads(record.read_text())
+    rows = list(csv.DictReader(open(table)))
+    metric, keys = meta["metric"], list(meta["grid"])
+    groups: dict[tuple, list[dict]] = {}
+    for row in rows:
+        groups.setdefault(tuple(row[k] for k in keys), []).append(row)
+    sign = 1.0 if meta.get("lower_is_better") else -1.0
+
+    def score(group):
+        return float(np.mean([float(r[f"eval_{metric}"]) for r in group]))
+
+    lines = [
+        "",
+        "### Hyperparameter sweep",
+        "",
+        f"`{meta['command']}` ({len(rows)} runs of {int(float(rows[0]['timesteps'])):,} agent-steps; every other "
+        f"setting as in `agents/configs/{name}.json`; each run scored on {meta['eval_episodes']} held-out episodes, "
+        f"seeds apart from the comparison's). Ranked by the held-out {metric}; the interval is over training seeds.",
+        "",
+        f"| {' | '.join(keys)} | {metric} | bits / agent / {meta.get('bits_per', 'step')} | final training return "
+        "| minutes per run |",
+        "| " + " | ".join("---" for _ in range(len(keys) + 4)) + " |",
+    ]
+    for values, group in sorted(groups.items(), key=lambda kv: sign * score(kv[1])):
+        m, h = mean_ci95([float(r[f"eval_{metric}"]) for r in group])
+        bits = np.mean([float(r["eval_bits"]) for r in group])
+        ret = np.mean([float(r["final_train_return"]) for r in group])
+        minutes = np.mean([float(r["seconds"]) for r in group]) / 60
+        lines.append(f"| {' | '.join(values)} | {m:.4g} ± {h:.2g} | {bits:.4g} | {ret:.4g} | {minutes:.1f} |")
+    from agents.training import default_config
+
+    settings = default_config(env_id, meta.get("algo", "ppo"))
+    chosen = ", ".join(f"`{k}={json.dumps(settings.get(k, settings.get('env_kwargs', {}).get(k)))}`" for k in keys)
+    lines += ["", f"`agents/configs/{name}.json` trains with {chosen}."]
+    return "\n".join(lines) + "\n"
+
+
 LEARNING_HEADER = """# Learned communication against the papers' algorithms, at equal bits
 
-_Generated by `{command}` (`make learn`); do not edit by hand. Settings: `agents/configs/<Name>-v0.json`._
+_Generated by `{command}` (`make learn`); do not edit by hand. Settings: `agents/configs/<Name>-v0.json`,
+chosen by the recorded hyperparameter sweep under each env's section (`make sweep`)._
 
 One PPO policy is shared by every agent (parameter sharing, `agents/vecenv.py`). For each env, the price of a
 bit in the reward (the cost argument) is swept; each value is trained with several seeds and each trained
@@ -476,17 +763,22 @@ A learned policy sees only its observation. The scripted baselines read their ro
 
 def add_learning_parsers(command) -> None:
     """``train`` and ``reproduce-learning``; ``command(name, **kw)`` adds a subcommand parser."""
-    from mrcomm_env.experiments.cli import positive_int
+    from mrcomm_env.experiments.sweep import add_runner_arguments
 
     add_train_parser(command)
     p = command("reproduce-learning", help="learned policies against every baseline at equal bits")
     p.add_argument("env_ids", nargs="*", help="default: every env with a learning configuration")
     p.add_argument("--out", default="results/learning", help="training runs and evaluations")
     p.add_argument("--docs", default="docs", help="where learning.md and its figures go")
-    p.add_argument("--workers", type=positive_int, default=1, help="training runs at once (one core each)")
     p.add_argument("--quick", action="store_true", help="a tenth of the training budget (a smoke run)")
     p.add_argument("--export-pretrained", action="store_true", help="ship each env's best run in agents/pretrained")
+    p.add_argument(
+        "--docs-only",
+        action="store_true",
+        help="no training: re-render learning.md from the recorded tables and sweeps",
+    )
     p.add_argument("--quiet", action="store_true")
+    add_runner_arguments(p)
     p.set_defaults(func=cmd_reproduce_learning)
 
 
