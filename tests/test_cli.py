@@ -105,6 +105,31 @@ def test_bench_writes_json_with_ratio(tmp_path):
     assert entry["ratio_to_reference"] == pytest.approx(entry["env_steps_per_s"] / data["reference"]["env_steps_per_s"])
 
 
+@pytest.mark.xdist_group("processes")
+def test_bench_sweep_times_each_backend_on_identical_results(tmp_path, monkeypatch, capsys):
+    from mrcomm_env.experiments import bench
+
+    monkeypatch.setattr(bench, "SWEEP_TASKS", 3)  # the timing is not what this test checks: keep it short
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray → ImportError, wherever this test runs
+    out = tmp_path / "bench.json"
+    argv = ["bench", "--sweep", "MapSync-v0", "--param", "max_cycles=20", "--runs", "1", "--out", str(out)]
+    assert main(argv) == 0
+    sweep = json.loads(out.read_text())["sweep"]
+    assert sweep["env_id"] == "mrcomm/MapSync-v0" and sweep["tasks"] == 3 and sweep["params"] == {"max_cycles": 20}
+    local = [sweep["backends"]["workers 1"], sweep["backends"]["workers 2"]]
+    assert all(b["identical_to_serial"] and b["sweep_s"] > 0 and b["overhead_s"] >= 0 for b in local)
+    assert local[0]["speedup"] == 1 and local[1]["speedup"] == pytest.approx(local[0]["sweep_s"] / local[1]["sweep_s"])
+    assert "mrcomm-env[ray]" in sweep["backends"]["ray 2 CPUs"]["skipped"]
+    assert "sweep  ray 2 CPUs: skipped" in capsys.readouterr().out
+
+
+def test_bench_sweep_times_one_env(tmp_path, capsys, no_episode):
+    argv = ["bench", "--sweep", *env_ids()[:2], "--out", str(tmp_path / "bench.json")]
+    assert main(argv) == 2
+    assert "--sweep times one env" in _one_error_line(capsys.readouterr().err)
+    assert not (tmp_path / "bench.json").exists()
+
+
 # ---------------------------------------------------------------------------------------------- errors
 def _one_error_line(err: str) -> str:
     """The CLI's stderr on an error: exactly one line, no traceback."""

@@ -95,10 +95,16 @@ def test_ray_without_ray_installed_says_how_to_get_it(monkeypatch):
 
 def test_a_ray_task_refuses_to_run_on_a_node_with_other_code():
     # what each Ray task runs first (in-process here: the check needs no cluster); the cache key holds the
-    # driver's code version, so a node with other code must not file its numbers under it
+    # driver's code version, so a node with other code, or other compiled twins, must not file its numbers under it
+    from mrcomm_env.core import backend
     from mrcomm_env.experiments.sweep import CodeMismatch, _ray_execute, code_version
 
-    assert _ray_execute(FN + "count_calls", {"log": os.devnull, "value": 3}, code_version()) == 9
-    other = "0" * len(code_version())
-    with pytest.raises(CodeMismatch, match=rf"runs mrcomm-env code {code_version()}, the driver {other}"):
-        _ray_execute(FN + "count_calls", {"log": os.devnull, "value": 3}, other)
+    task = (FN + "count_calls", {"log": os.devnull, "value": 3})
+    here = {"code": code_version(), "backend": backend.name()}
+    assert _ray_execute(*task, here) == 9
+    other_code = {**here, "code": "0" * len(here["code"])}
+    with pytest.raises(CodeMismatch, match=rf"runs mrcomm-env code {here['code']} .*the driver code {'0' * 12}"):
+        _ray_execute(*task, other_code)
+    other_twins = {**here, "backend": "numpy" if here["backend"] == "numba" else "numba"}
+    with pytest.raises(CodeMismatch, match=rf"with {here['backend']} hot loops, .* with {other_twins['backend']}:"):
+        _ray_execute(*task, other_twins)

@@ -189,16 +189,15 @@ def sweep_section(
 def _ray_sweep(tasks: list, no_ops: list, runs: int, timed, serial_results: list) -> dict[str, Any]:
     """The Ray column of :func:`sweep_section`: a fresh local instance for each measurement, so that both the
     no-op and the real sweep start their worker processes as the first sweep on a cluster does."""
-    import importlib.util
     import statistics
+    import time
 
     from mrcomm_env.experiments.sweep import Runner
 
-    if importlib.util.find_spec("ray") is None:
+    try:
+        import ray
+    except ImportError:
         return {"skipped": "ray is not installed (pip install 'mrcomm-env[ray]')"}
-    import time
-
-    import ray
 
     def fresh_ray() -> float:
         start = time.perf_counter()

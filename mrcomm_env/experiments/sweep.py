@@ -15,7 +15,7 @@ Backends, chosen by one flag of the CLI (:func:`add_runner_arguments`):
 
 Every backend shows one progress bar over the tasks and retries a failed task once (on Ray, a task that raised
 is resubmitted by the runner; a task whose worker or node died is rerun by Ray's own ``max_retries``). On Ray,
-each task first checks that its node runs the driver's code (:func:`code_version`). With a ``cache`` folder, each result is written there atomically as soon
+each task first checks that its node runs the driver's code (:func:`code_version`) and compiled twins. With a ``cache`` folder, each result is written there atomically as soon
 as its task ends, under a name that includes a hash of the task, and a rerun loads it instead of running
 the task again: an interrupted sweep resumes where it stopped, and a task whose arguments changed runs anew.
 """
@@ -229,22 +229,22 @@ class Runner:
             import ray
         except ImportError as exc:
             raise ValueError("argument 'ray' needs Ray: pip install 'mrcomm-env[ray]' (docs/scaling.md)") from exc
+        from mrcomm_env.core import backend
+
+        driver = {"code": code_version(), "backend": backend.name()}
         if not ray.is_initialized():
-            # one BLAS/torch thread per task, as for local processes; the package must be importable on every
-            # node (installed there, as docs/scaling.md shows). A session the caller opened is used as it is.
-            ray.init(
-                address=self.ray,
-                runtime_env={"env_vars": {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}},
-                log_to_driver=False,
-            )
+            # one BLAS/torch thread per task, as for local processes, and the driver's choice of compiled twins
+            # (docs/architecture.md); the package must be importable on every node (installed there, as
+            # docs/scaling.md shows). A session the caller opened is used as it is.
+            env_vars = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", backend.VARIABLE: driver["backend"]}
+            ray.init(address=self.ray, runtime_env={"env_vars": env_vars}, log_to_driver=False)
         # Ray itself reruns a task whose worker process or node died (max_retries). A task that raised is
         # resubmitted here instead of by Ray's retry_exceptions, so that the retry shows in ``stats`` as on the
         # other backends.
         remote = ray.remote(num_cpus=1, max_retries=ATTEMPTS - 1, retry_exceptions=False)(_ray_execute)
-        driver_code = code_version()
 
         def submit(i: int):
-            return remote.options(name=tasks[i].key()).remote(tasks[i].fn, tasks[i].kwargs, driver_code)
+            return remote.options(name=tasks[i].key()).remote(tasks[i].fn, tasks[i].kwargs, driver)
 
         pending = {submit(i): (i, 1) for i in todo}
         try:
@@ -273,21 +273,27 @@ class Runner:
 
 
 class CodeMismatch(RuntimeError):
-    """A Ray node runs other mrcomm-env code than the driver: its results would be cached under the wrong key."""
+    """A Ray node runs other mrcomm-env code, or other compiled twins of hot loops, than the driver: its numbers
+    would not be the driver's, and would be cached under the driver's key."""
 
 
-def _ray_execute(fn: str, kwargs: dict[str, Any], driver_code: str | None = None) -> Any:
+def _ray_execute(fn: str, kwargs: dict[str, Any], driver: dict[str, str] | None = None) -> Any:
     """What a Ray worker runs: :func:`execute`, after checking that this node has the driver's code (the cache
-    key holds the driver's :func:`code_version`, so a node with other code would file its numbers under it)."""
+    key holds the driver's :func:`code_version`) and the driver's choice of compiled twins (numba and numpy
+    estimates differ by round-off: docs/architecture.md)."""
     _one_thread()
-    here = code_version()
-    if driver_code is not None and here != driver_code:
-        import socket
+    if driver is not None:
+        from mrcomm_env.core import backend
 
-        raise CodeMismatch(
-            f"node {socket.gethostname()} runs mrcomm-env code {here}, the driver {driver_code}: install the same "
-            "version of mrcomm-env on every node (docs/scaling.md)"
-        )
+        here = {"code": code_version(), "backend": backend.name()}
+        if here != driver:
+            import socket
+
+            raise CodeMismatch(
+                f"node {socket.gethostname()} runs mrcomm-env code {here['code']} with {here['backend']} hot loops, "
+                f"the driver code {driver['code']} with {driver['backend']}: install the same version of mrcomm-env, "
+                f"with the same extras, on every node (docs/scaling.md)"
+            )
     return execute(fn, kwargs)
 
 
