@@ -41,9 +41,13 @@ def test_a_failed_task_is_retried_once(tmp_path):
 def test_a_task_that_fails_twice_is_reported_with_its_arguments_after_the_others(tmp_path):
     tasks = [*_tasks(2), Task(FN + "always_fail", {"value": 41}, "doomed")]
     runner = Runner(workers=1, progress=False)
-    with pytest.raises(SweepError, match=r"1 of 3 tasks failed twice; doomed \{\"value\": 41\}.*cannot succeed"):
+    with pytest.raises(
+        SweepError, match=r"1 of 3 tasks failed twice; doomed \{\"value\": 41\}.*cannot succeed"
+    ) as info:
         runner.map(tasks, cache=tmp_path)
     assert runner.stats["retried"] == 1
+    # the task's own exception is the cause: a traceback (mrcomm --debug) shows where the task failed
+    assert isinstance(info.value.__cause__, RuntimeError) and info.value.__cause__.__traceback__ is not None
     assert len(list(tmp_path.glob("*.json"))) == 2  # the two good results were kept for the rerun
 
 

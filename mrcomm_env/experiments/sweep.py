@@ -155,6 +155,7 @@ class Runner:
                     results[i], done[i] = json.loads(path.read_text())["result"], True
         todo = [i for i in range(len(tasks)) if not done[i]]
         failures: list[str] = []
+        errors: list[BaseException] = []
         self.stats = {"run": len(todo), "cached": len(tasks) - len(todo), "retried": 0}
 
         from tqdm.auto import tqdm
@@ -165,6 +166,7 @@ class Runner:
             bar.update()
             if error is not None:
                 failures.append(f"{tasks[i].describe()}: {type(error).__name__}: {error}")
+                errors.append(error)
                 return
             results[i] = _normalise(result)
             if cache_dir is not None:
@@ -186,7 +188,8 @@ class Runner:
             bar.close()
         if failures:
             more = f" (and {len(failures) - 1} more)" if len(failures) > 1 else ""
-            raise SweepError(f"{len(failures)} of {len(tasks)} tasks failed twice; {failures[0]}{more}")
+            # chained to the first failure: ``mrcomm --debug`` then shows where that task failed, not only here
+            raise SweepError(f"{len(failures)} of {len(tasks)} tasks failed twice; {failures[0]}{more}") from errors[0]
         return results
 
     # ------------------------------------------------------------------------------------------ backends
@@ -260,6 +263,10 @@ class Runner:
                             pending[submit(i)] = (i, attempt + 1)
                         else:
                             cause = getattr(exc, "cause", None)
+                            if isinstance(cause, BaseException) and cause.__cause__ is None:
+                                # the error as the task raised it, chained to Ray's copy that holds the remote
+                                # traceback (what ``mrcomm --debug`` then shows)
+                                cause.__cause__ = exc
                             finished(i, error=cause if isinstance(cause, BaseException) else exc)
                     except ray.exceptions.RayError as exc:  # its worker or node died twice, or it was cancelled
                         finished(i, error=exc)

@@ -100,9 +100,14 @@ def test_a_task_that_fails_once_succeeds_on_its_retry(cluster_address, tmp_path)
 
 def test_a_task_that_fails_twice_is_reported_with_its_arguments(cluster_address, tmp_path):
     runner = Runner(ray=cluster_address, progress=False)
-    with pytest.raises(SweepError, match=r"1 of 3 tasks failed twice; doomed \{\"value\": 41\}.*cannot succeed"):
+    with pytest.raises(
+        SweepError, match=r"1 of 3 tasks failed twice; doomed \{\"value\": 41\}.*cannot succeed"
+    ) as info:
         runner.map([*_draws(2), Task(HELPERS + "always_fail", {"value": 41}, "doomed")], cache=tmp_path)
     assert runner.stats["retried"] == 1
+    # the error as the task raised it, chained to Ray's copy that holds the remote traceback
+    cause = info.value.__cause__
+    assert isinstance(cause, RuntimeError) and isinstance(cause.__cause__, ray.exceptions.RayTaskError)
     assert len(list(tmp_path.glob("*.json"))) == 2  # the others' results were kept for a rerun
 
 
