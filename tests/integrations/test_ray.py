@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -113,3 +114,19 @@ def test_a_task_that_fails_twice_is_reported_with_its_arguments(cluster_address,
 
 def _draws(n: int) -> list[Task]:
     return [Task(HELPERS + "draw", {"seed": s}, f"draw s={s}") for s in range(n)]
+
+
+def test_a_driver_that_stops_cancels_the_tasks_it_sent(cluster_address, tmp_path):
+    # the first result cannot be stored (the cache "folder" is a file), so the driver stops while one task of a
+    # minute runs and another waits; both must leave the cluster, not hold its CPUs for that minute
+    blocked = tmp_path / "a_file"
+    blocked.write_text("not a folder")
+    slow = [Task(HELPERS + "node_of", {"index": i, "seconds": 60.0}) for i in range(2)]
+    runner = Runner(ray=cluster_address, progress=False)
+    with pytest.raises(OSError):
+        runner.map([*_draws(1), *slow], cache=blocked)
+    total = ray.cluster_resources()["CPU"]
+    deadline = time.monotonic() + 20
+    while ray.available_resources().get("CPU", 0) < total and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert ray.available_resources().get("CPU", 0) == total
