@@ -117,7 +117,7 @@ def test_bench_sweep_times_each_backend_on_identical_results(tmp_path, monkeypat
     sweep = json.loads(out.read_text())["sweep"]
     assert sweep["env_id"] == "mrcomm/MapSync-v0" and sweep["tasks"] == 3 and sweep["params"] == {"max_cycles": 20}
     local = [sweep["backends"]["workers 1"], sweep["backends"]["workers 2"]]
-    assert all(b["identical_to_serial"] and b["sweep_s"] > 0 and b["overhead_s"] >= 0 for b in local)
+    assert all(b["identical_to_serial"] and b["sweep_s"] > 0 and b["overhead_s"] >= 0 and b["cores"] > 0 for b in local)
     assert local[0]["speedup"] == 1 and local[1]["speedup"] == pytest.approx(local[0]["sweep_s"] / local[1]["sweep_s"])
     assert "mrcomm-env[ray]" in sweep["backends"]["ray 2 CPUs"]["skipped"]
     assert "sweep  ray 2 CPUs: skipped" in capsys.readouterr().out

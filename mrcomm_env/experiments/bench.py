@@ -127,8 +127,13 @@ def sweep_section(
     local Ray instance with 2 CPUs, with the speed-up over ``--workers 1``; and each backend's overhead: the wall
     time of as many no-op tasks on a fresh backend (process or Ray worker start-up included). Ray's own start
     (``ray.init``, once per cluster) is reported apart. Each time is the median of ``runs``; every backend must
-    return exactly the serial results."""
+    return exactly the serial results.
+
+    The backends take turns within each run, so that a load that comes and goes on a shared machine falls on
+    all of them alike; and for the local backends ``cores`` says how many cores the sweep got (CPU time of this
+    process and its workers over wall time: 2 for two workers on two free cores, less when others compete)."""
     import os
+    import resource
     import statistics
     import time
 
@@ -138,10 +143,16 @@ def sweep_section(
     tasks = episode_tasks(env_id, n_tasks, params)
     no_ops = [Task(f"{__name__}:no_op", {"index": i}, f"no-op {i}") for i in range(n_tasks)]
 
-    def timed(runner: Runner, sweep: list) -> tuple[float, list]:
-        start = time.perf_counter()
+    def cpu_seconds() -> float:
+        # this process and its finished children (a process pool's workers are joined when its sweep ends)
+        own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+        return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+    def timed(runner: Runner, sweep: list) -> tuple[float, list, float]:
+        cpu, start = cpu_seconds(), time.perf_counter()
         results = runner.map(sweep, desc=runner.backend)
-        return time.perf_counter() - start, results
+        wall = time.perf_counter() - start
+        return wall, results, (cpu_seconds() - cpu) / wall
 
     out: dict[str, Any] = {
         "env_id": env_id,
@@ -150,46 +161,66 @@ def sweep_section(
         "tasks": n_tasks,
         "runs": runs,
         "compiled_backend": backend.name(),
-        # the machine's load when the benchmark began: other processes on the same cores slow every backend
+        # the machine's load when the benchmark began and ended: other processes on the same cores slow every
+        # backend, and the parallel ones most
         "load_average_1min": os.getloadavg()[0],
         "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
-        "backends": {},
     }
-    serial_results = None
-    for workers in (1, 2):
-        runner = Runner(workers=workers, progress=False)
-        # a fresh process pool per map: the no-op sweep pays the pool's start as a real sweep does
-        overheads, times = [], []
-        for _ in range(runs):
-            overheads.append(timed(runner, no_ops)[0])
-            seconds, results = timed(runner, tasks)
-            times.append(seconds)
-        serial_results = results if workers == 1 else serial_results
-        out["backends"][f"workers {workers}"] = {
-            "sweep_s": statistics.median(times),
-            "overhead_s": statistics.median(overheads),
-            "identical_to_serial": results == serial_results,
+    local = {f"workers {w}": Runner(workers=w, progress=False) for w in (1, 2)}
+    samples: dict[str, dict[str, list]] = {name: {"sweep": [], "overhead": [], "cores": []} for name in local}
+    results: dict[str, list] = {}
+    ray_runs: list[dict] = []
+    for _ in range(runs):
+        for name, runner in local.items():  # a fresh process pool per map: the no-op sweep pays its start too
+            samples[name]["overhead"].append(timed(runner, no_ops)[0])
+            seconds, results[name], cores = timed(runner, tasks)
+            samples[name]["sweep"].append(seconds)
+            samples[name]["cores"].append(cores)
+        ray_runs.append(_ray_run(tasks, no_ops, timed))
+    serial = results["workers 1"]
+    backends: dict[str, dict[str, Any]] = {}
+    for name, sample in samples.items():
+        backends[name] = {
+            "sweep_s": statistics.median(sample["sweep"]),
+            "overhead_s": statistics.median(sample["overhead"]),
+            "cores": statistics.median(sample["cores"]),
+            "identical_to_serial": results[name] == serial,
         }
-    out["backends"][f"ray {RAY_CPUS} CPUs"] = _ray_sweep(tasks, no_ops, runs, timed, serial_results)
-    base = out["backends"]["workers 1"]["sweep_s"]
-    for name, result in out["backends"].items():
+    skipped = next((r["skipped"] for r in ray_runs if "skipped" in r), None)
+    if skipped is not None:
+        backends[f"ray {RAY_CPUS} CPUs"] = {"skipped": skipped}
+    else:
+        backends[f"ray {RAY_CPUS} CPUs"] = {
+            "sweep_s": statistics.median(r["sweep_s"] for r in ray_runs),
+            "overhead_s": statistics.median(r["overhead_s"] for r in ray_runs),
+            "start_s": statistics.median(r["start_s"] for r in ray_runs),
+            "identical_to_serial": all(r["results"] == serial for r in ray_runs),
+            "ray_version": ray_runs[0]["ray_version"],
+        }
+    out["backends"] = backends
+    out["load_average_1min_end"] = os.getloadavg()[0]
+    base = backends["workers 1"]["sweep_s"]
+    for name, result in backends.items():
         if "sweep_s" in result:
             result["speedup"] = base / result["sweep_s"]
             print(
                 f"sweep  {name}: {result['sweep_s']:.2f} s for {n_tasks} episodes of {env_id}, "
                 f"speed-up {result['speedup']:.2f}, overhead {result['overhead_s']:.2f} s"
+                + (f", {result['cores']:.2f} cores used" if "cores" in result else "")
                 + (f" (+ {result['start_s']:.2f} s to start Ray)" if "start_s" in result else "")
                 + ("" if result["identical_to_serial"] else "; RESULTS DIFFER FROM THE SERIAL RUN")
             )
         else:
             print(f"sweep  {name}: skipped ({result['skipped']})")
+    print(
+        f"sweep  load average (1 min): {out['load_average_1min']:.2f} at the start, {out['load_average_1min_end']:.2f} at the end"
+    )
     return out
 
 
-def _ray_sweep(tasks: list, no_ops: list, runs: int, timed, serial_results: list) -> dict[str, Any]:
-    """The Ray column of :func:`sweep_section`: a fresh local instance for each measurement, so that both the
-    no-op and the real sweep start their worker processes as the first sweep on a cluster does."""
-    import statistics
+def _ray_run(tasks: list, no_ops: list, timed) -> dict[str, Any]:
+    """One run of the Ray column of :func:`sweep_section`: a fresh local instance for each of the two sweeps, so
+    that both start their worker processes as the first sweep of a command on a cluster does."""
     import time
 
     from mrcomm_env.experiments.sweep import Runner
@@ -198,6 +229,8 @@ def _ray_sweep(tasks: list, no_ops: list, runs: int, timed, serial_results: list
         import ray
     except ImportError:
         return {"skipped": "ray is not installed (pip install 'mrcomm-env[ray]')"}
+    if ray.is_initialized():
+        return {"skipped": "a Ray session is already open in this process"}
 
     def fresh_ray() -> float:
         start = time.perf_counter()
@@ -213,28 +246,22 @@ def _ray_sweep(tasks: list, no_ops: list, runs: int, timed, serial_results: list
         )
         return time.perf_counter() - start
 
-    if ray.is_initialized():
-        return {"skipped": "a Ray session is already open in this process"}
     runner = Runner(ray="local", progress=False)  # uses the session fresh_ray opened
-    starts, overheads, times = [], [], []
     try:
-        for _ in range(runs):
-            starts.append(fresh_ray())
-            overheads.append(timed(runner, no_ops)[0])
-            ray.shutdown()
-            starts.append(fresh_ray())
-            seconds, results = timed(runner, tasks)
-            times.append(seconds)
-            ray.shutdown()
+        start_s = fresh_ray()
+        overhead_s = timed(runner, no_ops)[0]
+        ray.shutdown()
+        fresh_ray()
+        sweep_s, results, _ = timed(runner, tasks)  # Ray's workers are not our children: no CPU count
     except Exception as exc:  # noqa: BLE001 — a benchmark reports a backend it cannot start, and goes on
         return {"skipped": f"Ray failed: {type(exc).__name__}: {exc}"}
     finally:
         if ray.is_initialized():
             ray.shutdown()
     return {
-        "sweep_s": statistics.median(times),
-        "overhead_s": statistics.median(overheads),
-        "start_s": statistics.median(starts),
-        "identical_to_serial": results == serial_results,
+        "sweep_s": sweep_s,
+        "overhead_s": overhead_s,
+        "start_s": start_s,
+        "results": results,
         "ray_version": ray.__version__,
     }
