@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import stats
 
 
 def mean_ci95(values) -> tuple[float, float]:
@@ -17,5 +16,9 @@ def mean_ci95(values) -> tuple[float, float]:
     mean = float(x.mean())
     if x.size < 2:
         return mean, 0.0
+    # imported here: scipy.stats takes about a second to import, which every fresh sweep worker would pay
+    # (baselines import this module) although only the summaries use it
+    from scipy import stats
+
     half = float(stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / math.sqrt(x.size))
     return mean, half
