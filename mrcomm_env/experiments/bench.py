@@ -129,8 +129,9 @@ def sweep_section(
     (``ray.init``, once per cluster) is reported apart. Each time is the median of ``runs``; every backend must
     return exactly the serial results.
 
-    The backends take turns within each run, so that a load that comes and goes on a shared machine falls on
-    all of them alike; and for the local backends ``cores`` says how many cores the sweep got (CPU time of this
+    ``--workers 1`` runs in a fresh process, as the command does, so that it pays its imports once as every
+    worker process does. The backends take turns within each run, so that a load that comes and goes on a
+    shared machine falls on all of them alike; and for the local backends ``cores`` says how many cores the sweep got (CPU time of this
     process and its workers over wall time: 2 for two workers on two free cores, less when others compete)."""
     import os
     import resource
@@ -166,7 +167,9 @@ def sweep_section(
         "load_average_1min": os.getloadavg()[0],
         "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
     }
-    local = {f"workers {w}": Runner(workers=w, progress=False) for w in (1, 2)}
+    # serially in a fresh process, as `mrcomm … --workers 1` runs: in this process, every run after the first
+    # would find the env's modules imported, which the workers of a process pool never do
+    local = {"workers 1": _FreshSerial(), "workers 2": Runner(workers=2, progress=False)}
     samples: dict[str, dict[str, list]] = {name: {"sweep": [], "overhead": [], "cores": []} for name in local}
     results: dict[str, list] = {}
     ray_runs: list[dict] = []
@@ -184,7 +187,7 @@ def sweep_section(
             "sweep_s": statistics.median(sample["sweep"]),
             "overhead_s": statistics.median(sample["overhead"]),
             "cores": statistics.median(sample["cores"]),
-            "identical_to_serial": results[name] == serial,
+            "identical_to_serial": _same(results[name], serial),
         }
     skipped = next((r["skipped"] for r in ray_runs if "skipped" in r), None)
     if skipped is not None:
@@ -194,7 +197,7 @@ def sweep_section(
             "sweep_s": statistics.median(r["sweep_s"] for r in ray_runs),
             "overhead_s": statistics.median(r["overhead_s"] for r in ray_runs),
             "start_s": statistics.median(r["start_s"] for r in ray_runs),
-            "identical_to_serial": all(r["results"] == serial for r in ray_runs),
+            "identical_to_serial": all(_same(r["results"], serial) for r in ray_runs),
             "ray_version": ray_runs[0]["ray_version"],
         }
     out["backends"] = backends
@@ -216,6 +219,36 @@ def sweep_section(
         f"sweep  load average (1 min): {out['load_average_1min']:.2f} at the start, {out['load_average_1min_end']:.2f} at the end"
     )
     return out
+
+
+def _same(a: list, b: list) -> bool:
+    """Identical numbers, compared as the JSON text they are written as: NaN equals NaN there, and -0.0 is not 0.0."""
+    import json
+
+    return json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
+
+
+def _serially(tasks: list[dict]) -> list:
+    from mrcomm_env.experiments.sweep import Runner, Task
+
+    return Runner(workers=1, progress=False).map([Task(**task) for task in tasks])
+
+
+class _FreshSerial:
+    """``Runner(workers=1)`` in a new process for each sweep (spawned like a process pool's workers)."""
+
+    backend = "serial"
+
+    def map(self, tasks: list, desc: str = "tasks") -> list:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+        from dataclasses import asdict
+
+        from mrcomm_env.experiments.sweep import _one_thread
+
+        context = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(1, mp_context=context, initializer=_one_thread) as pool:
+            return pool.submit(_serially, [asdict(task) for task in tasks]).result()
 
 
 def _ray_run(tasks: list, no_ops: list, timed) -> dict[str, Any]:
