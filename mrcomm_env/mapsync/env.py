@@ -249,7 +249,20 @@ class MapSyncEnv(MrcommParallelEnv):
         self._row_offsets = np.arange(N)[:, None] * self.n  # row i of the flattened (N, n) maps starts at i·n
         self._peer_flat = np.arange(N)[:, None] * N + self._peer_order  # (N, N−1) flat (i, j) of each peer slot
         self._horizon = c.max_cycles
+        self._bit_scale = self.n * N  # the reward prices team bits in units of n bits per robot (Reward scale)
+        self._changing = c.appear_rate > 0.0 or c.vanish_rate > 0.0
+        # s / (s + 10) for every possible s = steps since a sync (0 … max_cycles), the same float64 values the
+        # formula gives, so that the per-step clock column is one lookup
+        ages = np.arange(c.max_cycles + 1)
+        self._age_code = ages / (ages + 10.0)
         self._obs_buf = np.zeros((N, 4 * (N - 1) + 5), dtype=np.float32)
+        # views of the observation buffer, column by column (written in place by _observe)
+        per_peer = self._obs_buf[:, : 4 * (N - 1)].reshape(N, N - 1, 4)
+        own = self._obs_buf[:, 4 * (N - 1) :]
+        self._obs_age, self._obs_new, self._obs_link, self._obs_test = (per_peer[..., f] for f in range(4))
+        self._obs_recent, self._obs_known, self._obs_busy, self._obs_progress, self._obs_clock = (
+            own[:, f] for f in range(5)
+        )
         self.ledger = BitLedger(N)
 
     # ----------------------------------------------------------------- episode
@@ -266,7 +279,9 @@ class MapSyncEnv(MrcommParallelEnv):
         self.truth = truth
         self.maps = np.zeros((N, n), dtype=bool)
         self.stamps = np.full((N, n), -1, dtype=np.int32)
+        self._maps_flat, self._stamps_flat = self.maps.reshape(-1), self.stamps.reshape(-1)  # views, for _sense
         self.last_sync = np.zeros((N, N), dtype=np.int64)  # step at which each pair's maps were last made equal
+        self._last_sync_peers = np.zeros((N, N - 1), dtype=np.int64)  # last_sync in observation order
         self.new_cells = np.zeros((N, N), dtype=np.int64)
         self.last_test = np.full((N, N), TEST_NONE, dtype=np.int64)
         self.linked = ~self._eye
@@ -279,6 +294,7 @@ class MapSyncEnv(MrcommParallelEnv):
         self.ledger.reset()
         self.recent_bits = np.zeros(N)
         self._recent_any = False
+        self._charged = False  # any bits charged in the current step (ledger.step_bits nonzero)
         self.robot_syncs = np.zeros(N, dtype=np.int64)
         self._steps = 0
         self._sum_disagreement = 0.0
@@ -294,37 +310,46 @@ class MapSyncEnv(MrcommParallelEnv):
         self._stale = _STALE_ALL  # which parts of the observation must be recomputed
         self._map_version = 0
         self._infos_key = None
+        self._infos_charged = False  # the cached infos show bits sent
         self._dirty = True
         self._sense(0)
         self._update_disagreement()
 
     # ----------------------------------------------------------------- dynamics
     def _step_world(self, actions: list) -> float:
-        c = self.cfg
         t = self.step_count
-        self.ledger.begin_step()
-        self._links()
-        self._start_sessions(actions, t)
+        if self._charged:  # the ledger's step bits are already zero otherwise
+            self.ledger.begin_step()
+            self._charged = False
+        if not self._static_links:
+            self._links()
+        if any(actions):
+            self._start_sessions(actions, t)
         if self.sessions:
             self._progress_sessions(t)
-        if c.appear_rate > 0.0 or c.vanish_rate > 0.0:
+        if self._changing:
             self._change_world()
             self._dirty = True
         self.pos = world.random_walk(self.np_random, self.pos, self._neighbours, self.truth)
         self._sense(t + 1)
         self._update_disagreement()
-        bits = self.ledger.step_bits
-        if self._recent_any or bits.any():
-            self.recent_bits = 0.9 * self.recent_bits + 0.1 * bits
-            self._recent_any = bool(self.recent_bits.max() > 1e-6 * self.n)
+        team_bits = 0.0
+        if self._charged or self._recent_any:
+            recent = self.recent_bits
+            recent *= 0.9  # in place: the same roundings as 0.9 · recent + 0.1 · bits (+ 0.1 · 0 changes nothing)
+            if self._charged:
+                bits = self.ledger.step_bits
+                team_bits = float(bits.sum())  # whole numbers of bits: exact in any summation order
+                recent += 0.1 * bits
+            self._recent_any = bool(recent.max() > 1e-6 * self.n)
             if not self._recent_any:
-                self.recent_bits[:] = 0.0
+                recent[:] = 0.0
                 self._events += 1
                 self._stale |= _STALE_RECENT
         self._steps += 1
         self._sum_disagreement += self._disagreement_mean
         self._sum_error += self._error_mean
-        return -self._disagreement_mean - c.lam * float(bits.sum()) / (self.n * self.n_agents)
+        return -self._disagreement_mean - self.cfg.lam * team_bits / self._bit_scale
 
     def _links(self) -> None:
         c, N = self.cfg, self.n_agents
@@ -352,10 +377,11 @@ class MapSyncEnv(MrcommParallelEnv):
         cells = self._sensed.take(self.pos, axis=0)  # (N, 5): off-grid neighbours repeat the own cell
         flat = cells + self._row_offsets  # into the flattened (N, n) maps and stamps
         seen = self.truth.take(cells)
-        maps, stamps = self.maps.reshape(-1), self.stamps.reshape(-1)
+        maps, stamps = self._maps_flat, self._stamps_flat
         changed = maps.take(flat) != seen
-        unseen = stamps.take(flat) < 0
-        if unseen.any():
+        before = stamps.take(flat)
+        if before.min() < 0:  # a cell never observed before
+            unseen = before < 0
             self.known += np.count_nonzero(unseen & self._sensed_distinct.take(self.pos, axis=0), axis=1)
             self._events += 1
             self._stale |= _STALE_KNOWN
@@ -464,6 +490,7 @@ class MapSyncEnv(MrcommParallelEnv):
                 continue
             part = min(bits - max(0, s.sent - done), budget)
             self.ledger.add(who, part, messages=1)
+            self._charged = True
             s.sent += part
             budget -= part
             done += bits
@@ -492,6 +519,7 @@ class MapSyncEnv(MrcommParallelEnv):
             for i, j in ((a, b), (b, a)):
                 self.last_sync[i, j] = t + 1
                 self.new_cells[i, j] = 0
+            self._last_sync_peers = self.last_sync.take(self._peer_flat)
 
     def _verdict(self, s: Session, equal: bool) -> bool:
         a, b = s.alice, s.bob
@@ -546,13 +574,9 @@ class MapSyncEnv(MrcommParallelEnv):
         }
 
     def _observe(self) -> np.ndarray:
-        N, flat = self.n_agents, self._peer_flat
-        out = self._obs_buf
-        per_peer = out[:, : 4 * (N - 1)].reshape(N, N - 1, 4)
-        steps = self.step_count - self.last_sync.take(flat)
-        per_peer[..., 0] = steps / (steps + 10.0)
-        own = out[:, 4 * (N - 1) :]
-        own[:, 4] = min(self.step_count / self._horizon, 1.0)
+        t = self.step_count
+        self._obs_age[:] = self._age_code.take(t - self._last_sync_peers)  # steps since the last sync, s/(s+10)
+        self._obs_clock[:] = min(t / self._horizon, 1.0)
         stale = self._stale
         if self.sessions:
             stale |= _STALE_SESSIONS
@@ -562,30 +586,32 @@ class MapSyncEnv(MrcommParallelEnv):
             stale |= _STALE_LINKS
         self._stale = 0
         if not stale:
-            return out.copy()  # only the clock moved
+            return self._obs_buf.copy()  # only the clock moved
+        flat = self._peer_flat
         if stale & _STALE_NEW:
             new = self.new_cells.take(flat)
-            per_peer[..., 1] = new / (new + 10.0)
+            self._obs_new[:] = new / (new + 10.0)
         if stale & _STALE_LINKS:
-            per_peer[..., 2] = self.linked.take(flat)
+            self._obs_link[:] = self.linked.take(flat)
         if stale & _STALE_SESSIONS:  # a sync ended: verdicts, busy flags, progress (and counters reset)
-            per_peer[..., 3] = _TEST_CODE.take(self.last_test.take(flat) + 1)
-            own[:, 2] = self.session_of >= 0
-            own[:, 3] = 0.0
+            self._obs_test[:] = _TEST_CODE.take(self.last_test.take(flat) + 1)
+            self._obs_busy[:] = self.session_of >= 0
+            self._obs_progress[:] = 0.0
             for s in self.sessions.values():
-                own[[s.alice, s.bob], 3] = s.sent / max(s.total, 1)
+                self._obs_progress[[s.alice, s.bob]] = s.sent / max(s.total, 1)
         if stale & _STALE_RECENT:
-            own[:, 0] = self.recent_bits / (self.recent_bits + self.n)
+            self._obs_recent[:] = self.recent_bits / (self.recent_bits + self.n)
         if stale & _STALE_KNOWN:
-            own[:, 1] = self.known / self.n
-        return out.copy()
+            self._obs_known[:] = self.known / self.n
+        return self._obs_buf.copy()
 
     def _agent_infos(self) -> dict:
         key = (self._events, self._map_version)
-        if key == self._infos_key and not self.ledger.step_bits.any() and not self._infos_cache["bits_sent"].any():
+        if key == self._infos_key and not self._charged and not self._infos_charged:
             return self._infos_cache  # nothing the infos show has changed since the last call
         N = self.n_agents
         self._infos_key = key
+        self._infos_charged = self._charged
         self._infos_cache = {
             "bits_sent": self.ledger.step_bits.copy(),
             "disagreement": self._hamming.sum(axis=1) / (N - 1),
