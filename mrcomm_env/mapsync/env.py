@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from gymnasium import spaces
 
-from mrcomm_env.core import BitLedger, MrcommParallelEnv, bernoulli_links, disk_links
+from mrcomm_env.core import BitLedger, MrcommParallelEnv, backend, bernoulli_links, disk_links
 from mrcomm_env.core.config import Bool, Choice, Int, Optional, Param, Real
 from mrcomm_env.mapsync import protocol as proto
 from mrcomm_env.mapsync import world
@@ -58,6 +58,13 @@ _TEST_CODE = np.array([0.0, 1.0, 0.5])  # observation of last_test + 1: none 0, 
 # parts of the observation recomputed only after they change (the clock columns are updated every step)
 _STALE_NEW, _STALE_LINKS, _STALE_SESSIONS, _STALE_RECENT, _STALE_KNOWN = 1, 2, 4, 8, 16
 _STALE_ALL = 31
+
+
+def _kernels():
+    """The compiled twins (``kernels_numba``), imported on first use: numba is optional."""
+    from mrcomm_env.mapsync import kernels_numba
+
+    return kernels_numba
 
 
 @dataclass
@@ -237,6 +244,8 @@ class MapSyncEnv(MrcommParallelEnv):
         N = self.n_agents
         table = world.neighbour_table(self.size)
         self._neighbours = table.tolist()
+        self._neighbour_table = table
+        self._no_keys = np.zeros((0, 4))  # the walk's keys when the robots only sense (reset)
         self._sensed, self._sensed_distinct = world.sensing_table(table)
         self._static_links = c.comm_range is None and c.link_prob >= 1.0
         self._stamp_bits = max(1, math.ceil(math.log2(c.max_cycles + 2)))  # steps 0 … max_cycles and "never"
@@ -296,6 +305,10 @@ class MapSyncEnv(MrcommParallelEnv):
         self._recent_any = False
         self._charged = False  # any bits charged in the current step (ledger.step_bits nonzero)
         self.robot_syncs = np.zeros(N, dtype=np.int64)
+        # info columns that change only on rare events, refreshed by those events
+        self._no_bits = np.zeros(N)
+        self._busy_column = np.zeros(N)
+        self._syncs_column = self.robot_syncs.copy()
         self._steps = 0
         self._sum_disagreement = 0.0
         self._sum_error = 0.0
@@ -312,7 +325,9 @@ class MapSyncEnv(MrcommParallelEnv):
         self._infos_key = None
         self._infos_charged = False  # the cached infos show bits sent
         self._dirty = True
-        self._sense(0)
+        # the compiled twin of the walk and the sensing, or the numpy reference (docs/architecture.md)
+        self._walk_and_sense = _kernels().walk_and_sense if backend.compiled() else None
+        self._move_and_sense(0, walk=False)
         self._update_disagreement()
 
     # ----------------------------------------------------------------- dynamics
@@ -330,8 +345,7 @@ class MapSyncEnv(MrcommParallelEnv):
         if self._changing:
             self._change_world()
             self._dirty = True
-        self.pos = world.random_walk(self.np_random, self.pos, self._neighbours, self.truth)
-        self._sense(t + 1)
+        self._move_and_sense(t + 1, walk=True)
         self._update_disagreement()
         team_bits = 0.0
         if self._charged or self._recent_any:
@@ -373,7 +387,38 @@ class MapSyncEnv(MrcommParallelEnv):
         truth[appear] = True
         truth[vanish] = False
 
+    def _move_and_sense(self, stamp: int, walk: bool) -> None:
+        """Every robot moves one step (when ``walk``), then senses its cell and the 4-neighbours (§V-C)."""
+        if self._walk_and_sense is None:
+            if walk:
+                self.pos = world.random_walk(self.np_random, self.pos, self._neighbours, self.truth)
+            self._sense(stamp)
+            return
+        keys = self.np_random.random((self.n_agents, 4)) if walk else self._no_keys  # as random_walk draws them
+        self.pos, flags = self._walk_and_sense(
+            walk,
+            keys,
+            self.pos,
+            self._neighbour_table,
+            self.truth,
+            self._sensed,
+            self._sensed_distinct,
+            self.maps,
+            self.stamps,
+            self.known,
+            self.new_cells,
+            stamp,
+        )
+        if flags & 1:  # as _sense: a cell observed for the first time
+            self._events += 1
+            self._stale |= _STALE_KNOWN
+        if flags & 2:  # a bit of a map changed
+            self._dirty = True
+            self._events += 1
+            self._stale |= _STALE_NEW
+
     def _sense(self, stamp: int) -> None:
+        """Numpy reference of the sensing (compiled twin: ``kernels_numba.walk_and_sense``)."""
         cells = self._sensed.take(self.pos, axis=0)  # (N, 5): off-grid neighbours repeat the own cell
         flat = cells + self._row_offsets  # into the flattened (N, n) maps and stamps
         seen = self.truth.take(cells)
@@ -404,6 +449,7 @@ class MapSyncEnv(MrcommParallelEnv):
         ones = maps.sum(axis=1)
         ham = (ones[:, None] + ones[None, :] - 2.0 * (maps @ maps.T)) / self.n
         self._hamming = ham
+        self._disagreement_column = ham.sum(axis=1) / (self.n_agents - 1)
         self._disagreement_mean = float(ham[self._pairs].mean())
         self._errors = np.count_nonzero(self.maps != self.truth, axis=1) / self.n
         self._error_mean = float(self._errors.mean())
@@ -462,6 +508,7 @@ class MapSyncEnv(MrcommParallelEnv):
         session = Session(a, b, name, t, messages, outcome, snapshot, 0, sum(bits for _, bits in messages))
         self.sessions[nonce] = session
         self.session_of[[a, b]] = nonce
+        self._busy_column = (self.session_of >= 0).astype(np.float64)
         self._events += 1
         self._stale |= _STALE_SESSIONS
 
@@ -498,6 +545,7 @@ class MapSyncEnv(MrcommParallelEnv):
     def _close(self, key: int) -> None:
         s = self.sessions.pop(key)
         self.session_of[[s.alice, s.bob]] = -1
+        self._busy_column = (self.session_of >= 0).astype(np.float64)
         self._events += 1
         self._stale |= _STALE_SESSIONS | _STALE_NEW | _STALE_KNOWN
 
@@ -505,6 +553,7 @@ class MapSyncEnv(MrcommParallelEnv):
         a, b = s.alice, s.bob
         self._counts["syncs"] += 1
         self.robot_syncs[[a, b]] += 1
+        self._syncs_column = self.robot_syncs.copy()
         self._latencies.append(t - s.start_step + 1)
         synced = True
         if s.protocol == "equality":
@@ -609,16 +658,15 @@ class MapSyncEnv(MrcommParallelEnv):
         key = (self._events, self._map_version)
         if key == self._infos_key and not self._charged and not self._infos_charged:
             return self._infos_cache  # nothing the infos show has changed since the last call
-        N = self.n_agents
         self._infos_key = key
         self._infos_charged = self._charged
         self._infos_cache = {
-            "bits_sent": self.ledger.step_bits.copy(),
-            "disagreement": self._hamming.sum(axis=1) / (N - 1),
+            "bits_sent": self.ledger.step_bits.copy() if self._charged else self._no_bits,
+            "disagreement": self._disagreement_column,
             "error_vs_truth": self._errors,
             "coverage": self.known / self.n,
-            "busy": (self.session_of >= 0).astype(np.float64),
-            "syncs": self.robot_syncs.copy(),
+            "busy": self._busy_column,
+            "syncs": self._syncs_column,
         }
         return self._infos_cache
 
