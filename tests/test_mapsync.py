@@ -13,7 +13,7 @@ from baselines import make_policy
 from mrcomm_env.experiments.evaluation import run_episode
 from mrcomm_env.mapsync import pinsketch, theory, world
 from mrcomm_env.mapsync import protocol as proto
-from mrcomm_env.mapsync.env import EQUALITY, FULL, IDLE, SKETCH, MapSyncEnv
+from mrcomm_env.mapsync.env import _STALE_KNOWN, EQUALITY, FULL, IDLE, SKETCH, MapSyncEnv
 from mrcomm_env.mapsync.philox import SharedStrings, philox4x32
 
 
@@ -443,19 +443,119 @@ def test_compiled_inner_products_equal_the_numpy_reference(n, cached):
     assert all(np.array_equal(c, r) for c, r in zip(compiled, reference))
 
 
-def test_whole_episodes_are_identical_on_both_backends(monkeypatch):
-    pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+def _use_backend(monkeypatch, compiled: bool) -> None:
+    """Pick the compiled twins or the numpy reference for the protocols and the env (decided at reset)."""
     import types
 
+    from mrcomm_env.mapsync import env as env_module
+
+    fake = types.SimpleNamespace(compiled=lambda: compiled)
+    monkeypatch.setattr(proto, "backend", fake)
+    monkeypatch.setattr(env_module, "backend", fake)
+
+
+@pytest.mark.parametrize(
+    ("n", "res", "k", "d"),
+    [(2, 1, 1, 1), (16, 1, 3, 16), (45, 3, 2, 7), (77, 1, 1, 0), (256, 1, 10, 3), (1000, 4, 5, 40), (1024, 1, 7, 1)],
+)
+@pytest.mark.parametrize("cached", [False, True])
+def test_compiled_bisection_equals_the_reference(monkeypatch, n, res, k, d, cached):
+    pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    rng = np.random.default_rng(100 * n + d)
+    x, y, _ = maps_with_differences(rng, n, d)
+    strings = SharedStrings(n, 9, cache=cached)
+    runs = []
+    for compiled in (False, True):
+        _use_backend(monkeypatch, compiled)
+        generator = np.random.default_rng(d)  # small k: missed differences happen and must be the same ones
+        result = proto.bisection(x, y, strings, k, res, generator)
+        runs.append((result, generator.bit_generator.state))
+    (reference, state), (twin, twin_state) = runs
+    assert np.array_equal(twin.found, reference.found) and twin.found.dtype == reference.found.dtype
+    for name in ("alice_bits", "bob_bits", "rounds", "candidates", "detected", "extra"):
+        assert getattr(twin, name) == getattr(reference, name), name
+    assert twin_state == state  # the generator ends where the reference leaves it
+
+
+@pytest.mark.parametrize("n", [4, 64, 300])
+def test_compiled_bisection_never_runs_out_of_picks(n):
+    """Every cell differs: the most Protocol 1 calls Algorithm 1 can make fit in the picks drawn ahead."""
+    pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    x = np.zeros(n, dtype=bool)
+    y = ~x
+    k, rng = 40, np.random.default_rng(n)  # a test misses a difference w.p. ≤ 2^−40: the run is exact
+    result = proto._bisection_compiled(x, y, proto.pack(x), proto.pack(y), SharedStrings(n, 1), k, 1, rng)
+    assert result is not None and np.array_equal(result.found, np.arange(n))
+    # with all cells differing every segment is tested: 2n − 1 nodes of the tree, n of them leaves
+    assert result.extra["protocol1_calls"] == n - 1
+
+
+def test_compiled_walk_and_sense_equals_the_reference():
+    """The twin against ``world.random_walk`` + ``MapSyncEnv._sense`` from states with stale, wrong and unseen bits."""
+    kernels = pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    env = MapSyncEnv(grid_size=7, n_robots=4, n_obstacles=0)
+    env.reset(seed=0)
+    n, n_robots = env.n, env.n_agents
+    rng = np.random.default_rng(3)
+    for trial in range(60):
+        env.truth[:] = rng.random(n) < 0.3
+        env.pos = rng.integers(0, n, n_robots)
+        env.maps[:] = rng.random((n_robots, n)) < 0.3  # disagreeing with the world: stale or wrongly merged
+        env.stamps[:] = np.where(rng.random((n_robots, n)) < 0.5, rng.integers(0, 50, (n_robots, n)), -1)
+        env.known[:] = rng.integers(0, n, n_robots)
+        env.new_cells[:] = rng.integers(0, 9, (n_robots, n_robots)) * (1 - np.eye(n_robots, dtype=np.int64))
+        before = [a.copy() for a in (env.pos, env.truth, env.maps, env.stamps, env.known, env.new_cells)]
+        pos, truth, maps, stamps, known, new_cells = (a.copy() for a in before)
+
+        env._stale, env._dirty = 0, False
+        env.pos = world.random_walk(np.random.default_rng(trial), env.pos, env._neighbours, env.truth)
+        env._sense(60)
+        keys = np.random.default_rng(trial).random((n_robots, 4))  # the keys random_walk drew
+        out, flags = kernels.walk_and_sense(
+            True, keys, pos, env._neighbour_table, truth, env._sensed, env._sensed_distinct, maps, stamps, known,
+            new_cells, 60,
+        )  # fmt: skip
+        assert np.array_equal(out, env.pos)
+        assert bool(flags & 1) == bool(env._stale & _STALE_KNOWN) and bool(flags & 2) == env._dirty
+        for twin, reference in zip((maps, stamps, known, new_cells), (env.maps, env.stamps, env.known, env.new_cells)):
+            assert np.array_equal(twin, reference)
+
+
+@pytest.mark.parametrize(
+    ("cfg", "policy"),
+    [
+        ({"preset": "paper", "max_cycles": 120}, "random"),
+        ({}, "periodic_equality_then_bisection"),
+        ({"appear_rate": 0.01, "vanish_rate": 0.05, "max_cycles": 80}, "random"),
+        ({"n_robots": 4, "bits_per_step": 40, "comm_range": 6.0, "link_prob": 0.8, "max_cycles": 80}, "random"),
+    ],
+)
+def test_whole_episodes_are_identical_on_both_backends(monkeypatch, cfg, policy):
+    pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+
     def episode(compiled):
-        monkeypatch.setattr(proto, "backend", types.SimpleNamespace(compiled=lambda: compiled))
-        env = mrcomm_env.make("MapSync-v0", preset="paper", max_cycles=120)
-        metrics = run_episode(env, make_policy("MapSync-v0", "random"), seed=17)
-        return metrics, env.detections, env.maps.copy()
+        _use_backend(monkeypatch, compiled)
+        env = mrcomm_env.make("MapSync-v0", **cfg)
+        pol = make_policy("MapSync-v0", policy)
+        views = env.local_views()
+        obs, infos = env.reset(seed=17)
+        pol.reset(views, 17)
+        trace = [(obs, infos)]
+        while env.agents:
+            obs, rewards, _, _, infos = env.step(pol.act(obs, views))
+            trace.append((obs, rewards, infos, env.stamps.copy()))
+        return trace, env.metrics(), env.detections, env.maps.copy(), env.ledger.total_bits.tolist()
 
     numpy_run, compiled_run = episode(False), episode(True)
-    assert numpy_run[0] == compiled_run[0] and numpy_run[1] == compiled_run[1]
-    assert np.array_equal(numpy_run[2], compiled_run[2])
+    for numpy_step, compiled_step in zip(numpy_run[0], compiled_run[0], strict=True):
+        for a, b in zip(numpy_step, compiled_step):
+            if isinstance(a, dict):
+                assert a.keys() == b.keys()
+                assert all(np.array_equal(a[key], b[key]) for key in a)
+            else:
+                assert np.array_equal(a, b)
+    assert numpy_run[1:3] == compiled_run[1:3] and numpy_run[4] == compiled_run[4]
+    assert np.array_equal(numpy_run[3], compiled_run[3])
 
 
 @pytest.mark.parametrize(
