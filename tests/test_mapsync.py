@@ -484,7 +484,7 @@ def test_compiled_bisection_never_runs_out_of_picks(n):
     x = np.zeros(n, dtype=bool)
     y = ~x
     k, rng = 40, np.random.default_rng(n)  # a test misses a difference w.p. ≤ 2^−40: the run is exact
-    result = proto._bisection_compiled(x, y, proto.pack(x), proto.pack(y), SharedStrings(n, 1), k, 1, rng)
+    result = proto._bisection_compiled(x, y, SharedStrings(n, 1), k, 1, rng)
     assert result is not None and np.array_equal(result.found, np.arange(n))
     # with all cells differing every segment is tested: 2n − 1 nodes of the tree, n of them leaves
     assert result.extra["protocol1_calls"] == n - 1

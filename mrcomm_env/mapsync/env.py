@@ -450,9 +450,10 @@ class MapSyncEnv(MrcommParallelEnv):
         ham = (ones[:, None] + ones[None, :] - 2.0 * (maps @ maps.T)) / self.n
         self._hamming = ham
         self._disagreement_column = ham.sum(axis=1) / (self.n_agents - 1)
-        self._disagreement_mean = float(ham[self._pairs].mean())
-        self._errors = np.count_nonzero(self.maps != self.truth, axis=1) / self.n
-        self._error_mean = float(self._errors.mean())
+        pairs = ham[self._pairs]
+        self._disagreement_mean = float(pairs.sum()) / pairs.size  # what .mean() computes, without its overhead
+        self._errors = (self.maps != self.truth).sum(axis=1) / self.n
+        self._error_mean = float(self._errors.sum()) / self.n_agents
 
     # ----------------------------------------------------------------- syncs
     def _choose_peer(self, i: int) -> int:
@@ -529,6 +530,7 @@ class MapSyncEnv(MrcommParallelEnv):
     def _deliver(self, s: Session, budget: int) -> None:
         """Charge the next ``budget`` bits of the transcript to their senders, in order."""
         done = 0
+        charged: dict[int, list[int]] = {}  # sender → [bits, messages]: one ledger entry per sender
         for who, bits in s.messages:
             if budget <= 0:
                 break
@@ -536,11 +538,15 @@ class MapSyncEnv(MrcommParallelEnv):
                 done += bits
                 continue
             part = min(bits - max(0, s.sent - done), budget)
-            self.ledger.add(who, part, messages=1)
-            self._charged = True
+            entry = charged.setdefault(who, [0, 0])
+            entry[0] += part
+            entry[1] += 1
             s.sent += part
             budget -= part
             done += bits
+        for who, (bits, messages) in charged.items():  # whole bits: the float sums are exact in any grouping
+            self.ledger.add(who, bits, messages=messages)
+            self._charged = True
 
     def _close(self, key: int) -> None:
         s = self.sessions.pop(key)

@@ -17,6 +17,9 @@ _M1 = np.uint64(0xCD9E8D57)
 _W0 = np.uint64(0x9E3779B9)
 _W1 = np.uint64(0xBB67AE85)
 _LOW = np.uint64(0xFFFFFFFF)
+# protocol._FROM_BIT and protocol._TO_BIT (frozen into the compiled code as constants)
+_FROM_BIT = np.array([(0xFFFFFFFF << b) & 0xFFFFFFFF for b in range(32)], dtype=np.uint32)  # bits ≥ b
+_TO_BIT = np.array([0xFFFFFFFF >> (31 - b) for b in range(32)], dtype=np.uint32)  # bits ≤ b
 _SHIFT = np.uint64(32)
 
 
@@ -85,7 +88,6 @@ def inner_products(
 
 @numba.njit(cache=True)
 def bisection(
-    maps,
     x,
     y,
     database,
@@ -99,8 +101,6 @@ def bisection(
     k,
     res,
     p1_bits,
-    from_bit,
-    to_bit,
 ):
     """Algorithm 1 as request/response rounds, every round in one call: twin of ``protocol.bisection`` with
     step 4 fixed, Alice's picks of i taken in order from ``pool`` (what successive ``rng.integers`` calls draw).
@@ -112,8 +112,13 @@ def bisection(
     """
     n = x.size
     differs = np.zeros(n + 1, np.int64)  # prefix counts of differing cells
+    maps = np.zeros((2, words_per_string), np.uint32)  # both maps packed as protocol.pack packs them
     for c in range(n):
         differs[c + 1] = differs[c] + (1 if x[c] != y[c] else 0)
+        if x[c]:
+            maps[0, c >> 5] |= np.uint32(1) << np.uint32(c & 31)
+        if y[c]:
+            maps[1, c >> 5] |= np.uint32(1) << np.uint32(c & 31)
     found = np.empty(differs[n], np.int64)
     n_found = 0
     messages = np.full((72, 2), -1, np.int64)  # rounds ≤ recursion depth + 1 ≤ 65 for n < 2^64
@@ -169,8 +174,8 @@ def bisection(
             index,
             inner_lo,
             inner_hi,
-            from_bit,
-            to_bit,
+            _FROM_BIT,
+            _TO_BIT,
         )
         tests += n_inner
         alice += n_inner * p1_bits

@@ -223,11 +223,11 @@ def bisection(
         raise ValueError(f"argument 'res' must be an integer ≥ 1, got {res!r}")
     x = np.asarray(x, dtype=bool)
     y = np.asarray(y, dtype=bool)
-    xw, yw = pack(x), pack(y)
     if step4 == "fixed" and backend.compiled():
-        compiled = _bisection_compiled(x, y, xw, yw, strings, k, res, rng)
+        compiled = _bisection_compiled(x, y, strings, k, res, rng)
         if compiled is not None:
             return compiled
+    xw, yw = pack(x), pack(y)
     differs = np.concatenate([[0], np.cumsum(x != y)])  # prefix counts: which segments truly differ (metrics)
     p1_bits = theory.protocol1_bits(n, k)
     lo, hi = np.array([0]), np.array([n - 1])
@@ -288,7 +288,7 @@ def bisection(
 _POOL_MAX = 1 << 20
 
 
-def _bisection_compiled(x, y, xw, yw, strings: SharedStrings, k: int, res: int, rng: np.random.Generator):
+def _bisection_compiled(x, y, strings: SharedStrings, k: int, res: int, rng: np.random.Generator):
     """:func:`bisection` (step 4 fixed) through the compiled twin ``kernels_numba.bisection``; None when its
     picks would not fit in ``_POOL_MAX``.
 
@@ -312,7 +312,6 @@ def _bisection_compiled(x, y, xw, yw, strings: SharedStrings, k: int, res: int, 
     pool = rng.integers(0, strings.size, size=draws) if draws else np.zeros(0, np.int64)
     use_db = strings.database is not None
     found, stats, rounds = kernels_numba.bisection(
-        np.stack([xw, yw]),
         x,
         y,
         strings.database if use_db else np.zeros((1, 1), np.uint32),
@@ -326,8 +325,6 @@ def _bisection_compiled(x, y, xw, yw, strings: SharedStrings, k: int, res: int, 
         k,
         res,
         theory.protocol1_bits(n, k),
-        _FROM_BIT,
-        _TO_BIT,
     )
     alice, bob, n_rounds, tests, compared, detected, missed, used = stats.tolist()
     if used < 0:  # cannot happen by the bound above; the reference then runs from the same generator state
