@@ -295,9 +295,13 @@ def test_gossip_converges_once_the_world_stops_changing():
     env.reset(seed=9)
     for _ in range(80):
         step_all(env, {})
-    env.cfg["appear_rate"] = env.cfg["vanish_rate"] = 0.0  # freeze the world (the merge stays last-writer-wins)
+    # freeze the world (the merge stays last-writer-wins): the env reads the rates once, at construction
+    env.cfg["appear_rate"] = env.cfg["vanish_rate"] = 0.0
+    env._changing = False
     env.pos[:] = env.pos[0]  # gather the robots in one cell so that they all sense the same cells from now on
-    env._neighbours = [[-1, -1, -1, -1]] * env.n  # and keep them there: nobody moves, so no new cells are seen
+    # and keep them there (both walks: the numpy reference and its compiled twin): no new cells are seen
+    env._neighbours = [[-1, -1, -1, -1]] * env.n
+    env._neighbour_table = np.full((env.n, 4), -1, dtype=np.int64)
     # what gossip must converge to: each cell's newest observation by any robot (the gathering cell and its
     # neighbours are sensed again from now on, and the frozen world is what they see)
     newest = env.stamps.argmax(axis=0)
