@@ -265,14 +265,46 @@ class MapSyncEnv(MrcommParallelEnv):
         ages = np.arange(c.max_cycles + 1)
         self._age_code = ages / (ages + 10.0)
         self._obs_buf = np.zeros((N, 4 * (N - 1) + 5), dtype=np.float32)
-        # views of the observation buffer, column by column (written in place by _observe)
+        self._make_views()
+        self.ledger = BitLedger(N)
+
+    #: attributes that are views into other arrays: a pickle or deepcopy would make them independent copies,
+    #: so they are left out of the state and made again from the arrays they view
+    _VIEWS = (
+        "_maps_flat",
+        "_stamps_flat",
+        "_obs_age",
+        "_obs_new",
+        "_obs_link",
+        "_obs_test",
+        "_obs_recent",
+        "_obs_known",
+        "_obs_busy",
+        "_obs_progress",
+        "_obs_clock",
+    )
+
+    def _make_views(self) -> None:
+        N = self.n_agents
+        # the observation buffer column by column, written in place by _observe
         per_peer = self._obs_buf[:, : 4 * (N - 1)].reshape(N, N - 1, 4)
         own = self._obs_buf[:, 4 * (N - 1) :]
         self._obs_age, self._obs_new, self._obs_link, self._obs_test = (per_peer[..., f] for f in range(4))
         self._obs_recent, self._obs_known, self._obs_busy, self._obs_progress, self._obs_clock = (
             own[:, f] for f in range(5)
         )
-        self.ledger = BitLedger(N)
+        if "maps" in self.__dict__:  # after the first reset
+            self._maps_flat, self._stamps_flat = self.maps.reshape(-1), self.stamps.reshape(-1)  # for _sense
+
+    def __getstate__(self):
+        state = super().__getstate__()
+        for name in self._VIEWS:
+            state.pop(name, None)
+        return state
+
+    def __setstate__(self, state):
+        super().__setstate__(state)
+        self._make_views()
 
     # ----------------------------------------------------------------- episode
     def _reset_world(self) -> None:
@@ -288,7 +320,7 @@ class MapSyncEnv(MrcommParallelEnv):
         self.truth = truth
         self.maps = np.zeros((N, n), dtype=bool)
         self.stamps = np.full((N, n), -1, dtype=np.int32)
-        self._maps_flat, self._stamps_flat = self.maps.reshape(-1), self.stamps.reshape(-1)  # views, for _sense
+        self._make_views()
         self.last_sync = np.zeros((N, N), dtype=np.int64)  # step at which each pair's maps were last made equal
         self._last_sync_peers = np.zeros((N, N - 1), dtype=np.int64)  # last_sync in observation order
         self.new_cells = np.zeros((N, N), dtype=np.int64)
