@@ -335,6 +335,7 @@ class MapSyncEnv(MrcommParallelEnv):
         self.ledger.reset()
         self.recent_bits = np.zeros(N)
         self._recent_any = False
+        self._recent_max = 0.0  # recent_bits.max(), kept as a float
         self._charged = False  # any bits charged in the current step (ledger.step_bits nonzero)
         self.robot_syncs = np.zeros(N, dtype=np.int64)
         # info columns that change only on rare events, refreshed by those events
@@ -387,9 +388,13 @@ class MapSyncEnv(MrcommParallelEnv):
                 bits = self.ledger.step_bits
                 team_bits = float(bits.sum())  # whole numbers of bits: exact in any summation order
                 recent += 0.1 * bits
-            self._recent_any = bool(recent.max() > 1e-6 * self.n)
+                self._recent_max = float(recent.max())
+            else:  # rounding is monotone, so the largest of the products is the product of the largest
+                self._recent_max *= 0.9
+            self._recent_any = self._recent_max > 1e-6 * self.n
             if not self._recent_any:
                 recent[:] = 0.0
+                self._recent_max = 0.0
                 self._events += 1
                 self._stale |= _STALE_RECENT
         self._steps += 1
