@@ -533,19 +533,15 @@ class MapSyncEnv(MrcommParallelEnv):
             messages.append((b, proto.return_bits(outcome.candidates, found.size)))
             if self._lww and found.size:
                 messages += [(b, found.size * self._stamp_bits), (a, found.size * self._stamp_bits)]
-            snapshot = {
-                "found": found,
-                "x": x[found].copy(),
-                "y": y[found].copy(),
-                "sa": self.stamps[a, found].copy(),
-                "sb": self.stamps[b, found].copy(),
-                "differ": int((x != y).sum()),
-                "right": int((x[found] != y[found]).sum()),
-            }
+            snapshot = {"found": found, "differ": int(np.count_nonzero(x != y)), "right": 0}
+            if found.size:  # what each sent about the found cells (nothing to merge otherwise, see _merge)
+                snapshot["x"], snapshot["y"] = x[found], y[found]  # fancy indexing copies
+                snapshot["sa"], snapshot["sb"] = self.stamps[a][found], self.stamps[b][found]
+                snapshot["right"] = int(np.count_nonzero(snapshot["x"] != snapshot["y"]))
         messages = [(who, int(bits)) for who, bits in messages if bits > 0]
         session = Session(a, b, name, t, messages, outcome, snapshot, 0, sum(bits for _, bits in messages))
         self.sessions[nonce] = session
-        self.session_of[[a, b]] = nonce
+        self.session_of[a] = self.session_of[b] = nonce
         self._busy_column = (self.session_of >= 0).astype(np.float64)
         self._events += 1
         self._stale |= _STALE_SESSIONS
@@ -587,7 +583,7 @@ class MapSyncEnv(MrcommParallelEnv):
 
     def _close(self, key: int) -> None:
         s = self.sessions.pop(key)
-        self.session_of[[s.alice, s.bob]] = -1
+        self.session_of[s.alice] = self.session_of[s.bob] = -1
         self._busy_column = (self.session_of >= 0).astype(np.float64)
         self._events += 1
         self._stale |= _STALE_SESSIONS | _STALE_NEW | _STALE_KNOWN
@@ -595,7 +591,8 @@ class MapSyncEnv(MrcommParallelEnv):
     def _complete(self, s: Session, t: int) -> None:
         a, b = s.alice, s.bob
         self._counts["syncs"] += 1
-        self.robot_syncs[[a, b]] += 1
+        self.robot_syncs[a] += 1  # a ≠ b
+        self.robot_syncs[b] += 1
         self._syncs_column = self.robot_syncs.copy()
         self._latencies.append(t - s.start_step + 1)
         synced = True
@@ -635,14 +632,18 @@ class MapSyncEnv(MrcommParallelEnv):
         if found.size == 0:
             return
         for me, other_bit, other_stamp in ((s.alice, ~snap["x"], snap["sb"]), (s.bob, ~snap["y"], snap["sa"])):
+            my_map, my_stamps = self.maps[me], self.stamps[me]  # row views: 1-d indexing below
             if self._lww:
-                adopt = other_stamp > self.stamps[me, found]
+                adopt = other_stamp > my_stamps[found]
             else:  # only appearances: a 1 is never stale, so the merge is OR
-                adopt = other_bit & ~self.maps[me, found]
+                adopt = other_bit & ~my_map[found]
             cells = found[adopt]
-            self.known[me] += int(np.count_nonzero(self.stamps[me, cells] < 0))
-            self.maps[me, cells] = other_bit[adopt]
-            self.stamps[me, cells] = np.maximum(self.stamps[me, cells], other_stamp[adopt])
+            if cells.size == 0:
+                continue
+            stamps_now = my_stamps[cells]
+            self.known[me] += int(np.count_nonzero(stamps_now < 0))
+            my_map[cells] = other_bit[adopt]
+            my_stamps[cells] = np.maximum(stamps_now, other_stamp[adopt])
         self._dirty = True
 
     # ----------------------------------------------------------------- views
