@@ -525,6 +525,23 @@ def test_compiled_walk_and_sense_equals_the_reference():
             assert np.array_equal(twin, reference)
 
 
+def test_compiled_observation_equals_the_reference_at_every_step():
+    """Syncs in flight over a narrow link (progress), links that break, verdicts, a changing world."""
+    kernels = pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    env = MapSyncEnv(n_robots=5, bits_per_step=30, link_prob=0.6, comm_range=6.0, appear_rate=0.01, vanish_rate=0.05)
+    env.reset(seed=4)
+    rng = np.random.default_rng(1)
+    in_flight = 0
+    while env.agents:
+        env.step({a: int(rng.integers(1, 5)) if rng.random() < 0.2 else IDLE for a in env.agents})
+        in_flight += bool(env.sessions)
+        env._observe_compiled, env._stale = None, 31  # the numpy reference, every column recomputed
+        reference = env._observe()
+        env._observe_compiled = kernels.observe
+        assert np.array_equal(env._observe(), reference)
+    assert in_flight > 10, "the episode must hold syncs in flight for the progress column to be tested"
+
+
 @pytest.mark.parametrize(
     ("cfg", "policy"),
     [
@@ -571,7 +588,8 @@ def test_whole_episodes_are_identical_on_both_backends(monkeypatch, cfg, policy)
         {"n_robots": 4, "comm_range": 5.0, "link_prob": 0.7, "bits_per_step": 30},
     ],
 )
-def test_incremental_observation_and_infos_equal_a_full_recompute(cfg):
+def test_incremental_observation_and_infos_equal_a_full_recompute(monkeypatch, cfg):
+    _use_backend(monkeypatch, False)  # the numpy reference is the incremental one (the twin recomputes all)
     env = MapSyncEnv(**cfg)
     env.reset(seed=1)
     rng = np.random.default_rng(0)

@@ -359,7 +359,10 @@ class MapSyncEnv(MrcommParallelEnv):
         self._infos_charged = False  # the cached infos show bits sent
         self._dirty = True
         # the compiled twin of the walk and the sensing, or the numpy reference (docs/architecture.md)
-        self._walk_and_sense = _kernels().walk_and_sense if backend.compiled() else None
+        compiled = backend.compiled()
+        self._walk_and_sense = _kernels().walk_and_sense if compiled else None
+        self._observe_compiled = _kernels().observe if compiled else None
+        self._no_progress = np.zeros(N)
         self._move_and_sense(0, walk=False)
         self._update_disagreement()
 
@@ -668,6 +671,29 @@ class MapSyncEnv(MrcommParallelEnv):
 
     def _observe(self) -> np.ndarray:
         t = self.step_count
+        if self._observe_compiled is not None:  # every column in one call (kernels_numba.observe)
+            progress = self._no_progress
+            if self.sessions:
+                progress = np.zeros(self.n_agents)
+                for s in self.sessions.values():
+                    progress[[s.alice, s.bob]] = s.sent / max(s.total, 1)
+            self._observe_compiled(
+                self._obs_buf,
+                t,
+                min(t / self._horizon, 1.0),
+                self._age_code,
+                self.last_sync,
+                self.new_cells,
+                self.linked,
+                self.last_test,
+                self.session_of,
+                progress,
+                self.recent_bits,
+                self.known,
+                self.n,
+            )
+            return self._obs_buf.copy()
+        # the numpy reference: only the columns whose inputs changed since the last call
         self._obs_age[:] = self._age_code.take(t - self._last_sync_peers)  # steps since the last sync, s/(s+10)
         self._obs_clock[:] = min(t / self._horizon, 1.0)
         stale = self._stale

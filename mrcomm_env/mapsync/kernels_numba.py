@@ -256,3 +256,32 @@ def walk_and_sense(walk, keys, pos, neighbours, truth, sensed, distinct, maps, s
                 if j != i:
                     new_cells[i, j] += changed
     return out, flags
+
+
+@numba.njit(cache=True)
+def observe(out, t, clock, age_code, last_sync, new_cells, linked, last_test, session_of, progress, recent, known, n):
+    """Twin of ``MapSyncEnv._observe``, every column recomputed: writes the (N, 4(N−1) + 5) float32 ``out``.
+
+    Per peer j = i+1, i+2, … (mod N): s/(s+10) for the steps s since the last sync (``age_code[s]``),
+    c/(c+10) for the new cells c, the link, the last verdict (none 0, different 1, same ½); then the robot's
+    recent bits b/(b+n), coverage, busy, session progress and the clock. Every value is computed in float64 as
+    the reference computes it and rounded to float32 on the store, as numpy's assignment rounds it.
+    """
+    n_robots = out.shape[0]
+    own = 4 * (n_robots - 1)
+    for i in range(n_robots):
+        for o in range(1, n_robots):
+            j = (i + o) % n_robots
+            col = 4 * (o - 1)
+            out[i, col] = age_code[t - last_sync[i, j]]
+            c = new_cells[i, j]
+            out[i, col + 1] = c / (c + 10.0)
+            out[i, col + 2] = 1.0 if linked[i, j] else 0.0
+            verdict = last_test[i, j]  # −1 none, 0 different, 1 same
+            out[i, col + 3] = 0.0 if verdict < 0 else (1.0 if verdict == 0 else 0.5)
+        b = recent[i]
+        out[i, own] = b / (b + n)
+        out[i, own + 1] = known[i] / n
+        out[i, own + 2] = 1.0 if session_of[i] >= 0 else 0.0
+        out[i, own + 3] = progress[i]
+        out[i, own + 4] = clock
