@@ -389,7 +389,7 @@ def figs4_6_rows(figure_index: int, runs: int) -> list[dict]:
 
 def figs4_6_tasks(size: str) -> list:
     runs = pick(size, full=50, quick=6, tiny=1)
-    return [task(figs4_6_rows, FIGS4_6[i][0], figure_index=i, runs=runs) for i in range(len(FIGS4_6))]
+    return [task(figs4_6_rows, f"figs4_6 {FIGS4_6[i][0]}", figure_index=i, runs=runs) for i in range(len(FIGS4_6))]
 
 
 def figs4_6(out: Path, results: list[list[dict]]) -> str:
