@@ -90,3 +90,17 @@ def test_a_task_that_fails_twice_ends_reproduce_with_one_line_naming_it(tmp_path
     assert not (out / "REPORT.md").exists()
     # the tasks that succeeded are kept for the rerun
     assert any((out / "RendezvousMapping-v0" / "tasks").glob("*.json"))
+
+
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        (["--workers", "0"], "argument --workers: must be an integer ≥ 1, got '0'"),
+        (["--workers", "2", "--ray", "auto"], "argument --ray: not allowed with argument --workers"),
+    ],
+)
+def test_bad_runner_flags_are_refused_before_any_work(flags, message, tmp_path, capsys):
+    out = tmp_path / "results"
+    assert main(["reproduce", ENV, "--tiny", *flags, "--out", str(out)]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
