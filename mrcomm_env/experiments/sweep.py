@@ -210,18 +210,23 @@ class Runner:
         context = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(min(self.workers, len(todo)), mp_context=context, initializer=_one_thread) as pool:
             pending = {pool.submit(execute, tasks[i].fn, tasks[i].kwargs): (i, 1) for i in todo}
-            while pending:
-                complete, _ = wait(pending, return_when=FIRST_COMPLETED)
-                for future in complete:
-                    i, attempt = pending.pop(future)
-                    error = future.exception()
-                    if error is None:
-                        finished(i, future.result())
-                    elif attempt < ATTEMPTS:
-                        self.stats["retried"] += 1
-                        pending[pool.submit(execute, tasks[i].fn, tasks[i].kwargs)] = (i, attempt + 1)
-                    else:
-                        finished(i, error=error)
+            try:
+                while pending:
+                    complete, _ = wait(pending, return_when=FIRST_COMPLETED)
+                    for future in complete:
+                        i, attempt = pending.pop(future)
+                        error = future.exception()
+                        if error is None:
+                            finished(i, future.result())
+                        elif attempt < ATTEMPTS:
+                            self.stats["retried"] += 1
+                            pending[pool.submit(execute, tasks[i].fn, tasks[i].kwargs)] = (i, attempt + 1)
+                        else:
+                            finished(i, error=error)
+            except BaseException:
+                # Ctrl-C (or an error here): leaving the block would wait for every queued task to run first
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
 
     def _map_ray(self, tasks: Sequence[Task], todo: list[int], finished) -> None:
         try:
