@@ -267,7 +267,13 @@ def train_sweep(base: dict, seeds: list[int], grid: dict[str, list], out: Path, 
     for row in rows:
         points.setdefault(row["run"].rsplit("/", 1)[0], []).append(row)
     sign = 1.0 if spec.get("lower_is_better") else -1.0
-    ranked = sorted(points.items(), key=lambda kv: sign * float(np.mean([r[f"eval_{metric}"] for r in kv[1]])))
+    ranked = sorted(  # the metric first; at equal metric, fewer bits
+        points.items(),
+        key=lambda kv: (
+            sign * float(np.mean([r[f"eval_{metric}"] for r in kv[1]])),
+            float(np.mean([r["eval_bits"] for r in kv[1]])),
+        ),
+    )
     print(f"{len(rows)} runs; grid points by held-out {metric} ({'lower' if sign > 0 else 'higher'} is better):")
     for label, group in ranked:
         m, h = mean_ci95([r[f"eval_{metric}"] for r in group])
@@ -697,8 +703,11 @@ def sweep_section(env_id: str, docs: Path) -> str:
         groups.setdefault(tuple(row[k] for k in keys), []).append(row)
     sign = 1.0 if meta.get("lower_is_better") else -1.0
 
-    def score(group):
-        return float(np.mean([float(r[f"eval_{metric}"]) for r in group]))
+    def score(group):  # the metric first; at equal metric, fewer bits
+        return (
+            sign * float(np.mean([float(r[f"eval_{metric}"]) for r in group])),
+            float(np.mean([float(r["eval_bits"]) for r in group])),
+        )
 
     lines = [
         "",
@@ -712,7 +721,7 @@ def sweep_section(env_id: str, docs: Path) -> str:
         "| minutes per run |",
         "| " + " | ".join("---" for _ in range(len(keys) + 4)) + " |",
     ]
-    for values, group in sorted(groups.items(), key=lambda kv: sign * score(kv[1])):
+    for values, group in sorted(groups.items(), key=lambda kv: score(kv[1])):
         m, h = mean_ci95([float(r[f"eval_{metric}"]) for r in group])
         bits = np.mean([float(r["eval_bits"]) for r in group])
         ret = np.mean([float(r["final_train_return"]) for r in group])
