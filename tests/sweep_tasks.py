@@ -33,3 +33,10 @@ def count_calls(log: str, value: int) -> int:
     with open(log, "a") as fh:
         fh.write(f"{value}\n")
     return value * value
+
+
+def record_pid(log: str, value: int) -> int:
+    """Appends the worker's process id to ``log``: which processes ran the tasks."""
+    with open(log, "a") as fh:
+        fh.write(f"{os.getpid()}\n")
+    return value

@@ -90,3 +90,16 @@ def test_ray_without_ray_installed_says_how_to_get_it(monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray → ImportError
     with pytest.raises(ValueError, match=r"mrcomm-env\[ray\]"):
         Runner(ray="auto", progress=False).map(_tasks(1))
+
+
+@pytest.mark.xdist_group("processes")
+def test_a_using_block_keeps_one_pool_of_workers_for_all_its_sweeps(monkeypatch, tmp_path):
+    monkeypatch.setenv("PYTHONPATH", str(Path(__file__).parent))
+    log = tmp_path / "pids.log"
+    runner = Runner(workers=2, progress=False)
+    with using(runner):
+        for value in range(3):  # three sweeps in one block
+            runner.map([Task(FN + "record_pid", {"log": str(log), "value": v}) for v in (value, value + 10)])
+        assert runner._pool is not None
+    assert runner._pool is None  # stopped with the block
+    assert len(set(log.read_text().split())) <= 2  # the same two workers ran all six tasks

@@ -176,18 +176,18 @@ def cmd_reproduce(args) -> int:
     size = "tiny" if args.tiny else "quick" if args.quick else "full"
     sections = []
     runner = runner_from_args(args)
-    for env_id in targets:
-        name = short_name(env_id)
-        print(f"== reproducing {env_id} ({size}, {runner.backend}) ==", flush=True)
-        start = time.perf_counter()
-        # every Monte-Carlo sweep of the reproduction runs on this runner; each task's result is cached in
-        # <out>/<env>/tasks, so a rerun after an interruption or a failed task skips what is done
-        with using(runner):
+    with using(runner):  # one set of worker processes for every env's sweeps
+        for env_id in targets:
+            name = short_name(env_id)
+            print(f"== reproducing {env_id} ({size}, {runner.backend}) ==", flush=True)
+            start = time.perf_counter()
+            # every Monte-Carlo sweep of the reproduction runs on this runner; each task's result is cached in
+            # <out>/<env>/tasks, so a rerun after an interruption or a failed task skips what is done
             section = run_reproduction(env_id, out / name, quick=args.quick or args.tiny, tiny=args.tiny)
-        # the report gives each env an H2; the section's own headings move one level down beneath it
-        section = "\n".join("#" + line if line.startswith("#") else line for line in section.splitlines())
-        elapsed = time.perf_counter() - start
-        sections.append(f"## {env_id}\n\n_{size} run, {elapsed:.0f} s_\n\n{section}\n")
+            # the report gives each env an H2; the section's own headings move one level down beneath it
+            section = "\n".join("#" + line if line.startswith("#") else line for line in section.splitlines())
+            elapsed = time.perf_counter() - start
+            sections.append(f"## {env_id}\n\n_{size} run, {elapsed:.0f} s_\n\n{section}\n")
     command = " ".join(
         ["mrcomm reproduce", *(["--all"] if args.all else args.env_ids)]
         + (["--quick"] if args.quick else [])

@@ -629,24 +629,24 @@ def cmd_reproduce_learning(args: argparse.Namespace) -> int:
             atomic_write_text(docs / "learning" / f"{name}.md", section + sweep_section(env_id, docs))
         print(f"wrote {write_learning_page(docs)}")
         return 0
-    for env_id in targets:
-        name = short_name_of(env_id)
-        with using(runner_from_args(args, progress=not args.quiet)):
+    with using(runner_from_args(args, progress=not args.quiet)):  # one set of workers for every env
+        for env_id in targets:
+            name = short_name_of(env_id)
             rows, spec = reproduce_learning(env_id, out / name, quick=args.quick, progress=not args.quiet)
-        csv_path = docs / "learning" / f"{name}.csv"
-        tmp = csv_path.with_name(f".{csv_path.name}.tmp")
-        with open(tmp, "w", newline="") as fh:
-            writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
-        tmp.replace(csv_path)
-        figure = docs / "learning" / f"{name}.png"
-        plot_comparison(rows, spec, f"{env_id}: learned vs scripted at equal bits", figure)
-        section = learning_section(env_id, rows, spec, f"learning/{name}.png") + sweep_section(env_id, docs)
-        # one fragment per env: rerunning one env keeps the others' sections in the page
-        atomic_write_text(docs / "learning" / f"{name}.md", section)
-        if args.export_pretrained:
-            print(f"shipped {spec['best_run']} as {export_pretrained(spec['best_run'], env_id)}")
+            csv_path = docs / "learning" / f"{name}.csv"
+            tmp = csv_path.with_name(f".{csv_path.name}.tmp")
+            with open(tmp, "w", newline="") as fh:
+                writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+                writer.writeheader()
+                writer.writerows(rows)
+            tmp.replace(csv_path)
+            figure = docs / "learning" / f"{name}.png"
+            plot_comparison(rows, spec, f"{env_id}: learned vs scripted at equal bits", figure)
+            section = learning_section(env_id, rows, spec, f"learning/{name}.png") + sweep_section(env_id, docs)
+            # one fragment per env: rerunning one env keeps the others' sections in the page
+            atomic_write_text(docs / "learning" / f"{name}.md", section)
+            if args.export_pretrained:
+                print(f"shipped {spec['best_run']} as {export_pretrained(spec['best_run'], env_id)}")
     page = write_learning_page(docs, quick=args.quick)
     print(f"wrote {page}")
     return 0
