@@ -79,7 +79,7 @@ sweep: $(STAMP)
 	$(call sweep,ChannelAssociation-v0,--grid learning_rate=0.0003$(comma)0.001 --grid ent_coef=0.0$(comma)0.01 --param emission_cost=0.1)
 	$(call sweep,MapSync-v0,--grid learning_rate=0.0002$(comma)0.0005 --grid ent_coef=0.0$(comma)0.01 --param lam=0.01)
 	$(call sweep,AsyncCL-v0,--grid learning_rate=0.0002$(comma)0.0005 --grid ent_coef=0.0$(comma)0.005 --param lam=0.1)
-	$(call sweep,RendezvousMapping-v0,--algo maskable_ppo --grid learning_rate=0.0002$(comma)0.0005 --grid timesteps=60000$(comma)240000 --param d_comms=1000.0)
+	$(call sweep,RendezvousMapping-v0,--algo maskable_ppo --grid learning_rate=0.0002$(comma)0.0005 --grid ent_coef=0.0$(comma)0.01 --param d_comms=1000.0)
 	$(call sweep,MultiHop-v0,--timesteps 100000 --grid learning_rate=0.0003$(comma)0.001 --grid ent_coef=0.0$(comma)0.01 --param lam=0.0)
 	$(BIN)/mrcomm reproduce-learning --docs-only
 

@@ -37,9 +37,13 @@ class _Periodic(Policy):
     PARAMS = {"period": _PERIOD}
     protocol = IDLE
 
+    def __init__(self, **params):
+        super().__init__(**params)
+        self._period = self.params.period  # read every step: a plain attribute
+
     def due(self, views) -> bool:
         step = views.step
-        return step > 0 and step % self.params.period == 0
+        return step > 0 and step % self._period == 0
 
     def act(self, observations, views):
         action = self.protocol if self.due(views) else IDLE

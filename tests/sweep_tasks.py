@@ -44,3 +44,10 @@ def node_of(index: int, seconds: float) -> str:
 
     time.sleep(seconds)
     return ray.get_runtime_context().get_node_id()
+
+
+def record_pid(log: str, value: int) -> int:
+    """Appends the worker's process id to ``log``: which processes ran the tasks."""
+    with open(log, "a") as fh:
+        fh.write(f"{os.getpid()}\n")
+    return value

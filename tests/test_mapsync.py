@@ -13,7 +13,7 @@ from baselines import make_policy
 from mrcomm_env.experiments.evaluation import run_episode
 from mrcomm_env.mapsync import pinsketch, theory, world
 from mrcomm_env.mapsync import protocol as proto
-from mrcomm_env.mapsync.env import EQUALITY, FULL, IDLE, SKETCH, MapSyncEnv
+from mrcomm_env.mapsync.env import _STALE_KNOWN, EQUALITY, FULL, IDLE, SKETCH, MapSyncEnv
 from mrcomm_env.mapsync.philox import SharedStrings, philox4x32
 
 
@@ -295,9 +295,13 @@ def test_gossip_converges_once_the_world_stops_changing():
     env.reset(seed=9)
     for _ in range(80):
         step_all(env, {})
-    env.cfg["appear_rate"] = env.cfg["vanish_rate"] = 0.0  # freeze the world (the merge stays last-writer-wins)
+    # freeze the world (the merge stays last-writer-wins): the env reads the rates once, at construction
+    env.cfg["appear_rate"] = env.cfg["vanish_rate"] = 0.0
+    env._changing = False
     env.pos[:] = env.pos[0]  # gather the robots in one cell so that they all sense the same cells from now on
-    env._neighbours = [[-1, -1, -1, -1]] * env.n  # and keep them there: nobody moves, so no new cells are seen
+    # and keep them there (both walks: the numpy reference and its compiled twin): no new cells are seen
+    env._neighbours = [[-1, -1, -1, -1]] * env.n
+    env._neighbour_table = np.full((env.n, 4), -1, dtype=np.int64)
     # what gossip must converge to: each cell's newest observation by any robot (the gathering cell and its
     # neighbours are sensed again from now on, and the frozen world is what they see)
     newest = env.stamps.argmax(axis=0)
@@ -443,19 +447,136 @@ def test_compiled_inner_products_equal_the_numpy_reference(n, cached):
     assert all(np.array_equal(c, r) for c, r in zip(compiled, reference))
 
 
-def test_whole_episodes_are_identical_on_both_backends(monkeypatch):
-    pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+def _use_backend(monkeypatch, compiled: bool) -> None:
+    """Pick the compiled twins or the numpy reference for the protocols and the env (decided at reset)."""
     import types
 
+    from mrcomm_env.mapsync import env as env_module
+
+    fake = types.SimpleNamespace(compiled=lambda: compiled)
+    monkeypatch.setattr(proto, "backend", fake)
+    monkeypatch.setattr(env_module, "backend", fake)
+
+
+@pytest.mark.parametrize(
+    ("n", "res", "k", "d"),
+    [(2, 1, 1, 1), (16, 1, 3, 16), (45, 3, 2, 7), (77, 1, 1, 0), (256, 1, 10, 3), (1000, 4, 5, 40), (1024, 1, 7, 1)],
+)
+@pytest.mark.parametrize("cached", [False, True])
+def test_compiled_bisection_equals_the_reference(monkeypatch, n, res, k, d, cached):
+    pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    rng = np.random.default_rng(100 * n + d)
+    x, y, _ = maps_with_differences(rng, n, d)
+    strings = SharedStrings(n, 9, cache=cached)
+    runs = []
+    for compiled in (False, True):
+        _use_backend(monkeypatch, compiled)
+        generator = np.random.default_rng(d)  # small k: missed differences happen and must be the same ones
+        result = proto.bisection(x, y, strings, k, res, generator)
+        runs.append((result, generator.bit_generator.state))
+    (reference, state), (twin, twin_state) = runs
+    assert np.array_equal(twin.found, reference.found) and twin.found.dtype == reference.found.dtype
+    for name in ("alice_bits", "bob_bits", "rounds", "candidates", "detected", "extra"):
+        assert getattr(twin, name) == getattr(reference, name), name
+    assert twin_state == state  # the generator ends where the reference leaves it
+
+
+@pytest.mark.parametrize("n", [4, 64, 300])
+def test_compiled_bisection_never_runs_out_of_picks(n):
+    """Every cell differs: the most Protocol 1 calls Algorithm 1 can make fit in the picks drawn ahead."""
+    pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    x = np.zeros(n, dtype=bool)
+    y = ~x
+    k, rng = 40, np.random.default_rng(n)  # a test misses a difference w.p. ≤ 2^−40: the run is exact
+    result = proto._bisection_compiled(x, y, SharedStrings(n, 1), k, 1, rng)
+    assert result is not None and np.array_equal(result.found, np.arange(n))
+    # with all cells differing every segment is tested: 2n − 1 nodes of the tree, n of them leaves
+    assert result.extra["protocol1_calls"] == n - 1
+
+
+def test_compiled_walk_and_sense_equals_the_reference():
+    """The twin against ``world.random_walk`` + ``MapSyncEnv._sense`` from states with stale, wrong and unseen bits."""
+    kernels = pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    env = MapSyncEnv(grid_size=7, n_robots=4, n_obstacles=0)
+    env.reset(seed=0)
+    n, n_robots = env.n, env.n_agents
+    rng = np.random.default_rng(3)
+    for trial in range(60):
+        env.truth[:] = rng.random(n) < 0.3
+        env.pos = rng.integers(0, n, n_robots)
+        env.maps[:] = rng.random((n_robots, n)) < 0.3  # disagreeing with the world: stale or wrongly merged
+        env.stamps[:] = np.where(rng.random((n_robots, n)) < 0.5, rng.integers(0, 50, (n_robots, n)), -1)
+        env.known[:] = rng.integers(0, n, n_robots)
+        env.new_cells[:] = rng.integers(0, 9, (n_robots, n_robots)) * (1 - np.eye(n_robots, dtype=np.int64))
+        before = [a.copy() for a in (env.pos, env.truth, env.maps, env.stamps, env.known, env.new_cells)]
+        pos, truth, maps, stamps, known, new_cells = (a.copy() for a in before)
+
+        env._stale, env._dirty = 0, False
+        env.pos = world.random_walk(np.random.default_rng(trial), env.pos, env._neighbours, env.truth)
+        env._sense(60)
+        keys = np.random.default_rng(trial).random((n_robots, 4))  # the keys random_walk drew
+        out, flags = kernels.walk_and_sense(
+            True, keys, pos, env._neighbour_table, truth, env._sensed, env._sensed_distinct, maps, stamps, known,
+            new_cells, 60,
+        )  # fmt: skip
+        assert np.array_equal(out, env.pos)
+        assert bool(flags & 1) == bool(env._stale & _STALE_KNOWN) and bool(flags & 2) == env._dirty
+        for twin, reference in zip((maps, stamps, known, new_cells), (env.maps, env.stamps, env.known, env.new_cells)):
+            assert np.array_equal(twin, reference)
+
+
+def test_compiled_observation_equals_the_reference_at_every_step():
+    """Syncs in flight over a narrow link (progress), links that break, verdicts, a changing world."""
+    kernels = pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    env = MapSyncEnv(n_robots=5, bits_per_step=30, link_prob=0.6, comm_range=6.0, appear_rate=0.01, vanish_rate=0.05)
+    env.reset(seed=4)
+    rng = np.random.default_rng(1)
+    in_flight = 0
+    while env.agents:
+        env.step({a: int(rng.integers(1, 5)) if rng.random() < 0.2 else IDLE for a in env.agents})
+        in_flight += bool(env.sessions)
+        env._observe_compiled, env._stale = None, 31  # the numpy reference, every column recomputed
+        reference = env._observe()
+        env._observe_compiled = kernels.observe
+        assert np.array_equal(env._observe(), reference)
+    assert in_flight > 10, "the episode must hold syncs in flight for the progress column to be tested"
+
+
+@pytest.mark.parametrize(
+    ("cfg", "policy"),
+    [
+        ({"preset": "paper", "max_cycles": 120}, "random"),
+        ({}, "periodic_equality_then_bisection"),
+        ({"appear_rate": 0.01, "vanish_rate": 0.05, "max_cycles": 80}, "random"),
+        ({"n_robots": 4, "bits_per_step": 40, "comm_range": 6.0, "link_prob": 0.8, "max_cycles": 80}, "random"),
+    ],
+)
+def test_whole_episodes_are_identical_on_both_backends(monkeypatch, cfg, policy):
+    pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+
     def episode(compiled):
-        monkeypatch.setattr(proto, "backend", types.SimpleNamespace(compiled=lambda: compiled))
-        env = mrcomm_env.make("MapSync-v0", preset="paper", max_cycles=120)
-        metrics = run_episode(env, make_policy("MapSync-v0", "random"), seed=17)
-        return metrics, env.detections, env.maps.copy()
+        _use_backend(monkeypatch, compiled)
+        env = mrcomm_env.make("MapSync-v0", **cfg)
+        pol = make_policy("MapSync-v0", policy)
+        views = env.local_views()
+        obs, infos = env.reset(seed=17)
+        pol.reset(views, 17)
+        trace = [(obs, infos)]
+        while env.agents:
+            obs, rewards, _, _, infos = env.step(pol.act(obs, views))
+            trace.append((obs, rewards, infos, env.stamps.copy()))
+        return trace, env.metrics(), env.detections, env.maps.copy(), env.ledger.total_bits.tolist()
 
     numpy_run, compiled_run = episode(False), episode(True)
-    assert numpy_run[0] == compiled_run[0] and numpy_run[1] == compiled_run[1]
-    assert np.array_equal(numpy_run[2], compiled_run[2])
+    for numpy_step, compiled_step in zip(numpy_run[0], compiled_run[0], strict=True):
+        for a, b in zip(numpy_step, compiled_step):
+            if isinstance(a, dict):
+                assert a.keys() == b.keys()
+                assert all(np.array_equal(a[key], b[key]) for key in a)
+            else:
+                assert np.array_equal(a, b)
+    assert numpy_run[1:3] == compiled_run[1:3] and numpy_run[4] == compiled_run[4]
+    assert np.array_equal(numpy_run[3], compiled_run[3])
 
 
 @pytest.mark.parametrize(
@@ -467,7 +588,8 @@ def test_whole_episodes_are_identical_on_both_backends(monkeypatch):
         {"n_robots": 4, "comm_range": 5.0, "link_prob": 0.7, "bits_per_step": 30},
     ],
 )
-def test_incremental_observation_and_infos_equal_a_full_recompute(cfg):
+def test_incremental_observation_and_infos_equal_a_full_recompute(monkeypatch, cfg):
+    _use_backend(monkeypatch, False)  # the numpy reference is the incremental one (the twin recomputes all)
     env = MapSyncEnv(**cfg)
     env.reset(seed=1)
     rng = np.random.default_rng(0)
@@ -476,6 +598,7 @@ def test_incremental_observation_and_infos_equal_a_full_recompute(cfg):
         obs, _, _, _, infos = env.step(actions)
         if not env.agents:
             break
+        assert env._recent_max == env.recent_bits.max()  # tracked without a reduction on most steps
         env._stale, env._infos_key = 31, None  # forget every cache
         assert np.array_equal(np.stack(list(obs.values())), env._observe())
         assert infos == env._infos()

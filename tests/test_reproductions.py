@@ -19,6 +19,7 @@ import pytest
 from mrcomm_env.experiments import io, reproductions
 from mrcomm_env.experiments.cli import main
 from mrcomm_env.experiments.reproductions import module, run_reproduction
+from mrcomm_env.experiments.reproductions.common import TASKS_DIR
 from mrcomm_env.registry import ENTRIES, short_name
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -67,11 +68,17 @@ def leftover_temporaries(root: Path) -> list[Path]:
 @pytest.mark.parametrize("env_id", list(ENTRIES))
 def test_reproduction_writes_every_promised_file(env_id, tmp_path, capsys):
     out = tmp_path / "results"
-    assert main(["reproduce", env_id, "--tiny", "--out", str(out)]) == 0
+    # serially: tests/test_reproduction_sweeps.py checks that worker processes write the same files
+    assert main(["reproduce", env_id, "--tiny", "--workers", "1", "--out", str(out)]) == 0
     report_path = out / "REPORT.md"
     report = report_path.read_text()
     name = short_name(env_id)
-    written = {p.name: p for p in (out / name).iterdir()}
+    written = {p.name: p for p in (out / name).iterdir() if p.name != TASKS_DIR}
+    # its Monte-Carlo runs went through the sweep runner, which cached each task's result as it finished
+    cached = list((out / name / TASKS_DIR).glob("*.json"))
+    assert cached, "no sweep task ran: the reproduction does its Monte-Carlo work outside the sweep runner"
+    for path in cached:
+        assert set(json.loads(path.read_text())) == {"task", "result"}
 
     declared = set(getattr(module(env_id), "ARTIFACTS", ()))
     linked = set(re.findall(rf"\]\({re.escape(name)}/([^)\s]+)\)", report))  # figures the report shows
@@ -156,7 +163,7 @@ def test_reproduce_interrupted_mid_write_leaves_no_report_and_no_temporary(tmp_p
 
     monkeypatch.setattr(io.os, "replace", replace_then_interrupt)
     env_id = next(iter(ENTRIES))
-    assert main(["reproduce", env_id, "--tiny", "--out", str(out)]) == 130
+    assert main(["reproduce", env_id, "--tiny", "--workers", "1", "--out", str(out)]) == 130
     assert "interrupted" in capsys.readouterr().err
     assert not (out / "REPORT.md").exists()
     assert not leftover_temporaries(tmp_path)

@@ -112,3 +112,16 @@ def test_a_ray_task_refuses_to_run_on_a_node_with_other_code():
     other_twins = {**here, "backend": "numpy" if here["backend"] == "numba" else "numba"}
     with pytest.raises(CodeMismatch, match=rf"with {here['backend']} hot loops, .* with {other_twins['backend']}:"):
         _ray_execute(*task, other_twins)
+
+
+@pytest.mark.xdist_group("processes")
+def test_a_using_block_keeps_one_pool_of_workers_for_all_its_sweeps(monkeypatch, tmp_path):
+    monkeypatch.setenv("PYTHONPATH", str(Path(__file__).parent))
+    log = tmp_path / "pids.log"
+    runner = Runner(workers=2, progress=False)
+    with using(runner):
+        for value in range(3):  # three sweeps in one block
+            runner.map([Task(FN + "record_pid", {"log": str(log), "value": v}) for v in (value, value + 10)])
+        assert runner._pool is not None
+    assert runner._pool is None  # stopped with the block
+    assert len(set(log.read_text().split())) <= 2  # the same two workers ran all six tasks

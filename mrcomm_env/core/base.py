@@ -90,6 +90,8 @@ class MrcommParallelEnv(ParallelEnv):
         raise NotImplementedError
 
     def _agent_infos(self) -> dict[str, Any]:
+        """Info key → N numbers. Returning the very same dict object as at the previous call says that nothing
+        in it changed: the per-agent rows are then reused instead of converted again."""
         raise NotImplementedError
 
     def _terminated(self) -> bool:
@@ -168,7 +170,7 @@ class MrcommParallelEnv(ParallelEnv):
     def step(self, actions: dict[str, Any]):
         if not self.agents:
             raise RuntimeError("step() called on a finished episode; call reset() first")
-        if not isinstance(actions, Mapping):
+        if type(actions) is not dict and not isinstance(actions, Mapping):
             raise ValueError(
                 f"argument 'actions' must be a dict keyed by agent ({self.agents[0]} … {self.agents[-1]}), "
                 f"got {type(actions).__name__}"
@@ -242,9 +244,14 @@ class MrcommParallelEnv(ParallelEnv):
 
     def _infos(self) -> dict[str, dict[str, float]]:
         columns = self._agent_infos()
-        keys = list(columns)
-        values = [np.asarray(columns[k], dtype=np.float64).tolist() for k in keys]
-        return {a: dict(zip(keys, row)) for a, row in zip(self.agents, zip(*values))}
+        # the last columns are kept referenced, so an unchanged object (see _agent_infos) is the same one
+        if columns is not self.__dict__.get("_info_columns"):
+            keys = list(columns)
+            values = [np.asarray(columns[k], dtype=np.float64).tolist() for k in keys]
+            self._info_columns, self._info_rows = columns, (keys, list(zip(*values)))
+        keys, rows = self._info_rows
+        # fresh dicts every step: wrappers (SB3's VecEnv, SuperSuit) add keys to the infos they receive
+        return {a: dict(zip(keys, row)) for a, row in zip(self.agents, rows)}
 
 
 def _is_int_action(action: Any) -> bool:

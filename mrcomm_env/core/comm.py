@@ -114,8 +114,15 @@ class BitLedger:
 
     def add(self, agent: int | np.ndarray, bits: float | np.ndarray, messages: int = 1) -> None:
         """Charge ``bits`` to ``agent`` (an index or an index array with matching ``bits``)."""
-        np.add.at(self.step_bits, agent, bits)
-        np.add.at(self.total_bits, agent, bits)
+        if type(agent) is int and type(bits) in (
+            int,
+            float,
+        ):  # one agent: np.add.at's single addition, minus its overhead
+            self.step_bits[agent] += bits
+            self.total_bits[agent] += bits
+        else:
+            np.add.at(self.step_bits, agent, bits)
+            np.add.at(self.total_bits, agent, bits)
         self.messages += messages
 
     def record(self, bits: np.ndarray, messages: int) -> None:

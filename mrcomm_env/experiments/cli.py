@@ -162,6 +162,7 @@ REPORT_NAME = "REPORT.md"
 def cmd_reproduce(args) -> int:
     from mrcomm_env.core import backend
     from mrcomm_env.experiments.evaluation import limit_threads
+    from mrcomm_env.experiments.sweep import runner_from_args, using
 
     limit_threads()
     if args.all == bool(args.env_ids):
@@ -174,15 +175,19 @@ def cmd_reproduce(args) -> int:
     atomic_remove(report)
     size = "tiny" if args.tiny else "quick" if args.quick else "full"
     sections = []
-    for env_id in targets:
-        name = short_name(env_id)
-        print(f"== reproducing {env_id} ({size}) ==", flush=True)
-        start = time.perf_counter()
-        section = run_reproduction(env_id, out / name, quick=args.quick or args.tiny, tiny=args.tiny)
-        # the report gives each env an H2; the section's own headings move one level down beneath it
-        section = "\n".join("#" + line if line.startswith("#") else line for line in section.splitlines())
-        elapsed = time.perf_counter() - start
-        sections.append(f"## {env_id}\n\n_{size} run, {elapsed:.0f} s_\n\n{section}\n")
+    runner = runner_from_args(args)
+    with using(runner):  # one set of worker processes for every env's sweeps
+        for env_id in targets:
+            name = short_name(env_id)
+            print(f"== reproducing {env_id} ({size}, {runner.backend}) ==", flush=True)
+            start = time.perf_counter()
+            # every Monte-Carlo sweep of the reproduction runs on this runner; each task's result is cached in
+            # <out>/<env>/tasks, so a rerun after an interruption or a failed task skips what is done
+            section = run_reproduction(env_id, out / name, quick=args.quick or args.tiny, tiny=args.tiny)
+            # the report gives each env an H2; the section's own headings move one level down beneath it
+            section = "\n".join("#" + line if line.startswith("#") else line for line in section.splitlines())
+            elapsed = time.perf_counter() - start
+            sections.append(f"## {env_id}\n\n_{size} run, {elapsed:.0f} s_\n\n{section}\n")
     command = " ".join(
         ["mrcomm reproduce", *(["--all"] if args.all else args.env_ids)]
         + (["--quick"] if args.quick else [])
@@ -369,6 +374,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="smoke-test sizes (seconds per env): every file is written, the numbers mean nothing",
     )
     p.add_argument("--out", default="results")
+    from mrcomm_env.experiments.sweep import add_runner_arguments
+
+    add_runner_arguments(p)
     p.set_defaults(func=cmd_reproduce)
 
     p = command("bench", help="env-steps/s against mpe2 simple_spread_v3 (a benchmark, not a test)")
@@ -412,6 +420,8 @@ def _error(message: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from mrcomm_env.experiments.sweep import SweepError
+
     argv = sys.argv[1:] if argv is None else list(argv)
     debug = "--debug" in argv  # known before parsing, so that even a parse error can show its traceback
     try:
@@ -429,6 +439,11 @@ def main(argv: list[str] | None = None) -> int:
             raise
         _error(_one_line(exc))
         return EXIT_BAD_INPUT
+    except SweepError as exc:  # a task failed twice: its message names it with its arguments
+        if debug:
+            raise
+        _error(f"{_one_line(exc)} (finished tasks are cached: rerun the same command to resume)")
+        return EXIT_FAILURE
     except MemoryError as exc:
         if debug:
             raise

@@ -267,7 +267,13 @@ def train_sweep(base: dict, seeds: list[int], grid: dict[str, list], out: Path, 
     for row in rows:
         points.setdefault(row["run"].rsplit("/", 1)[0], []).append(row)
     sign = 1.0 if spec.get("lower_is_better") else -1.0
-    ranked = sorted(points.items(), key=lambda kv: sign * float(np.mean([r[f"eval_{metric}"] for r in kv[1]])))
+    ranked = sorted(  # the metric first; at equal metric, fewer bits
+        points.items(),
+        key=lambda kv: (
+            sign * float(np.mean([r[f"eval_{metric}"] for r in kv[1]])),
+            float(np.mean([r["eval_bits"] for r in kv[1]])),
+        ),
+    )
     print(f"{len(rows)} runs; grid points by held-out {metric} ({'lower' if sign > 0 else 'higher'} is better):")
     for label, group in ranked:
         m, h = mean_ci95([r[f"eval_{metric}"] for r in group])
@@ -623,24 +629,24 @@ def cmd_reproduce_learning(args: argparse.Namespace) -> int:
             atomic_write_text(docs / "learning" / f"{name}.md", section + sweep_section(env_id, docs))
         print(f"wrote {write_learning_page(docs)}")
         return 0
-    for env_id in targets:
-        name = short_name_of(env_id)
-        with using(runner_from_args(args, progress=not args.quiet)):
+    with using(runner_from_args(args, progress=not args.quiet)):  # one set of workers for every env
+        for env_id in targets:
+            name = short_name_of(env_id)
             rows, spec = reproduce_learning(env_id, out / name, quick=args.quick, progress=not args.quiet)
-        csv_path = docs / "learning" / f"{name}.csv"
-        tmp = csv_path.with_name(f".{csv_path.name}.tmp")
-        with open(tmp, "w", newline="") as fh:
-            writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
-        tmp.replace(csv_path)
-        figure = docs / "learning" / f"{name}.png"
-        plot_comparison(rows, spec, f"{env_id}: learned vs scripted at equal bits", figure)
-        section = learning_section(env_id, rows, spec, f"learning/{name}.png") + sweep_section(env_id, docs)
-        # one fragment per env: rerunning one env keeps the others' sections in the page
-        atomic_write_text(docs / "learning" / f"{name}.md", section)
-        if args.export_pretrained:
-            print(f"shipped {spec['best_run']} as {export_pretrained(spec['best_run'], env_id)}")
+            csv_path = docs / "learning" / f"{name}.csv"
+            tmp = csv_path.with_name(f".{csv_path.name}.tmp")
+            with open(tmp, "w", newline="") as fh:
+                writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+                writer.writeheader()
+                writer.writerows(rows)
+            tmp.replace(csv_path)
+            figure = docs / "learning" / f"{name}.png"
+            plot_comparison(rows, spec, f"{env_id}: learned vs scripted at equal bits", figure)
+            section = learning_section(env_id, rows, spec, f"learning/{name}.png") + sweep_section(env_id, docs)
+            # one fragment per env: rerunning one env keeps the others' sections in the page
+            atomic_write_text(docs / "learning" / f"{name}.md", section)
+            if args.export_pretrained:
+                print(f"shipped {spec['best_run']} as {export_pretrained(spec['best_run'], env_id)}")
     page = write_learning_page(docs, quick=args.quick)
     print(f"wrote {page}")
     return 0
@@ -697,8 +703,11 @@ def sweep_section(env_id: str, docs: Path) -> str:
         groups.setdefault(tuple(row[k] for k in keys), []).append(row)
     sign = 1.0 if meta.get("lower_is_better") else -1.0
 
-    def score(group):
-        return float(np.mean([float(r[f"eval_{metric}"]) for r in group]))
+    def score(group):  # the metric first; at equal metric, fewer bits
+        return (
+            sign * float(np.mean([float(r[f"eval_{metric}"]) for r in group])),
+            float(np.mean([float(r["eval_bits"]) for r in group])),
+        )
 
     lines = [
         "",
@@ -712,7 +721,7 @@ def sweep_section(env_id: str, docs: Path) -> str:
         "| minutes per run |",
         "| " + " | ".join("---" for _ in range(len(keys) + 4)) + " |",
     ]
-    for values, group in sorted(groups.items(), key=lambda kv: sign * score(kv[1])):
+    for values, group in sorted(groups.items(), key=lambda kv: score(kv[1])):
         m, h = mean_ci95([float(r[f"eval_{metric}"]) for r in group])
         bits = np.mean([float(r["eval_bits"]) for r in group])
         ret = np.mean([float(r["final_train_return"]) for r in group])

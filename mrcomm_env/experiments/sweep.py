@@ -124,6 +124,8 @@ class Runner:
     progress: bool = True
     #: what the last :meth:`map` did: tasks run here or remotely, loaded from the cache, and retried
     stats: dict[str, int] = field(default_factory=dict, compare=False)
+    _pool: Any = field(default=None, init=False, repr=False, compare=False)
+    _keep_pool: bool = field(default=False, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:
@@ -210,10 +212,16 @@ class Runner:
         import multiprocessing
         from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-        # spawn, not fork: a forked child inherits the parent's torch/BLAS thread pools and locks
-        context = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(min(self.workers, len(todo)), mp_context=context, initializer=_one_thread) as pool:
-            pending = {pool.submit(execute, tasks[i].fn, tasks[i].kwargs): (i, 1) for i in todo}
+        pool = self._pool
+        if pool is None:
+            # spawn, not fork: a forked child inherits the parent's torch/BLAS thread pools and locks
+            context = multiprocessing.get_context("spawn")
+            size = self.workers if self._keep_pool else min(self.workers, len(todo))
+            pool = ProcessPoolExecutor(size, mp_context=context, initializer=_one_thread)
+            if self._keep_pool:  # inside ``using``: the workers (and their imports) serve every sweep of the block
+                self._pool = pool
+        pending = {pool.submit(execute, tasks[i].fn, tasks[i].kwargs): (i, 1) for i in todo}
+        try:
             while pending:
                 complete, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for future in complete:
@@ -226,6 +234,19 @@ class Runner:
                         pending[pool.submit(execute, tasks[i].fn, tasks[i].kwargs)] = (i, attempt + 1)
                     else:
                         finished(i, error=error)
+        except BaseException:
+            # Ctrl-C (or an error here): waiting for the pool would run every queued task first
+            self._pool = None
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+        if pool is not self._pool:
+            pool.shutdown(wait=True)
+
+    def close(self) -> None:
+        """Stop the worker processes a ``using`` block kept (idempotent)."""
+        pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
 
     def _map_ray(self, tasks: Sequence[Task], todo: list[int], finished) -> None:
         try:
@@ -315,12 +336,17 @@ def current() -> Runner:
 
 @contextlib.contextmanager
 def using(runner: Runner) -> Iterator[Runner]:
-    """Run every sweep inside the block (e.g. a whole reproduction) on ``runner``."""
+    """Run every sweep inside the block (e.g. a whole reproduction) on ``runner``; local worker processes are
+    started once, at the first sweep, and stopped when the block ends (each costs seconds of imports)."""
     _ACTIVE.append(runner)
+    keep, runner._keep_pool = runner._keep_pool, True
     try:
         yield runner
     finally:
         _ACTIVE.pop()
+        runner._keep_pool = keep
+        if not keep:
+            runner.close()
 
 
 def run_tasks(tasks: Sequence[Task], cache: str | Path | None = None, desc: str = "tasks") -> list[Any]:

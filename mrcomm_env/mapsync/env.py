@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from gymnasium import spaces
 
-from mrcomm_env.core import BitLedger, MrcommParallelEnv, bernoulli_links, disk_links
+from mrcomm_env.core import BitLedger, MrcommParallelEnv, backend, bernoulli_links, disk_links
 from mrcomm_env.core.config import Bool, Choice, Int, Optional, Param, Real
 from mrcomm_env.mapsync import protocol as proto
 from mrcomm_env.mapsync import world
@@ -58,6 +58,13 @@ _TEST_CODE = np.array([0.0, 1.0, 0.5])  # observation of last_test + 1: none 0, 
 # parts of the observation recomputed only after they change (the clock columns are updated every step)
 _STALE_NEW, _STALE_LINKS, _STALE_SESSIONS, _STALE_RECENT, _STALE_KNOWN = 1, 2, 4, 8, 16
 _STALE_ALL = 31
+
+
+def _kernels():
+    """The compiled twins (``kernels_numba``), imported on first use: numba is optional."""
+    from mrcomm_env.mapsync import kernels_numba
+
+    return kernels_numba
 
 
 @dataclass
@@ -237,6 +244,8 @@ class MapSyncEnv(MrcommParallelEnv):
         N = self.n_agents
         table = world.neighbour_table(self.size)
         self._neighbours = table.tolist()
+        self._neighbour_table = table
+        self._no_keys = np.zeros((0, 4))  # the walk's keys when the robots only sense (reset)
         self._sensed, self._sensed_distinct = world.sensing_table(table)
         self._static_links = c.comm_range is None and c.link_prob >= 1.0
         self._stamp_bits = max(1, math.ceil(math.log2(c.max_cycles + 2)))  # steps 0 … max_cycles and "never"
@@ -249,8 +258,53 @@ class MapSyncEnv(MrcommParallelEnv):
         self._row_offsets = np.arange(N)[:, None] * self.n  # row i of the flattened (N, n) maps starts at i·n
         self._peer_flat = np.arange(N)[:, None] * N + self._peer_order  # (N, N−1) flat (i, j) of each peer slot
         self._horizon = c.max_cycles
+        self._bit_scale = self.n * N  # the reward prices team bits in units of n bits per robot (Reward scale)
+        self._changing = c.appear_rate > 0.0 or c.vanish_rate > 0.0
+        # s / (s + 10) for every possible s = steps since a sync (0 … max_cycles), the same float64 values the
+        # formula gives, so that the per-step clock column is one lookup
+        ages = np.arange(c.max_cycles + 1)
+        self._age_code = ages / (ages + 10.0)
         self._obs_buf = np.zeros((N, 4 * (N - 1) + 5), dtype=np.float32)
+        self._make_views()
         self.ledger = BitLedger(N)
+
+    #: attributes that are views into other arrays: a pickle or deepcopy would make them independent copies,
+    #: so they are left out of the state and made again from the arrays they view
+    _VIEWS = (
+        "_maps_flat",
+        "_stamps_flat",
+        "_obs_age",
+        "_obs_new",
+        "_obs_link",
+        "_obs_test",
+        "_obs_recent",
+        "_obs_known",
+        "_obs_busy",
+        "_obs_progress",
+        "_obs_clock",
+    )
+
+    def _make_views(self) -> None:
+        N = self.n_agents
+        # the observation buffer column by column, written in place by _observe
+        per_peer = self._obs_buf[:, : 4 * (N - 1)].reshape(N, N - 1, 4)
+        own = self._obs_buf[:, 4 * (N - 1) :]
+        self._obs_age, self._obs_new, self._obs_link, self._obs_test = (per_peer[..., f] for f in range(4))
+        self._obs_recent, self._obs_known, self._obs_busy, self._obs_progress, self._obs_clock = (
+            own[:, f] for f in range(5)
+        )
+        if "maps" in self.__dict__:  # after the first reset
+            self._maps_flat, self._stamps_flat = self.maps.reshape(-1), self.stamps.reshape(-1)  # for _sense
+
+    def __getstate__(self):
+        state = super().__getstate__()
+        for name in self._VIEWS:
+            state.pop(name, None)
+        return state
+
+    def __setstate__(self, state):
+        super().__setstate__(state)
+        self._make_views()
 
     # ----------------------------------------------------------------- episode
     def _reset_world(self) -> None:
@@ -266,7 +320,9 @@ class MapSyncEnv(MrcommParallelEnv):
         self.truth = truth
         self.maps = np.zeros((N, n), dtype=bool)
         self.stamps = np.full((N, n), -1, dtype=np.int32)
+        self._make_views()
         self.last_sync = np.zeros((N, N), dtype=np.int64)  # step at which each pair's maps were last made equal
+        self._last_sync_peers = np.zeros((N, N - 1), dtype=np.int64)  # last_sync in observation order
         self.new_cells = np.zeros((N, N), dtype=np.int64)
         self.last_test = np.full((N, N), TEST_NONE, dtype=np.int64)
         self.linked = ~self._eye
@@ -279,7 +335,13 @@ class MapSyncEnv(MrcommParallelEnv):
         self.ledger.reset()
         self.recent_bits = np.zeros(N)
         self._recent_any = False
+        self._recent_max = 0.0  # recent_bits.max(), kept as a float
+        self._charged = False  # any bits charged in the current step (ledger.step_bits nonzero)
         self.robot_syncs = np.zeros(N, dtype=np.int64)
+        # info columns that change only on rare events, refreshed by those events
+        self._no_bits = np.zeros(N)
+        self._busy_column = np.zeros(N)
+        self._syncs_column = self.robot_syncs.copy()
         self._steps = 0
         self._sum_disagreement = 0.0
         self._sum_error = 0.0
@@ -294,37 +356,54 @@ class MapSyncEnv(MrcommParallelEnv):
         self._stale = _STALE_ALL  # which parts of the observation must be recomputed
         self._map_version = 0
         self._infos_key = None
+        self._infos_charged = False  # the cached infos show bits sent
         self._dirty = True
-        self._sense(0)
+        # the compiled twin of the walk and the sensing, or the numpy reference (docs/architecture.md)
+        compiled = backend.compiled()
+        self._walk_and_sense = _kernels().walk_and_sense if compiled else None
+        self._observe_compiled = _kernels().observe if compiled else None
+        self._no_progress = np.zeros(N)
+        self._move_and_sense(0, walk=False)
         self._update_disagreement()
 
     # ----------------------------------------------------------------- dynamics
     def _step_world(self, actions: list) -> float:
-        c = self.cfg
         t = self.step_count
-        self.ledger.begin_step()
-        self._links()
-        self._start_sessions(actions, t)
+        if self._charged:  # the ledger's step bits are already zero otherwise
+            self.ledger.begin_step()
+            self._charged = False
+        if not self._static_links:
+            self._links()
+        if any(actions):
+            self._start_sessions(actions, t)
         if self.sessions:
             self._progress_sessions(t)
-        if c.appear_rate > 0.0 or c.vanish_rate > 0.0:
+        if self._changing:
             self._change_world()
             self._dirty = True
-        self.pos = world.random_walk(self.np_random, self.pos, self._neighbours, self.truth)
-        self._sense(t + 1)
+        self._move_and_sense(t + 1, walk=True)
         self._update_disagreement()
-        bits = self.ledger.step_bits
-        if self._recent_any or bits.any():
-            self.recent_bits = 0.9 * self.recent_bits + 0.1 * bits
-            self._recent_any = bool(self.recent_bits.max() > 1e-6 * self.n)
+        team_bits = 0.0
+        if self._charged or self._recent_any:
+            recent = self.recent_bits
+            recent *= 0.9  # in place: the same roundings as 0.9 · recent + 0.1 · bits (+ 0.1 · 0 changes nothing)
+            if self._charged:
+                bits = self.ledger.step_bits
+                team_bits = float(bits.sum())  # whole numbers of bits: exact in any summation order
+                recent += 0.1 * bits
+                self._recent_max = float(recent.max())
+            else:  # rounding is monotone, so the largest of the products is the product of the largest
+                self._recent_max *= 0.9
+            self._recent_any = self._recent_max > 1e-6 * self.n
             if not self._recent_any:
-                self.recent_bits[:] = 0.0
+                recent[:] = 0.0
+                self._recent_max = 0.0
                 self._events += 1
                 self._stale |= _STALE_RECENT
         self._steps += 1
         self._sum_disagreement += self._disagreement_mean
         self._sum_error += self._error_mean
-        return -self._disagreement_mean - c.lam * float(bits.sum()) / (self.n * self.n_agents)
+        return -self._disagreement_mean - self.cfg.lam * team_bits / self._bit_scale
 
     def _links(self) -> None:
         c, N = self.cfg, self.n_agents
@@ -348,14 +427,46 @@ class MapSyncEnv(MrcommParallelEnv):
         truth[appear] = True
         truth[vanish] = False
 
+    def _move_and_sense(self, stamp: int, walk: bool) -> None:
+        """Every robot moves one step (when ``walk``), then senses its cell and the 4-neighbours (§V-C)."""
+        if self._walk_and_sense is None:
+            if walk:
+                self.pos = world.random_walk(self.np_random, self.pos, self._neighbours, self.truth)
+            self._sense(stamp)
+            return
+        keys = self.np_random.random((self.n_agents, 4)) if walk else self._no_keys  # as random_walk draws them
+        self.pos, flags = self._walk_and_sense(
+            walk,
+            keys,
+            self.pos,
+            self._neighbour_table,
+            self.truth,
+            self._sensed,
+            self._sensed_distinct,
+            self.maps,
+            self.stamps,
+            self.known,
+            self.new_cells,
+            stamp,
+        )
+        if flags & 1:  # as _sense: a cell observed for the first time
+            self._events += 1
+            self._stale |= _STALE_KNOWN
+        if flags & 2:  # a bit of a map changed
+            self._dirty = True
+            self._events += 1
+            self._stale |= _STALE_NEW
+
     def _sense(self, stamp: int) -> None:
+        """Numpy reference of the sensing (compiled twin: ``kernels_numba.walk_and_sense``)."""
         cells = self._sensed.take(self.pos, axis=0)  # (N, 5): off-grid neighbours repeat the own cell
         flat = cells + self._row_offsets  # into the flattened (N, n) maps and stamps
         seen = self.truth.take(cells)
-        maps, stamps = self.maps.reshape(-1), self.stamps.reshape(-1)
+        maps, stamps = self._maps_flat, self._stamps_flat
         changed = maps.take(flat) != seen
-        unseen = stamps.take(flat) < 0
-        if unseen.any():
+        before = stamps.take(flat)
+        if before.min() < 0:  # a cell never observed before
+            unseen = before < 0
             self.known += np.count_nonzero(unseen & self._sensed_distinct.take(self.pos, axis=0), axis=1)
             self._events += 1
             self._stale |= _STALE_KNOWN
@@ -378,9 +489,11 @@ class MapSyncEnv(MrcommParallelEnv):
         ones = maps.sum(axis=1)
         ham = (ones[:, None] + ones[None, :] - 2.0 * (maps @ maps.T)) / self.n
         self._hamming = ham
-        self._disagreement_mean = float(ham[self._pairs].mean())
-        self._errors = np.count_nonzero(self.maps != self.truth, axis=1) / self.n
-        self._error_mean = float(self._errors.mean())
+        self._disagreement_column = ham.sum(axis=1) / (self.n_agents - 1)
+        pairs = ham[self._pairs]
+        self._disagreement_mean = float(pairs.sum()) / pairs.size  # what .mean() computes, without its overhead
+        self._errors = (self.maps != self.truth).sum(axis=1) / self.n
+        self._error_mean = float(self._errors.sum()) / self.n_agents
 
     # ----------------------------------------------------------------- syncs
     def _choose_peer(self, i: int) -> int:
@@ -423,19 +536,16 @@ class MapSyncEnv(MrcommParallelEnv):
             messages.append((b, proto.return_bits(outcome.candidates, found.size)))
             if self._lww and found.size:
                 messages += [(b, found.size * self._stamp_bits), (a, found.size * self._stamp_bits)]
-            snapshot = {
-                "found": found,
-                "x": x[found].copy(),
-                "y": y[found].copy(),
-                "sa": self.stamps[a, found].copy(),
-                "sb": self.stamps[b, found].copy(),
-                "differ": int((x != y).sum()),
-                "right": int((x[found] != y[found]).sum()),
-            }
+            snapshot = {"found": found, "differ": int(np.count_nonzero(x != y)), "right": 0}
+            if found.size:  # what each sent about the found cells (nothing to merge otherwise, see _merge)
+                snapshot["x"], snapshot["y"] = x[found], y[found]  # fancy indexing copies
+                snapshot["sa"], snapshot["sb"] = self.stamps[a][found], self.stamps[b][found]
+                snapshot["right"] = int(np.count_nonzero(snapshot["x"] != snapshot["y"]))
         messages = [(who, int(bits)) for who, bits in messages if bits > 0]
         session = Session(a, b, name, t, messages, outcome, snapshot, 0, sum(bits for _, bits in messages))
         self.sessions[nonce] = session
-        self.session_of[[a, b]] = nonce
+        self.session_of[a] = self.session_of[b] = nonce
+        self._busy_column = (self.session_of >= 0).astype(np.float64)
         self._events += 1
         self._stale |= _STALE_SESSIONS
 
@@ -456,6 +566,7 @@ class MapSyncEnv(MrcommParallelEnv):
     def _deliver(self, s: Session, budget: int) -> None:
         """Charge the next ``budget`` bits of the transcript to their senders, in order."""
         done = 0
+        charged: dict[int, list[int]] = {}  # sender → [bits, messages]: one ledger entry per sender
         for who, bits in s.messages:
             if budget <= 0:
                 break
@@ -463,21 +574,29 @@ class MapSyncEnv(MrcommParallelEnv):
                 done += bits
                 continue
             part = min(bits - max(0, s.sent - done), budget)
-            self.ledger.add(who, part, messages=1)
+            entry = charged.setdefault(who, [0, 0])
+            entry[0] += part
+            entry[1] += 1
             s.sent += part
             budget -= part
             done += bits
+        for who, (bits, messages) in charged.items():  # whole bits: the float sums are exact in any grouping
+            self.ledger.add(who, bits, messages=messages)
+            self._charged = True
 
     def _close(self, key: int) -> None:
         s = self.sessions.pop(key)
-        self.session_of[[s.alice, s.bob]] = -1
+        self.session_of[s.alice] = self.session_of[s.bob] = -1
+        self._busy_column = (self.session_of >= 0).astype(np.float64)
         self._events += 1
         self._stale |= _STALE_SESSIONS | _STALE_NEW | _STALE_KNOWN
 
     def _complete(self, s: Session, t: int) -> None:
         a, b = s.alice, s.bob
         self._counts["syncs"] += 1
-        self.robot_syncs[[a, b]] += 1
+        self.robot_syncs[a] += 1  # a ≠ b
+        self.robot_syncs[b] += 1
+        self._syncs_column = self.robot_syncs.copy()
         self._latencies.append(t - s.start_step + 1)
         synced = True
         if s.protocol == "equality":
@@ -492,6 +611,7 @@ class MapSyncEnv(MrcommParallelEnv):
             for i, j in ((a, b), (b, a)):
                 self.last_sync[i, j] = t + 1
                 self.new_cells[i, j] = 0
+            self._last_sync_peers = self.last_sync.take(self._peer_flat)
 
     def _verdict(self, s: Session, equal: bool) -> bool:
         a, b = s.alice, s.bob
@@ -515,14 +635,18 @@ class MapSyncEnv(MrcommParallelEnv):
         if found.size == 0:
             return
         for me, other_bit, other_stamp in ((s.alice, ~snap["x"], snap["sb"]), (s.bob, ~snap["y"], snap["sa"])):
+            my_map, my_stamps = self.maps[me], self.stamps[me]  # row views: 1-d indexing below
             if self._lww:
-                adopt = other_stamp > self.stamps[me, found]
+                adopt = other_stamp > my_stamps[found]
             else:  # only appearances: a 1 is never stale, so the merge is OR
-                adopt = other_bit & ~self.maps[me, found]
+                adopt = other_bit & ~my_map[found]
             cells = found[adopt]
-            self.known[me] += int(np.count_nonzero(self.stamps[me, cells] < 0))
-            self.maps[me, cells] = other_bit[adopt]
-            self.stamps[me, cells] = np.maximum(self.stamps[me, cells], other_stamp[adopt])
+            if cells.size == 0:
+                continue
+            stamps_now = my_stamps[cells]
+            self.known[me] += int(np.count_nonzero(stamps_now < 0))
+            my_map[cells] = other_bit[adopt]
+            my_stamps[cells] = np.maximum(stamps_now, other_stamp[adopt])
         self._dirty = True
 
     # ----------------------------------------------------------------- views
@@ -546,13 +670,32 @@ class MapSyncEnv(MrcommParallelEnv):
         }
 
     def _observe(self) -> np.ndarray:
-        N, flat = self.n_agents, self._peer_flat
-        out = self._obs_buf
-        per_peer = out[:, : 4 * (N - 1)].reshape(N, N - 1, 4)
-        steps = self.step_count - self.last_sync.take(flat)
-        per_peer[..., 0] = steps / (steps + 10.0)
-        own = out[:, 4 * (N - 1) :]
-        own[:, 4] = min(self.step_count / self._horizon, 1.0)
+        t = self.step_count
+        if self._observe_compiled is not None:  # every column in one call (kernels_numba.observe)
+            progress = self._no_progress
+            if self.sessions:
+                progress = np.zeros(self.n_agents)
+                for s in self.sessions.values():
+                    progress[[s.alice, s.bob]] = s.sent / max(s.total, 1)
+            self._observe_compiled(
+                self._obs_buf,
+                t,
+                min(t / self._horizon, 1.0),
+                self._age_code,
+                self.last_sync,
+                self.new_cells,
+                self.linked,
+                self.last_test,
+                self.session_of,
+                progress,
+                self.recent_bits,
+                self.known,
+                self.n,
+            )
+            return self._obs_buf.copy()
+        # the numpy reference: only the columns whose inputs changed since the last call
+        self._obs_age[:] = self._age_code.take(t - self._last_sync_peers)  # steps since the last sync, s/(s+10)
+        self._obs_clock[:] = min(t / self._horizon, 1.0)
         stale = self._stale
         if self.sessions:
             stale |= _STALE_SESSIONS
@@ -562,37 +705,38 @@ class MapSyncEnv(MrcommParallelEnv):
             stale |= _STALE_LINKS
         self._stale = 0
         if not stale:
-            return out.copy()  # only the clock moved
+            return self._obs_buf.copy()  # only the clock moved
+        flat = self._peer_flat
         if stale & _STALE_NEW:
             new = self.new_cells.take(flat)
-            per_peer[..., 1] = new / (new + 10.0)
+            self._obs_new[:] = new / (new + 10.0)
         if stale & _STALE_LINKS:
-            per_peer[..., 2] = self.linked.take(flat)
+            self._obs_link[:] = self.linked.take(flat)
         if stale & _STALE_SESSIONS:  # a sync ended: verdicts, busy flags, progress (and counters reset)
-            per_peer[..., 3] = _TEST_CODE.take(self.last_test.take(flat) + 1)
-            own[:, 2] = self.session_of >= 0
-            own[:, 3] = 0.0
+            self._obs_test[:] = _TEST_CODE.take(self.last_test.take(flat) + 1)
+            self._obs_busy[:] = self.session_of >= 0
+            self._obs_progress[:] = 0.0
             for s in self.sessions.values():
-                own[[s.alice, s.bob], 3] = s.sent / max(s.total, 1)
+                self._obs_progress[[s.alice, s.bob]] = s.sent / max(s.total, 1)
         if stale & _STALE_RECENT:
-            own[:, 0] = self.recent_bits / (self.recent_bits + self.n)
+            self._obs_recent[:] = self.recent_bits / (self.recent_bits + self.n)
         if stale & _STALE_KNOWN:
-            own[:, 1] = self.known / self.n
-        return out.copy()
+            self._obs_known[:] = self.known / self.n
+        return self._obs_buf.copy()
 
     def _agent_infos(self) -> dict:
         key = (self._events, self._map_version)
-        if key == self._infos_key and not self.ledger.step_bits.any() and not self._infos_cache["bits_sent"].any():
+        if key == self._infos_key and not self._charged and not self._infos_charged:
             return self._infos_cache  # nothing the infos show has changed since the last call
-        N = self.n_agents
         self._infos_key = key
+        self._infos_charged = self._charged
         self._infos_cache = {
-            "bits_sent": self.ledger.step_bits.copy(),
-            "disagreement": self._hamming.sum(axis=1) / (N - 1),
+            "bits_sent": self.ledger.step_bits.copy() if self._charged else self._no_bits,
+            "disagreement": self._disagreement_column,
             "error_vs_truth": self._errors,
             "coverage": self.known / self.n,
-            "busy": (self.session_of >= 0).astype(np.float64),
-            "syncs": self.robot_syncs.copy(),
+            "busy": self._busy_column,
+            "syncs": self._syncs_column,
         }
         return self._infos_cache
 

@@ -17,6 +17,9 @@ _M1 = np.uint64(0xCD9E8D57)
 _W0 = np.uint64(0x9E3779B9)
 _W1 = np.uint64(0xBB67AE85)
 _LOW = np.uint64(0xFFFFFFFF)
+# protocol._FROM_BIT and protocol._TO_BIT (frozen into the compiled code as constants)
+_FROM_BIT = np.array([(0xFFFFFFFF << b) & 0xFFFFFFFF for b in range(32)], dtype=np.uint32)  # bits ≥ b
+_TO_BIT = np.array([0xFFFFFFFF >> (31 - b) for b in range(32)], dtype=np.uint32)  # bits ≤ b
 _SHIFT = np.uint64(32)
 
 
@@ -81,3 +84,204 @@ def inner_products(
             for m in range(n_maps):
                 out[m, s, j] = np.uint8(acc[m] & np.uint64(1))
     return out
+
+
+@numba.njit(cache=True)
+def bisection(
+    x,
+    y,
+    database,
+    use_database,
+    k0,
+    k1,
+    domain,
+    words_per_string,
+    last_mask,
+    pool,
+    k,
+    res,
+    p1_bits,
+):
+    """Algorithm 1 as request/response rounds, every round in one call: twin of ``protocol.bisection`` with
+    step 4 fixed, Alice's picks of i taken in order from ``pool`` (what successive ``rng.integers`` calls draw).
+
+    Returns ``(found, stats, messages)``: the sorted cells Bob found; ``stats`` = (alice bits, bob bits, rounds,
+    Protocol 1 calls, cells compared bit by bit, detected, tests that missed a difference, picks used), with
+    picks used = −1 when ``pool`` ran out (the caller then runs the reference); ``messages[r]`` = (Alice's,
+    Bob's) bits in round r, Bob's −1 when he sent nothing.
+    """
+    n = x.size
+    differs = np.zeros(n + 1, np.int64)  # prefix counts of differing cells
+    maps = np.zeros((2, words_per_string), np.uint32)  # both maps packed as protocol.pack packs them
+    for c in range(n):
+        differs[c + 1] = differs[c] + (1 if x[c] != y[c] else 0)
+        if x[c]:
+            maps[0, c >> 5] |= np.uint32(1) << np.uint32(c & 31)
+        if y[c]:
+            maps[1, c >> 5] |= np.uint32(1) << np.uint32(c & 31)
+    found = np.empty(differs[n], np.int64)
+    n_found = 0
+    messages = np.full((72, 2), -1, np.int64)  # rounds ≤ recursion depth + 1 ≤ 65 for n < 2^64
+    stats = np.zeros(8, np.int64)
+    lo = np.zeros(1, np.int64)
+    hi = np.full(1, n - 1, np.int64)
+    alice = bob = rounds = tests = compared = missed = used = 0
+    detected = -1
+    while lo.size > 0:
+        alice_before = alice
+        bob_before = bob
+        n_inner = 0
+        for s in range(lo.size):
+            length = hi[s] - lo[s] + 1
+            if length <= res:  # lines 2–6, EQUALLINEAR: Alice sends her bits of the segment, Bob compares
+                compared += length
+                alice += length
+                if differs[hi[s] + 1] - differs[lo[s]] > 0:
+                    for c in range(lo[s], hi[s] + 1):
+                        if x[c] != y[c]:
+                            found[n_found] = c
+                            n_found += 1
+            else:
+                n_inner += 1
+        if detected < 0 and n_inner < lo.size:
+            detected = 1 if n_found > 0 else 0
+        if n_inner == 0:
+            messages[rounds, 0] = alice - alice_before
+            rounds += 1
+            break
+        inner_lo = np.empty(n_inner, np.int64)
+        inner_hi = np.empty(n_inner, np.int64)
+        j = 0
+        for s in range(lo.size):
+            if hi[s] - lo[s] + 1 > res:
+                inner_lo[j] = lo[s]
+                inner_hi[j] = hi[s]
+                j += 1
+        if used + n_inner * k > pool.size:
+            stats[7] = -1
+            return found[:0], stats, messages
+        index = pool[used : used + n_inner * k].reshape(n_inner, k)  # step 3a, segment by segment
+        used += n_inner * k
+        parity = inner_products(
+            maps,
+            database,
+            use_database,
+            k0,
+            k1,
+            domain,
+            words_per_string,
+            last_mask,
+            index,
+            inner_lo,
+            inner_hi,
+            _FROM_BIT,
+            _TO_BIT,
+        )
+        tests += n_inner
+        alice += n_inner * p1_bits
+        bob += n_inner  # Bob's verdicts
+        n_different = 0
+        different = np.zeros(n_inner, np.bool_)
+        for s in range(n_inner):
+            for r in range(k):
+                if parity[0, s, r] != parity[1, s, r]:  # step 4 (fixed): any differing round means different
+                    different[s] = True
+                    break
+            if different[s]:
+                n_different += 1
+            elif differs[inner_hi[s] + 1] - differs[inner_lo[s]] > 0:
+                missed += 1
+        if detected < 0:
+            detected = 1 if different[0] else 0
+        messages[rounds, 0] = alice - alice_before
+        messages[rounds, 1] = bob - bob_before
+        rounds += 1
+        lo = np.empty(2 * n_different, np.int64)  # line 1 and lines 10–11: both halves, in order of position
+        hi = np.empty(2 * n_different, np.int64)
+        j = 0
+        for s in range(n_inner):
+            if different[s]:
+                mid = (inner_lo[s] + inner_hi[s]) // 2
+                lo[j], hi[j] = inner_lo[s], mid
+                lo[j + 1], hi[j + 1] = mid + 1, inner_hi[s]
+                j += 2
+    stats[0], stats[1], stats[2], stats[3] = alice, bob, rounds, tests
+    stats[4], stats[5], stats[6], stats[7] = compared, detected, missed, used
+    return np.sort(found[:n_found]), stats, messages[:rounds]
+
+
+@numba.njit(cache=True)
+def walk_and_sense(walk, keys, pos, neighbours, truth, sensed, distinct, maps, stamps, known, new_cells, stamp):
+    """Twin of ``world.random_walk`` (when ``walk``) followed by ``MapSyncEnv._sense``, robot by robot.
+
+    ``keys`` are the walk's uniform keys (``rng.random((N, 4))``, drawn by the caller as the reference draws
+    them). Updates ``maps``, ``stamps``, ``known`` and ``new_cells`` in place and returns ``(positions, flags)``:
+    flag 1 = a robot observed a cell for the first time, 2 = a robot's sensing changed a bit of its map.
+    """
+    n_robots = pos.size
+    out = pos.copy()
+    if walk:
+        for i in range(n_robots):
+            here = pos[i]
+            best, best_key = here, -1.0
+            for d in range(4):
+                cell = neighbours[here, d]
+                if cell >= 0 and keys[i, d] > best_key and not truth[cell]:
+                    best, best_key = cell, keys[i, d]
+            out[i] = best
+    flags = 0
+    width = sensed.shape[1]
+    for i in range(n_robots):
+        here = out[i]
+        unseen = 0
+        changed = 0
+        for c in range(width):  # off-grid entries repeat the own cell and are not distinct: skipped
+            if distinct[here, c]:
+                cell = sensed[here, c]
+                if stamps[i, cell] < 0:
+                    unseen += 1
+                if maps[i, cell] != truth[cell]:
+                    changed += 1
+        for c in range(width):
+            if distinct[here, c]:
+                cell = sensed[here, c]
+                maps[i, cell] = truth[cell]
+                stamps[i, cell] = stamp
+        if unseen:
+            flags |= 1
+            known[i] += unseen
+        if changed:  # new since the last sync with every peer
+            flags |= 2
+            for j in range(n_robots):
+                if j != i:
+                    new_cells[i, j] += changed
+    return out, flags
+
+
+@numba.njit(cache=True)
+def observe(out, t, clock, age_code, last_sync, new_cells, linked, last_test, session_of, progress, recent, known, n):
+    """Twin of ``MapSyncEnv._observe``, every column recomputed: writes the (N, 4(N−1) + 5) float32 ``out``.
+
+    Per peer j = i+1, i+2, … (mod N): s/(s+10) for the steps s since the last sync (``age_code[s]``),
+    c/(c+10) for the new cells c, the link, the last verdict (none 0, different 1, same ½); then the robot's
+    recent bits b/(b+n), coverage, busy, session progress and the clock. Every value is computed in float64 as
+    the reference computes it and rounded to float32 on the store, as numpy's assignment rounds it.
+    """
+    n_robots = out.shape[0]
+    own = 4 * (n_robots - 1)
+    for i in range(n_robots):
+        for o in range(1, n_robots):
+            j = (i + o) % n_robots
+            col = 4 * (o - 1)
+            out[i, col] = age_code[t - last_sync[i, j]]
+            c = new_cells[i, j]
+            out[i, col + 1] = c / (c + 10.0)
+            out[i, col + 2] = 1.0 if linked[i, j] else 0.0
+            verdict = last_test[i, j]  # −1 none, 0 different, 1 same
+            out[i, col + 3] = 0.0 if verdict < 0 else (1.0 if verdict == 0 else 0.5)
+        b = recent[i]
+        out[i, own] = b / (b + n)
+        out[i, own + 1] = known[i] / n
+        out[i, own + 2] = 1.0 if session_of[i] >= 0 else 0.0
+        out[i, own + 3] = progress[i]
+        out[i, own + 4] = clock

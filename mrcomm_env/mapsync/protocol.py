@@ -223,6 +223,10 @@ def bisection(
         raise ValueError(f"argument 'res' must be an integer ≥ 1, got {res!r}")
     x = np.asarray(x, dtype=bool)
     y = np.asarray(y, dtype=bool)
+    if step4 == "fixed" and backend.compiled():
+        compiled = _bisection_compiled(x, y, strings, k, res, rng)
+        if compiled is not None:
+            return compiled
     xw, yw = pack(x), pack(y)
     differs = np.concatenate([[0], np.cumsum(x != y)])  # prefix counts: which segments truly differ (metrics)
     p1_bits = theory.protocol1_bits(n, k)
@@ -277,6 +281,73 @@ def bisection(
         compared,
         bool(detected),
         {"protocol1_calls": tests, "false_equal_tests": missed_tests, "messages": messages},
+    )
+
+
+#: most picks of i drawn ahead for one compiled Algorithm 1 run (8 MB); larger runs take the reference path
+_POOL_MAX = 1 << 20
+
+
+def _bisection_compiled(x, y, strings: SharedStrings, k: int, res: int, rng: np.random.Generator):
+    """:func:`bisection` (step 4 fixed) through the compiled twin ``kernels_numba.bisection``; None when its
+    picks would not fit in ``_POOL_MAX``.
+
+    The reference draws Alice's picks round by round, ``rng.integers(0, 100n, (segments, k))``; successive draws
+    of one range are one stream, however they are batched. The twin gets that stream drawn ahead and uses it in
+    order; the generator is then put back and advanced by exactly the picks used, so that it ends where the
+    reference leaves it. Enough picks: with step 4 fixed a test says "different" only for a segment that truly
+    differs (Proposition 2's error is one-sided), so each of the ``depth`` levels has at most d such segments, and
+    each of those has its two halves tested: at most 1 + 2·d·depth Protocol 1 calls of k picks.
+    """
+    from mrcomm_env.mapsync import kernels_numba
+
+    n = x.size
+    d = int(np.count_nonzero(x != y))
+    depth = theory.recursion_depth(n, res)
+    draws = k * (1 + 2 * d * depth) if depth else 0
+    if draws > _POOL_MAX:
+        return None
+    # equal maps: the whole-map test is the only one, and it uses all k picks (nothing to put back)
+    state = rng.bit_generator.state if d else None
+    pool = rng.integers(0, strings.size, size=draws) if draws else np.zeros(0, np.int64)
+    use_db = strings.database is not None
+    found, stats, rounds = kernels_numba.bisection(
+        x,
+        y,
+        strings.database if use_db else np.zeros((1, 1), np.uint32),
+        use_db,
+        strings.key[0],
+        strings.key[1],
+        DOMAIN_DATABASE,
+        strings.words_per_string,
+        int(strings._last_mask),
+        pool,
+        k,
+        res,
+        theory.protocol1_bits(n, k),
+    )
+    alice, bob, n_rounds, tests, compared, detected, missed, used = stats.tolist()
+    if used < 0:  # cannot happen by the bound above; the reference then runs from the same generator state
+        rng.bit_generator.state = state
+        return None
+    if used < draws:  # only when d > 0: equal maps use all k picks
+        rng.bit_generator.state = state
+        if used:
+            rng.integers(0, strings.size, size=used)
+    messages: list[tuple[str, int]] = []
+    for alice_round, bob_round in rounds.tolist():
+        messages.append(("alice", alice_round))
+        if bob_round >= 0:
+            messages.append(("bob", bob_round))
+    return Reconciliation(
+        "bisection",
+        found,
+        alice,
+        bob,
+        n_rounds,
+        compared,
+        bool(detected),
+        {"protocol1_calls": tests, "false_equal_tests": missed, "messages": messages},
     )
 
 

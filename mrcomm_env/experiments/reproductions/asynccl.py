@@ -25,9 +25,10 @@ from mrcomm_env.experiments.reproductions.common import (
     figure,
     label_axes,
     pick,
-    progress,
     run_episode,
+    run_sweeps,
     size_of,
+    task,
 )
 
 ENV_ID = "mrcomm/AsyncCL-v0"
@@ -73,11 +74,21 @@ def _fmt(mean, half):
     return f"{mean:.4f} ± {half:.4f}" if half > 0 else f"{mean:.4f}"
 
 
-def table1(out: Path, size: str):
-    rows, hists = [], {}
+def delay_cell(n: int, mode: str, steps: int, runs: int, q_rule: str) -> dict:
+    """One cell of Table I (a sweep task): the mean delay of each of ``runs`` delay-only episodes (seeds
+    1000 n + run), their summed delay histogram, and the seconds the cell took."""
+    t0 = time.perf_counter()
+    delays, hist = [], None
+    for s in range(runs):
+        d, h, _ = delay_run(n, mode, steps, seed=1000 * n + s, q_rule=q_rule)
+        delays.append(d)
+        hist = h if hist is None else hist + h
+    return {"delays": delays, "hist": hist, "seconds": time.perf_counter() - t0}
+
+
+def _table1_plan(size: str) -> list[tuple[int, str, int, int, str]]:
     plan = []
-    sizes = pick(size, full=TEAM_SIZES, quick=TEAM_SIZES, tiny=TEAM_SIZES[:2])
-    for n in sizes:
+    for n in pick(size, full=TEAM_SIZES, quick=TEAM_SIZES, tiny=TEAM_SIZES[:2]):
         runs = pick(size, full=20 if n <= 10 else 6 if n <= 20 else 2, quick=3 if n <= 10 else 1, tiny=1)
         for mode in SCHEMES:
             steps = pick(size, full=1000, quick=1000, tiny=40)
@@ -91,19 +102,26 @@ def table1(out: Path, size: str):
                 plan.append(
                     (n, "scheme2_q1", pick(size, full=1000, quick=1000, tiny=40), pick(size, full=3, quick=1), rule)
                 )
+    return plan
+
+
+def table1_tasks(size: str) -> list:
+    return [
+        task(delay_cell, f"table1 N={n} {mode} {rule}", n=n, mode=mode, steps=steps, runs=runs, q_rule=rule)
+        for n, mode, steps, runs, rule in _table1_plan(size)
+    ]
+
+
+def table1(out: Path, size: str, cells: list[dict]):
+    rows, hists = [], {}
+    sizes = pick(size, full=TEAM_SIZES, quick=TEAM_SIZES, tiny=TEAM_SIZES[:2])
     results = {}
     timing = {}
-    for n, mode, steps, runs, rule in progress(plan, desc="Table I"):
-        t0 = time.perf_counter()
-        vals, hist = [], None
-        for s in range(runs):
-            d, h, _ = delay_run(n, mode, steps, seed=1000 * n + s, q_rule=rule)
-            vals.append(d)
-            hist = h if hist is None else hist + h
-        results[(n, mode, rule)] = (mean_ci95(vals), steps, runs)
+    for (n, mode, steps, runs, rule), cell in zip(_table1_plan(size), cells, strict=True):
+        results[(n, mode, rule)] = (mean_ci95(cell["delays"]), steps, runs)
         if mode == "scheme2_qinf":
-            hists[n] = hist
-        timing[(n, mode, rule)] = time.perf_counter() - t0
+            hists[n] = np.asarray(cell["hist"])
+        timing[(n, mode, rule)] = cell["seconds"]
     for n in sizes:
         paper = theory.PAPER_TABLE1[n]
         row = {
@@ -147,27 +165,44 @@ def table2(out: Path, hists: dict):
     return rows
 
 
-def figs7_8(out: Path, size: str):
+def ekf_run(mode: str, seed: int, steps: int) -> dict:
+    """Robot 1's RMS errors at every step of one N = 5 episode, and the bits per link (a sweep task)."""
+    env = AsyncCLEnv(n_robots=5, max_cycles=steps, modes=[mode], max_history=steps + 5)
+    p_err, o_err = [], []
+
+    def record(step, observations, rewards, infos):
+        p_err.append(infos["robot_0"]["rms_position"])
+        o_err.append(infos["robot_0"]["rms_orientation"])
+
+    metrics = run_episode(env, make_policy(ENV_ID, mode), seed, on_step=record)
+    return {"rms_position": p_err, "rms_orientation": o_err, "bits_per_link": metrics["bits_per_link"]}
+
+
+def _figs7_8_plan(size: str) -> tuple[int, int]:
     runs = pick(size, full=5, quick=1)
     # q = 1 re-runs its causal EKF over a backlog of hundreds of steps (6 s with numba, 14 s without)
     steps = pick(size, full=500, quick=500, tiny=40)
+    return runs, steps
+
+
+def figs7_8_tasks(size: str) -> list:
+    runs, steps = _figs7_8_plan(size)
+    return [
+        task(ekf_run, f"figs7_8 {mode} seed={70 + s}", mode=mode, seed=70 + s, steps=steps)
+        for mode in SCHEMES
+        for s in range(runs)
+    ]
+
+
+def figs7_8(out: Path, size: str, results: list[dict]):
+    runs, steps = _figs7_8_plan(size)
     curves, bits = {}, {}
-    for mode in progress(SCHEMES, desc="Figs 7-8"):
-        pos, ori, bpl = [], [], []
-        for s in range(runs):
-            env = AsyncCLEnv(n_robots=5, max_cycles=steps, modes=[mode], max_history=steps + 5)
-            p_err, o_err = [], []
-
-            def record(step, observations, rewards, infos, p_err=p_err, o_err=o_err):
-                p_err.append(infos["robot_0"]["rms_position"])
-                o_err.append(infos["robot_0"]["rms_orientation"])
-
-            metrics = run_episode(env, make_policy(ENV_ID, mode), 70 + s, on_step=record)
-            pos.append(p_err)
-            ori.append(o_err)
-            bpl.append(metrics["bits_per_link"])
+    for i, mode in enumerate(SCHEMES):
+        mine = results[i * runs : (i + 1) * runs]
+        pos = [r["rms_position"] for r in mine]
+        ori = [r["rms_orientation"] for r in mine]
         curves[mode] = (np.mean(pos, axis=0), np.mean(ori, axis=0))
-        bits[mode] = float(np.mean(bpl))
+        bits[mode] = float(np.mean([r["bits_per_link"] for r in mine]))
     _plot_figs(out, curves, bits)
     atomic_write_json(
         out / "figs7_8.json",
@@ -218,8 +253,21 @@ def disjoint_window_seeds(env: AsyncCLEnv, count: int, attempts: int = 5000) -> 
     return seeds
 
 
-def real_robots(out: Path, size: str):
-    """Every scheme on disjoint MRCLAM windows and on the simulated figure-eights (§IV noise, measured noise)."""
+def real_robots_run(env_kwargs: dict, mode: str, seeds: list[int]) -> list[dict]:
+    """Every episode of one scheme in one world (a sweep task): RMSE, bits sent and mean delay per seed."""
+    env = AsyncCLEnv(**env_kwargs)
+    runs = [run_episode(env, make_policy(ENV_ID, mode), seed) for seed in seeds]
+    return [{key: r[key] for key in ("rms_position", "bits_sent", "mean_delay")} for r in runs]
+
+
+def mean_speed_run(env_kwargs: dict, seed: int) -> float:
+    """Mean true speed of the simulated robots over one episode (a sweep task; :func:`_mean_speed`)."""
+    return _mean_speed(AsyncCLEnv(**env_kwargs), seed)
+
+
+def real_robots_plan(size: str) -> tuple[dict, dict]:
+    """The real-data section's tasks (``{"real_robots": …, "sim_mean_speed": …}``) and what they need to be
+    read back: the windows of the recording are chosen here, before any episode runs."""
     windows = pick(size, full=15, quick=6, tiny=2)
     steps = pick(size, full=600, quick=300, tiny=30)  # 30 s (15 s quick) of the recording per window
     noise = mrclam.measured_noise()
@@ -230,31 +278,47 @@ def real_robots(out: Path, size: str):
         "sigma_d": noise.sigma_d,
         "sigma_theta_deg": math.degrees(noise.sigma_theta),
     }
-    rows, facts = [], {}
+    tasks, speed_tasks, facts = [], [], {}
     for w, (label, kw) in enumerate(WORLDS):
-        env = AsyncCLEnv(**common, **kw, **(measured if w == 2 else {}))
-        seeds = disjoint_window_seeds(env, windows) if kw["trajectory"] == "mrclam" else list(range(windows))
+        env_kwargs = {**common, **kw, **(measured if w == 2 else {})}
         if kw["trajectory"] == "mrclam":
+            env = AsyncCLEnv(**env_kwargs)
+            seeds = disjoint_window_seeds(env, windows)
             replay = env.world.source
             facts.update(
                 measurements_per_step=replay.n_measurements / replay.n_steps,
                 mean_speed=float(np.mean(np.abs(replay.odometry[:, :, 0]))),
                 windows=len(seeds),
             )
-        for mode in progress(ALL_MODES, desc=f"real robots: {label}"):
-            runs = [run_episode(env, make_policy(ENV_ID, mode), seed) for seed in seeds]
-            per_step = 1000.0 * env.n_agents * steps  # bits → kbit per robot and step
-            row = {"world": label, "scheme": mode, "windows": len(runs), "steps": steps}
-            for key, scale in (("rms_position", 1.0), ("bits_sent", per_step), ("mean_delay", 1.0)):
-                mean, half = mean_ci95([r[key] / scale for r in runs])
-                name = "kbit_per_robot_step" if key == "bits_sent" else key
-                row[name], row[f"{name}_ci95"] = mean, half
-            rows.append(row)
+        else:
+            seeds = list(range(windows))
+        tasks += [
+            task(real_robots_run, f"real_robots {label} {mode}", env_kwargs=env_kwargs, mode=mode, seeds=seeds)
+            for mode in ALL_MODES
+        ]
         if kw["trajectory"] == "sinusoid" and w == 1:
-            facts["sim_mean_speed"] = _mean_speed(env, seeds[0])
+            speed_tasks.append(task(mean_speed_run, f"real_robots {label} speed", env_kwargs=env_kwargs, seed=seeds[0]))
+    return {"real_robots": tasks, "sim_mean_speed": speed_tasks}, {"noise": noise, "facts": facts, "steps": steps}
+
+
+def real_robots(out: Path, plan: dict, context: dict, results: dict):
+    """Every scheme on disjoint MRCLAM windows and on the simulated figure-eights (§IV noise, measured noise)."""
+    steps, facts = context["steps"], dict(context["facts"])
+    rows = []
+    for i, (t, runs) in enumerate(zip(plan["real_robots"], results["real_robots"], strict=True)):
+        label, mode = WORLDS[i // len(ALL_MODES)][0], t.kwargs["mode"]  # the tasks run world by world, scheme by scheme
+        per_step = 1000.0 * t.kwargs["env_kwargs"]["n_robots"] * steps  # bits → kbit per robot and step
+        row = {"world": label, "scheme": mode, "windows": len(runs), "steps": steps}
+        for key, scale in (("rms_position", 1.0), ("bits_sent", per_step), ("mean_delay", 1.0)):
+            mean, half = mean_ci95([r[key] / scale for r in runs])
+            name = "kbit_per_robot_step" if key == "bits_sent" else key
+            row[name], row[f"{name}_ci95"] = mean, half
+        rows.append(row)
+    if results["sim_mean_speed"]:
+        facts["sim_mean_speed"] = results["sim_mean_speed"][0]
     _write_csv(out / "real_robots.csv", rows)
     _plot_real(out, rows)
-    return rows, noise, facts, steps
+    return rows, context["noise"], facts, steps
 
 
 def _mean_speed(env: AsyncCLEnv, seed: int) -> float:
@@ -505,10 +569,18 @@ def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     size = size_of(quick, tiny)
-    t1_rows, hists, n100_time = table1(out, size)
+    # every Monte-Carlo episode of the section, as one sweep of independent tasks (the longest first)
+    plan = {"figs7_8": figs7_8_tasks(size)}
+    real_context = None
+    if mrclam.default_path() is not None:
+        real_plan, real_context = real_robots_plan(size)
+        plan.update(real_plan)
+    plan["table1"] = table1_tasks(size)
+    results = run_sweeps(out, plan, "Table I, Figs 7-8" + (", real robots" if real_context else ""))
+    t1_rows, hists, n100_time = table1(out, size, results["table1"])
     t2_rows = table2(out, hists)
-    curves, bits, fig_runs, fig_steps = figs7_8(out, size)
-    real = real_robots(out, size) if mrclam.default_path() is not None else None
+    curves, bits, fig_runs, fig_steps = figs7_8(out, size, results["figs7_8"])
+    real = real_robots(out, plan, real_context, results) if real_context is not None else None
     name = out.name
     md = [
         "Nerurkar & Roumeliotis, *Asynchronous Multi-Centralized Cooperative Localization* (paper 000). "

@@ -24,9 +24,10 @@ from mrcomm_env.experiments.reproductions.common import (
     figure,
     label_axes,
     pick,
-    progress,
     run_episode,
+    run_sweeps,
     size_of,
+    task,
 )
 
 ENV_ID = "mrcomm/ChannelAssociation-v0"
@@ -62,20 +63,166 @@ def _savetxt(path: Path, array, **kwargs) -> None:
         np.savetxt(fh, array, **kwargs)
 
 
+#: the seed of every draw of the section; each task adds its experiment's tag and its configuration to it, so that
+#: no two tasks share a random stream and none depends on which ran before it
+SEED = 2016
+FIG6_COMBOS = ((4, 3), (10, 5), (20, 10), (40, 39))
+
+
+# ====================================================================== sweep tasks
+def completion_cells(w: int, vs: list[int], trials: int, tag: int, keep: list[int]) -> list[dict]:
+    """Completion times of ``trials`` stationary neighbourhoods for each (w, v), v in ``vs`` (a sweep task; the
+    cell's draws are seeded by (SEED, tag, w, v)): mean, sd and min, and every sample for the v in ``keep``."""
+    cells = []
+    for v in vs:
+        done = neighborhood_trials(w, v, trials, np.random.default_rng([SEED, tag, w, v]))
+        cell = {"v": v, "mean": float(done.mean()), "sd": float(done.std()), "min": int(done.min())}
+        if v in keep:
+            cell["samples"] = done
+        cells.append(cell)
+    return cells
+
+
+def fraction_matched_run(w: int, trials: int, steps: int) -> list[float]:
+    """Mean fraction matched at steps 0 … ``steps`` of neighbourhoods with v = w − 1 (a sweep task; Fig. 9)."""
+    _, frac = neighborhood_trials(w, w - 1, trials, np.random.default_rng([SEED, 9, w]), track_fraction=steps)
+    return frac
+
+
+def mobile_run(config: int, key: str, value: float, side: int, seeds: int, steps: int) -> dict:
+    """One configuration of the mobile sweeps (a sweep task, seeded by its index ``config``): ``key`` = ``value``,
+    the others at their defaults."""
+    return _mobile_run(np.random.default_rng([SEED, 10, config]), side, seeds, steps, **{key: value})
+
+
+def random_id_times(w: int, trials: int) -> list[float]:
+    """Mean steps until ``id_bits`` singles out every robot of a neighbourhood of w random 14- and 32-bit IDs
+    (a sweep task, seeded by w)."""
+    rng = np.random.default_rng([SEED, 11, w])
+    v = w - 1
+    means = []
+    for bits in (14, 32):
+        ts = np.empty(trials)
+        for i in range(trials):
+            ids = np.unique(rng.integers(0, 2**bits, size=w + 16, dtype=np.int64))
+            ids = rng.permutation(ids)[:w]
+            # robot s is singled out after t steps once its t low bits differ from every other robot's:
+            # t_s = 1 + max_j (common low-bit prefix length) = 1 + max_j ctz(ids_s XOR ids_j)
+            x = ids[:v, None] ^ ids[None, :]
+            x[np.arange(v), np.arange(v)] = 1 << 62  # ignore itself
+            ctz = np.log2((x & -x).astype(np.float64)).astype(np.int64)
+            ts[i] = _solve_time(ctz)
+        means.append(float(ts.mean()))
+    return means
+
+
+def env_fraction_matched(policy: str, max_cycles: int) -> dict:
+    """The mobile field through the environment (400 robots, seed 1) under ``policy`` (a sweep task): steady
+    fraction matched (mean over the second half) and the final edge ratio."""
+    from mrcomm_env.channel_association_v0 import parallel_env
+
+    env = parallel_env(n_robots=400, separation=5.0, max_cycles=max_cycles)
+    fm = []
+
+    def record(*_):
+        fm.append(env.metrics()["fraction_matched"])
+
+    metrics = run_episode(env, make_policy(ENV_ID, policy), 1, on_step=record)
+    return {"fraction_matched": float(np.mean(fm[len(fm) // 2 :])), "edge_ratio": metrics["edge_ratio"]}
+
+
+def _fig5_ws(size: str) -> list[int]:
+    return pick(size, full=list(range(2, 41)), quick=[2, 3, 4, 6, 8, 12, 16, 20, 24, 28, 32, 36, 40], tiny=[2, 3, 4])
+
+
+def _fig6_trials(size: str) -> int:
+    return pick(size, full=4000, quick=4000, tiny=200)
+
+
+def _fig7_8_trials(size: str) -> int:
+    return pick(size, full=20000, quick=1000, tiny=50)
+
+
+def _fig9_trials(size: str) -> int:
+    return pick(size, full=20000, quick=1000, tiny=50)
+
+
+FIG7_8_CELLS = tuple((w, v) for w in (40, 20) for v in range(1, w, 2))  # the larger neighbourhood first
+FIG9_WS = (5, 10, 20, 40)
+FIG9_STEPS = 16
+ID_BITS_WS = (4, 8, 16, 27, 40, 74, 200)
+MOBILE_SWEEPS = {
+    "mix (Figs 10–11)": ("mobile_fraction", [0.1, 0.5, 0.9], "mobile fraction"),
+    "range (Figs 12–13)": ("range", [10.0, 16.0, 22.0], "range"),
+    "density (Figs 14–15)": ("separation", [8.0, 5.0, 3.2], "separation"),
+    "speed (Figs 16–17)": ("speed", [16 / 20, 16 / 11, 16 / 8], "speed"),
+}
+
+
+def _mobile_sizes(size: str) -> tuple[int, int, int]:
+    return pick(size, full=250, quick=100, tiny=12), pick(size, full=3, quick=1), pick(size, full=60, quick=40, tiny=16)
+
+
+def sweep_plan(size: str) -> dict[str, list]:
+    """Every Monte-Carlo run of the section as independent tasks, by experiment (the longest first)."""
+    steps, seeds, side = _mobile_sizes(size)
+    configs = [(key, val) for key, vals, _ in MOBILE_SWEEPS.values() for val in vals]
+    fig5_ws = _fig5_ws(size)
+    keep = {w: [v for ww, v in FIG6_COMBOS if ww == w] for w in fig5_ws}
+    fig5_trials = pick(size, full=20000, quick=3000, tiny=200)
+    return {
+        "mobile": [
+            task(
+                mobile_run, f"mobile {key}={val:.3g}", config=i, key=key, value=val, side=side, seeds=seeds, steps=steps
+            )
+            for i, (key, val) in enumerate(configs)
+        ],
+        "fig5": [
+            task(completion_cells, f"fig5 w={w}", w=w, vs=list(range(1, w)), trials=fig5_trials, tag=5, keep=keep[w])
+            for w in sorted(fig5_ws, reverse=True)  # the largest neighbourhoods cost the most: first
+        ],
+        "fig7_8": [
+            task(completion_cells, f"fig7_8 w={w} v={v}", w=w, vs=[v], trials=_fig7_8_trials(size), tag=78, keep=[])
+            for w, v in FIG7_8_CELLS
+        ],
+        "fig9": [
+            task(fraction_matched_run, f"fig9 w={w}", w=w, trials=_fig9_trials(size), steps=FIG9_STEPS) for w in FIG9_WS
+        ],
+        "fig6": [  # the distributions Fig. 5's cells do not already hold
+            task(completion_cells, f"fig6 w={w} v={v}", w=w, vs=[v], trials=_fig6_trials(size), tag=6, keep=[v])
+            for w, v in FIG6_COMBOS
+            if w not in fig5_ws
+        ],
+        "id_bits": [
+            task(random_id_times, f"id_bits w={w}", w=w, trials=pick(size, full=3000, quick=300, tiny=10))
+            for w in ID_BITS_WS
+        ],
+        "id_bits_env": [
+            task(
+                env_fraction_matched,
+                f"id_bits env {policy}",
+                policy=policy,
+                max_cycles=pick(size, full=150, quick=60, tiny=6),
+            )
+            for policy in ("coin_flip", "id_bits")
+        ],
+    }
+
+
 # ====================================================================== stationary
-def _fig5(out: Path, size: str, rng) -> tuple[str, dict]:
-    ws = pick(size, full=list(range(2, 41)), quick=[2, 3, 4, 6, 8, 12, 16, 20, 24, 28, 32, 36, 40], tiny=[2, 3, 4])
+def _fig5(out: Path, size: str, results: list[list[dict]]) -> tuple[str, dict]:
     trials = pick(size, full=20000, quick=3000, tiny=200)
     rows, grid_sim, grid_ex = [], np.full((41, 41), np.nan), np.full((41, 41), np.nan)
     store = {}
-    for w in progress(ws, "fig5"):
-        for v in range(1, w):
-            done = neighborhood_trials(w, v, trials, rng)
+    by_w = dict(zip(sorted(_fig5_ws(size), reverse=True), results, strict=True))
+    for w in _fig5_ws(size):
+        for cell in by_w[w]:
+            v, mean, sd = cell["v"], cell["mean"], cell["sd"]
             ex = theory.exact_completion_time(w, v)
-            mean, sd = float(done.mean()), float(done.std())
-            rows.append((w, v, mean, sd, ex, theory.bp_completion_time(w, v), int(done.min())))
+            rows.append((w, v, mean, sd, ex, theory.bp_completion_time(w, v), cell["min"]))
             grid_sim[w, v], grid_ex[w, v] = mean, ex
-            store[(w, v)] = done
+            if "samples" in cell:
+                store[(w, v)] = np.asarray(cell["samples"], dtype=np.int64)
     arr = np.array(rows)
     _savetxt(
         out / "fig5_completion.csv",
@@ -116,10 +263,13 @@ def _fig5(out: Path, size: str, rng) -> tuple[str, dict]:
     return md, {"stats": stats, "store": store, "rows": arr}
 
 
-def _fig6(out: Path, store, rng, size: str) -> str:
-    combos = [(4, 3), (10, 5), (20, 10), (40, 39)]
+def _fig6(out: Path, store, results: list[list[dict]]) -> str:
+    missing = [combo for combo in FIG6_COMBOS if combo not in store]  # the cells the fig6 tasks drew, in order
+    store = dict(store)
+    for combo, (cell,) in zip(missing, results, strict=True):
+        store[combo] = np.asarray(cell["samples"], dtype=np.int64)
     with figure(out / "fig6_distributions.png", figsize=(14, 3.2), ncols=4, dpi=90) as (_, axes):
-        lines = _fig6_panels(axes, combos, store, rng, pick(size, full=4000, quick=4000, tiny=200))
+        lines = _fig6_panels(axes, FIG6_COMBOS, store)
     return (
         "**Fig. 6** distributions of completion times:\n\n"
         + "\n".join(lines)
@@ -127,12 +277,10 @@ def _fig6(out: Path, store, rng, size: str) -> str:
     )
 
 
-def _fig6_panels(axes, combos, store, rng, trials: int) -> list[str]:
+def _fig6_panels(axes, combos, store) -> list[str]:
     lines = ["| w | v | sim mean | exact E[T] | BP eq. (1) | max \\|pmf diff\\| |", "|---|---|---|---|---|---|"]
     for ax, (w, v) in zip(axes, combos, strict=True):
-        done = store.get((w, v))
-        if done is None:
-            done = neighborhood_trials(w, v, trials, rng)
+        done = store[(w, v)]
         tmax = int(done.max()) + 2
         pmf = theory.completion_pmf(w, v, tmax)
         emp = np.bincount(done, minlength=tmax + 1)[: tmax + 1] / len(done)
@@ -150,10 +298,12 @@ def _fig6_panels(axes, combos, store, rng, trials: int) -> list[str]:
     return lines
 
 
-def _fig7_8(out: Path, size: str, rng) -> tuple[str, dict]:
-    trials = pick(size, full=20000, quick=1000, tiny=50)
+def _fig7_8(out: Path, results: list[list[dict]]) -> tuple[str, dict]:
+    cells = {}
+    for (w, _), (cell,) in zip(FIG7_8_CELLS, results, strict=True):
+        cells.setdefault(w, []).append(cell)
     with figure(out / "fig7_8_bp_model.png", figsize=(10, 3.8), ncols=2, dpi=90) as (_, axes):
-        lines, gaps = _fig7_8_panels(axes, trials, rng)
+        lines, gaps = _fig7_8_panels(axes, cells)
     under = all(g < 0 for gg in gaps.values() for g in gg)
     closer = all(abs(gg[-1]) < abs(gg[0]) for gg in gaps.values())
     return (
@@ -163,14 +313,13 @@ def _fig7_8(out: Path, size: str, rng) -> tuple[str, dict]:
     ), {"under": under, "closer_high_v": closer, "gaps": gaps}
 
 
-def _fig7_8_panels(axes, trials: int, rng) -> tuple[list[str], dict]:
+def _fig7_8_panels(axes, cells: dict[int, list[dict]]) -> tuple[list[str], dict]:
     lines = ["| w | v | sim mean ± sd | exact | BP eq. (1) | BP − exact |", "|---|---|---|---|---|---|"]
     gaps = {}
     for ax, w in zip(axes, (20, 40), strict=True):
-        vs = list(range(1, w, 2))
-        res = [neighborhood_trials(w, v, trials, rng) for v in vs]
-        m = np.array([r.mean() for r in res])
-        s = np.array([r.std() for r in res])
+        vs = [c["v"] for c in cells[w]]
+        m = np.array([c["mean"] for c in cells[w]])
+        s = np.array([c["sd"] for c in cells[w]])
         ex = np.array([theory.exact_completion_time(w, v) for v in vs])
         bp = np.array([theory.bp_completion_time(w, v) for v in vs])
         gaps[w] = (bp - ex).tolist()
@@ -186,11 +335,10 @@ def _fig7_8_panels(axes, trials: int, rng) -> tuple[list[str], dict]:
     return lines, gaps
 
 
-def _fig9(out: Path, size: str, rng) -> tuple[str, dict]:
-    trials = pick(size, full=20000, quick=1000, tiny=50)
-    T = 16
+def _fig9(out: Path, results: list[list[float]]) -> tuple[str, dict]:
+    T = FIG9_STEPS
     with figure(out / "fig9_fraction_matched.png", figsize=(6, 4), dpi=90) as (_, ax):
-        lines, errs = _fig9_curves(ax, trials, T, rng)
+        lines, errs = _fig9_curves(ax, results, T)
         label_axes(
             ax,
             xlabel="time step",
@@ -208,11 +356,11 @@ def _fig9(out: Path, size: str, rng) -> tuple[str, dict]:
     ), {"max_err": max(errs)}
 
 
-def _fig9_curves(ax, trials: int, T: int, rng) -> tuple[list[str], list[float]]:
+def _fig9_curves(ax, results: list[list[float]], T: int) -> tuple[list[str], list[float]]:
     lines = ["| w | t | sim (v = w−1) | exact | eq. (3) (w = v) |", "|---|---|---|---|---|"]
     errs = []
-    for w, c in zip((5, 10, 20, 40), ("C0", "C1", "C2", "C3"), strict=True):
-        _, frac = neighborhood_trials(w, w - 1, trials, rng, track_fraction=T)
+    for w, c, frac in zip(FIG9_WS, ("C0", "C1", "C2", "C3"), results, strict=True):
+        frac = np.asarray(frac)
         t = np.arange(T + 1)
         ex = theory.exact_fraction_matched(w, t)
         mod = theory.fraction_matched_model(w, t)
@@ -299,16 +447,10 @@ def _mobile_run(rng, side, seeds, steps, **kw):
     }
 
 
-def _mobile(out: Path, size: str, rng) -> tuple[str, dict]:
-    steps = pick(size, full=250, quick=100, tiny=12)
-    seeds = pick(size, full=3, quick=1)
-    side = pick(size, full=60, quick=40, tiny=16)
-    sweeps = {
-        "mix (Figs 10–11)": ("mobile_fraction", [0.1, 0.5, 0.9], "mobile fraction"),
-        "range (Figs 12–13)": ("range", [10.0, 16.0, 22.0], "range"),
-        "density (Figs 14–15)": ("separation", [8.0, 5.0, 3.2], "separation"),
-        "speed (Figs 16–17)": ("speed", [16 / 20, 16 / 11, 16 / 8], "speed"),
-    }
+def _mobile(out: Path, size: str, runs: list[dict]) -> tuple[str, dict]:
+    steps, seeds, side = _mobile_sizes(size)
+    sweeps = MOBILE_SWEEPS
+    runs = iter(runs)
     results = {}
     lines = [
         "| sweep | value | robots in range | steady fraction matched | steady edge ratio | E[v_new] | Var[v_new] |",
@@ -316,9 +458,9 @@ def _mobile(out: Path, size: str, rng) -> tuple[str, dict]:
     ]
     h = steps // 2
     with figure(out / "fig10_17_mobile_sweeps.png", figsize=(16, 7), nrows=2, ncols=4, dpi=80) as (_, axes):
-        for col, (name, (key, vals, label)) in enumerate(progress(list(sweeps.items()), "mobile")):
+        for col, (name, (key, vals, label)) in enumerate(sweeps.items()):
             for val in vals:
-                res = _mobile_run(rng, side, seeds, steps, **{key: val})
+                res = {k: np.asarray(x) if isinstance(x, list) else x for k, x in next(runs).items()}
                 results[(key, val)] = res
                 axes[0, col].plot(res["fm"], label=f"{label} {val:.3g}")
                 axes[1, col].plot(res["er"], label=f"{label} {val:.3g}")
@@ -451,45 +593,22 @@ def _solve_time(ctz: np.ndarray) -> int:
     return int(c.max(axis=1).max()) + 1
 
 
-def _id_bits(out: Path, size: str, rng) -> tuple[str, dict]:
-    from mrcomm_env.channel_association_v0 import parallel_env
-
+def _id_bits(out: Path, random_ids: list[list[float]], env_runs: list[dict]) -> tuple[str, dict]:
     lines = [
         "| w (v = w−1) | coin flip exact E[T] | id_bits, IDs 0…w (B = ⌈log2(w+1)⌉) | id_bits, random 14-bit IDs (10k robots) | id_bits, random 32-bit IDs |",
         "|---|---|---|---|---|",
     ]
-    trials = pick(size, full=3000, quick=300, tiny=10)
     out_rows = []
-    for w in (4, 8, 16, 27, 40, 74, 200):
-        v = w - 1
-        cf = theory.exact_completion_time(w, v)
+    for w, (rand14, rand32) in zip(ID_BITS_WS, random_ids, strict=True):
+        cf = theory.exact_completion_time(w, w - 1)
         dense = math.ceil(math.log2(w + 1))
-        row = [w, cf, dense]
-        for bits in (14, 32):
-            ts = np.empty(trials)
-            for i in range(trials):
-                ids = np.unique(rng.integers(0, 2**bits, size=w + 16, dtype=np.int64))
-                ids = rng.permutation(ids)[:w]
-                # robot s is singled out after t steps once its t low bits differ from every other robot's:
-                # t_s = 1 + max_j (common low-bit prefix length) = 1 + max_j ctz(ids_s XOR ids_j)
-                x = ids[:v, None] ^ ids[None, :]
-                x[np.arange(v), np.arange(v)] = 1 << 62  # ignore itself
-                ctz = np.log2((x & -x).astype(np.float64)).astype(np.int64)
-                ts[i] = _solve_time(ctz)
-            row.append(float(ts.mean()))
-        out_rows.append(row)
-        lines.append(f"| {w} | {cf:.2f} | {dense} | {row[3]:.2f} | {row[4]:.2f} |")
+        out_rows.append([w, cf, dense, rand14, rand32])
+        lines.append(f"| {w} | {cf:.2f} | {dense} | {rand14:.2f} | {rand32:.2f} |")
     # mobile field through the environment itself: steady fraction matched, coin flip vs id_bits
-    env_rows = []
-    for pol_name in ("coin_flip", "id_bits"):
-        env = parallel_env(n_robots=400, separation=5.0, max_cycles=pick(size, full=150, quick=60, tiny=6))
-        fm = []
-
-        def record(*_, env=env, fm=fm):
-            fm.append(env.metrics()["fraction_matched"])
-
-        metrics = run_episode(env, make_policy(ENV_ID, pol_name), 1, on_step=record)
-        env_rows.append((pol_name, float(np.mean(fm[len(fm) // 2 :])), metrics["edge_ratio"]))
+    env_rows = [
+        (policy, r["fraction_matched"], r["edge_ratio"])
+        for policy, r in zip(("coin_flip", "id_bits"), env_runs, strict=True)
+    ]
     _savetxt(
         out / "id_bits_vs_coin.csv",
         np.array(out_rows),
@@ -519,16 +638,16 @@ def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     size = size_of(quick, tiny)
-    rng = np.random.default_rng(2016)
     t0 = time.perf_counter()
-    md5, r5 = _fig5(out, size, rng)
-    md6 = _fig6(out, r5["store"], rng, size)
-    md78, r78 = _fig7_8(out, size, rng)
-    md9, r9 = _fig9(out, size, rng)
+    runs = run_sweeps(out, sweep_plan(size), "fig5, fig6, fig7_8, fig9, mobile, id_bits")
+    md5, r5 = _fig5(out, size, runs["fig5"])
+    md6 = _fig6(out, r5["store"], runs["fig6"])
+    md78, r78 = _fig7_8(out, runs["fig7_8"])
+    md9, r9 = _fig9(out, runs["fig9"])
     mdm, rm = _markov(out)
-    mdmob, rmob = _mobile(out, size, rng)
+    mdmob, rmob = _mobile(out, size, runs["mobile"])
     mdmod, rmod = _models(out, rmob)
-    mdid, rid = _id_bits(out, size, rng)
+    mdid, rid = _id_bits(out, runs["id_bits"], runs["id_bits_env"])
     h = lambda res: len(res["fm"]) // 2  # noqa: E731
     steady = {k: (float(v["fm"][h(v) :].mean()), float(v["er"][h(v) :].mean())) for k, v in rmob.items()}
 

@@ -3,7 +3,10 @@
 * :func:`size_of` / :func:`pick` — one reproduction, three sizes: ``full`` (the paper's), ``quick`` (a few
   minutes, indicative numbers) and ``tiny`` (seconds, for the smoke test: every file is written, the
   numbers mean nothing);
-* :func:`progress` — the progress bar every sweep shows;
+* :func:`progress` — the progress bar of a loop that stays in this process (a timing measurement);
+* :func:`task` / :func:`run_sweep` — the Monte-Carlo work of a reproduction as independent tasks through the
+  one sweep runner (:mod:`mrcomm_env.experiments.sweep`): each task seeds itself from its own arguments, so the
+  numbers do not depend on where it runs, and its result is cached under ``<out>/tasks`` for a resumed run;
 * :func:`figure` — a matplotlib figure on the Agg canvas (no pyplot: a reproduction never changes the
   caller's backend or leaks figures) that is laid out and saved atomically when the block ends, and
   :func:`label_axes` for the labels, scales, title and legend;
@@ -16,12 +19,13 @@
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
 from mrcomm_env.experiments.evaluation import run_episode
 from mrcomm_env.experiments.io import atomic_open, atomic_savefig, atomic_write_json, atomic_write_text
+from mrcomm_env.experiments.sweep import Task, run_tasks
 
 __all__ = [
     "SIZES",
@@ -33,12 +37,17 @@ __all__ = [
     "pick",
     "progress",
     "run_episode",
+    "run_sweep",
+    "run_sweeps",
     "size_of",
+    "task",
 ]
 
 SIZES = ("full", "quick", "tiny")
 T = TypeVar("T")
 _UNSET: Any = object()
+#: the folder, inside a reproduction's output folder, where each task's result is cached as it finishes
+TASKS_DIR = "tasks"
 
 
 def size_of(quick: bool, tiny: bool = False) -> str:
@@ -62,6 +71,35 @@ def progress(iterable: Iterable[T], desc: str) -> Iterable[T]:
     from tqdm.auto import tqdm
 
     return tqdm(iterable, desc=desc, leave=False)
+
+
+def task(fn: Callable, name: str, **kwargs: Any) -> Task:
+    """A sweep task that calls ``fn(**kwargs)`` on whichever worker the runner picks.
+
+    ``fn`` must be a module-level function (a spawned worker imports it by name) and ``kwargs`` JSON data that
+    decide its result completely, seeds included: a task never draws from a generator shared with other tasks.
+    """
+    qualname, module = getattr(fn, "__qualname__", ""), getattr(fn, "__module__", "")
+    if qualname != getattr(fn, "__name__", None) or module in ("", "__main__"):
+        raise ValueError(f"argument 'fn' must be a module-level function of an importable module, got {fn!r}")
+    return Task(f"{module}:{fn.__name__}", kwargs, name)
+
+
+def run_sweep(out: str | Path, tasks: Sequence[Task], desc: str) -> list[Any]:
+    """The tasks' results in their order, run on the caller's runner (``sweep.using``), each cached in
+    ``out/tasks`` as soon as it finishes so that a rerun into the same folder skips it."""
+    return run_tasks(tasks, cache=Path(out) / TASKS_DIR, desc=desc)
+
+
+def run_sweeps(out: str | Path, sweeps: dict[str, Sequence[Task]], desc: str) -> dict[str, list[Any]]:
+    """Several independent sweeps as one (``{experiment: tasks}`` → ``{experiment: results}``).
+
+    One sweep keeps both cores busy to the end, where each small sweep alone would leave one idle behind its
+    longest task, and it starts the worker processes once: each must import the env stack (3–5 s on a loaded
+    two-core machine), which costs more than many a quick sweep's whole work."""
+    flat = [t for tasks in sweeps.values() for t in tasks]
+    results = iter(run_sweep(out, flat, desc))
+    return {name: [next(results) for _ in tasks] for name, tasks in sweeps.items()}
 
 
 @contextlib.contextmanager

@@ -27,7 +27,9 @@ from mrcomm_env.experiments.reproductions.common import (
     pick,
     progress,
     run_episode,
+    run_sweeps,
     size_of,
+    task,
 )
 from mrcomm_env.mapsync import protocol as proto
 from mrcomm_env.mapsync import theory
@@ -119,39 +121,47 @@ def env_steps_per_second(seconds: float = 3.0, policy: str | None = None, seed: 
 
 
 # ----------------------------------------------------------------------------------------------- Props 1–2
-def props_1_2(out: Path, size: str) -> str:
-    trials = pick(size, full=20000, quick=400, tiny=20)
-    rows = []
-    rng = np.random.default_rng(12)
+PROPS_K = (1, 2, 3, 4, 6, 8)
+
+
+def props_row(k: int, trials: int) -> dict:
+    """Propositions 1–2 at n = 256 and one k (a sweep task, seeded by k): bits counted, the false-"equal" rate
+    on maps with one difference, and the errors on equal maps."""
+    rng = np.random.default_rng([12, k])
     n = 256
     strings = SharedStrings(n, 5)
-    for k in progress((1, 2, 3, 4, 6, 8), desc="Prop. 2: false-equal rate"):
-        false_equal = equal_errors = 0
-        counted = set()
-        for _ in range(trials):
-            x, y = _random_pair(rng, n, 1)  # the hardest case: one differing cell
-            res = proto.equality(x, y, strings, k, rng)
-            false_equal += res.equal
-            counted.add(res.alice_bits)
-        for _ in range(trials // 10):
-            x = rng.random(n) < 0.5
-            equal_errors += not proto.equality(x, x.copy(), strings, k, rng).equal
-        p = false_equal / trials
-        lo, hi = _wilson(false_equal, trials)
-        rows.append(
-            {
-                "n": n,
-                "k": k,
-                "trials": trials,
-                "bits_counted": counted.pop(),
-                "bits_prop1": theory.protocol1_bits(n, k),
-                "false_equal_rate": p,
-                "ci95_lo": lo,
-                "ci95_hi": hi,
-                "bound_2^-k": 2.0**-k,
-                "errors_on_equal_maps": equal_errors,
-            }
-        )
+    false_equal = equal_errors = 0
+    counted = set()
+    for _ in range(trials):
+        x, y = _random_pair(rng, n, 1)  # the hardest case: one differing cell
+        res = proto.equality(x, y, strings, k, rng)
+        false_equal += res.equal
+        counted.add(res.alice_bits)
+    for _ in range(trials // 10):
+        x = rng.random(n) < 0.5
+        equal_errors += not proto.equality(x, x.copy(), strings, k, rng).equal
+    lo, hi = _wilson(false_equal, trials)
+    return {
+        "n": n,
+        "k": k,
+        "trials": trials,
+        "bits_counted": counted.pop(),
+        "bits_prop1": theory.protocol1_bits(n, k),
+        "false_equal_rate": false_equal / trials,
+        "ci95_lo": lo,
+        "ci95_hi": hi,
+        "bound_2^-k": 2.0**-k,
+        "errors_on_equal_maps": equal_errors,
+    }
+
+
+def props_tasks(size: str) -> list:
+    trials = pick(size, full=20000, quick=400, tiny=20)
+    return [task(props_row, f"props_1_2 k={k}", k=k, trials=trials) for k in PROPS_K]
+
+
+def props_1_2(out: Path, size: str, rows: list[dict]) -> str:
+    trials = pick(size, full=20000, quick=400, tiny=20)
     _write_csv(out / "props_1_2.csv", rows)
     with figure(out / "props_1_2.png", figsize=(6, 4), dpi=120) as (_, ax):
         ks = [r["k"] for r in rows]
@@ -188,12 +198,12 @@ def _wilson(successes: int, trials: int, z: float = 1.96) -> tuple[float, float]
 
 
 # ----------------------------------------------------------------------------------------------- Algorithm 1 bits
-def alg1_worst_case(out: Path, size: str) -> str:
-    trials = pick(size, full=20, quick=3, tiny=1)
+def alg1_rows(trials: int) -> list[dict]:
+    """Algorithm 1's bits for every (n, d) (one sweep task: a fraction of a second in a quick run)."""
     k, res = 10, 1
     rows = []
     rng = np.random.default_rng(21)
-    for n in progress((256, 1024, 4096), desc="Alg. 1 bits"):
+    for n in (256, 1024, 4096):
         strings = SharedStrings(n, 2)
         for d in (1, 4, 16, 64):
             alice, total = [], []
@@ -217,6 +227,14 @@ def alg1_worst_case(out: Path, size: str) -> str:
                     "true_worst_total": worst["total"],
                 }
             )
+    return rows
+
+
+def alg1_tasks(size: str) -> list:
+    return [task(alg1_rows, "alg1_worst_case", trials=pick(size, full=20, quick=3, tiny=1))]
+
+
+def alg1_worst_case(out: Path, rows: list[dict]) -> str:
     _write_csv(out / "alg1_worst_case.csv", rows)
     lines = [
         "| n | d | Alice's bits, mean (max) | with Bob's verdicts | §IV-B formula log(n/res)k(log 100n+1)+i | true worst case (Alice) |",
@@ -231,35 +249,46 @@ def alg1_worst_case(out: Path, size: str) -> str:
 
 
 # ----------------------------------------------------------------------------------------------- Fig. 2
-def fig2(out: Path, size: str) -> tuple[str, dict]:
-    runs_big = pick(size, full=5000, quick=50, tiny=2)
+def fig2_rows(n: int, runs_big: int) -> list[dict]:
+    """Fig. 2's cells of one n, every k (a sweep task; each cell seeded by (n, k))."""
     runs_paper = min(50, runs_big)  # §V-A: 50 runs per cell
     rows = []
-    rng = np.random.default_rng(2)
-    for n in progress(FIG2_N, desc="Fig 2: n"):
-        strings = SharedStrings(n, 3)
-        for k in FIG2_K:
-            outcomes = []
-            printed = 0
-            for run in range(runs_big):
-                x = rng.random(n) < 0.5
-                y = rng.random(n) < 0.5  # independent random strings, as §V-A: almost always different
-                truth = np.array_equal(x, y)
-                outcomes.append(proto.equality(x, y, strings, k, rng).equal == truth)
-                if run < runs_paper:
-                    printed += proto.equality(x, y, strings, k, rng, step4="as_printed").equal == truth
-            outcomes = np.array(outcomes)
-            rows.append(
-                {
-                    "n": n,
-                    "k": k,
-                    "sr_50_runs": float(outcomes[:runs_paper].mean()),
-                    "sr_many": float(outcomes.mean()),
-                    "runs_many": runs_big,
-                    "theory_1-2^-k": 1 - 2.0**-k,
-                    "sr_as_printed_50": printed / runs_paper,
-                }
-            )
+    strings = SharedStrings(n, 3)
+    for k in FIG2_K:
+        rng = np.random.default_rng([2, n, k])
+        outcomes = []
+        printed = 0
+        for run in range(runs_big):
+            x = rng.random(n) < 0.5
+            y = rng.random(n) < 0.5  # independent random strings, as §V-A: almost always different
+            truth = np.array_equal(x, y)
+            outcomes.append(proto.equality(x, y, strings, k, rng).equal == truth)
+            if run < runs_paper:
+                printed += proto.equality(x, y, strings, k, rng, step4="as_printed").equal == truth
+        outcomes = np.array(outcomes)
+        rows.append(
+            {
+                "n": n,
+                "k": k,
+                "sr_50_runs": float(outcomes[:runs_paper].mean()),
+                "sr_many": float(outcomes.mean()),
+                "runs_many": runs_big,
+                "theory_1-2^-k": 1 - 2.0**-k,
+                "sr_as_printed_50": printed / runs_paper,
+            }
+        )
+    return rows
+
+
+def fig2_tasks(size: str) -> list:
+    runs_big = pick(size, full=5000, quick=50, tiny=2)
+    return [task(fig2_rows, f"fig2 n={n}", n=n, runs_big=runs_big) for n in FIG2_N]
+
+
+def fig2(out: Path, size: str, results: list[list[dict]]) -> tuple[str, dict]:
+    runs_big = pick(size, full=5000, quick=50, tiny=2)
+    runs_paper = min(50, runs_big)
+    rows = [row for rows_of_n in results for row in rows_of_n]
     _write_csv(out / "fig2_success_rate.csv", rows)
     panels = (("sr_50_runs", f"{runs_paper} runs (as the paper)"), ("sr_many", f"{runs_big} runs"))
     with figure(out / "fig2_success_rate.png", figsize=(11, 4), ncols=2, dpi=120) as (fig, axes):
@@ -318,40 +347,54 @@ def fig3(out: Path, size: str) -> tuple[str, dict]:
 
 
 # ----------------------------------------------------------------------------------------------- Figs 4–6
-def figs4_6(out: Path, size: str) -> str:
-    runs = pick(size, full=50, quick=6, tiny=1)
-    sweeps = [
-        ("fig4", "k", [(128, k, 5) for k in (7, 8, 9, 10)]),
-        ("fig5", "n", [(n, 10, 5) for n in (256, 512, 1024, 2048)]),
-        ("fig6", "d", [(1024, 10, d) for d in (10, 20, 30, 40)]),
-    ]
-    rng = np.random.default_rng(46)
+FIGS4_6 = (
+    ("fig4", "k", [(128, k, 5) for k in (7, 8, 9, 10)]),
+    ("fig5", "n", [(n, 10, 5) for n in (256, 512, 1024, 2048)]),
+    ("fig6", "d", [(1024, 10, d) for d in (10, 20, 30, 40)]),
+)
+
+
+def figs4_6_rows(figure_index: int, runs: int) -> list[dict]:
+    """One of Figs 4–6: the fraction of differences Algorithm 1 corrects per configuration (a sweep task,
+    seeded by the figure)."""
+    name, var, configs = FIGS4_6[figure_index]
+    rng = np.random.default_rng([46, figure_index])
     rows = []
-    for name, var, configs in progress(sweeps, desc="Figs 4-6"):
-        for n, k, d in configs:
-            strings = SharedStrings(n, 4)
-            fractions = []
-            for _ in range(runs):
-                x, y = _random_pair(rng, n, d)
-                r = proto.bisection(x, y, strings, k, 1, rng)
-                diff = np.flatnonzero(x != y)
-                fractions.append(np.isin(diff, r.found).mean())
-            mean, half = mean_ci95(fractions)
-            rows.append(
-                {
-                    "figure": name,
-                    "varied": var,
-                    "n": n,
-                    "k": k,
-                    "d": d,
-                    "runs": runs,
-                    "corrected_mean": mean,
-                    "ci95": half,
-                    "std": float(np.std(fractions)),
-                    "min": float(np.min(fractions)),
-                    "expected": (1 - 2.0**-k) ** theory.recursion_depth(n, 1),
-                }
-            )
+    for n, k, d in configs:
+        strings = SharedStrings(n, 4)
+        fractions = []
+        for _ in range(runs):
+            x, y = _random_pair(rng, n, d)
+            r = proto.bisection(x, y, strings, k, 1, rng)
+            diff = np.flatnonzero(x != y)
+            fractions.append(np.isin(diff, r.found).mean())
+        mean, half = mean_ci95(fractions)
+        rows.append(
+            {
+                "figure": name,
+                "varied": var,
+                "n": n,
+                "k": k,
+                "d": d,
+                "runs": runs,
+                "corrected_mean": mean,
+                "ci95": half,
+                "std": float(np.std(fractions)),
+                "min": float(np.min(fractions)),
+                "expected": (1 - 2.0**-k) ** theory.recursion_depth(n, 1),
+            }
+        )
+    return rows
+
+
+def figs4_6_tasks(size: str) -> list:
+    runs = pick(size, full=50, quick=6, tiny=1)
+    return [task(figs4_6_rows, f"figs4_6 {FIGS4_6[i][0]}", figure_index=i, runs=runs) for i in range(len(FIGS4_6))]
+
+
+def figs4_6(out: Path, results: list[list[dict]]) -> str:
+    sweeps = FIGS4_6
+    rows = [row for rows_of_figure in results for row in rows_of_figure]
     _write_csv(out / "figs4_6_corrected.csv", rows)
     with figure(out / "figs4_6_corrected.png", figsize=(12, 3.6), ncols=3, dpi=120) as (_, axes):
         for ax, (name, var, _) in zip(axes, sweeps, strict=True):
@@ -375,15 +418,22 @@ def figs4_6(out: Path, size: str) -> str:
 
 
 # ----------------------------------------------------------------------------------------------- Fig. 7
-def fig7(out: Path, size: str) -> tuple[str, dict]:
+def case_study_run(seed: int) -> dict:
+    """One episode of the Fig. 7 case study (a sweep task): the steps at which a difference was detected."""
     from mrcomm_env.registry import make
 
-    seeds = range(pick(size, full=50, quick=2, tiny=1))
-    records = []
-    for seed in progress(seeds, desc="Fig 7: case study"):
-        env = make(ENV_ID, preset="paper")
-        metrics = run_episode(env, make_policy(ENV_ID, "periodic_equality_then_bisection"), seed)
-        records.append({"seed": seed, "detection_steps": [s for s, *_ in env.detections], **metrics})
+    env = make(ENV_ID, preset="paper")
+    metrics = run_episode(env, make_policy(ENV_ID, "periodic_equality_then_bisection"), seed)
+    return {"seed": seed, "detection_steps": [s for s, *_ in env.detections], **metrics}
+
+
+def fig7_tasks(size: str) -> list:
+    return [
+        task(case_study_run, f"fig7 seed={seed}", seed=seed) for seed in range(pick(size, full=50, quick=2, tiny=1))
+    ]
+
+
+def fig7(out: Path, records: list[dict]) -> tuple[str, dict]:
     atomic_write_json(out / "fig7_case_study.json", records, indent=1)
     tested = sum(r["equality_tests"] for r in records)
     missed = sum(r["false_equal"] for r in records)
@@ -409,17 +459,13 @@ def fig7(out: Path, size: str) -> tuple[str, dict]:
 
 
 # ----------------------------------------------------------------------------------------------- bits table
-def bits_table(out: Path, size: str) -> tuple[str, dict]:
+def bits_rows(n: int, differences: list[int], trials: int) -> list[dict]:
+    """The bits table's rows of one map size n (a sweep task; each (n, d) seeded by itself)."""
     k, res = 10, 1
-    rng = np.random.default_rng(77)
     rows = []
-    # tiny keeps one size at and above 1024, where the report reads the sketch's worst ratio
-    sizes = pick(size, full=(256, 1024, 4096, 65536), quick=(256, 1024, 4096, 65536), tiny=(256, 1024))
-    differences = pick(size, full=(1, 4, 16, 64), quick=(1, 4, 16, 64), tiny=(1, 4))
-    configs = [(n, d) for n in sizes for d in differences]
-    for n, d in progress(configs, desc="bits table"):
-        trials = pick(size, full=10, quick=1 if n >= 4096 else 2, tiny=1)
-        strings = SharedStrings(n, 9)
+    strings = SharedStrings(n, 9)
+    for d in differences:
+        rng = np.random.default_rng([77, n, d])
         bis, sk, sk_strict, exact = [], [], [], 0
         for t in range(trials):
             x, y = _random_pair(rng, n, d)
@@ -453,6 +499,27 @@ def bits_table(out: Path, size: str) -> tuple[str, dict]:
                 "trials": trials,
             }
         )
+    return rows
+
+
+def bits_tasks(size: str) -> list:
+    # tiny keeps one size at and above 1024, where the report reads the sketch's worst ratio
+    sizes = pick(size, full=(256, 1024, 4096, 65536), quick=(256, 1024, 4096, 65536), tiny=(256, 1024))
+    differences = pick(size, full=(1, 4, 16, 64), quick=(1, 4, 16, 64), tiny=(1, 4))
+    return [
+        task(
+            bits_rows,
+            f"bits_table n={n}",
+            n=n,
+            differences=list(differences),
+            trials=pick(size, full=10, quick=1 if n >= 4096 else 2, tiny=1),
+        )
+        for n in sizes
+    ]
+
+
+def bits_table(out: Path, results: list[list[dict]]) -> tuple[str, dict]:
+    rows = [row for rows_of_n in results for row in rows_of_n]
     _write_csv(out / "bits_table.csv", rows)
     with figure(out / "bits_table.png", figsize=(7, 4.5), dpi=120) as (_, ax):
         labels = [f"{r['n']}\nd={r['d']}" for r in rows]
@@ -486,30 +553,37 @@ def bits_table(out: Path, size: str) -> tuple[str, dict]:
 
 
 # ----------------------------------------------------------------------------------------------- sketch errors
-def sketch_false_accept(out: Path, size: str) -> str:
+SKETCH_CONFIGS = ((256, 2), (1024, 2), (1024, 8), (4096, 2))
+
+
+def sketch_row(n: int, d: int, runs: int) -> dict:
+    """How often the sketch accepts a wrong difference set at (n, d) (a sweep task, seeded by (n, d))."""
+    rng = np.random.default_rng([31, n, d])
+    wrong = 0
+    for t in range(runs):
+        x, y = _random_pair(rng, n, d)
+        wrong += not np.array_equal(proto.sketch(x, y, seed=3, nonce=t).found, np.flatnonzero(x != y))
+    v = proto.sketch_verify_bits(n)
+    lo, hi = _wilson(wrong, runs)
+    return {
+        "n": n,
+        "d": d,
+        "v": v,
+        "runs": runs,
+        "wrong": wrong,
+        "rate": wrong / runs,
+        "ci95_lo": lo,
+        "ci95_hi": hi,
+        "approx": (2.0 if d == 2 else math.e) * 2.0**-v,
+    }
+
+
+def sketch_tasks(size: str) -> list:
     runs = pick(size, full=5000, quick=300, tiny=5)
-    rng = np.random.default_rng(31)
-    rows = []
-    for n, d in progress([(256, 2), (1024, 2), (1024, 8), (4096, 2)], desc="sketch false acceptance"):
-        wrong = 0
-        for t in range(runs):
-            x, y = _random_pair(rng, n, d)
-            wrong += not np.array_equal(proto.sketch(x, y, seed=3, nonce=t).found, np.flatnonzero(x != y))
-        v = proto.sketch_verify_bits(n)
-        lo, hi = _wilson(wrong, runs)
-        rows.append(
-            {
-                "n": n,
-                "d": d,
-                "v": v,
-                "runs": runs,
-                "wrong": wrong,
-                "rate": wrong / runs,
-                "ci95_lo": lo,
-                "ci95_hi": hi,
-                "approx": (2.0 if d == 2 else math.e) * 2.0**-v,
-            }
-        )
+    return [task(sketch_row, f"sketch_false_accept n={n} d={d}", n=n, d=d, runs=runs) for n, d in SKETCH_CONFIGS]
+
+
+def sketch_false_accept(out: Path, rows: list[dict]) -> str:
     _write_csv(out / "sketch_false_accept.csv", rows)
     lines = [
         "| n | d | parity bits v | wrong maps accepted | 95 % CI | ≈ 2·2^−v (d = 2), e·2^−v |",
@@ -524,31 +598,31 @@ def sketch_false_accept(out: Path, size: str) -> str:
 
 
 # ----------------------------------------------------------------------------------------------- policies
-def policies(out: Path, size: str) -> str:
+def policy_row(policy: str, episodes: int) -> dict:
+    """One baseline's episodes on the paper preset from seed 1000 (a sweep task): mean metrics."""
     from mrcomm_env.experiments.evaluation import evaluate
     from mrcomm_env.registry import make
 
+    summary = evaluate(
+        lambda: make(ENV_ID, preset="paper"), make_policy(ENV_ID, policy), episodes, seed=1000, progress=False
+    )
+    return {
+        "policy": policy,
+        **{
+            f"{m}_mean": summary[m]["mean"]
+            for m in ("disagreement", "bits_sent", "episode_return", "corrected_fraction", "syncs")
+        },
+        "disagreement_ci95": summary["disagreement"]["ci95"],
+        "episodes": episodes,
+    }
+
+
+def policies_tasks(size: str) -> list:
     episodes = pick(size, full=20, quick=1)
-    rows = []
-    for name in progress(policy_names(ENV_ID), desc="policies"):
-        summary = evaluate(
-            lambda: make(ENV_ID, preset="paper"),
-            make_policy(ENV_ID, name),
-            episodes,
-            seed=1000,
-            progress=False,
-        )
-        rows.append(
-            {
-                "policy": name,
-                **{
-                    f"{m}_mean": summary[m]["mean"]
-                    for m in ("disagreement", "bits_sent", "episode_return", "corrected_fraction", "syncs")
-                },
-                "disagreement_ci95": summary["disagreement"]["ci95"],
-                "episodes": episodes,
-            }
-        )
+    return [task(policy_row, f"policies {name}", policy=name, episodes=episodes) for name in policy_names(ENV_ID)]
+
+
+def policies(out: Path, rows: list[dict]) -> str:
     _write_csv(out / "policies.csv", rows)
     lines = [
         "| policy | disagreement | bits sent | return | corrected | syncs |",
@@ -568,22 +642,32 @@ def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
     out.mkdir(parents=True, exist_ok=True)
     size = size_of(quick, tiny)
     timing: dict[str, float] = {}
-
-    def timed(name, fn):
-        start = time.perf_counter()
-        result = fn(out, size)
-        timing[name] = time.perf_counter() - start
-        return result
-
-    props = timed("props_1_2", props_1_2)
-    alg1 = timed("alg1_worst_case", alg1_worst_case)
-    f2, f2_info = timed("fig2_success_rate", fig2)
-    f3, f3_info = timed("fig3_runtime", fig3)
-    f46 = timed("figs4_6_corrected", figs4_6)
-    f7, f7_info = timed("fig7_case_study", fig7)
-    table, table_info = timed("bits_table", bits_table)
-    false_accept = timed("sketch_false_accept", sketch_false_accept)
-    pol = timed("policies", policies)
+    start = time.perf_counter()
+    # the Monte-Carlo experiments as one sweep of independent tasks, the longest first
+    plan = {
+        "props_1_2": props_tasks(size),
+        "bits_table": bits_tasks(size),
+        "fig2_success_rate": fig2_tasks(size),
+        "figs4_6_corrected": figs4_6_tasks(size),
+        "fig7_case_study": fig7_tasks(size),
+        "sketch_false_accept": sketch_tasks(size),
+        "alg1_worst_case": alg1_tasks(size),
+        "policies": policies_tasks(size),
+    }
+    results = run_sweeps(out, plan, "Props 1-2, Figs 2, 4-7, bits tables, policies")
+    timing["sweeps"] = time.perf_counter() - start
+    props = props_1_2(out, size, results["props_1_2"])
+    alg1 = alg1_worst_case(out, results["alg1_worst_case"][0])
+    f2, f2_info = fig2(out, size, results["fig2_success_rate"])
+    # Fig. 3 measures wall time: here, alone, after the sweep's workers have finished
+    start = time.perf_counter()
+    f3, f3_info = fig3(out, size)
+    timing["fig3_runtime"] = time.perf_counter() - start
+    f46 = figs4_6(out, results["figs4_6_corrected"])
+    f7, f7_info = fig7(out, results["fig7_case_study"])
+    table, table_info = bits_table(out, results["bits_table"])
+    false_accept = sketch_false_accept(out, results["sketch_false_accept"])
+    pol = policies(out, results["policies"])
     summary = {"timing_s": timing, **f2_info, **f3_info, **f7_info, **table_info, "quick": quick}
     atomic_write_json(out / "summary.json", summary, indent=1, default=float)
     below = ", ".join(f"(n={n}, k={k})" for n, k in f2_info["below_90_at_50_runs"]) or "none"

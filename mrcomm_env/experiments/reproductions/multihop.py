@@ -23,9 +23,10 @@ from mrcomm_env.experiments.reproductions.common import (
     figure,
     label_axes,
     pick,
-    progress,
     run_episode,
+    run_sweeps,
     size_of,
+    task,
 )
 from mrcomm_env.multihop import protocol as proto
 from mrcomm_env.multihop import theory
@@ -72,21 +73,36 @@ def _summ(values: np.ndarray) -> tuple[float, float]:
 
 
 # ----------------------------------------------------------------------------------- Fig. 2
-def fig2(out: Path, size: str) -> tuple[str, dict]:
-    side = 10
-    blocks = {k: proto.centred_block(side, k) for k in SIZES}
-    ms, runs, cap = pick(
+def propagation_run(m: int, runs: int, seed: int, cap: int, selector: str = "text", alpha: float = 1.0) -> dict:
+    """Propagation times on the 10×10 grid at slot length ``m`` over ``runs`` random slot orders (a sweep task):
+    ``{reading: [[all-pairs max per run], [mean pair per run]] per subgraph in SIZES}`` (inf: not completed)."""
+    blocks = {k: proto.centred_block(10, k) for k in SIZES}
+    res = grid_propagation(10, m, runs, seed=seed, blocks=blocks, selector=selector, alpha=alpha, max_frames=cap)
+    return {phase: [[res[phase][k][0], res[phase][k][1]] for k in SIZES] for phase in ("cold", "steady")}
+
+
+def _fig2_plan(size: str):
+    return pick(
         size,
         full=([2, 3, 4, 5, 6, 7, 8, 9, 10, 12, 14, 17, 20, 25, 30, 40, 50, 70, 100], 50, 1000),
         quick=([3, 7, 20, 100], 4, 300),
         tiny=([7, 100], 1, 8),
     )
+
+
+def fig2_tasks(size: str) -> list:
+    ms, runs, cap = _fig2_plan(size)
+    return [task(propagation_run, f"fig2 m={m}", m=m, runs=runs, seed=1000 + m, cap=cap) for m in ms]
+
+
+def fig2(out: Path, size: str, results: list[dict]) -> tuple[str, dict]:
+    ms, runs, cap = _fig2_plan(size)
     rows, table = [], {}
-    for m in progress(ms, desc="Fig 2: slot lengths"):
-        res = grid_propagation(side, m, runs, seed=1000 + m, blocks=blocks, max_frames=cap)
+    for m, res in zip(ms, results, strict=True):
         for phase, stat, _ in READINGS:
-            for k in SIZES:
-                mean, half = _summ(res[phase][k][stat])
+            for i, k in enumerate(SIZES):
+                values = np.asarray(res[phase][i][stat], dtype=float)
+                mean, half = _summ(values)
                 table[(m, phase, stat, k)] = mean
                 rows.append(
                     {
@@ -97,7 +113,7 @@ def fig2(out: Path, size: str) -> tuple[str, dict]:
                         "mean_s": mean,
                         "ci95_s": half,
                         "runs": runs,
-                        "completed": int(np.isfinite(res[phase][k][stat]).sum()),
+                        "completed": int(np.isfinite(values).sum()),
                     }
                 )
     with atomic_open(out / "fig2_propagation.csv", "w", newline="") as fh:
@@ -184,9 +200,7 @@ def claim_m7(table) -> tuple[str, list[dict]]:
     return "\n".join(lines), recs
 
 
-def rules_m7(size: str, table) -> tuple[str, list[dict]]:
-    blocks = {k: proto.centred_block(10, k) for k in SIZES}
-    runs, cap = pick(size, full=(50, 1000), quick=(4, 300), tiny=(1, 8))
+def _rules_configs(size: str) -> list[tuple[str, str, float]]:
     configs = [
         ("listing (argmax, Alg. 1)", "listing", 1.0),
         ("eq. (2) probabilistic", "probabilistic", 1.0),
@@ -194,6 +208,28 @@ def rules_m7(size: str, table) -> tuple[str, list[dict]]:
     ]
     if size == "full":
         configs += [("text, α = 0.25", "text", 0.25), ("text, α = 2", "text", 2.0)]
+    return configs
+
+
+def rules_tasks(size: str) -> list:
+    runs, cap = pick(size, full=(50, 1000), quick=(4, 300), tiny=(1, 8))
+    return [
+        # the listing never completes; do not burn the budget
+        task(
+            propagation_run,
+            f"rules_m7 {sel} alpha={alpha:g}",
+            m=7,
+            runs=runs,
+            seed=77,
+            cap=min(30, cap) if sel == "listing" else cap,
+            selector=sel,
+            alpha=alpha,
+        )
+        for _, sel, alpha in _rules_configs(size)
+    ]
+
+
+def rules_m7(size: str, table, results: list[dict]) -> tuple[str, list[dict]]:
     recs = [
         {
             "rule": "text",
@@ -210,14 +246,13 @@ def rules_m7(size: str, table) -> tuple[str, list[dict]]:
         + " | ".join(f"{_fmt(r['cold_s'])} / {_fmt(r['steady_s'])}" for r in recs)
         + " |",
     ]
-    for label, sel, alpha in progress(configs, desc="selection rules at m=7"):
-        cap_here = min(30, cap) if sel == "listing" else cap  # the listing never completes; do not burn the budget
-        res = grid_propagation(10, 7, runs, seed=77, blocks=blocks, selector=sel, alpha=alpha, max_frames=cap_here)
+    for (label, _, _), res in zip(_rules_configs(size), results, strict=True):
         cells = []
-        for k in SIZES:
-            c, s = _summ(res["cold"][k][0])[0], _summ(res["steady"][k][0])[0]
-            cells.append(f"{_fmt(c)} / {_fmt(s)}")
-            recs.append({"rule": label, "subgraph": f"{k}x{k}", "cold_s": c, "steady_s": s})
+        for i, k in enumerate(SIZES):
+            c = _summ(np.asarray(res["cold"][i][0], dtype=float))[0]
+            st = _summ(np.asarray(res["steady"][i][0], dtype=float))[0]
+            cells.append(f"{_fmt(c)} / {_fmt(st)}")
+            recs.append({"rule": label, "subgraph": f"{k}x{k}", "cold_s": c, "steady_s": st})
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines), recs
 
@@ -230,29 +265,45 @@ def _make(**kw):
     return MultiHopEnv(layout="absolute", **kw)
 
 
-def fig3(out: Path, size: str) -> tuple[str, dict]:
+FIG3_CONFIGS = (
+    (1, "no_hop", "m=1 no hop"),
+    (3, "location_based", "m=3 location-based"),
+    (9, "flooding", "m=9 flooding"),
+    (3, "age_aware", "m=3 age_aware (ours)"),
+)
+FIG3_SAMPLES = 301  # points of the common time grid the runs are averaged on
+
+
+def coverage_run(slot_size: int, policy: str, seed: int, horizon: float) -> list[float]:
+    """Coverage cost of one take-off over ``horizon`` seconds, on the common time grid (a sweep task)."""
+    env = _make(scene="coverage", slot_size=slot_size, max_cycles=10**7)  # the episode ends at `horizon` seconds
+    ts, cs = [], []
+
+    def record(*_):
+        ts.append(env.t)
+        cs.append(env.coverage_cost())
+        return env.t >= horizon
+
+    run_episode(env, make_policy(ENV_ID, policy), seed, on_reset=record, on_step=record)
+    return np.interp(np.linspace(0.0, horizon, FIG3_SAMPLES), ts, cs)
+
+
+def fig3_tasks(size: str) -> list:
     horizon, seeds = pick(size, full=(300.0, 12), quick=(120.0, 2), tiny=(10.0, 1))
-    grid_t = np.linspace(0.0, horizon, 301)
-    configs = [
-        (1, "no_hop", "m=1 no hop"),
-        (3, "location_based", "m=3 location-based"),
-        (9, "flooding", "m=9 flooding"),
-        (3, "age_aware", "m=3 age_aware (ours)"),
+    return [
+        task(coverage_run, f"fig3 m={m} {pol} seed={seed}", slot_size=m, policy=pol, seed=seed, horizon=horizon)
+        for m, pol, _ in FIG3_CONFIGS
+        for seed in range(seeds)
     ]
+
+
+def fig3(out: Path, size: str, results: list[list[float]]) -> tuple[str, dict]:
+    horizon, seeds = pick(size, full=(300.0, 12), quick=(120.0, 2), tiny=(10.0, 1))
+    grid_t = np.linspace(0.0, horizon, FIG3_SAMPLES)
+    configs = FIG3_CONFIGS
     curves, rates, finals = {}, {}, {}
-    for m, pol_name, label in progress(configs, desc="Fig 3: coverage"):
-        runs = []
-        for seed in range(seeds):
-            env = _make(scene="coverage", slot_size=m, max_cycles=10**7)  # the episode ends at `horizon` seconds
-            ts, cs = [], []
-
-            def record(*_, env=env, ts=ts, cs=cs):
-                ts.append(env.t)
-                cs.append(env.coverage_cost())
-                return env.t >= horizon
-
-            run_episode(env, make_policy(ENV_ID, pol_name), seed, on_reset=record, on_step=record)
-            runs.append(np.interp(grid_t, ts, cs))
+    for c, (m, _, label) in enumerate(configs):
+        runs = [np.asarray(r) for r in results[c * seeds : (c + 1) * seeds]]
         curves[label] = np.mean(runs, axis=0)
         finals[label] = [float(r[-1]) for r in runs]
         rates[label] = theory.frame_rate(m, 9, 192, 3000.0)
@@ -298,15 +349,44 @@ def fig3(out: Path, size: str) -> tuple[str, dict]:
     return "\n".join(lines), summary
 
 
-def fig5(out: Path, size: str) -> str:
+FIG5_CONFIGS = (
+    (7, "location_based", "m=7 location-based"),
+    (7, "age_aware", "m=7 age_aware (ours)"),
+    (100, "flooding", "m=100 flooding"),
+)
+
+
+def staleness_run(slot_size: int, policy: str, warm: int, sample: int) -> dict:
+    """Ages of the estimates the corner robot 0 holds, after ``warm`` frames, over ``sample`` frames (a sweep
+    task; seed 5): every robot's distance from it, mean and max age, and how many it never heard of."""
+    env = _make(scene="grid", slot_size=slot_size, max_cycles=warm + sample)
+    ages = []
+
+    def record(step, *_):
+        if step >= warm:
+            ages.append(env._ages[0].copy())  # robot 0: a corner, the most remote receiver
+
+    run_episode(env, make_policy(ENV_ID, policy), 5, on_step=record)
+    ages = np.array(ages)
+    return {
+        "distance": np.linalg.norm(env.pos - env.pos[0], axis=1),
+        "mean_age": ages.mean(axis=0),
+        "max_age": ages.max(axis=0),
+        "unknown": int((env.stamps[0] == proto.UNKNOWN).sum()),
+    }
+
+
+def fig5_tasks(size: str) -> list:
     warm, sample = pick(size, full=(600, 300), quick=(200, 40), tiny=(10, 5))
-    configs = [
-        (7, "location_based", "m=7 location-based"),
-        (7, "age_aware", "m=7 age_aware (ours)"),
-        (100, "flooding", "m=100 flooding"),
+    return [
+        task(staleness_run, f"fig5 m={m} {pol}", slot_size=m, policy=pol, warm=warm, sample=sample)
+        for m, pol, _ in FIG5_CONFIGS
     ]
+
+
+def fig5(out: Path, results: list[dict]) -> str:
     with figure(out / "fig5_staleness.png", figsize=(6.5, 4), dpi=90) as (_, ax):
-        rows, lines = _fig5_runs(ax, configs, warm, sample)
+        rows, lines = _fig5_table(ax, results)
         label_axes(
             ax,
             xlabel="distance from the corner robot (grid units)",
@@ -322,25 +402,14 @@ def fig5(out: Path, size: str) -> str:
     return "\n".join(lines)
 
 
-def _fig5_runs(ax, configs, warm: int, sample: int) -> tuple[list[dict], list[str]]:
+def _fig5_table(ax, results: list[dict]) -> tuple[list[dict], list[str]]:
     rows = []
     lines = [
         "| scheme | mean age of estimates at distance ≤ 2 (s) | 2–6 | > 6 | corner robot: unknown estimates |",
         "| --- | --- | --- | --- | --- |",
     ]
-    for m, pol_name, label in progress(configs, desc="Fig 5: staleness"):
-        env = _make(scene="grid", slot_size=m, max_cycles=warm + sample)
-        ages = []
-
-        def record(step, *_, env=env, ages=ages):
-            if step >= warm:
-                ages.append(env._ages[0].copy())  # robot 0: a corner, the most remote receiver
-
-        run_episode(env, make_policy(ENV_ID, pol_name), 5, on_step=record)
-        ages = np.array(ages)
-        dist = np.linalg.norm(env.pos - env.pos[0], axis=1)
-        mean_age = ages.mean(axis=0)
-        unknown = int((env.stamps[0] == proto.UNKNOWN).sum())
+    for (_, _, label), res in zip(FIG5_CONFIGS, results, strict=True):
+        dist, mean_age, max_age = (np.asarray(res[key]) for key in ("distance", "mean_age", "max_age"))
         o = np.argsort(dist)[1:]
         ax.plot(dist[o], mean_age[o], ".", ms=5, label=label)
         for j in o:
@@ -350,39 +419,53 @@ def _fig5_runs(ax, configs, warm: int, sample: int) -> tuple[list[dict], list[st
                     "robot": int(j),
                     "distance": float(dist[j]),
                     "mean_age_s": float(mean_age[j]),
-                    "max_age_s": float(ages[:, j].max()),
+                    "max_age_s": float(max_age[j]),
                 }
             )
         bands = [(dist > 0) & (dist <= 2), (dist > 2) & (dist <= 6), dist > 6]
-        lines.append(f"| {label} | " + " | ".join(f"{mean_age[b].mean():.0f}" for b in bands) + f" | {unknown} |")
+        lines.append(
+            f"| {label} | " + " | ".join(f"{mean_age[b].mean():.0f}" for b in bands) + f" | {res['unknown']} |"
+        )
     return rows, lines
 
 
-def policies_m7(size: str) -> tuple[str, dict]:
+POLICIES_M7 = ("location_based", "age_aware", "probabilistic", "flooding", "no_hop", "random")
+
+
+def policy_run(policy: str, frames: int) -> dict:
+    """One seeded episode (seed 11) of ``policy`` on the grid at m = 7 (a sweep task): the steady-state
+    importance-weighted age, the mean age and the 8×8 cold propagation time."""
+    env = _make(scene="grid", slot_size=7, max_cycles=frames)
+    rewards = []
+
+    def record(step, observations, step_rewards, infos):
+        rewards.append(next(iter(step_rewards.values())))
+
+    met = run_episode(env, make_policy(ENV_ID, policy), 11, on_step=record)
+    return {
+        # the reward is −(weighted age) in units of AGE_SCALE_FRAMES frames (lam = 0): back to seconds
+        "weighted_age": -float(np.mean(rewards[frames // 2 :])) * AGE_SCALE_FRAMES * env.frame_dur,
+        "mean_age": met["mean_age"],
+        "prop8": met["propagation_time_8x8"],
+    }
+
+
+def policies_tasks(size: str) -> list:
     frames = pick(size, full=800, quick=200, tiny=10)
-    names = ["location_based", "age_aware", "probabilistic", "flooding", "no_hop", "random"]
-    res = {}
+    return [task(policy_run, f"policies_m7 {name}", policy=name, frames=frames) for name in POLICIES_M7]
+
+
+def policies_m7(size: str, results: list[dict]) -> tuple[str, dict]:
+    frames = pick(size, full=800, quick=200, tiny=10)
+    res = dict(zip(POLICIES_M7, results, strict=True))
     lines = [
         "| policy (grid, m=7) | steady weighted age = −reward (s) | mean age (s) | 8×8 cold propagation (s) |",
         "| --- | --- | --- | --- |",
     ]
-    for name in progress(names, desc="policies at m=7"):
-        env = _make(scene="grid", slot_size=7, max_cycles=frames)
-        rewards = []
-
-        def record(step, observations, step_rewards, infos, rewards=rewards):
-            rewards.append(next(iter(step_rewards.values())))
-
-        met = run_episode(env, make_policy(ENV_ID, name), 11, on_step=record)
-        res[name] = {
-            # the reward is −(weighted age) in units of AGE_SCALE_FRAMES frames (lam = 0): back to seconds
-            "weighted_age": -float(np.mean(rewards[frames // 2 :])) * AGE_SCALE_FRAMES * env.frame_dur,
-            "mean_age": met["mean_age"],
-            "prop8": met["propagation_time_8x8"],
-        }
+    for name in POLICIES_M7:
         shown = "flooding (round-robin window at m=7)" if name == "flooding" else name
         lines.append(
-            f"| {shown} | {res[name]['weighted_age']:.0f} | {met['mean_age']:.0f} | {_fmt(met['propagation_time_8x8'])} |"
+            f"| {shown} | {res[name]['weighted_age']:.0f} | {res[name]['mean_age']:.0f} | {_fmt(res[name]['prop8'])} |"
         )
     lines.append(
         f"\nOne seeded episode of {frames} frames each; weighted age averaged over the second half; "
@@ -397,21 +480,23 @@ def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
     out.mkdir(parents=True, exist_ok=True)
     size = size_of(quick, tiny)
     start = time.perf_counter()
-    timing = {}
-
-    def timed(key, fn, *args):
-        t0 = time.perf_counter()
-        res = fn(*args)
-        timing[key] = round(time.perf_counter() - t0, 1)
-        return res
-
-    how, table = timed("fig2", fig2, out, size)
+    # every Monte-Carlo run of every experiment, as one sweep of independent tasks (the longest first)
+    plan = {
+        "fig3": fig3_tasks(size),
+        "fig2": fig2_tasks(size),
+        "rules_m7": rules_tasks(size),
+        "fig5": fig5_tasks(size),
+        "policies_m7": policies_tasks(size),
+    }
+    results = run_sweeps(out, plan, "Figs 2, 3, 5, rules and policies")
+    timing = {"sweeps": round(time.perf_counter() - start, 1)}
+    how, table = fig2(out, size, results["fig2"])
     claim_md, claim = claim_m7(table)
     best_md = best_m(table, sorted({key[0] for key in table}))
-    rules_md, rules = timed("rules_m7", rules_m7, size, table)
-    cov_md, cov = timed("fig3", fig3, out, size)
-    stale_md = timed("fig5", fig5, out, size)
-    pol_md, pols = timed("policies_m7", policies_m7, size)
+    rules_md, rules = rules_m7(size, table, results["rules_m7"])
+    cov_md, cov = fig3(out, size, results["fig3"])
+    stale_md = fig5(out, results["fig5"])
+    pol_md, pols = policies_m7(size, results["policies_m7"])
     atomic_write_json(
         out / "results.json",
         {

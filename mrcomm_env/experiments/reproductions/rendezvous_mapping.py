@@ -33,9 +33,10 @@ from mrcomm_env.experiments.reproductions.common import (
     figure,
     label_axes,
     pick,
-    progress,
     run_episode,
+    run_sweeps,
     size_of,
+    task,
 )
 from mrcomm_env.rendezvous import protocol, theory, world
 from mrcomm_env.rendezvous.env import RendezvousMappingEnv
@@ -80,7 +81,28 @@ def phases_to_half(env_kwargs: dict, policy_name: str, seed: int, cap: int) -> t
     return reached, c_dmax, c_dcomms
 
 
-def sweep(name: str, size: str) -> list[dict]:
+def sweep_run(scenario: str, sigma: float, draw: int, planner: str, cap: int) -> dict:
+    """One run of a Figs 8–10 sweep (a sweep task): the row of ``figs8_10_sweeps.csv``. The landmark draw's
+    seed follows from σ and the draw index alone, so every planner meets the same landmarks."""
+    spec = SCENARIOS[scenario]
+    seed = 1000 * draw + int(10 * sigma)
+    kwargs = {"d_comms": spec["d_comms"], "t_window": spec["t_window"], "sigma": sigma}
+    reached, c_dmax, c_dcomms = phases_to_half(kwargs, planner, seed, cap)
+    return {
+        "scenario": scenario,
+        "sigma": sigma,
+        "draw": draw,
+        "seed": seed,
+        "planner": planner,
+        "phases_to_half": reached,
+        "censored": reached >= cap,
+        "C_dmax": c_dmax,
+        "C_dcomms": c_dcomms,
+        "C": c_dmax if spec["graph"] == "d_max" else c_dcomms,
+    }
+
+
+def sweep_tasks(name: str, size: str) -> list:
     spec = SCENARIOS[name]
     sigmas = pick(size, full=[0.0, 2.0, 4.0, 8.0, 12.0, 20.0], quick=[0.0, 12.0])
     draws = pick(size, full=3, quick=1)
@@ -89,27 +111,12 @@ def sweep(name: str, size: str) -> list[dict]:
         cap = pick(size, full=150, quick=40, tiny=3)
     else:  # vehicles that never talk fuse only at rendezvous: a longer cap
         cap = pick(size, full=200, quick=80, tiny=3)
-    rows = []
-    jobs = [(s, d, p) for s in sigmas for d in range(draws) for p in planners]
-    for sigma, draw, planner in progress(jobs, f"{spec['figure']}: σ × draws × planners"):
-        seed = 1000 * draw + int(10 * sigma)
-        kwargs = {"d_comms": spec["d_comms"], "t_window": spec["t_window"], "sigma": sigma}
-        reached, c_dmax, c_dcomms = phases_to_half(kwargs, planner, seed, cap)
-        rows.append(
-            {
-                "scenario": name,
-                "sigma": sigma,
-                "draw": draw,
-                "seed": seed,
-                "planner": planner,
-                "phases_to_half": reached,
-                "censored": reached >= cap,
-                "C_dmax": c_dmax,
-                "C_dcomms": c_dcomms,
-                "C": c_dmax if spec["graph"] == "d_max" else c_dcomms,
-            }
-        )
-    return rows
+    return [
+        task(sweep_run, f"{name} sigma={s:g} draw={d} {p}", scenario=name, sigma=s, draw=d, planner=p, cap=cap)
+        for s in sigmas
+        for d in range(draws)
+        for p in planners
+    ]
 
 
 def summarise(rows: list[dict]) -> dict:
@@ -240,19 +247,26 @@ def fig4(out: Path) -> str:
 
 
 # ----------------------------------------------------------------------------------- Fig. 6
-def fig6(out: Path, size: str) -> tuple[str, dict]:
+def fig6_run(planner: str, phases: int) -> list[float]:
+    """log10 det P / det P0 of the fused map before the first phase and after each (a sweep task; seed 6)."""
+    env = RendezvousMappingEnv(max_cycles=phases)
+    log10 = [0.0]  # det P = det P0 before the first phase
+
+    def record(*_):
+        log10.append(env.metrics()["log10_det_ratio"])
+
+    run_episode(env, make_policy(ENV_ID, planner), 6, on_step=record)
+    return log10
+
+
+def fig6_tasks(size: str) -> list:
     phases = pick(size, full=120, quick=25, tiny=3)
     planners = pick(size, full=PLANNERS, quick=("paper_protocol", "greedy"))
-    curves = {}
-    for planner in progress(planners, "Fig. 6: sample runs"):
-        env = RendezvousMappingEnv(max_cycles=phases)
-        log10 = [0.0]  # det P = det P0 before the first phase
+    return [task(fig6_run, f"fig6 {planner}", planner=planner, phases=phases) for planner in planners]
 
-        def record(*_, env=env, log10=log10):
-            log10.append(env.metrics()["log10_det_ratio"])
 
-        run_episode(env, make_policy(ENV_ID, planner), 6, on_step=record)
-        curves[planner] = log10
+def fig6(out: Path, tasks: list, results: list[list[float]]) -> tuple[str, dict]:
+    curves = {t.kwargs["planner"]: log10 for t, log10 in zip(tasks, results, strict=True)}
     with atomic_open(out / "fig6_sample_run.csv", "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["phase", *curves])
@@ -453,10 +467,13 @@ def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
     start = time.perf_counter()
 
     fig4_md = fig4(out)
-    fig6_md, fig6_res = fig6(out, size)
+    # the Monte-Carlo runs, Fig. 6's sample runs and the three sweeps, as one sweep of independent tasks
+    plan = {"fig6": fig6_tasks(size), **{scenario: sweep_tasks(scenario, size) for scenario in SCENARIOS}}
+    results = run_sweeps(out, plan, "Figs 6, 8–10: planners × σ × draws")
+    fig6_md, fig6_res = fig6(out, plan["fig6"], results["fig6"])
     rows, tables = {}, {}
     for scenario in SCENARIOS:
-        rows[scenario] = sweep(scenario, size)
+        rows[scenario] = results[scenario]
         tables[scenario] = summarise(rows[scenario])
         plot_sweep(out, scenario, tables[scenario])
     all_rows = [r for scenario in SCENARIOS for r in rows[scenario]]
