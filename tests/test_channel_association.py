@@ -431,7 +431,9 @@ def test_individual_reward_is_the_share_of_observers_that_singled_the_robot_out(
             assert rewards[f"robot_{j}"] == pytest.approx(share - 1.0 - 0.25 * acts[f"robot_{j}"], abs=1e-12)
 
 
-@pytest.mark.parametrize("config", [{"scene": "neighborhood", "w": 12, "v": 9}, {"n_robots": 25, "mobile_fraction": 0.0}])
+@pytest.mark.parametrize(
+    "config", [{"scene": "neighborhood", "w": 12, "v": 9}, {"n_robots": 25, "mobile_fraction": 0.0}]
+)
 def test_the_first_id_column_is_the_bit_a_blink_code_sends_now(config):
     # rev 3: a policy that reads only its observation (blink the first ID column; the beacon phase, the last
     # one-hot column, blinks always) emits exactly what id_bits' schedule table emits, robot by robot
