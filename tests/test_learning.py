@@ -45,6 +45,8 @@ def test_dominates_means_no_more_bits_and_no_worse_metric(learned, baseline, low
         (point(6.0, 5.0, 0.3, 0.5), point(6.0, 10.0, 0.3, 0.5), True),  # same metric, clearly fewer bits
         (point(6.0, 9.5, 0.3, 0.5), point(6.0, 10.0, 0.3, 0.5), False),  # fewer bits, within the intervals
         (point(7.0, 5.0, 0.3), point(6.0, 10.0, 0.3), False),  # fewer bits but a worse metric
+        # 2 % fewer bits, beyond tiny bit intervals, and a worse mean within wide metric intervals: a match only
+        (point(15.3, 60142, 5.9, 171), point(12.4, 61466, 1.1, 537), False),
     ],
 )
 def test_beats_needs_a_margin_beyond_the_intervals(learned, baseline, expected):
