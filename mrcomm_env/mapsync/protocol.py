@@ -91,6 +91,22 @@ _FROM_BIT = np.array([(0xFFFFFFFF << b) & 0xFFFFFFFF for b in range(32)], dtype=
 _TO_BIT = np.array([0xFFFFFFFF >> (31 - b) for b in range(32)], dtype=np.uint32)  # bits ≤ b
 
 
+def _kernel_strings(strings) -> tuple:
+    """The shared strings as the compiled kernels take them: (database, use_database, key0, key1, domain,
+    words_per_string, last_mask); a 1×1 dummy database when r_i are generated on demand."""
+    use_db = strings.database is not None
+    database = strings.database if use_db else np.zeros((1, 1), np.uint32)
+    return (
+        database,
+        use_db,
+        strings.key[0],
+        strings.key[1],
+        DOMAIN_DATABASE,
+        strings.words_per_string,
+        int(strings._last_mask),
+    )
+
+
 def segment_inner_products(
     maps: list[np.ndarray], strings: SharedStrings, index: np.ndarray, lo: np.ndarray, hi: np.ndarray
 ) -> list[np.ndarray]:
@@ -106,17 +122,9 @@ def segment_inner_products(
     if backend.compiled():
         from mrcomm_env.mapsync import kernels_numba
 
-        use_db = strings.database is not None
-        database = strings.database if use_db else np.zeros((1, 1), np.uint32)
         out = kernels_numba.inner_products(
             np.stack(maps),
-            database,
-            use_db,
-            strings.key[0],
-            strings.key[1],
-            DOMAIN_DATABASE,
-            strings.words_per_string,
-            int(strings._last_mask),
+            *_kernel_strings(strings),
             index,
             lo,
             hi,
@@ -310,17 +318,10 @@ def _bisection_compiled(x, y, strings: SharedStrings, k: int, res: int, rng: np.
     # equal maps: the whole-map test is the only one, and it uses all k picks (nothing to put back)
     state = rng.bit_generator.state if d else None
     pool = rng.integers(0, strings.size, size=draws) if draws else np.zeros(0, np.int64)
-    use_db = strings.database is not None
     found, stats, rounds = kernels_numba.bisection(
         x,
         y,
-        strings.database if use_db else np.zeros((1, 1), np.uint32),
-        use_db,
-        strings.key[0],
-        strings.key[1],
-        DOMAIN_DATABASE,
-        strings.words_per_string,
-        int(strings._last_mask),
+        *_kernel_strings(strings),
         pool,
         k,
         res,
