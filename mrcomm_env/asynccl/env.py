@@ -566,7 +566,7 @@ class AsyncCLEnv(MrcommParallelEnv):
             "neighbours": self.neighbours,
         }
 
-    def metrics(self) -> dict[str, float]:
+    def _metrics(self) -> dict[str, float]:
         tab = self.tables
         links = self._links_used
         return {

@@ -356,7 +356,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         return {"bits_sent": self._ledger.step_bits}
 
     # ------------------------------------------------------------------ ground truth and metrics
-    def metrics(self) -> dict[str, float]:
+    def _metrics(self) -> dict[str, float]:
         matched, nv, ne = self._stats[:3]
         sel = self.measured & (nv > 0)
         frac = float((matched[sel] / nv[sel]).mean()) if sel.any() else 0.0

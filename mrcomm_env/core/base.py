@@ -19,6 +19,7 @@ from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
 from mrcomm_env.core.config import Config, Param, validate_config
+from mrcomm_env.core.memory import BUDGET_ARGUMENT, MEMORY_BUDGET_PARAM, check_memory_budget
 from mrcomm_env.core.policy import LocalViews
 
 #: the horizon argument was called ``max_steps`` before PettingZoo's name ``max_cycles`` was adopted
@@ -43,11 +44,24 @@ class MrcommParallelEnv(ParallelEnv):
     #: whole TDMA frame sets ("slot", True) so that speed is also reported per slot (N slots per step)
     STEP_UNIT: ClassVar[tuple[str, bool]] = ("step", False)
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
+    #: the peak-memory estimate of :meth:`memory_estimate` written out for the env page (names are arguments)
+    MEMORY_FORMULA: ClassVar[str] = ""
+    #: the arguments the estimate grows with: the ones a refusal names
+    MEMORY_ARGS: ClassVar[tuple[str, ...]] = ()
+    #: three configurations of growing size at which ``tests/test_memory.py`` measures the peak against the
+    #: estimate (each must need well above the interpreter's noise, tens of MB, and fit the default budget)
+    MEMORY_PROBES: ClassVar[dict[str, dict[str, Any]]] = {}
 
     # set by _setup()
     n_agents: int
     _obs_space: spaces.Space
     _act_space: spaces.Space
+
+    def __init_subclass__(cls, **kwargs: Any):
+        super().__init_subclass__(**kwargs)
+        # every environment takes the memory budget (core/memory.py), declared once here
+        if "PARAMS" in cls.__dict__ and BUDGET_ARGUMENT not in cls.PARAMS:
+            cls.PARAMS = {**cls.PARAMS, BUDGET_ARGUMENT: MEMORY_BUDGET_PARAM}
 
     def __init__(self, render_mode: str | None = None, **kwargs: Any):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -64,7 +78,9 @@ class MrcommParallelEnv(ParallelEnv):
                 stacklevel=2,
             )
             kwargs["max_cycles"] = kwargs.pop(DEPRECATED_HORIZON)
-        self.cfg: Config = validate_config(self.PARAMS, kwargs, owner=self.ENV_ID or type(self).__name__)
+        owner = self.ENV_ID or type(self).__name__
+        self.cfg: Config = validate_config(self.PARAMS, kwargs, owner=owner)
+        check_memory_budget(owner, self.memory_estimate(self.cfg), self.cfg, self.MEMORY_ARGS)
         self._setup()
         self.possible_agents = [f"robot_{i}" for i in range(self.n_agents)]
         self.agents: list[str] = []
@@ -76,6 +92,13 @@ class MrcommParallelEnv(ParallelEnv):
         self._check_action = _action_checker(self._act_space)
 
     # ----------------------------------------------------------------- subclass interface
+    @classmethod
+    def memory_estimate(cls, cfg: Config) -> float:
+        """Estimated peak memory in bytes of one instance with the validated arguments ``cfg``: construction, reset
+        and steps, the interpreter excluded (``MEMORY_FORMULA`` says it in words). Construction refuses arguments
+        whose estimate is over ``memory_budget_gib``. Must not fail on any valid ``cfg`` (compute in floats)."""
+        raise NotImplementedError(f"{cls.__name__} must state its peak memory (memory_estimate, MEMORY_FORMULA)")
+
     def _setup(self) -> None:
         raise NotImplementedError
 
@@ -112,7 +135,7 @@ class MrcommParallelEnv(ParallelEnv):
         """The global state for centralised critics; by default every robot's observation, concatenated."""
         return self._observe().reshape(-1)
 
-    def metrics(self) -> dict[str, float]:
+    def _metrics(self) -> dict[str, float]:
         raise NotImplementedError
 
     def _render(self, ax) -> None:
@@ -145,7 +168,18 @@ class MrcommParallelEnv(ParallelEnv):
 
     def state(self) -> np.ndarray:
         """The global state (``state_space``), as PettingZoo's ``state()`` for MAPPO-style centralised critics."""
+        self._require_reset("state")
         return np.asarray(self._state(), dtype=self.state_space.dtype)
+
+    def metrics(self) -> dict[str, float]:
+        """The paper's metrics of the episode so far (``METRICS`` says what each means); after ``reset()``."""
+        self._require_reset("metrics")
+        return self._metrics()
+
+    def _require_reset(self, method: str) -> None:
+        # the world exists only after the first reset: say so, as step() does, instead of an AttributeError
+        if self._state_version == 0:
+            raise RuntimeError(f"{method}() called before reset(); call reset() first")
 
     def local_views(self) -> LocalViews:
         """Read-only per-robot knowledge for policies (see ``mrcomm_env.core.policy``)."""
@@ -169,6 +203,7 @@ class MrcommParallelEnv(ParallelEnv):
 
     def step(self, actions: dict[str, Any]):
         if not self.agents:
+            self._require_reset("step")
             raise RuntimeError("step() called on a finished episode; call reset() first")
         if type(actions) is not dict and not isinstance(actions, Mapping):
             raise ValueError(

@@ -69,6 +69,19 @@ def env_page(env_id: str) -> str:
     ]
     for arg, spec in cls.PARAMS.items():
         lines.append(f"| `{arg}` | {_fmt(spec.default)} | {_cell(spec.allowed())} | {_cell(spec.doc)} |")
+    lines += [
+        "",
+        "## Memory",
+        "",
+        f"Estimated peak memory of one instance (`{cls.__name__}.memory_estimate`, bytes): {cls.MEMORY_FORMULA}",
+        "",
+        f"Construction refuses arguments whose estimate is over `memory_budget_gib` (default "
+        f"{_fmt(cls.PARAMS['memory_budget_gib'].default)} GiB), naming "
+        + ", ".join(f"`{arg}`" for arg in cls.MEMORY_ARGS)
+        + ". `tests/test_memory.py` holds the estimate to the measured peak within a factor of 2 at "
+        + ", ".join(f"{_cell(cfg)}" for cfg in cls.MEMORY_PROBES.values())
+        + ".",
+    ]
     lines += ["", "## Metrics (`env.metrics()`, `mrcomm evaluate`)", "", "| metric | meaning |", "| --- | --- |"]
     lines += [f"| `{m}` | {_cell(doc)} |" for m, doc in cls.METRICS.items()]
     lines += ["", "## Infos (per agent, every step and at reset)", "", "| key | meaning |", "| --- | --- |"]

@@ -21,6 +21,7 @@ import resource
 import subprocess
 import sys
 import time
+import tracemalloc
 from typing import Any
 
 from mrcomm_env.registry import env_class, make
@@ -43,6 +44,7 @@ def measure_limit(
     seed: int = 0,
     timeout: float | None = None,
     env_vars: dict[str, str] | None = None,
+    trace_memory: bool = False,
 ) -> dict[str, Any]:
     """Run ``env_id`` with ``config`` in a fresh process under random actions.
 
@@ -51,7 +53,9 @@ def measure_limit(
     first reset excluded), ``peak_rss_mb`` (the child's peak resident set, interpreter included), ``steps``,
     ``build_s`` and ``reset_s`` (seconds to construct and to reset), ``finite`` (every observation, reward
     and info seen was finite) and ``n_agents``. A child that fails raises ``RuntimeError`` with its last
-    error line; ``timeout`` (seconds) bounds the child.
+    error line; ``timeout`` (seconds) bounds the child. With ``trace_memory`` the child also reports
+    ``traced_peak_mb``: the peak of what Python and numpy allocated from construction to the last step
+    (``tracemalloc``, which slows the run down), the env's own memory without the interpreter's.
     """
     if not (isinstance(seconds, (int, float)) and math.isfinite(seconds) and seconds >= 0):
         raise ValueError(f"argument 'seconds' must be a finite number ≥ 0, got {seconds!r}")
@@ -70,6 +74,7 @@ def measure_limit(
         "min_steps": min_steps,
         "max_steps": max_steps,
         "seed": seed,
+        "trace_memory": bool(trace_memory),
     }
     env = {**os.environ, **(env_vars or {})}
     proc = subprocess.run(
@@ -94,6 +99,8 @@ def measure_limits(env_id: str, seconds: float = 10.0, **kwargs: Any) -> dict[st
 def _run(job: dict[str, Any]) -> dict[str, Any]:
     import numpy as np
 
+    if job.get("trace_memory"):
+        tracemalloc.start()
     start = time.perf_counter()
     env = make(job["env_id"], **job["config"])
     built = time.perf_counter()
@@ -117,7 +124,11 @@ def _run(job: dict[str, Any]) -> dict[str, Any]:
         steps += 1
         finite = finite and _all_finite(np, obs.values(), infos, rewards.values())
     peak_kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
+    traced = {}
+    if job.get("trace_memory"):
+        traced = {"traced_peak_mb": tracemalloc.get_traced_memory()[1] / 2**20}
     return {
+        **traced,
         "env_id": job["env_id"],
         "n_agents": env.n_agents,
         "steps": steps,

@@ -740,7 +740,7 @@ class MapSyncEnv(MrcommParallelEnv):
         }
         return self._infos_cache
 
-    def metrics(self) -> dict[str, float]:
+    def _metrics(self) -> dict[str, float]:
         steps = max(self._steps, 1)
         out = {
             "disagreement": self._sum_disagreement / steps if self._steps else self._disagreement_mean,

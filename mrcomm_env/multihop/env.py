@@ -552,7 +552,7 @@ class MultiHopEnv(MrcommParallelEnv):
             return math.nan
         return theory.coverage_cost(self.pos, self._cost_points)
 
-    def metrics(self) -> dict[str, float]:
+    def _metrics(self) -> dict[str, float]:
         f = max(self._frames, 1)
         out = {f"propagation_time_{k}x{k}": v for k, v in self.propagation_times().items()}
         out["mean_age"] = self._sum_age / f

@@ -547,7 +547,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
     def _state(self) -> np.ndarray:
         return self._observe().reshape(-1)
 
-    def metrics(self) -> dict[str, float]:
+    def _metrics(self) -> dict[str, float]:
         c = self.cfg
         frac = self.info_fraction()
         log_ratio = -(self.fused_logdet - self.logdet0)  # ln det P − ln det P₀ of the whole map

@@ -1,0 +1,88 @@
+"""Every environment knows its own peak memory (``memory_estimate``) and refuses arguments over its budget.
+
+The estimate is held to the measured peak within a factor of 2 at three sizes per env (``MEMORY_PROBES``). The
+peak is what Python and numpy allocate from construction through reset and a few steps (``tracemalloc`` in a
+fresh process on the numpy backend, whose arrays ``tracemalloc`` sees; the compiled twins allocate the same state).
+"""
+
+from __future__ import annotations
+
+import pytest
+
+import mrcomm_env
+from mrcomm_env.core.config import validate_config
+from mrcomm_env.core.memory import BUDGET_ARGUMENT, DEFAULT_MEMORY_BUDGET_GIB, GIB
+from mrcomm_env.experiments.limits import limit_configs, measure_limit
+from mrcomm_env.registry import env_class, env_ids
+
+PROBES = [
+    pytest.param(env_id, name, id=f"{env_id.split('/')[1]}[{name}]")
+    for env_id in env_ids()
+    for name in env_class(env_id).MEMORY_PROBES
+]
+
+
+def _estimate(env_id, config):
+    cls = env_class(env_id)
+    return cls.memory_estimate(validate_config(cls.PARAMS, config))
+
+
+@pytest.mark.parametrize("env_id", env_ids())
+def test_every_env_states_its_memory(env_id):
+    cls = env_class(env_id)
+    assert cls.MEMORY_FORMULA and cls.MEMORY_ARGS, f"{env_id} states no memory formula"
+    assert set(cls.MEMORY_ARGS) <= set(cls.PARAMS), "MEMORY_ARGS must name arguments"
+    assert len(cls.MEMORY_PROBES) >= 3, f"{env_id} needs three sizes at which its estimate is measured"
+    estimates = [_estimate(env_id, cfg) for cfg in cls.MEMORY_PROBES.values()]
+    assert estimates == sorted(estimates), "the probes must grow"
+    assert estimates[-1] >= 4 * estimates[0], "the probes must span a range of sizes"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("env_id", "name"), PROBES)
+def test_estimate_within_a_factor_of_two_of_the_measured_peak(env_id, name):
+    config = env_class(env_id).MEMORY_PROBES[name]
+    estimate_mb = _estimate(env_id, config) / 2**20
+    result = measure_limit(
+        env_id,
+        config,
+        seconds=0.0,
+        min_steps=3,
+        trace_memory=True,
+        timeout=600,
+        env_vars={"MRCOMM_BACKEND": "numpy"},
+    )
+    measured_mb = result["traced_peak_mb"]
+    assert measured_mb / 2 <= estimate_mb <= measured_mb * 2, (
+        f"{env_id} {config}: estimate {estimate_mb:.1f} MB, measured peak {measured_mb:.1f} MB"
+    )
+
+
+@pytest.mark.parametrize("env_id", env_ids())
+def test_documented_maxima_fit_the_default_budget(env_id):
+    """Each argument's documented maximum runs by default (tests/test_limits.py runs them): the budget only
+    refuses combinations."""
+    for name, config in limit_configs(env_id).items():
+        if BUDGET_ARGUMENT not in config:
+            assert _estimate(env_id, config) <= DEFAULT_MEMORY_BUDGET_GIB * GIB, name
+
+
+@pytest.mark.parametrize("env_id", env_ids())
+def test_arguments_over_the_budget_are_refused_naming_them(env_id):
+    cls = env_class(env_id)
+    config = list(cls.MEMORY_PROBES.values())[-1]
+    needed_gib = _estimate(env_id, config) / GIB
+    budget = needed_gib / 2
+    with pytest.raises(ValueError, match=BUDGET_ARGUMENT) as info:
+        mrcomm_env.make(env_id, **config, **{BUDGET_ARGUMENT: budget})
+    assert any(f"'{arg}'" in str(info.value) for arg in cls.MEMORY_ARGS), str(info.value)
+    # the same arguments run when the budget is raised to the estimate
+    mrcomm_env.make(env_id, **config, **{BUDGET_ARGUMENT: needed_gib * 1.01}).close()
+
+
+@pytest.mark.parametrize("env_id", env_ids())
+def test_metrics_and_state_before_reset_say_to_reset(env_id):
+    env = mrcomm_env.make(env_id)
+    for method in (env.metrics, env.state, lambda: env.step({})):
+        with pytest.raises(RuntimeError, match=r"reset\(\)"):
+            method()
