@@ -15,7 +15,7 @@ export MPLBACKEND := Agg
 
 EXTRAS := train,dev,bench,fast
 
-.PHONY: demo test install bench docs learn sweep lint format lock clean test-torchrl test-rllib test-benchmarl \
+.PHONY: demo test fuzz install bench docs learn sweep lint format lock clean test-torchrl test-rllib test-benchmarl \
 	test-ray
 
 # constraints.txt pins every package to the versions CI tested, so a new machine gets those
@@ -29,8 +29,20 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/mrcomm reproduce --all --quick --out results
 
+# a worker that crashes fails the run at once, naming its test (--max-worker-restart=0), rather than hang it;
+# each test process caps its own memory and every test its time (tests/conftest.py, pyproject.toml)
 test: $(STAMP)
-	$(BIN)/python -m pytest -n 2 --dist loadgroup -q
+	$(BIN)/python -m pytest -n 2 --dist loadgroup --max-worker-restart=0 -q
+
+# wide random exploration, not in CI: 1,000 fresh Hypothesis examples per env of the conformance fuzz
+# (tests/test_conformance.py, profile `fuzz` in tests/conftest.py). The seed is printed first; replay a run
+# with `make fuzz FUZZ_SEED=<seed>`.
+FUZZ_SEED ?= $(shell od -An -N4 -tu4 /dev/urandom | tr -d ' ')
+fuzz: $(STAMP)
+	@echo "make fuzz: hypothesis seed $(FUZZ_SEED) (replay with: make fuzz FUZZ_SEED=$(FUZZ_SEED))"
+	HYPOTHESIS_PROFILE=fuzz $(BIN)/python -m pytest tests/test_conformance.py -k test_random_valid_configurations_run \
+	  -n 2 --max-worker-restart=0 -q -p no:cacheprovider --timeout 7200 --hypothesis-seed=$(FUZZ_SEED) \
+	  --hypothesis-show-statistics
 
 # The MARL framework integrations, each in its own venv (.venv-torchrl, .venv-rllib, .venv-benchmarl) because
 # their pins clash (ray: gymnasium 1.2.2; benchmarl: torchrl < 0.12). torch goes in first, pinned like the

@@ -1,8 +1,48 @@
+"""Suite-wide settings: one BLAS thread, headless plots, a memory cap per test process, Hypothesis profiles.
+
+**The memory cap.** Each pytest process (the controller and every xdist worker) lowers its own address-space
+limit (``RLIMIT_AS``) to ``MRCOMM_TEST_MEMORY_GIB`` (default :data:`DEFAULT_CAP_GIB`), never above a limit it
+inherited (``prlimit --as``). A runaway allocation then raises ``MemoryError`` in the test that made it, which
+fails and names itself, instead of growing until the kernel kills the worker (which once left ``make test``
+hung for good). Child processes a test starts inherit the cap. Two workers at the cap fit the 24 GiB machine.
+
+**Hypothesis.** Profile ``ci`` (the default, used by ``make test`` and CI) is derandomized: the same examples on
+every machine and every run, so a fresh machine cannot draw what ours never did. Profile ``fuzz`` (``make fuzz``,
+``HYPOTHESIS_PROFILE=fuzz``) draws 1,000 fresh examples per property with a seed that pytest prints, for wide
+exploration off CI.
+"""
+
 import os
+import resource
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import matplotlib  # noqa: E402
+from hypothesis import HealthCheck, settings  # noqa: E402
 
 matplotlib.use("Agg")
+
+#: address space per test process: the interpreter with torch and numba maps about 1 GiB; the largest documented
+#: env (tests/test_limits.py) peaks under 2 GiB resident
+DEFAULT_CAP_GIB = 6.0
+CAP_VARIABLE = "MRCOMM_TEST_MEMORY_GIB"
+
+
+def cap_address_space(gib: float) -> int:
+    """Lower this process's soft and hard ``RLIMIT_AS`` to ``gib`` GiB (or keep a lower inherited one); returns it."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    cap = int(gib * 2**30)
+    for inherited in (soft, hard):
+        if inherited != resource.RLIM_INFINITY:
+            cap = min(cap, inherited)
+    resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
+    return cap
+
+
+cap_address_space(float(os.environ.get(CAP_VARIABLE, DEFAULT_CAP_GIB)))
+
+_COMMON = {"deadline": None, "suppress_health_check": [HealthCheck.too_slow, HealthCheck.filter_too_much]}
+settings.register_profile("ci", derandomize=True, print_blob=True, **_COMMON)
+settings.register_profile("fuzz", max_examples=1000, print_blob=True, **_COMMON)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))

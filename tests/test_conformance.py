@@ -7,6 +7,7 @@ observation bounds, pickling, long random runs, bad input).
 from __future__ import annotations
 
 import math
+import os
 import pickle
 import warnings
 
@@ -14,7 +15,7 @@ import numpy as np
 import pettingzoo
 import pytest
 from gymnasium import spaces
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from pettingzoo.test import (
     api_test,
@@ -27,7 +28,8 @@ from pettingzoo.test import (
 )
 
 import mrcomm_env
-from mrcomm_env.core.config import Bool, Choice, Int, Optional, Real
+from mrcomm_env.core.config import Bool, Choice, Int, Optional, Real, validate_config
+from mrcomm_env.core.memory import BUDGET_ARGUMENT, GIB
 from mrcomm_env.registry import env_class, env_ids, env_module
 
 ENV_IDS = env_ids()
@@ -206,7 +208,7 @@ def test_ten_thousand_random_steps_stay_finite(env_id):
     env.reset(seed=0)
     for step in range(10_000):
         if not env.agents:
-            assert all(math.isfinite(v) for v in env.metrics().values() if not math.isnan(v))
+            assert all(math.isfinite(v) for v in trace[-1].values() if not math.isnan(v)), trace[-1]
             env.reset(seed=step)
         obs, rewards, _, _, infos = env.step(sample(env.agents))
         values = [*rewards.values(), *(v for info in infos.values() for v in info.values())]
@@ -327,23 +329,39 @@ def _strategy(validator):
 
 
 def _config_strategy(env_id):
-    fields = {arg: s for arg, spec in env_class(env_id).PARAMS.items() if (s := _strategy(spec.check)) is not None}
+    fields = {
+        arg: s
+        for arg, spec in env_class(env_id).PARAMS.items()
+        if arg != BUDGET_ARGUMENT and (s := _strategy(spec.check)) is not None
+    }
     return st.fixed_dictionaries({}, optional=fields)
 
 
 FUZZ_STEPS = 12
+#: the memory budget the fuzz builds envs under: two xdist workers each running one well inside their address-space
+#: cap (tests/conftest.py); argument sets over it must be refused at construction, before they allocate
+FUZZ_BUDGET_GIB = 0.5
+#: examples per env: a fixed, derandomized 25 in ``make test``; the ``fuzz`` profile's 1,000 fresh ones in ``make fuzz``
+FUZZ_EXAMPLES = settings.default.max_examples if os.environ.get("HYPOTHESIS_PROFILE") == "fuzz" else 25
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_random_valid_configurations_run(env_id):
     """Random arguments, edges of every range included, either build an env whose short episode stays finite
-    and in its spaces without a single RuntimeWarning, or are rejected at construction naming an argument."""
-    params = env_class(env_id).PARAMS
+    and in its spaces without a single RuntimeWarning, or are rejected at construction naming an argument. Sets
+    whose memory estimate is over the budget are refused before they allocate anything."""
+    cls = env_class(env_id)
+    params = cls.PARAMS
 
-    @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+    @settings(max_examples=FUZZ_EXAMPLES)
     @given(cfg=_config_strategy(env_id), seed=st.integers(0, 2**16))
     def check(cfg, seed):
-        cfg = {**cfg, "max_cycles": min(cfg.get("max_cycles", FUZZ_STEPS), FUZZ_STEPS)}
+        cfg = {**cfg, "max_cycles": min(cfg.get("max_cycles", FUZZ_STEPS), FUZZ_STEPS), BUDGET_ARGUMENT: FUZZ_BUDGET_GIB}
+        estimate = cls.memory_estimate(validate_config(params, cfg))
+        if estimate > FUZZ_BUDGET_GIB * GIB:
+            with pytest.raises(ValueError, match=BUDGET_ARGUMENT):
+                mrcomm_env.make(env_id, **cfg)
+            return
         with warnings.catch_warnings():
             warnings.simplefilter("error", RuntimeWarning)
             try:
@@ -357,6 +375,7 @@ def test_random_valid_configurations_run(env_id):
             obs = out[0]
             assert all(rollout_obs_space.contains(o) for o in obs.values())
             assert np.all(np.isfinite(np.fromiter(flat_values([out[1], out[4]]), dtype=float)))
+        assert all(math.isfinite(v) for v in trace[-1].values() if not math.isnan(v)), trace[-1]
 
     check()
 
