@@ -15,7 +15,7 @@ export MPLBACKEND := Agg
 
 EXTRAS := train,dev,bench,fast
 
-.PHONY: demo test fuzz install bench docs learn sweep lint format lock clean test-torchrl test-rllib test-benchmarl \
+.PHONY: demo test fuzz docs-site docs-serve install bench docs learn sweep lint format lock clean test-torchrl test-rllib test-benchmarl \
 	test-ray
 
 # constraints.txt pins every package to the versions CI tested, so a new machine gets those
@@ -66,6 +66,19 @@ VENV_EXTRAS_ray := ray,dev
 test-torchrl test-rllib test-benchmarl test-ray: test-%: .venv-%/.installed
 	.venv-$*/bin/python -m pytest tests/integrations/test_$*.py -q -p no:cacheprovider
 
+# the docs site, strict (a broken link or a missing reference fails it), into site/; the reproductions it shows
+# come from results/, which `make demo` writes (a second demo reuses its cached tasks)
+.venv-docs/.installed: pyproject.toml constraints.txt constraints-docs.txt
+	test -x .venv-docs/bin/python || $(PYTHON) -m venv .venv-docs
+	.venv-docs/bin/python -m pip install --quiet -c constraints.txt -c constraints-docs.txt -e ".[docs]"
+	touch $@
+
+docs-site: demo .venv-docs/.installed
+	NO_MKDOCS_2_WARNING=1 .venv-docs/bin/mkdocs build --strict
+
+docs-serve: demo .venv-docs/.installed
+	NO_MKDOCS_2_WARNING=1 .venv-docs/bin/mkdocs serve
+
 bench: $(STAMP)
 	$(BIN)/mrcomm bench
 
@@ -111,4 +124,4 @@ lock:
 	mv constraints.txt.new constraints.txt && rm -rf .lock-venv
 
 clean:
-	rm -rf $(VENV) .venv-torchrl .venv-rllib .venv-benchmarl .venv-ray .lock-venv results .pytest_cache .hypothesis
+	rm -rf $(VENV) .venv-torchrl .venv-rllib .venv-benchmarl .venv-ray .venv-docs .lock-venv results site .pytest_cache .hypothesis

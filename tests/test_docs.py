@@ -1,10 +1,12 @@
 """The committed docs are exactly what the generator makes from the live environments."""
 
+import re
 from pathlib import Path
 
 from mrcomm_env.experiments.docs import expected_docs
 
-DOCS = Path(__file__).resolve().parent.parent / "docs"
+ROOT = Path(__file__).resolve().parent.parent
+DOCS = ROOT / "docs"
 
 
 def test_committed_docs_match_generator():
@@ -25,3 +27,23 @@ def test_every_argument_and_metric_is_documented():
         cls = env_class(env_id)
         assert all(f"`{arg}`" in text for arg in cls.PARAMS)
         assert all(f"`{m}`" in text for m in cls.METRICS)
+
+
+def _site_nav_pages() -> set[str]:
+    """Every page named in mkdocs.yml's nav (a plain-text read: the site's YAML tags need mkdocs to load)."""
+    text = (ROOT / "mkdocs.yml").read_text()
+    nav = text[text.index("\nnav:") :]
+    return set(re.findall(r"([\w./-]+\.md)\s*$", nav, flags=re.MULTILINE))
+
+
+def test_docs_site_shows_every_env_and_every_page():
+    """The site (make docs-site) lists each registered env's page and every hand-written page under docs/."""
+    from mrcomm_env.registry import env_ids, short_name
+
+    pages = _site_nav_pages()
+    for env_id in env_ids():
+        assert f"envs/{short_name(env_id)}.md" in pages, f"{env_id} is missing from mkdocs.yml's nav"
+    for page in (ROOT / "docs").glob("*.md"):
+        name = "environments.md" if page.name == "index.md" else page.name  # docs/hooks.py renames the listing
+        assert name in pages, f"docs/{page.name} is not in mkdocs.yml's nav"
+    assert {"index.md", "reproductions/REPORT.md", "api.md"} <= pages
