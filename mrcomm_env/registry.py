@@ -21,27 +21,43 @@ class EnvEntry:
     env: str  #: versioned shim module: ``parallel_env``, ``env`` (AEC), ``raw_env``
     policies: str  #: scripted baselines: ``ENV_ID``, ``DEFAULT_POLICY``, ``POLICIES``
     reproduction: str  #: ``EXPERIMENTS`` and ``run(out_dir, quick)``
+    paper: str = ""  #: the paper to cite, "Authors, *Title*" (its full reference is in CITATION.cff)
 
 
 ENTRIES: dict[str, EnvEntry] = {
     "mrcomm/AsyncCL-v0": EnvEntry(
-        "mrcomm_env.asynccl_v0", "baselines.asynccl", "mrcomm_env.experiments.reproductions.asynccl"
+        "mrcomm_env.asynccl_v0",
+        "baselines.asynccl",
+        "mrcomm_env.experiments.reproductions.asynccl",
+        "Nerurkar & Roumeliotis, *Asynchronous Multi-Centralized Cooperative Localization*",
     ),
     "mrcomm/ChannelAssociation-v0": EnvEntry(
         "mrcomm_env.channel_association_v0",
         "baselines.channel_association",
         "mrcomm_env.experiments.reproductions.channel_association",
+        "Ivanov & Shell, *Hark! Who goes there? Concurrent Association of Communication Channels for Multiple "
+        "Mobile Robots*",
     ),
     "mrcomm/MapSync-v0": EnvEntry(
-        "mrcomm_env.mapsync_v0", "baselines.mapsync", "mrcomm_env.experiments.reproductions.mapsync"
+        "mrcomm_env.mapsync_v0",
+        "baselines.mapsync",
+        "mrcomm_env.experiments.reproductions.mapsync",
+        "Alsayegh, Dutta, Vanegas & Bobadilla, *Lightweight Multi-robot Communication Protocols for Information "
+        "Synchronization*",
     ),
     "mrcomm/MultiHop-v0": EnvEntry(
-        "mrcomm_env.multihop_v0", "baselines.multihop", "mrcomm_env.experiments.reproductions.multihop"
+        "mrcomm_env.multihop_v0",
+        "baselines.multihop",
+        "mrcomm_env.experiments.reproductions.multihop",
+        "Julian, Schwager, Angermann & Rus, *A Location-Based Algorithm for Multi-hopping State Estimates within a "
+        "Distributed Robot Team*",
     ),
     "mrcomm/RendezvousMapping-v0": EnvEntry(
         "mrcomm_env.rendezvous_mapping_v0",
         "baselines.rendezvous_mapping",
         "mrcomm_env.experiments.reproductions.rendezvous_mapping",
+        "Chapman & Sukkarieh, *A Protocol for Decentralized Multi-Vehicle Mapping with Limited Communication "
+        "Connectivity*",
     ),
 }
 

@@ -47,3 +47,22 @@ def test_docs_site_shows_every_env_and_every_page():
         name = "environments.md" if page.name == "index.md" else page.name  # docs/hooks.py renames the listing
         assert name in pages, f"docs/{page.name} is not in mkdocs.yml's nav"
     assert {"index.md", "reproductions/REPORT.md", "api.md"} <= pages
+
+
+def test_changelog_holds_every_env_version_history():
+    from mrcomm_env.registry import env_class, env_ids
+
+    text = " ".join((ROOT / "CHANGELOG.md").read_text().split())
+    for env_id in env_ids():
+        section = text[text.index(f"### `{env_id}`") :]
+        for version, change in env_class(env_id).VERSION_HISTORY:
+            assert f"**{version}**: {' '.join(change.split())}" in section, f"{env_id} {version} is not in CHANGELOG.md"
+
+
+def test_citation_names_every_env_paper():
+    from mrcomm_env.registry import entry, env_ids
+
+    citation = " ".join((ROOT / "CITATION.cff").read_text().split())
+    for env_id in env_ids():
+        title = entry(env_id).paper.split("*")[1]
+        assert f'title: "{title}"' in citation and f'notes: "{env_id}"' in citation, env_id
