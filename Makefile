@@ -15,7 +15,7 @@ export MPLBACKEND := Agg
 
 EXTRAS := train,dev,bench,fast
 
-.PHONY: demo test fuzz docs-site docs-serve install bench docs learn sweep lint format lock clean test-torchrl test-rllib test-benchmarl \
+.PHONY: demo test fuzz docs-site docs-serve test-wheel install bench docs learn sweep lint format lock clean test-torchrl test-rllib test-benchmarl \
 	test-ray
 
 # constraints.txt pins every package to the versions CI tested, so a new machine gets those
@@ -79,6 +79,21 @@ docs-site: demo .venv-docs/.installed
 docs-serve: demo .venv-docs/.installed
 	NO_MKDOCS_2_WARNING=1 .venv-docs/bin/mkdocs serve
 
+# the package as a user installs it: wheel and sdist built and accepted by `twine check`; the wheel installed with
+# the train extra in a fresh venv beside PyPI's unrelated `agents` package (its TensorFlow requirements left out:
+# nothing imports it), then run from folders with their own agents/ and baselines/ (tests/integrations/test_wheel.py)
+WHEEL_VENV := .venv-wheel
+test-wheel: $(STAMP)
+	rm -rf dist $(WHEEL_VENV)
+	$(BIN)/python -m build --outdir dist .
+	$(BIN)/twine check --strict dist/*
+	$(PYTHON) -m venv $(WHEEL_VENV)
+	$(WHEEL_VENV)/bin/python -m pip install --quiet -c constraints.txt "$(TORCH)"
+	$(WHEEL_VENV)/bin/python -m pip install --quiet -c constraints.txt "$$(ls dist/*.whl)[train]" pytest hypothesis \
+	  pytest-timeout
+	$(WHEEL_VENV)/bin/python -m pip install --quiet --no-deps agents==1.4.0
+	cd dist && ../$(WHEEL_VENV)/bin/pytest ../tests/integrations/test_wheel.py -q -p no:cacheprovider
+
 bench: $(STAMP)
 	$(BIN)/mrcomm bench
 
@@ -124,4 +139,4 @@ lock:
 	mv constraints.txt.new constraints.txt && rm -rf .lock-venv
 
 clean:
-	rm -rf $(VENV) .venv-torchrl .venv-rllib .venv-benchmarl .venv-ray .venv-docs .lock-venv results site .pytest_cache .hypothesis
+	rm -rf $(VENV) .venv-torchrl .venv-rllib .venv-benchmarl .venv-ray .venv-docs .venv-wheel .lock-venv results site dist .pytest_cache .hypothesis
