@@ -126,6 +126,7 @@ sweep: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
+	$(BIN)/python .ci/typecheck.py
 
 format: $(STAMP)
 	$(BIN)/ruff format .

@@ -12,6 +12,11 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
+from types import ModuleType
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # annotations only: the registry imports no environment code
+    from mrcomm_env.core.base import MrcommParallelEnv
 
 NAMESPACE = "mrcomm/"
 
@@ -83,19 +88,20 @@ def entry(env_id: str) -> EnvEntry:
     return ENTRIES[canonical_id(env_id)]
 
 
-def env_module(env_id: str):
+def env_module(env_id: str) -> ModuleType:
     """The versioned shim module (``parallel_env``, ``env``, ``raw_env``) of ``env_id``."""
     return importlib.import_module(entry(env_id).env)
 
 
-def env_class(env_id: str):
+def env_class(env_id: str) -> type[MrcommParallelEnv]:
     """The environment class behind ``env_id`` (its PARAMS, METRICS, … describe it)."""
-    return env_module(env_id).parallel_env
+    cls: type[MrcommParallelEnv] = env_module(env_id).parallel_env
+    return cls
 
 
-def make(env_id: str, **kwargs):
+def make(env_id: str, **kwargs: Any) -> MrcommParallelEnv:
     """Build the parallel form of any registered environment: ``mrcomm_env.make("MapSync-v0", n_robots=3)``."""
-    return env_module(env_id).parallel_env(**kwargs)
+    return env_class(env_id)(**kwargs)
 
 
 _registered: set[str] = set()

@@ -181,6 +181,16 @@ class MrcommParallelEnv(ParallelEnv):
         if self._state_version == 0:
             raise RuntimeError(f"{method}() called before reset(); call reset() first")
 
+    @property
+    def state_version(self) -> int:
+        """Bumped by every reset and step: a cache of anything computed from the state may key on it."""
+        return self._state_version
+
+    def per_robot_view(self) -> dict[str, Any]:
+        """What each robot knows locally: ``LOCAL_VIEW`` field → array whose row i is robot i's own knowledge
+        (documented on the env's page). Policies read it through :meth:`local_views`."""
+        return self._local_view()
+
     def local_views(self) -> LocalViews:
         """Read-only per-robot knowledge for policies (see ``mrcomm_env.core.policy``)."""
         return LocalViews(self)

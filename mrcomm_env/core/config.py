@@ -42,10 +42,10 @@ class Int(Validator):
                 value = int(value)
             else:
                 self._fail(name, value)
-        value = int(value)
-        if (self.lo is not None and value < self.lo) or (self.hi is not None and value > self.hi):
-            self._fail(name, value)
-        return value
+        number = int(value)
+        if (self.lo is not None and number < self.lo) or (self.hi is not None and number > self.hi):
+            self._fail(name, number)
+        return number
 
     def describe(self) -> str:
         if self.lo is not None and self.hi is not None:
@@ -71,14 +71,14 @@ class Real(Validator):
             value = math.inf
         if isinstance(value, bool) or not isinstance(value, _RealNumber):
             self._fail(name, value)
-        value = float(value)
-        if math.isnan(value) or (math.isinf(value) and not (self.allow_inf and value > 0)):
-            self._fail(name, value)
-        if self.lo is not None and (value < self.lo or (self.lo_open and value == self.lo)):
-            self._fail(name, value)
-        if self.hi is not None and not math.isinf(value) and (value > self.hi or (self.hi_open and value == self.hi)):
-            self._fail(name, value)
-        return value
+        number = float(value)
+        if math.isnan(number) or (math.isinf(number) and not (self.allow_inf and number > 0)):
+            self._fail(name, number)
+        if self.lo is not None and (number < self.lo or (self.lo_open and number == self.lo)):
+            self._fail(name, number)
+        if self.hi is not None and not math.isinf(number) and (number > self.hi or (self.hi_open and number == self.hi)):
+            self._fail(name, number)
+        return number
 
     def describe(self) -> str:
         lo = "-inf" if self.lo is None else f"{self.lo:g}"
@@ -109,7 +109,7 @@ class Bool(Validator):
     def __call__(self, name: str, value: Any) -> bool:
         if not isinstance(value, bool):
             self._fail(name, value)
-        return value
+        return bool(value)
 
     def describe(self) -> str:
         return "true or false"
@@ -150,6 +150,17 @@ class ListOf(Validator):
         return f"a list of at least {self.min_len} distinct items, each {self.item.describe()}"
 
 
+class _Anything(Validator):
+    def __call__(self, name: str, value: Any) -> Any:
+        return value
+
+    def describe(self) -> str:
+        return "any value"
+
+
+_ANY = _Anything()
+
+
 @dataclass(frozen=True)
 class Param:
     """One constructor argument: its default, what it means and what is allowed."""
@@ -160,17 +171,6 @@ class Param:
 
     def allowed(self) -> str:
         return self.check.describe()
-
-
-class _Anything(Validator):
-    def __call__(self, name: str, value: Any) -> Any:
-        return value
-
-    def describe(self) -> str:
-        return "any value"
-
-
-_ANY = _Anything()
 
 
 class Config(dict):

@@ -15,14 +15,34 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
+from gymnasium import spaces
 
 from mrcomm_env.core.config import Param, validate_config
 
-if TYPE_CHECKING:  # pragma: no cover
-    from mrcomm_env.core.base import MrcommParallelEnv
+
+class PerRobotSource(Protocol):
+    """What :class:`LocalViews` reads of an env: its public per-robot view and the common knowledge, nothing
+    private (every ``MrcommParallelEnv`` is one)."""
+
+    ENV_ID: str
+    LOCAL_VIEW: Mapping[str, str]
+    possible_agents: list[str]
+    agents: list[str]
+    n_agents: int
+    cfg: Mapping[str, Any]
+    step_count: int
+
+    @property
+    def state_version(self) -> int: ...
+
+    def per_robot_view(self) -> dict[str, Any]: ...
+
+    def action_space(self, agent: str) -> spaces.Space: ...
+
+    def observation_space(self, agent: str) -> spaces.Space: ...
 
 
 def _read_only(value: Any) -> Any:
@@ -42,7 +62,7 @@ class LocalViews:
     shared step clock (``step``). Each access reads the env's current state; nothing can be written back.
     """
 
-    def __init__(self, env: MrcommParallelEnv):
+    def __init__(self, env: PerRobotSource):
         self._env = env
         self.possible_agents: tuple[str, ...] = tuple(env.possible_agents)
         self.n_agents: int = env.n_agents
@@ -56,9 +76,9 @@ class LocalViews:
 
     def _fields(self) -> dict[str, Any]:
         """The env's local-view fields, computed once per env step however many fields a policy reads."""
-        version = self._env._state_version
+        version = self._env.state_version
         if self._cache is None or self._cache[0] != version:
-            self._cache = (version, self._env._local_view())
+            self._cache = (version, self._env.per_robot_view())
         return self._cache[1]
 
     @property
@@ -82,7 +102,11 @@ class LocalViews:
         return _read_only(self._fields()[name])
 
     def __getitem__(self, agent: str) -> Mapping[str, Any]:
-        i = self._env._index_of(agent)
+        if agent not in self._index:
+            raise ValueError(
+                f"unknown agent {agent!r}; valid agents are {self.possible_agents[0]} … {self.possible_agents[-1]}"
+            )
+        i = self._index[agent]
         return MappingProxyType({k: _read_only(np.asarray(v)[i]) for k, v in self._fields().items()})
 
 
