@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.training import ALGORITHMS, RunError, algorithm_class
+from mrcomm_agents.training import ALGORITHMS, RunError, algorithm_class, policy_class_override
 from mrcomm_env.core.policy import LocalViews, Policy
 from mrcomm_env.registry import canonical_id, short_name
 
@@ -69,7 +69,9 @@ class LearnedPolicy(Policy):
         if not model_path.exists():
             raise RunError(f"{run} has no model.zip (the run has not finished; resume it with --resume)")
         try:
-            self.model = algorithm_class(self.algo).load(str(model_path), device="cpu")
+            self.model = algorithm_class(self.algo).load(
+                str(model_path), device="cpu", custom_objects=policy_class_override(record)
+            )
         except (zipfile.BadZipFile, ValueError, KeyError, EOFError, RuntimeError) as exc:
             raise RunError(f"cannot load {model_path}: {type(exc).__name__}: {exc}") from None
         self.normalizer = None

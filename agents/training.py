@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.vecenv import AgentSlotVecEnv
+from mrcomm_agents.vecenv import AgentSlotVecEnv
 from mrcomm_env.registry import canonical_id, make, short_name
 
 CONFIG_DIR = Path(__file__).with_name("configs")
@@ -87,6 +87,17 @@ def default_config(env_id: str, algo: str = "ppo") -> dict[str, Any]:
     if not path.exists():
         return {}
     return json.loads(path.read_text()).get(algo, {})
+
+
+def policy_class_override(record: dict[str, Any]) -> dict[str, Any] | None:
+    """The policy class for SB3's ``load`` when a run used our own (``policy: candidates``): its model.zip names
+    the class by the module path it was saved under (models saved before the packages were renamed say
+    ``agents.policies``), so the class is handed over rather than looked up by that name."""
+    if record.get("policy") != "candidates":
+        return None
+    from mrcomm_agents.policies import CandidatePolicy  # torch: the train extra
+
+    return {"policy_class": CandidatePolicy}
 
 
 def load_config_file(path: str | Path, algo: str) -> dict[str, Any]:
@@ -226,7 +237,12 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False, progress: 
     if resume:
         if config.normalize:
             venv = VecNormalize.load(str(ckpt / "vecnormalize.pkl"), venv)
-        model = cls.load(str(ckpt / "model.zip"), env=venv, device="cpu")
+        model = cls.load(
+            str(ckpt / "model.zip"),
+            env=venv,
+            device="cpu",
+            custom_objects=policy_class_override({"policy": config.policy}),
+        )
         done_steps = model.num_timesteps
     else:
         if config.normalize:
@@ -234,7 +250,7 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False, progress: 
         kwargs = dict(config.hyperparams)
         policy_kwargs = dict(kwargs.pop("policy_kwargs", {}))
         if config.policy == "candidates":
-            from agents.policies import CandidatePolicy
+            from mrcomm_agents.policies import CandidatePolicy
 
             probe = make(config.env_id, **config.env_kwargs)
             policy = CandidatePolicy

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import importlib
 
-from baselines.common import RandomPolicy
+from mrcomm_baselines.common import RandomPolicy
 from mrcomm_env.core.policy import LocalViews, Policy
 from mrcomm_env.registry import canonical_id, entry
 

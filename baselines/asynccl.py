@@ -11,7 +11,7 @@
 
 from __future__ import annotations
 
-from baselines.common import RandomPolicy
+from mrcomm_baselines.common import RandomPolicy
 from mrcomm_env.core.policy import Policy
 
 ENV_ID = "mrcomm/AsyncCL-v0"

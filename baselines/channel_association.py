@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from baselines.common import RandomPolicy
+from mrcomm_baselines.common import RandomPolicy
 from mrcomm_env.core.config import Int, Param, Real
 from mrcomm_env.core.policy import Policy
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from baselines.common import RandomPolicy
+from mrcomm_baselines.common import RandomPolicy
 from mrcomm_env.core.config import Bool, Int, Param
 from mrcomm_env.core.policy import Policy
 from mrcomm_env.mapsync.env import BISECTION, EQUALITY, FULL, IDLE, SKETCH, TEST_DIFFERENT

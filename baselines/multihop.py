@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from baselines.common import RandomPolicy
+from mrcomm_baselines.common import RandomPolicy
 from mrcomm_env.core.config import Choice, Param
 from mrcomm_env.core.policy import Policy
 from mrcomm_env.multihop import protocol as proto

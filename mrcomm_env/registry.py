@@ -3,7 +3,7 @@
 Each entry names, as module paths (nothing is imported here), the three pieces of one environment, one per
 layer: its versioned env shim (``mrcomm_env``), its scripted baselines (``baselines``) and its
 reproduction (``mrcomm_env.experiments.reproductions``). ``import mrcomm_env`` stays light, and the env
-layer never imports the layers above it: those resolve their own entries (``baselines.policy_module``,
+layer never imports the layers above it: those resolve their own entries (``mrcomm_baselines.policy_module``,
 ``mrcomm_env.experiments.reproductions.module``). ``tests/test_architecture.py`` compares the entries with
 the files on disk.
 """
@@ -32,34 +32,34 @@ class EnvEntry:
 ENTRIES: dict[str, EnvEntry] = {
     "mrcomm/AsyncCL-v0": EnvEntry(
         "mrcomm_env.asynccl_v0",
-        "baselines.asynccl",
+        "mrcomm_baselines.asynccl",
         "mrcomm_env.experiments.reproductions.asynccl",
         "Nerurkar & Roumeliotis, *Asynchronous Multi-Centralized Cooperative Localization*",
     ),
     "mrcomm/ChannelAssociation-v0": EnvEntry(
         "mrcomm_env.channel_association_v0",
-        "baselines.channel_association",
+        "mrcomm_baselines.channel_association",
         "mrcomm_env.experiments.reproductions.channel_association",
         "Ivanov & Shell, *Hark! Who goes there? Concurrent Association of Communication Channels for Multiple "
         "Mobile Robots*",
     ),
     "mrcomm/MapSync-v0": EnvEntry(
         "mrcomm_env.mapsync_v0",
-        "baselines.mapsync",
+        "mrcomm_baselines.mapsync",
         "mrcomm_env.experiments.reproductions.mapsync",
         "Alsayegh, Dutta, Vanegas & Bobadilla, *Lightweight Multi-robot Communication Protocols for Information "
         "Synchronization*",
     ),
     "mrcomm/MultiHop-v0": EnvEntry(
         "mrcomm_env.multihop_v0",
-        "baselines.multihop",
+        "mrcomm_baselines.multihop",
         "mrcomm_env.experiments.reproductions.multihop",
         "Julian, Schwager, Angermann & Rus, *A Location-Based Algorithm for Multi-hopping State Estimates within a "
         "Distributed Robot Team*",
     ),
     "mrcomm/RendezvousMapping-v0": EnvEntry(
         "mrcomm_env.rendezvous_mapping_v0",
-        "baselines.rendezvous_mapping",
+        "mrcomm_baselines.rendezvous_mapping",
         "mrcomm_env.experiments.reproductions.rendezvous_mapping",
         "Chapman & Sukkarieh, *A Protocol for Decentralized Multi-Vehicle Mapping with Limited Communication "
         "Connectivity*",

@@ -1,22 +1,33 @@
 """The layer rule of docs/architecture.md, read from the source (ast), and the registry against the files.
 
 Layers, bottom to top: the core; the paper envs (with the registry and the shims); the policies (scripted in
-``baselines``, learned in ``agents``, siblings that do not import each other); the experiments. A module may
-import its own layer and the layers below, never above.
+``baselines/``, learned in ``agents/``, siblings that do not import each other); the experiments. A module may
+import its own layer and the layers below, never above, and the imports form no circle.
+
+The folders ``agents/`` and ``baselines/`` install as the packages ``mrcomm_agents`` and ``mrcomm_baselines``
+(pyproject.toml), the names every import uses.
 """
 
 from __future__ import annotations
 
 import ast
 import importlib
+import sys
 from pathlib import Path
 
 import pytest
 
 from mrcomm_env.registry import ENTRIES
 
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # the dev extra installs tomli there
+    import tomli as tomllib
+
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("mrcomm_env", "baselines", "agents")
+#: import name → folder
+FOLDERS = {"mrcomm_env": "mrcomm_env", "mrcomm_baselines": "baselines", "mrcomm_agents": "agents"}
+PACKAGES = tuple(FOLDERS)
 
 
 def layer(module: str) -> tuple[int, str]:
@@ -25,39 +36,46 @@ def layer(module: str) -> tuple[int, str]:
         return 0, "core"
     if module == "mrcomm_env.experiments" or module.startswith("mrcomm_env.experiments."):
         return 3, "experiments"
-    if module.split(".")[0] in ("baselines", "agents"):
+    if module.split(".")[0] in ("mrcomm_baselines", "mrcomm_agents"):
         return 2, module.split(".")[0]
     return 1, "envs"
 
 
 def module_name(path: Path) -> str:
     parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    parts[0] = {folder: name for name, folder in FOLDERS.items()}.get(parts[0], parts[0])
     if parts[-1] == "__init__":
         parts.pop()
     return ".".join(parts)
 
 
-def our_imports(path: Path) -> list[tuple[int, str]]:
-    """(line, module) of every import of one of our packages in ``path``, relative imports resolved."""
+def all_imports(path: Path) -> list[tuple[int, str, tuple[str, ...]]]:
+    """(line, module, names taken from it) of every import in ``path``, relative imports resolved."""
     tree = ast.parse(path.read_text(), str(path))
-    here = module_name(path).split(".")
+    here = module_name(path).split(".") if path.is_relative_to(ROOT) else [path.stem]
     package = here if path.name == "__init__.py" else here[:-1]
     found = []
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
-            found += [(node.lineno, alias.name) for alias in node.names]
+            found += [(node.lineno, alias.name, ()) for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
             if node.level:
                 base = package[: len(package) - node.level + 1]
                 name = ".".join(base + ([node.module] if node.module else []))
             else:
                 name = node.module or ""
-            found.append((node.lineno, name))
-    return [(line, name) for line, name in found if name.split(".")[0] in PACKAGES]
+            found.append((node.lineno, name, tuple(alias.name for alias in node.names)))
+    return found
+
+
+def our_imports(path: Path) -> list[tuple[int, str]]:
+    """(line, module) of every import of one of our packages in ``path``, relative imports resolved."""
+    return [(line, name) for line, name, _ in all_imports(path) if name.split(".")[0] in PACKAGES]
 
 
 def source_files() -> list[Path]:
-    return [p for pkg in PACKAGES if (ROOT / pkg).is_dir() for p in sorted((ROOT / pkg).rglob("*.py"))]
+    folders = [ROOT / folder for folder in FOLDERS.values()]
+    return [p for folder in folders if folder.is_dir() for p in sorted(folder.rglob("*.py"))]
 
 
 def violations(files: list[Path]) -> list[str]:
@@ -81,16 +99,16 @@ def test_the_layer_check_catches_an_upward_import(tmp_path, monkeypatch):
     fake_root = tmp_path
     (fake_root / "mrcomm_env" / "fakeenv").mkdir(parents=True)
     bad = fake_root / "mrcomm_env" / "fakeenv" / "env.py"
-    bad.write_text("import numpy\nfrom baselines.common import RandomPolicy\nfrom ..experiments import cli\n")
+    bad.write_text("import numpy\nfrom mrcomm_baselines.common import RandomPolicy\nfrom ..experiments import cli\n")
     monkeypatch.setitem(globals(), "ROOT", fake_root)
     found = violations([bad])
-    assert len(found) == 2 and "baselines.common" in found[0] and "mrcomm_env.experiments" in found[1]
+    assert len(found) == 2 and "mrcomm_baselines.common" in found[0] and "mrcomm_env.experiments" in found[1]
 
 
 def test_policies_do_not_import_each_other(tmp_path, monkeypatch):
     (tmp_path / "agents").mkdir()
     bad = tmp_path / "agents" / "x.py"
-    bad.write_text("from baselines import make_policy\n")
+    bad.write_text("from mrcomm_baselines import make_policy\n")
     monkeypatch.setitem(globals(), "ROOT", tmp_path)
     assert violations([bad])
 
@@ -98,7 +116,7 @@ def test_policies_do_not_import_each_other(tmp_path, monkeypatch):
 # ------------------------------------------------------------------------------ registry against the files
 def modules_on_disk(folder: str, skip: tuple[str, ...]) -> set[str]:
     base = ROOT / folder
-    prefix = folder.replace("/", ".")
+    prefix = module_name(base / "__init__.py")
     return {f"{prefix}.{p.stem}" for p in base.glob("*.py") if p.stem not in skip}
 
 
@@ -126,3 +144,23 @@ def test_registry_entry_modules_have_their_contract(env_id):
     assert policies.ENV_ID == env_id and policies.DEFAULT_POLICY in policies.POLICIES
     reproduction = importlib.import_module(item.reproduction)
     assert reproduction.EXPERIMENTS and callable(reproduction.run)
+
+
+def test_every_package_folder_is_installed():
+    """pyproject.toml lists the packages by hand (two install under other names): every folder must be there."""
+    setuptools = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    listed = set(setuptools["packages"])
+    on_disk = {module_name(p) for p in source_files() if p.name == "__init__.py"}
+    assert listed == on_disk
+    assert setuptools["package-dir"] == {name: folder for name, folder in FOLDERS.items() if name != folder}
+
+
+def test_no_module_imports_the_bare_names_other_projects_own():
+    """``agents`` and ``baselines`` are other projects' names on PyPI: our code imports only ``mrcomm_*``."""
+    bare = [
+        f"{path.relative_to(ROOT)}:{line} imports {name}"
+        for path in source_files() + sorted((ROOT / "tests").rglob("*.py"))
+        for line, name, _ in all_imports(path)
+        if name.split(".")[0] in ("agents", "baselines")
+    ]
+    assert bare == []

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from numerics import assert_close_conditioned, tolerance
 
-from baselines import make_policy
+from mrcomm_baselines import make_policy
 from mrcomm_env.asynccl import theory
 from mrcomm_env.asynccl.table import QINF, SCHEME1, SILENT, InfoTables
 from mrcomm_env.asynccl.world import HEADER_BITS, LIST_ENTRY_BITS

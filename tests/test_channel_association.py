@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from numerics import assert_close_conditioned, tolerance
 
-from baselines.channel_association import POLICIES
+from mrcomm_baselines.channel_association import POLICIES
 from mrcomm_env.channel_association import theory
 from mrcomm_env.channel_association.batch import MobileField, neighborhood_trials
 from mrcomm_env.channel_association.env import ChannelAssociationEnv

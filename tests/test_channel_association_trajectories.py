@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from baselines.channel_association import POLICIES
+from mrcomm_baselines.channel_association import POLICIES
 from mrcomm_env.channel_association.env import ChannelAssociationEnv
 
 

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from baselines import default_policy, policy_names
+from mrcomm_baselines import default_policy, policy_names
 from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.cli import main, parse_params
 from mrcomm_env.registry import env_class, env_ids

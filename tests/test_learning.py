@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from agents.learned import PRETRAINED_DIR, load_policy
-from agents.training import CONFIG_DIR
+from mrcomm_agents.learned import PRETRAINED_DIR, load_policy
+from mrcomm_agents.training import CONFIG_DIR
 from mrcomm_env.experiments import learning
 from mrcomm_env.experiments.cli import main
 from mrcomm_env.registry import env_ids, short_name
@@ -55,7 +55,7 @@ def test_beats_needs_a_margin_beyond_the_intervals(learned, baseline, expected):
 
 @pytest.mark.parametrize("env_id", env_ids())
 def test_every_env_has_a_learning_configuration_its_baselines_exist(env_id):
-    from baselines import policy_names
+    from mrcomm_baselines import policy_names
 
     spec = learning.comparison_spec(env_id)
     assert spec["baselines"] and spec["costs"] and spec["seeds"] >= 3
@@ -93,8 +93,8 @@ def test_reproduce_learning_end_to_end_on_a_tiny_budget(tmp_path, monkeypatch):
     config_dir = tmp_path / "configs"
     config_dir.mkdir()
     (config_dir / "ChannelAssociation-v0.json").write_text(json.dumps(tiny))
-    monkeypatch.setattr("agents.training.CONFIG_DIR", config_dir)
-    monkeypatch.setattr("agents.learned.PRETRAINED_DIR", tmp_path / "pretrained")
+    monkeypatch.setattr("mrcomm_agents.training.CONFIG_DIR", config_dir)
+    monkeypatch.setattr("mrcomm_agents.learned.PRETRAINED_DIR", tmp_path / "pretrained")
     docs = tmp_path / "docs"
     code = main(
         [

@@ -9,7 +9,7 @@ import pytest
 from scipy import stats
 
 import mrcomm_env
-from baselines import make_policy
+from mrcomm_baselines import make_policy
 from mrcomm_env.experiments.evaluation import run_episode
 from mrcomm_env.mapsync import pinsketch, theory, world
 from mrcomm_env.mapsync import protocol as proto

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from numerics import assert_close_conditioned, tolerance
 
-from baselines.multihop import POLICIES
+from mrcomm_baselines.multihop import POLICIES
 from mrcomm_env.multihop import protocol as proto
 from mrcomm_env.multihop import theory
 from mrcomm_env.multihop.env import MultiHopEnv

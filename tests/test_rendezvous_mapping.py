@@ -15,7 +15,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 import mrcomm_env
-from baselines.rendezvous_mapping import POLICIES, PaperProtocol, action_module
+from mrcomm_baselines.rendezvous_mapping import POLICIES, PaperProtocol, action_module
 from mrcomm_env.rendezvous import filters, protocol, theory, world
 from mrcomm_env.rendezvous.env import HOLD, RendezvousMappingEnv
 

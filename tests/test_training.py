@@ -1,4 +1,4 @@
-"""``mrcomm train`` / ``agents.training``: run folders, checkpoints, resuming without loss, learned policies
+"""``mrcomm train`` / ``mrcomm_agents.training``: run folders, checkpoints, resuming without loss, learned policies
 in ``mrcomm evaluate``, and one-line errors for bad runs."""
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import torch
 
-from agents import training
-from agents.learned import LearnedPolicy, load_policy
-from agents.training import RunError, TrainConfig, train
+from mrcomm_agents import training
+from mrcomm_agents.learned import LearnedPolicy, load_policy
+from mrcomm_agents.training import RunError, TrainConfig, train
 from mrcomm_env.experiments.cli import main
 from mrcomm_env.experiments.learning import sweep_section
 

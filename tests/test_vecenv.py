@@ -23,8 +23,8 @@ from stable_baselines3.common.monitor import Monitor  # noqa: E402
 from stable_baselines3.common.vec_env import VecCheckNan, VecMonitor, VecNormalize  # noqa: E402
 
 import mrcomm_env  # noqa: E402
-from agents import AgentSlotVecEnv, make_vec_env  # noqa: E402
-from agents.vecenv import ACTION_MASK_INFO_KEY  # noqa: E402
+from mrcomm_agents import AgentSlotVecEnv, make_vec_env  # noqa: E402
+from mrcomm_agents.vecenv import ACTION_MASK_INFO_KEY  # noqa: E402
 
 #: the base env's episode-length argument; one place to change if it is renamed (e.g. to max_cycles)
 HORIZON_ARG = "max_cycles"

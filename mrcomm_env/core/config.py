@@ -76,7 +76,11 @@ class Real(Validator):
             self._fail(name, number)
         if self.lo is not None and (number < self.lo or (self.lo_open and number == self.lo)):
             self._fail(name, number)
-        if self.hi is not None and not math.isinf(number) and (number > self.hi or (self.hi_open and number == self.hi)):
+        if (
+            self.hi is not None
+            and not math.isinf(number)
+            and (number > self.hi or (self.hi_open and number == self.hi))
+        ):
             self._fail(name, number)
         return number
 

@@ -89,7 +89,7 @@ RAY_CPUS = 2
 
 def scripted_episode(env_id: str, policy: str, seed: int, params: dict | None = None) -> dict[str, float]:
     """The metrics of one seeded episode of a scripted baseline: a sweep task (importable by name on a worker)."""
-    from baselines import make_policy
+    from mrcomm_baselines import make_policy
     from mrcomm_env.experiments.evaluation import run_episode
 
     env = make(env_id, **(params or {}))
@@ -106,7 +106,7 @@ def no_op(index: int) -> int:
 
 def episode_tasks(env_id: str = SWEEP_ENV, n_tasks: int = SWEEP_TASKS, params: dict | None = None) -> list:
     """``n_tasks`` seeded episodes (seeds 0, 1, …) of ``env_id``'s default scripted policy."""
-    from baselines import default_policy
+    from mrcomm_baselines import default_policy
     from mrcomm_env.experiments.sweep import Task
 
     policy = default_policy(env_id)

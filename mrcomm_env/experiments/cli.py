@@ -102,7 +102,7 @@ def nonnegative_seconds(text: str) -> float:
 
 # ---------------------------------------------------------------------------------------------- commands
 def cmd_list(args) -> int:
-    from baselines import default_policy, policy_names
+    from mrcomm_baselines import default_policy, policy_names
 
     for env_id in env_ids():
         cls = env_class(env_id)
@@ -208,7 +208,7 @@ def cmd_reproduce(args) -> int:
 def cmd_bench(args) -> int:
     import os
 
-    from baselines import default_policy, make_policy
+    from mrcomm_baselines import default_policy, make_policy
     from mrcomm_env.core import backend
     from mrcomm_env.experiments.evaluation import limit_threads, steps_per_second
 

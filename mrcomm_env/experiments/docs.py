@@ -28,7 +28,7 @@ def _cell(text: str) -> str:
 
 
 def env_page(env_id: str) -> str:
-    from baselines import policy_module
+    from mrcomm_baselines import policy_module
     from mrcomm_env.experiments.reproductions import module as reproduction_module
     from mrcomm_env.registry import entry, env_class, env_module, make, short_name
 
@@ -134,7 +134,7 @@ def env_page(env_id: str) -> str:
 
 
 def index_page() -> str:
-    from baselines import default_policy
+    from mrcomm_baselines import default_policy
     from mrcomm_env.registry import env_class, env_ids, short_name
 
     lines = [

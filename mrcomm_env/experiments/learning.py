@@ -15,12 +15,12 @@ from mrcomm_env.registry import canonical_id
 def make_any_policy(env_id: str, name: str, **params):
     """A scripted baseline by name, or a learned model: ``ppo:PATH``, ``maskable_ppo:PATH``, ``dqn:PATH``,
     ``pretrained``. Unknown names raise ``ValueError`` listing both kinds."""
-    from baselines import make_policy, policy_names
+    from mrcomm_baselines import make_policy, policy_names
 
     if name in policy_names(env_id):
         return make_policy(env_id, name, **params)
     try:
-        from agents.learned import is_learned, load_policy
+        from mrcomm_agents.learned import is_learned, load_policy
     except ImportError:
         if ":" in name or name == "pretrained":
             raise ValueError("learned policies need the training extra: pip install 'mrcomm-env[train]'") from None
@@ -111,7 +111,7 @@ def parse_grid(pairs: list[str] | None) -> dict[str, list]:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from agents.training import (
+    from mrcomm_agents.training import (
         TrainConfig,
         default_config,
         load_config_file,
@@ -151,7 +151,7 @@ def grid_setting(algo: str, key: str) -> str:
     or ``"env"`` (an environment argument, checked by the env itself)."""
     import inspect
 
-    from agents.training import ALGORITHMS, RUN_KEYS
+    from mrcomm_agents.training import ALGORITHMS, RUN_KEYS
 
     if key in (*RUN_KEYS, "timesteps"):
         return "run"
@@ -167,7 +167,7 @@ def sweep_configs(base: dict, seeds: list[int], grid: dict[str, list]) -> list[t
     fixed order: the grid's keys as given, each key's values as given, then the seeds."""
     import itertools
 
-    from agents.training import TrainConfig
+    from mrcomm_agents.training import TrainConfig
 
     places = {key: grid_setting(base["algo"], key) for key in grid}
     out = []
@@ -191,7 +191,7 @@ def sweep_configs(base: dict, seeds: list[int], grid: dict[str, list]) -> list[t
 def train_and_evaluate(out: str, config: dict, eval_seeds: list[int]) -> dict:
     """A sweep task: train one run into ``out`` (resumed, or skipped when finished) and score it on ``eval_seeds``
     with the env's comparison metric, bits and return. Returns JSON data only, so any backend can carry it."""
-    from agents.learned import LearnedPolicy
+    from mrcomm_agents.learned import LearnedPolicy
 
     _train_task({"out": out, "config": config})
     summary = training_summary(Path(out))
@@ -301,7 +301,7 @@ COMPARISON_KEY = "comparison"
 def comparison_spec(env_id: str) -> dict:
     """The env's comparison settings from ``agents/configs/<Name>-v0.json``: the cost argument swept (λ or the
     bit price), its values, the task metric and whether lower is better, the baselines, seeds and episodes."""
-    from agents.training import CONFIG_DIR
+    from mrcomm_agents.training import CONFIG_DIR
 
     path = CONFIG_DIR / f"{short_name_of(env_id)}.json"
     if not path.exists():
@@ -349,7 +349,7 @@ def evaluate_policy(env_id: str, env_kwargs: dict, policy, seeds: list[int], spe
 
 def _train_task(task: dict) -> str:
     """One training run of the comparison (a process of its own: one torch thread)."""
-    from agents.training import TrainConfig, train
+    from mrcomm_agents.training import TrainConfig, train
     from mrcomm_env.experiments.evaluation import limit_threads
 
     limit_threads()
@@ -373,8 +373,8 @@ def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress
     (each scored on the held-out seeds where it ran) go through the sweep runner the caller chose."""
     from tqdm.auto import tqdm
 
-    from agents.training import split_settings
-    from baselines import make_policy
+    from mrcomm_agents.training import split_settings
+    from mrcomm_baselines import make_policy
     from mrcomm_env.core.stats import mean_ci95
 
     env_id = canonical_id(env_id)
@@ -458,7 +458,7 @@ def export_pretrained(run: str | Path, env_id: str) -> Path:
     ``mrcomm evaluate ID --policy pretrained``). Checkpoints and logs stay behind: well under 1 MB."""
     import shutil
 
-    from agents.learned import pretrained_dir
+    from mrcomm_agents.learned import pretrained_dir
 
     target = pretrained_dir(env_id)
     target.mkdir(parents=True, exist_ok=True)
@@ -606,7 +606,7 @@ def learning_section(env_id: str, rows: list[dict], spec: dict, figure: str) -> 
 def cmd_reproduce_learning(args: argparse.Namespace) -> int:
     import csv
 
-    from agents.training import CONFIG_DIR
+    from mrcomm_agents.training import CONFIG_DIR
     from mrcomm_env.experiments.evaluation import limit_threads
     from mrcomm_env.experiments.sweep import runner_from_args, using
     from mrcomm_env.registry import env_ids
@@ -730,7 +730,7 @@ def sweep_section(env_id: str, docs: Path) -> str:
         ret = np.mean([float(r["final_train_return"]) for r in group])
         minutes = np.mean([float(r["seconds"]) for r in group]) / 60
         lines.append(f"| {' | '.join(values)} | {m:.4g} ± {h:.2g} | {bits:.4g} | {ret:.4g} | {minutes:.1f} |")
-    from agents.training import default_config
+    from mrcomm_agents.training import default_config
 
     settings = default_config(env_id, meta.get("algo", "ppo"))
     chosen = ", ".join(f"`{k}={json.dumps(settings.get(k, settings.get('env_kwargs', {}).get(k)))}`" for k in keys)
@@ -807,7 +807,7 @@ def train_throughput(env_fns, timesteps: int, seed: int = 0) -> dict[str, float]
     import torch
     from stable_baselines3 import PPO
 
-    from agents.vecenv import AgentSlotVecEnv
+    from mrcomm_agents.vecenv import AgentSlotVecEnv
 
     torch.set_num_threads(1)
     venv = AgentSlotVecEnv(env_fns)

@@ -77,5 +77,7 @@ def test_pretrained_policy_evaluates_from_the_wheel(foreign_folder):
 
 
 def test_a_scripted_baseline_evaluates_from_the_wheel(foreign_folder):
-    result = _run(["evaluate", "AsyncCL-v0", "--episodes", "1", "--seed", "0", "--param", "max_cycles=20"], foreign_folder)
+    result = _run(
+        ["evaluate", "AsyncCL-v0", "--episodes", "1", "--seed", "0", "--param", "max_cycles=20"], foreign_folder
+    )
     assert result.returncode == 0, result.stderr

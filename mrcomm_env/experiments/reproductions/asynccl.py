@@ -2,7 +2,7 @@
 schemes on real robots (UTIAS MRCLAM Dataset 6, ``trajectory="mrclam"``) beside the same runs simulated.
 
 ``run(out_dir, quick, tiny=False)`` writes CSV/JSON/PNG files into ``out_dir`` and returns a markdown section.
-The team's transfer mode is the scripted baseline of the same name (``baselines.asynccl``), played through
+The team's transfer mode is the scripted baseline of the same name (``mrcomm_baselines.asynccl``), played through
 the shared episode loop (:func:`.common.run_episode`).
 """
 
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines import make_policy
+from mrcomm_baselines import make_policy
 from mrcomm_env.asynccl import mrclam, theory
 from mrcomm_env.asynccl.env import ALL_MODES, AsyncCLEnv
 from mrcomm_env.core.stats import mean_ci95

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines import make_policy
+from mrcomm_baselines import make_policy
 from mrcomm_env.channel_association import theory
 from mrcomm_env.channel_association.batch import MobileField, neighborhood_trials
 from mrcomm_env.experiments.reproductions.common import (

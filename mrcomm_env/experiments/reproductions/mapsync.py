@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines import default_policy, make_policy, policy_names
+from mrcomm_baselines import default_policy, make_policy, policy_names
 from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.reproductions.common import (
     atomic_open,

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines import make_policy
+from mrcomm_baselines import make_policy
 from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.reproductions.common import (
     atomic_open,

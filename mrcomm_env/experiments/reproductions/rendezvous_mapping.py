@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines import make_policy
+from mrcomm_baselines import make_policy
 from mrcomm_env.experiments.reproductions.common import (
     atomic_open,
     atomic_write_json,
