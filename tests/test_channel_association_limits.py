@@ -17,7 +17,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mrcomm_env.channel_association.env import ChannelAssociationEnv
-from mrcomm_env.channel_association.limits import FOOTPRINT_BUDGET, documented_maxima, field_footprint
+from mrcomm_env.channel_association.limits import FOOTPRINT_BUDGET, field_footprint
 from mrcomm_env.core.config import Int, Real
 
 PARAMS = ChannelAssociationEnv.PARAMS
@@ -47,10 +47,11 @@ def run_checked(env: ChannelAssociationEnv, steps: int, seed: int = 0, all_emit_
 
 # ----------------------------------------------------------------------------- documented maxima
 @pytest.mark.parametrize(
-    "name", [pytest.param(k, marks=pytest.mark.slow) if k in SLOW_MAXIMA else k for k in documented_maxima()]
+    "name",
+    [pytest.param(k, marks=pytest.mark.slow) if k in SLOW_MAXIMA else k for k in ChannelAssociationEnv.LIMIT_CONFIGS],
 )
 def test_documented_maximum_runs(name):
-    kwargs = documented_maxima()[name]
+    kwargs = ChannelAssociationEnv.LIMIT_CONFIGS[name]
     env = ChannelAssociationEnv(**kwargs)
     for key, value in kwargs.items():  # the maxima are inside the documented ranges
         assert PARAMS[key].check(key, value) == value
@@ -58,7 +59,7 @@ def test_documented_maximum_runs(name):
 
 
 def test_documented_maxima_sit_on_the_range_edges():
-    maxima = documented_maxima()
+    maxima = ChannelAssociationEnv.LIMIT_CONFIGS
     assert maxima["largest_field"]["n_robots"] == PARAMS["n_robots"].check.hi
     assert maxima["largest_neighborhood"]["w"] == PARAMS["w"].check.hi == maxima["largest_neighborhood"]["v"]
     for key in ("n_robots", "w", "v", "drop_time", "max_cycles"):

@@ -394,4 +394,4 @@ class ChannelAssociationEnv(MrcommParallelEnv):
 
 
 # the documented maxima live beside the memory model that sets them (``limits.py``); read once the class exists
-ChannelAssociationEnv.LIMIT_CONFIGS = documented_maxima()
+ChannelAssociationEnv.LIMIT_CONFIGS = documented_maxima(ChannelAssociationEnv.PARAMS, ChannelAssociationEnv.DENSE_MAX_N)

@@ -20,8 +20,11 @@ accepts stays within about 3 GiB and a step within seconds; larger ones are reje
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import numpy as np
+
+from mrcomm_env.core.config import Param
 
 #: edges + tracked wireless IDs over all observers that a field may be expected to hold (≤ about 3 GiB peak)
 FOOTPRINT_BUDGET = 40_000_000
@@ -77,15 +80,14 @@ def check_field_footprint(cfg) -> None:
         )
 
 
-def documented_maxima() -> dict[str, dict]:
-    """Configurations at the edges of the documented ranges (``PARAMS``), each of which must run.
+def documented_maxima(params: Mapping[str, Param], dense_max_n: int) -> dict[str, dict]:
+    """Configurations at the edges of the documented ranges ``params`` (the env class's ``PARAMS``), each of which
+    must run; ``dense_max_n`` is the largest field that uses slot-per-robot filters.
 
     ``largest_field`` is the documented maximum population with the other arguments at their defaults;
     the others push every other argument to its largest (or, for ranges, smallest) allowed value.
     """
-    from mrcomm_env.channel_association.env import ChannelAssociationEnv as Env
-
-    hi = {name: p.check.hi for name, p in Env.PARAMS.items() if getattr(p.check, "hi", None) is not None}
+    hi = {name: p.check.hi for name, p in params.items() if getattr(p.check, "hi", None) is not None}
     below_one = float(np.nextafter(1.0, 0.0))  # miss_probability's range is open at 1
     extremes = {
         "drop_time": hi["drop_time"],
@@ -108,7 +110,7 @@ def documented_maxima() -> dict[str, dict]:
         # arena many times per step
         "dense_field_extremes": {
             "scene": "field",
-            "n_robots": Env.DENSE_MAX_N,
+            "n_robots": dense_max_n,
             "separation": hi["separation"],
             "mobile_fraction": 1.0,
             "speed": hi["speed"],
@@ -120,7 +122,7 @@ def documented_maxima() -> dict[str, dict]:
         # the smallest sparse field with the same extremes (every robot in range of every other)
         "sparse_field_extremes": {
             "scene": "field",
-            "n_robots": Env.DENSE_MAX_N + 1,
+            "n_robots": dense_max_n + 1,
             "separation": hi["separation"],
             "mobile_fraction": 1.0,
             "speed": hi["speed"],
