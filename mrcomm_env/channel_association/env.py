@@ -61,7 +61,7 @@ import math
 import numpy as np
 from gymnasium import spaces
 
-from mrcomm_env.channel_association.limits import check_field_footprint, documented_maxima
+from mrcomm_env.channel_association.limits import check_field_footprint, documented_maxima, field_footprint
 from mrcomm_env.channel_association.scenes import (
     DenseFieldScene,
     NeighborhoodScene,
@@ -147,6 +147,37 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         "edges": "candidate edges (wireless ID, visual ID) left in this robot's i-state",
         "unresolved": "visual IDs of this robot with more than one candidate",
     }
+    MEMORY_FORMULA = (
+        "2 MiB + 80 B per i-state entry of a large field (`n_robots` > 64: E edges + T tracked wireless IDs, "
+        "the expected counts of `limits.field_footprint` from `n_robots`, `separation`, `wireless_range`, "
+        "`visual_range`, `mobile_fraction`, `speed`, `drop_time`; 80 B is the measured peak per entry when every "
+        "robot emits at once), 8·`n_robots`³ for a small field's slot-per-robot filters, 8·`w`·`v` for a neighborhood"
+    )
+    MEMORY_ARGS = ("n_robots", "separation", "wireless_range", "visual_range")
+    MEMORY_PROBES = {
+        "stationary_field_1000": {"n_robots": 1000, "mobile_fraction": 0.0, "max_cycles": 3},
+        "stationary_field_2000": {"n_robots": 2000, "mobile_fraction": 0.0, "max_cycles": 3},
+        "stationary_field_4000": {"n_robots": 4000, "mobile_fraction": 0.0, "max_cycles": 3},
+    }
+
+    @classmethod
+    def memory_estimate(cls, cfg) -> float:
+        base = 2.0 * 2**20
+        if cfg.scene == "neighborhood":
+            return base + 8.0 * cfg.w * cfg.v
+        if cfg.n_robots <= cls.DENSE_MAX_N:
+            return base + 8.0 * float(cfg.n_robots) ** 3
+        footprint = field_footprint(
+            cfg.n_robots,
+            cfg.separation,
+            cfg.mobile_fraction,
+            cfg.speed,
+            cfg.wireless_range,
+            cfg.visual_range,
+            cfg.drop_time,
+        )
+        return base + 80.0 * (footprint["edges"] + footprint["tracked"])
+
     DOCUMENTED_CONFIGS = {
         "default": {},
         "neighborhood": {"scene": "neighborhood", "w": 8, "v": 6},

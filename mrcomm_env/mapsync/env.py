@@ -109,8 +109,10 @@ class MapSyncEnv(MrcommParallelEnv):
         ),
         "res": Param(
             1,
-            "Algorithm 1's resolution: segments of at most res cells are compared bit by bit",
-            Int(lo=1, fuzz=(1, 16)),
+            "Algorithm 1's resolution: segments of at most res cells are compared bit by bit (at most 65,536, "
+            "the cells of the largest map: a larger res means the same, and the compiled kernel takes 64-bit "
+            "integers)",
+            Int(lo=1, hi=256 * 256, fuzz=(1, 16)),
         ),
         "bits_per_step": Param(
             None,
@@ -130,10 +132,16 @@ class MapSyncEnv(MrcommParallelEnv):
             Real(lo=0.0, hi=1.0, fuzz=(0.0, 0.05)),
         ),
         "lam": Param(
-            0.1, "price of n bits per robot in reward units (see Reward scale)", Real(lo=0.0, fuzz=(0.0, 2.0))
+            0.1,
+            "price of n bits per robot in reward units (see Reward scale); at most 1e6, so that λ times the bits "
+            "of any step stays a finite reward",
+            Real(lo=0.0, hi=1e6, fuzz=(0.0, 2.0)),
         ),
         "max_cycles": Param(
-            world.PAPER_STEPS, "episode length in steps (the case study runs 200)", Int(lo=1, fuzz=(1, 40))
+            world.PAPER_STEPS,
+            "episode length in steps (the case study runs 200); at most 2⁵³, where step counts stay exact in the "
+            "float64 clock t / max_cycles; memory does not grow with it",
+            Int(lo=1, hi=2**53, fuzz=(1, 40)),
         ),
         "comm_range": Param(
             None,
@@ -193,6 +201,24 @@ class MapSyncEnv(MrcommParallelEnv):
         "busy": "1 while this robot is in a sync",
     }
     #: configurations at the documented maxima (``tests/test_limits.py``, ``mrcomm bench --limits``)
+    MEMORY_FORMULA = (
+        "2 MiB + 450·n + 12·N·n for n = `grid_size`² cells and N = `n_robots` (the world and Protocol 1's per-cell "
+        "work, every robot's map and stamps), + 90·n² with `explicit_database` (Protocol 1's 100n strings of n "
+        "bits). Nothing grows with `max_cycles`"
+    )
+    MEMORY_ARGS = ("grid_size", "n_robots", "explicit_database")
+    MEMORY_PROBES = {
+        "map_181x181": {"grid_size": 181, "max_cycles": 3},
+        "map_256x256_64_robots": {"grid_size": 256, "n_robots": 64, "max_cycles": 3},
+        "explicit_database_32x32": {"grid_size": 32, "explicit_database": True, "max_cycles": 3},
+    }
+
+    @classmethod
+    def memory_estimate(cls, cfg) -> float:
+        cells = float(cfg.grid_size) ** 2
+        database = 90.0 * cells * cells if cfg.explicit_database else 0.0
+        return 2.0 * 2**20 + 450.0 * cells + 12.0 * cfg.n_robots * cells + database
+
     LIMIT_CONFIGS = {
         "largest_team_and_map": {
             "grid_size": 256,
@@ -260,10 +286,6 @@ class MapSyncEnv(MrcommParallelEnv):
         self._horizon = c.max_cycles
         self._bit_scale = self.n * N  # the reward prices team bits in units of n bits per robot (Reward scale)
         self._changing = c.appear_rate > 0.0 or c.vanish_rate > 0.0
-        # s / (s + 10) for every possible s = steps since a sync (0 … max_cycles), the same float64 values the
-        # formula gives, so that the per-step clock column is one lookup
-        ages = np.arange(c.max_cycles + 1)
-        self._age_code = ages / (ages + 10.0)
         self._obs_buf = np.zeros((N, 4 * (N - 1) + 5), dtype=np.float32)
         self._make_views()
         self.ledger = BitLedger(N)
@@ -681,7 +703,6 @@ class MapSyncEnv(MrcommParallelEnv):
                 self._obs_buf,
                 t,
                 min(t / self._horizon, 1.0),
-                self._age_code,
                 self.last_sync,
                 self.new_cells,
                 self.linked,
@@ -694,7 +715,10 @@ class MapSyncEnv(MrcommParallelEnv):
             )
             return self._obs_buf.copy()
         # the numpy reference: only the columns whose inputs changed since the last call
-        self._obs_age[:] = self._age_code.take(t - self._last_sync_peers)  # steps since the last sync, s/(s+10)
+        # s/(s+10) of the steps s since the last sync, computed per step: a table over every possible s would grow
+        # with max_cycles
+        ages = t - self._last_sync_peers
+        self._obs_age[:] = ages / (ages + 10.0)
         self._obs_clock[:] = min(t / self._horizon, 1.0)
         stale = self._stale
         if self.sessions:

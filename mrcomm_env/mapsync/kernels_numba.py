@@ -259,10 +259,10 @@ def walk_and_sense(walk, keys, pos, neighbours, truth, sensed, distinct, maps, s
 
 
 @numba.njit(cache=True)
-def observe(out, t, clock, age_code, last_sync, new_cells, linked, last_test, session_of, progress, recent, known, n):
+def observe(out, t, clock, last_sync, new_cells, linked, last_test, session_of, progress, recent, known, n):
     """Twin of ``MapSyncEnv._observe``, every column recomputed: writes the (N, 4(N−1) + 5) float32 ``out``.
 
-    Per peer j = i+1, i+2, … (mod N): s/(s+10) for the steps s since the last sync (``age_code[s]``),
+    Per peer j = i+1, i+2, … (mod N): s/(s+10) for the steps s since the last sync,
     c/(c+10) for the new cells c, the link, the last verdict (none 0, different 1, same ½); then the robot's
     recent bits b/(b+n), coverage, busy, session progress and the clock. Every value is computed in float64 as
     the reference computes it and rounded to float32 on the store, as numpy's assignment rounds it.
@@ -273,7 +273,8 @@ def observe(out, t, clock, age_code, last_sync, new_cells, linked, last_test, se
         for o in range(1, n_robots):
             j = (i + o) % n_robots
             col = 4 * (o - 1)
-            out[i, col] = age_code[t - last_sync[i, j]]
+            s = t - last_sync[i, j]
+            out[i, col] = s / (s + 10.0)
             c = new_cells[i, j]
             out[i, col + 1] = c / (c + 10.0)
             out[i, col + 2] = 1.0 if linked[i, j] else 0.0

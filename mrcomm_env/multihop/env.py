@@ -200,6 +200,26 @@ class MultiHopEnv(MrcommParallelEnv):
             "reward_mode": "neighbourhood",
         },
     }
+    MEMORY_FORMULA = (
+        "8 MiB + 180·n² for n robots (`n_robots`, or `grid_side`² in the grid scene): every robot's estimate "
+        "table, its candidate observation and the pairwise distances and links are n × n"
+    )
+    MEMORY_ARGS = ("n_robots", "grid_side")
+    MEMORY_PROBES = {
+        "field_384": {"scene": "field", "n_robots": 384, "max_cycles": 3},
+        "field_768": {"scene": "field", "n_robots": 768, "max_cycles": 3},
+        "grid_32x32": {"grid_side": 32, "max_cycles": 3},
+    }
+
+    @classmethod
+    def memory_estimate(cls, cfg) -> float:
+        # measured (tests/test_memory.py): about 180 bytes per robot pair, whatever the scene and slot size
+        if cfg.n_robots is not None:
+            n = float(cfg.n_robots)
+        else:
+            n = float(cfg.grid_side**2) if cfg.scene == "grid" else (9.0 if cfg.scene == "coverage" else 20.0)
+        return 8 * 2**20 + 180.0 * n * n
+
     #: configurations at the documented maxima (``tests/test_limits.py``, ``experiments/limits.py``)
     LIMIT_CONFIGS = {
         "max_grid_flooding": {"grid_side": 32, "slot_size": 1024},

@@ -162,6 +162,25 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         "action_mask": "(K + 2,) bool: feasible actions",
     }
     #: configurations at the documented maxima (``tests/test_limits.py``, ``mrcomm bench --limits``)
+    MEMORY_FORMULA = (
+        "18 MiB + 140·`n_vehicles`·`n_landmarks` (every vehicle's information map and utility row) + "
+        "(10 + 92·`n_vehicles`)·⌊`t_window`·`obs_rate`⌋ (the observation instants of a window and each "
+        "vehicle's observation events in it)"
+    )
+    MEMORY_ARGS = ("n_vehicles", "n_landmarks", "t_window", "obs_rate")
+    MEMORY_PROBES = {
+        "ten_vehicles_30k_instants": {"t_window": 300.0, "obs_rate": 100.0, "max_cycles": 3},
+        "ten_vehicles_150k_instants": {"t_window": 1500.0, "obs_rate": 100.0, "max_cycles": 3},
+        "thirty_vehicles_300k_instants": {"t_window": 3000.0, "obs_rate": 100.0, "n_vehicles": 30, "max_cycles": 3},
+    }
+
+    @classmethod
+    def memory_estimate(cls, cfg) -> float:
+        # measured (tests/test_memory.py): ~140 B per vehicle × landmark, ~92 B per vehicle × observation instant
+        instants = math.floor(cfg.t_window * cfg.obs_rate + 1e-9)
+        n, landmarks = float(cfg.n_vehicles), float(cfg.n_landmarks)
+        return 18 * 2**20 + 140.0 * n * landmarks + (10.0 + 92.0 * n) * instants
+
     LIMIT_CONFIGS = {
         "largest_team_and_map": {
             "n_vehicles": 64,
