@@ -8,6 +8,8 @@ peak resident memory within a budget that leaves room for the other processes of
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 import warnings
 
 import numpy as np
@@ -100,6 +102,9 @@ def test_multihop_coverage_limits_team_size_naming_both_arguments():
         ("MultiHop-v0", {"scene": "field", "arena_size": 1e308}, "arena_size"),  # was NaN (squared distances)
         ("MultiHop-v0", {"bits_per_estimate": 10**400}, "bits_per_estimate"),  # int too large for a float
         ("MultiHop-v0", {"alpha": 1e308}, "alpha"),
+        ("MapSync-v0", {"res": 1e300}, "res"),  # was a numba TypingError inside the compiled kernel
+        ("MapSync-v0", {"lam": 1e306}, "lam"),  # was a NaN (or −inf) episode_return
+        ("MapSync-v0", {"max_cycles": 2**63}, "max_cycles"),  # was NaN observations or an IndexError
     ],
 )
 def test_values_that_crashed_are_rejected_at_construction(env_id, kwargs, argument):
@@ -233,3 +238,20 @@ def test_asynccl_vectorised_budget_truncation_is_the_packet_by_packet_rule():
             tables.exchange(modes, adj, apply_packet_loss(rng, adj, 0.1), 2000.0)
             tables.new_step(rng.integers(100, 400, n).astype(float))
     assert checked > 20  # many links were actually cut by the budget
+
+
+@pytest.mark.parametrize(
+    ("env_id", "argument", "value"),
+    [("MapSync-v0", "res", "1e300"), ("MapSync-v0", "lam", "1e306"), ("MapSync-v0", "max_cycles", str(2**63))],
+)
+def test_the_cli_refuses_values_that_crashed_in_one_line(env_id, argument, value):
+    proc = subprocess.run(
+        [sys.executable, "-m", "mrcomm_env.experiments.cli", "evaluate", env_id, "--episodes", "1"]
+        + ["--policy", "periodic_equality_then_bisection", "--param", f"{argument}={value}"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode != 0
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"'{argument}'" in lines[0] and "Traceback" not in proc.stderr, proc.stderr

@@ -86,3 +86,24 @@ def test_metrics_and_state_before_reset_say_to_reset(env_id):
     for method in (env.metrics, env.state, lambda: env.step({})):
         with pytest.raises(RuntimeError, match=r"reset\(\)"):
             method()
+
+
+def _horizon(env_id, cycles):
+    check = env_class(env_id).PARAMS["max_cycles"].check
+    return cycles if check.hi is None else min(cycles, check.hi)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env_id", env_ids())
+def test_memory_does_not_grow_with_the_horizon(env_id):
+    """A horizon of a billion steps costs what ten do: nothing is sized by ``max_cycles`` (MapSync's observation
+    once tabulated every possible age, 16 GB at 2e9)."""
+    short, long = {"max_cycles": 10}, {"max_cycles": _horizon(env_id, 10**9)}
+    assert _estimate(env_id, short) == _estimate(env_id, long)
+    peaks = [
+        measure_limit(
+            env_id, cfg, seconds=0.0, min_steps=3, trace_memory=True, timeout=600, env_vars={"MRCOMM_BACKEND": "numpy"}
+        )["traced_peak_mb"]
+        for cfg in (short, long)
+    ]
+    assert peaks[1] <= peaks[0] + 1.0, f"{env_id}: {peaks[0]:.1f} MB at 10 steps, {peaks[1]:.1f} MB at 1e9"

@@ -226,7 +226,10 @@ class MapSyncEnv(MrcommParallelEnv):
             "k": 64,
             "n_obstacles": 1000,
             "database_seed": 2**63 - 1,
+            "res": 256 * 256,
         },
+        # the longest horizon: nothing is sized by it (the observation's clock and ages are computed per step)
+        "longest_horizon": {"max_cycles": 2**53, "lam": 1e6},
     }
     DOCUMENTED_CONFIGS = {
         "default": {},
