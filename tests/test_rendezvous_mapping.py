@@ -318,7 +318,7 @@ def test_reward_is_the_fused_information_gain_and_unfused_information_does_not_c
     for _ in range(5):
         obs, rewards, *_ = env.step(greedy.act(obs, views))
         total += rewards["robot_0"]
-    assert total * env.reward_scale == pytest.approx(env.fused_logdet - env.logdet0, abs=1e-9)
+    assert total * env.reward_scale == pytest.approx(env.fused_gain, abs=1e-9)
     if env.n_groups == env.n_agents:  # greedy vehicles apart: they gathered but nothing is fused
         assert env.own_info_fraction().max() > 0.0
     env2 = RendezvousMappingEnv(**SMALL, d_comms=math.inf)
@@ -365,7 +365,7 @@ def test_budget_caps_information_and_fraction_stays_in_unit_interval():
     assert env.metrics()["info_fraction"] == pytest.approx(1.0)  # every landmark observed to the floor
     assert env.step_count < 60  # terminated once everything available was fused
     per = theory.available_information(env.cfg.prior_sigma, env.cfg.obs_sigma, env.cfg.obs_per_landmark)
-    assert env.fused_logdet - env.logdet0 == pytest.approx(4 * per)
+    assert env.fused_gain == pytest.approx(4 * per)
 
 
 def test_metric_and_argument_names_and_alias():
@@ -419,3 +419,60 @@ def test_bits_are_counted_for_utility_vectors_and_map_updates():
     env.step({a: 0 for a in env.agents})
     gathered = sum(p.bits(L) for ps in env.maps.packets for p in ps)
     assert env.ledger.step_bits.sum() >= expected + gathered  # each packet crosses at least one edge
+
+
+@pytest.mark.parametrize(
+    ("prior_sigma", "obs_sigma", "obs_per_landmark"),
+    [(1e-3, 1e4, 1), (1e-3, 1e4, 3), (5.0, 3.0, 5), (1.0, 1e-3, 2)],  # tiny and huge σ₀²/σ², and the default
+)
+def test_information_of_the_fused_map_is_exact_across_the_range(prior_sigma, obs_sigma, obs_per_landmark):
+    """With H = I and isotropic Y₀ = I/σ₀², R⁻¹ = I/σ², a landmark observed k times holds 2·ln(1 + kσ₀²/σ²) nats
+    more than the prior: info_fraction is Σ_l ln(1 + k_l ρ) / (L ln(1 + budget·ρ)), and with one observation per
+    landmark exactly the share of landmarks observed. The old difference of log-determinants gave 0.909, 0.227
+    and 1.066 at σ₀ = 1e-3, σ = 1e4 (round-off over an available information of about 1e-12)."""
+    env = mrcomm_env.make(
+        "RendezvousMapping-v0",
+        prior_sigma=prior_sigma,
+        obs_sigma=obs_sigma,
+        obs_per_landmark=obs_per_landmark,
+        n_landmarks=30,
+        n_vehicles=4,
+        area=900.0,
+        d_comms=math.inf,
+        max_cycles=12,
+    )
+    env.reset(seed=3)
+    policy = POLICIES["paper_protocol"]()
+    obs = env.reset(seed=3)[0]
+    policy.reset(env.local_views(), 3)
+    rho = prior_sigma**2 / obs_sigma**2
+    seen = []
+    while env.agents:
+        obs, *_ = env.step(policy.act(obs, env.local_views()))
+        counts = env.maps.common_count
+        expected = math.fsum(math.log1p(k * rho) for k in counts.tolist()) / (30 * math.log1p(obs_per_landmark * rho))
+        if obs_per_landmark == 1:
+            assert expected == pytest.approx(float((counts > 0).sum()) / 30, rel=1e-12)
+        fraction = env.metrics()["info_fraction"]
+        assert 0.0 <= fraction <= 1.0
+        assert fraction == pytest.approx(expected, rel=1e-12, abs=1e-15)
+        seen.append(fraction)
+    assert seen[-1] > 0.0, "the episode observed nothing: the check above was vacuous"
+
+
+@pytest.mark.parametrize(
+    ("n_landmarks", "side", "radius", "sigma"),
+    [
+        (200, 120.0, 15.0, 0.0),
+        (200, 120.0, 10.0, 3.0),
+        (300, 30.0, 3.0, 0.0),
+        (150, 1.0, 10.0, 3.0),
+        (2, 5.0, 10.0, 0.0),
+    ],
+)
+def test_clustering_coefficient_is_networkx_average_clustering(n_landmarks, side, radius, sigma):
+    """The sparse triangle count gives networkx's value to the last bit, on exact grids (pairs at exactly the
+    radius) and jittered ones, on a complete graph (the bounding-box shortcut) and below three nodes."""
+    pos = world.jittered_grid(n_landmarks, side, sigma, np.random.default_rng(7))
+    graph = nx.from_numpy_array(world.landmark_graph(pos, radius).astype(np.int8))
+    assert world.clustering_coefficient(pos, radius) == nx.average_clustering(graph)

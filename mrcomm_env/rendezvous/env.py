@@ -231,6 +231,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         self.r_info = theory.information_per_observation(c.obs_sigma)
         self.y0_info = theory.prior_information(c.prior_sigma)
         self.avail_per_landmark = theory.available_information(c.prior_sigma, c.obs_sigma, c.obs_per_landmark)
+        self.gain_ratio = (c.prior_sigma / c.obs_sigma) ** 2  # σ₀²/σ_obs²: one observation's information over Y₀
         self.available = self.avail_per_landmark * c.n_landmarks
         self.u_max = theory.max_utility(c.prior_sigma, c.obs_sigma, c.obs_per_landmark)
         # reward unit: one landmark's available information per vehicle, so that a team mapping one fresh
@@ -254,7 +255,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         y0 = prior_mean * self.y0_info
         self.maps = filters.TeamMaps(n, Y0, y0)
         self.logdet0 = float(filters.logdet2(Y0).sum())
-        self.fused_logdet = self.logdet0
+        self.fused_gain = 0.0  # Σ_l ln det Y_l − ln det Y₀ of the fused map, kept apart from ln det Y₀ (round-off)
         self.world_count = np.zeros(L, dtype=np.int64)
         self.pos = np.broadcast_to(rng.uniform(0.0, self.side, size=2), (n, 2)).copy()
         self.at_landmark = np.full(n, -1, dtype=np.int64)
@@ -304,14 +305,14 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         self.rendezvous_windows += int(np.isin(self.action_kind, (DETOUR_RENDEZVOUS, RENDEZVOUS)).sum())
         self._observe_landmarks(events_t, events_v, events_l)
         self.pos, self.at_landmark = new_pos, new_at
-        before = self.fused_logdet
+        before = self.fused_gain
         self.phases += 1
         self._decision_phase()
         self.connected_phases += int(self.n_groups == 1)
         frac = self.info_fraction()
         if math.isnan(self.half_phase) and frac >= 0.5:
             self.half_phase = float(self.phases)
-        return (self.fused_logdet - before) / self.reward_scale
+        return (self.fused_gain - before) / self.reward_scale
 
     def _route(self, v: int, a: int, est: np.ndarray) -> list:
         """The legs (target position, landmark observed there or −1, departure time or None) of action a."""
@@ -400,7 +401,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
             self.known_phase[np.ix_(members, members)] = self.phases
         self.ledger.record(bits, messages=messages)
         if maps.update_common():
-            self.fused_logdet = float(filters.logdet2(maps.common_Y).sum())
+            self.fused_gain = self.information_gain(maps.common_count)
         self._estimates = filters.mean_of(maps.Y, maps.y)
         self._plan()
         self._views = None
@@ -445,11 +446,23 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         """(N, K + 2) bool: the feasible actions of every vehicle (sb3-contrib's MaskablePPO reads this)."""
         return self.mask.copy()
 
+    def information_gain(self, counts: np.ndarray) -> float | np.ndarray:
+        """Σ_l ln det Y_l − ln det Y₀ of maps holding ``counts[..., l]`` observations of landmark l.
+
+        The prior Y₀ = I/σ₀² and every observation's R⁻¹ = I/σ_obs² are isotropic and H = I (eq. 3), so each
+        Y_l = (1/σ₀² + k_l/σ_obs²)·I and its gain is exactly 2·ln(1 + k_l·σ₀²/σ_obs²), summed with log1p. The
+        difference of two log-determinants of the accumulated matrices would lose every digit where one
+        observation adds little to the prior (σ₀ = 1e-3 m, σ_obs = 1e4 m: a gain of 2e-14 against ln det Y₀ ≈ 28).
+        """
+        gains = 2.0 * np.log1p(counts * self.gain_ratio).sum(-1)
+        return float(gains) if np.ndim(gains) == 0 else gains
+
     def info_fraction(self) -> float:
-        return (self.fused_logdet - self.logdet0) / self.available
+        # ≤ 1 in exact arithmetic (every landmark's count is capped by obs_per_landmark); the sum may round 1 ulp over
+        return min(self.fused_gain / self.available, 1.0)
 
     def own_info_fraction(self) -> np.ndarray:
-        return (filters.logdet2(self.maps.Y).sum(-1) - self.logdet0) / self.available
+        return self.information_gain(self.maps.count) / self.available
 
     def clustering(self, radius: float) -> float:
         key = f"{radius:.9g}"
@@ -569,7 +582,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
     def _metrics(self) -> dict[str, float]:
         c = self.cfg
         frac = self.info_fraction()
-        log_ratio = -(self.fused_logdet - self.logdet0)  # ln det P − ln det P₀ of the whole map
+        log_ratio = -self.fused_gain  # ln det P − ln det P₀ of the whole map
         return {
             "iterations_to_half_info": self.half_phase,
             "info_fraction": frac,

@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import math
 
-import networkx as nx
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
 
 #: added to every link length so that co-located vehicles (distance 0) still form an edge: scipy's sparse
 #: graphs read a stored 0 as "no edge"
@@ -64,9 +64,41 @@ def landmark_graph(pos: np.ndarray, radius: float) -> np.ndarray:
     return adj
 
 
+def landmark_edges(pos: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """The edges (i < j) of :func:`landmark_graph` without the (L, L) matrix: candidate pairs from a k-d tree,
+    then the very same test ``Σ (x_i − x_j)² < radius²``, so that pairs at exactly ``radius`` (an unperturbed
+    grid) fall on the same side as in the dense graph."""
+    if math.isinf(radius):
+        i, j = np.triu_indices(len(pos), 1)
+        return i, j
+    pairs = cKDTree(pos).query_pairs(radius * (1.0 + 1e-9) + 1e-300, output_type="ndarray")
+    i, j = pairs[:, 0], pairs[:, 1]
+    keep = ((pos[i] - pos[j]) ** 2).sum(-1) < radius * radius
+    return i[keep], j[keep]
+
+
 def clustering_coefficient(pos: np.ndarray, radius: float) -> float:
-    """Mean clustering coefficient C [17] of the landmark graph at ``radius`` (networkx; isolated nodes count 0)."""
-    return float(nx.average_clustering(nx.from_numpy_array(landmark_graph(pos, radius).astype(np.int8))))
+    """Mean clustering coefficient C [17] of the landmark graph at ``radius`` (isolated nodes and leaves count 0).
+
+    networkx's ``average_clustering``, computed as it does (c_v = 2 T(v) / (d_v (d_v − 1)), averaged in node
+    order), but with the triangles T(v) from one sparse product (A·A ∘ A) over the edges a k-d tree finds: about
+    linear in the landmarks for the sparse graphs of the figures, where networkx's per-node sets were cubic on a
+    dense graph. A graph known complete from its bounding box (every pair closer than ``radius``) has C = 1.
+    """
+    n = len(pos)
+    if n < 3:
+        return 0.0
+    span = float(np.hypot(*(pos.max(0) - pos.min(0))))
+    if span < radius * (1.0 - 1e-9):  # every pair is an edge: each c_v = 1
+        return 1.0
+    i, j = landmark_edges(pos, radius)
+    adj = csr_matrix((np.ones(2 * len(i)), (np.concatenate([i, j]), np.concatenate([j, i]))), shape=(n, n))
+    degree = np.diff(adj.indptr)
+    triangles = np.asarray((adj @ adj).multiply(adj).sum(1)).ravel() / 2.0
+    total = 0.0
+    for t, d in zip(triangles.astype(np.int64).tolist(), degree.tolist()):
+        total += 0.0 if d < 2 else 2 * t / (d * (d - 1))
+    return total / n
 
 
 def vehicle_links(pos: np.ndarray, d_comms: float) -> np.ndarray:
