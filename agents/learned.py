@@ -32,6 +32,25 @@ def has_pretrained(env_id: str) -> bool:
     return (pretrained_dir(env_id) / "model.zip").exists()
 
 
+#: the card beside each shipped model: how it was trained and the evaluation mode it was chosen with
+CARD_NAME = "card.json"
+
+
+def model_card(env_id: str) -> dict[str, Any]:
+    """The shipped model's card (``agents/pretrained/<Name>-v0/card.json``): env id and arguments, algorithm, seed,
+    agent-steps, the evaluation mode (``deterministic``) it was chosen with and the command that remakes it."""
+    path = pretrained_dir(env_id) / CARD_NAME
+    try:
+        card = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise RunError(f"the pretrained model of {canonical_id(env_id)} has no {path.name}") from None
+    except json.JSONDecodeError:
+        raise RunError(f"{path} is corrupt (not JSON); reinstall the package or re-export the model") from None
+    if not isinstance(card.get("deterministic"), bool):
+        raise RunError(f"{path} must say whether the model acts deterministically ('deterministic': true/false)")
+    return card
+
+
 class LearnedPolicy(Policy):
     """A parameter-shared SB3 policy: one network acts for every agent.
 
@@ -124,6 +143,8 @@ def load_policy(spec: str, env_id: str, **params) -> LearnedPolicy:
     if spec == "pretrained":
         if not has_pretrained(env_id):
             raise RunError(f"no pretrained model ships for {canonical_id(env_id)}")
+        # the mode the model was chosen with (its card), unless the caller asks for the other one
+        params.setdefault("deterministic", model_card(env_id)["deterministic"])
         return LearnedPolicy(pretrained_dir(env_id), env_id, **params)
     algo, _, path = spec.partition(":")
     if algo not in ALGORITHMS or not path:

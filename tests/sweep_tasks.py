@@ -4,6 +4,7 @@ of every pytest worker and, through the rootdir, of the spawned processes the ru
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -51,3 +52,11 @@ def record_pid(log: str, value: int) -> int:
     with open(log, "a") as fh:
         fh.write(f"{os.getpid()}\n")
     return value
+
+
+def record_pid_and_wait(log: str, seconds: float) -> int:
+    """Appends the worker's process id to ``log``, then works for ``seconds``: a task still running when its
+    driver is killed."""
+    record_pid(log, 0)
+    time.sleep(seconds)
+    return 0

@@ -125,3 +125,65 @@ def test_a_using_block_keeps_one_pool_of_workers_for_all_its_sweeps(monkeypatch,
         assert runner._pool is not None
     assert runner._pool is None  # stopped with the block
     assert len(set(log.read_text().split())) <= 2  # the same two workers ran all six tasks
+
+
+@pytest.mark.xdist_group("processes")
+def test_workers_die_with_a_driver_killed_by_sigkill(tmp_path):
+    """``kill -9`` of a sweep's driver (``mrcomm reproduce --workers 2``) leaves no worker behind."""
+    import signal
+    import subprocess
+    import time
+
+    log = tmp_path / "pids.txt"
+    driver = (
+        f"import sys; sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+        "from mrcomm_env.experiments.sweep import Runner, Task\n"
+        "Runner(workers=2, progress=False).map([Task('sweep_tasks:record_pid_and_wait', "
+        f"{{'log': {str(log)!r}, 'seconds': 120 + k}}) for k in range(2)])\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).parent)}
+    proc = subprocess.Popen([sys.executable, "-c", driver], env=env)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and (not log.exists() or len(log.read_text().split()) < 2):
+        assert proc.poll() is None, "the driver failed before its workers started"
+        time.sleep(0.2)
+    workers = [int(p) for p in log.read_text().split()]
+    assert len(workers) == 2
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+
+    def alive(pid):
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        # a zombie (killed, not yet reaped by init) is gone for every purpose
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().split(")")[-1].split()[0] != "Z"
+
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and any(alive(p) for p in workers):
+        time.sleep(0.2)
+    assert not any(alive(p) for p in workers), "workers outlived their killed driver"
+
+
+def test_a_corrupt_cached_result_is_run_again_with_a_warning(tmp_path):
+    task = Task(FN + "draw", {"seed": 4}, "draw s=4")
+    expected = Runner(workers=1, progress=False).map([task], cache=tmp_path)
+    path = tmp_path / f"{task.key()}.json"
+    path.write_text('{"result": [1, 2')  # a truncated file, as a full disk or an editor could leave it
+    with pytest.warns(UserWarning, match=str(path.name)):
+        again = Runner(workers=1, progress=False).map([task], cache=tmp_path)
+    assert again == expected
+    assert json.loads(path.read_text())["result"] == expected[0]
+
+
+def test_the_cache_key_holds_the_backend_of_the_hot_loops(monkeypatch):
+    from mrcomm_env.core import backend
+
+    task = Task(FN + "draw", {"seed": 4})
+    keys = set()
+    for name in ("numba", "numpy"):
+        monkeypatch.setattr(backend, "name", lambda name=name: name)
+        keys.add(task.key())
+    assert len(keys) == 2

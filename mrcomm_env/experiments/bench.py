@@ -244,10 +244,10 @@ class _FreshSerial:
         from concurrent.futures import ProcessPoolExecutor
         from dataclasses import asdict
 
-        from mrcomm_env.experiments.sweep import _one_thread
+        from mrcomm_env.experiments.sweep import one_thread
 
         context = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(1, mp_context=context, initializer=_one_thread) as pool:
+        with ProcessPoolExecutor(1, mp_context=context, initializer=one_thread) as pool:
             return pool.submit(_serially, [asdict(task) for task in tasks]).result()
 
 

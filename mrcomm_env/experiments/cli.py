@@ -125,10 +125,12 @@ def cmd_evaluate(args) -> int:
     # everything a bad argument could break is built once before the first episode: the env with its
     # params, the policy with its params, and the policy's reset against this env (e.g. a mode it needs)
     policy = make_any_policy(env_id, args.policy, **policy_params)
-    if args.policy == "pretrained" and not params:
-        # a shipped model acts in the setting it was trained in (its spaces depend on the env's arguments)
-        params = dict(policy.env_kwargs)
-        print(f"pretrained model: its training setting {params} (pass --param to choose another)", file=sys.stderr)
+    trained_on = getattr(policy, "env_kwargs", None)
+    if trained_on is not None:
+        # a learned model acts in the setting it was trained in (its spaces depend on the env's arguments): the
+        # run's own env arguments are the default, and --param overrides them one by one
+        params = {**trained_on, **params}
+        print(f"learned model: its training setting with --param applied, {params}", file=sys.stderr)
     probe = make(env_id, **params)
     try:
         probe.reset(seed=args.seed)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mrcomm_env.registry import canonical_id
+from mrcomm_env.registry import canonical_id, short_name
 
 
 def make_any_policy(env_id: str, name: str, **params):
@@ -120,7 +120,6 @@ def cmd_train(args: argparse.Namespace) -> int:
     )
     from mrcomm_env.experiments.cli import parse_params
     from mrcomm_env.experiments.evaluation import limit_threads
-    from mrcomm_env.registry import short_name
 
     limit_threads()
     env_id = canonical_id(args.env_id)
@@ -467,7 +466,35 @@ def export_pretrained(run: str | Path, env_id: str) -> Path:
             tmp = target / f".{name}.tmp"
             shutil.copyfile(Path(run) / name, tmp)
             tmp.replace(target / name)
+    write_model_card(env_id, json.loads((target / "config.json").read_text()))
     return target
+
+
+def write_model_card(env_id: str, record: dict) -> Path:
+    """``card.json`` beside a shipped model: what ``--policy pretrained`` and a reader need to know of it. The
+    evaluation mode is the one the comparison chose the model with (``comparison.deterministic`` of
+    ``agents/configs/<Name>-v0.json``, deterministic by default)."""
+    from mrcomm_agents.learned import CARD_NAME, pretrained_dir
+    from mrcomm_env.experiments.io import atomic_write_text
+
+    try:
+        spec = comparison_spec(env_id)
+    except ValueError:
+        spec = {}
+    card = {
+        "env_id": canonical_id(env_id),
+        "env_kwargs": record.get("env_kwargs", {}),
+        "algo": record.get("algo"),
+        "policy": record.get("policy", "mlp"),
+        "seed": record.get("seed"),
+        "agent_steps": record.get("timesteps"),
+        "deterministic": bool(spec.get("deterministic", True)),
+        "metric": spec.get("metric"),
+        "reproduce": f"mrcomm reproduce-learning {short_name(env_id)} --export-pretrained",
+    }
+    path = pretrained_dir(env_id) / CARD_NAME
+    atomic_write_text(path, json.dumps(card, indent=2) + "\n")
+    return path
 
 
 def _row(policy, cost, metric_values, bits_values, n, mean_ci95) -> dict:

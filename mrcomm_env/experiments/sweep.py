@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import ctypes
 import functools
 import hashlib
 import importlib
@@ -31,13 +32,20 @@ import importlib.util
 import json
 import os
 import re
+import signal
 import sys
+import threading
+import time
+import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from mrcomm_env.experiments.io import atomic_write_text
+
+#: prctl(2) option: the signal a process gets when its parent dies
+PR_SET_PDEATHSIG = 1
 
 #: attempts per task: the first run and one retry
 ATTEMPTS = 2
@@ -57,8 +65,11 @@ class Task:
     name: str = ""
 
     def key(self) -> str:
-        """A file-safe name that changes whenever the function, any argument or the package's code does."""
-        blob = json.dumps([self.fn, self.kwargs, code_version()], sort_keys=True, default=str)
+        """A file-safe name that changes whenever the function, any argument, the package's code or the backend of
+        its hot loops (numba or numpy: their results agree to round-off, not to the bit) does."""
+        from mrcomm_env.core import backend
+
+        blob = json.dumps([self.fn, self.kwargs, code_version(), backend.name()], sort_keys=True, default=str)
         digest = hashlib.sha1(blob.encode()).hexdigest()[:12]
         label = re.sub(r"[^A-Za-z0-9_.=,-]+", "_", self.name or self.fn.rsplit(":", 1)[-1])[:80]
         return f"{label}-{digest}"
@@ -91,7 +102,31 @@ def execute(fn: str, kwargs: dict[str, Any]) -> Any:
     return getattr(importlib.import_module(module), name)(**kwargs)
 
 
-def _one_thread() -> None:
+def _worker_start(parent: int) -> None:
+    """What every local worker process runs first: it dies with the process that started it, and uses one core."""
+    _die_with_parent(parent)
+    one_thread()
+
+
+def _die_with_parent(parent: int) -> None:
+    """Ask Linux to kill this process when its parent dies (``prctl(PR_SET_PDEATHSIG)``): a ``kill -9`` of
+    ``mrcomm reproduce`` must not leave its workers running. Elsewhere, a thread polls for the parent instead."""
+    if sys.platform.startswith("linux"):
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    else:
+        threading.Thread(target=_exit_when_orphaned, args=(parent,), daemon=True).start()
+    if os.getppid() != parent:  # the parent died before the request was made
+        os._exit(1)
+
+
+def _exit_when_orphaned(parent: int) -> None:
+    while os.getppid() == parent:
+        time.sleep(1.0)
+    os._exit(1)
+
+
+def one_thread() -> None:
     """Each worker process uses one core: BLAS and torch would otherwise start one thread per core each."""
     os.environ["OMP_NUM_THREADS"] = "1"
     os.environ["MKL_NUM_THREADS"] = "1"
@@ -154,7 +189,11 @@ class Runner:
             for i, key in enumerate(keys):
                 path = cache_dir / f"{key}.json"
                 if path.exists():
-                    results[i], done[i] = json.loads(path.read_text())["result"], True
+                    try:
+                        results[i], done[i] = json.loads(path.read_text())["result"], True
+                    except (json.JSONDecodeError, KeyError, TypeError, UnicodeDecodeError):
+                        # a file damaged outside our atomic writes: run the task again and overwrite it
+                        warnings.warn(f"cached result {path} is corrupt; running its task again", stacklevel=2)
         todo = [i for i in range(len(tasks)) if not done[i]]
         failures: list[str] = []
         errors: list[BaseException] = []
@@ -217,7 +256,7 @@ class Runner:
             # spawn, not fork: a forked child inherits the parent's torch/BLAS thread pools and locks
             context = multiprocessing.get_context("spawn")
             size = self.workers if self._keep_pool else min(self.workers, len(todo))
-            pool = ProcessPoolExecutor(size, mp_context=context, initializer=_one_thread)
+            pool = ProcessPoolExecutor(size, mp_context=context, initializer=_worker_start, initargs=(os.getpid(),))
             if self._keep_pool:  # inside ``using``: the workers (and their imports) serve every sweep of the block
                 self._pool = pool
         pending = {pool.submit(execute, tasks[i].fn, tasks[i].kwargs): (i, 1) for i in todo}
@@ -309,7 +348,7 @@ def _ray_execute(fn: str, kwargs: dict[str, Any], driver: dict[str, str] | None 
     """What a Ray worker runs: :func:`execute`, after checking that this node has the driver's code (the cache
     key holds the driver's :func:`code_version`) and the driver's choice of compiled twins (numba and numpy
     estimates differ by round-off: docs/architecture.md)."""
-    _one_thread()
+    one_thread()
     if driver is not None:
         from mrcomm_env.core import backend
 
