@@ -4,20 +4,31 @@ A run folder holds everything needed to evaluate, resume or reproduce it:
 
 * ``config.json`` — env id and arguments, algorithm, hyperparameters, seed, package versions, git commit;
 * ``model.zip`` and ``vecnormalize.pkl`` — the final policy and its observation/return statistics;
-* ``checkpoints/`` — the latest checkpoint (model with optimizer state, statistics, timestep count);
+* ``checkpoints/step-<agent-steps>/`` — the last two checkpoints (model with optimizer state, statistics,
+  timestep count), so that one damaged by a crash mid-write still leaves the other;
 * ``progress.csv`` and TensorBoard event files — SB3's own logger;
-* ``done.json`` — written last, when the run finished.
+* ``done.json`` — written last, when the run finished;
+* ``.lock`` — held (``flock``) by the process training the run, with its pid: a second one is refused, and the
+  lock goes with its holder however it ends (``kill -9`` included).
 
-``--resume`` continues from the latest checkpoint with the same timestep count, optimizer state and
-normalisation statistics; a finished run refuses to resume.
+``--resume`` continues from the newest loadable checkpoint with the same timestep count, optimizer state and
+normalisation statistics, and appends to ``progress.csv`` (rows past the checkpoint, logged by the interrupted
+process, are dropped so that the log stays continuous). ``--resume --timesteps N`` extends a finished run to N
+agent-steps. A run stopped before its first checkpoint has nothing to resume: a fresh ``train`` starts it over.
 """
 
 from __future__ import annotations
 
+import contextlib
+import csv
+import fcntl
 import json
 import os
 import platform
+import shutil
 import subprocess
+import sys
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from importlib import metadata
 from pathlib import Path
@@ -26,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from mrcomm_agents.vecenv import AgentSlotVecEnv
+from mrcomm_env.core.config import Int, Optional, Real
 from mrcomm_env.registry import canonical_id, make, short_name
 
 CONFIG_DIR = Path(__file__).with_name("configs")
@@ -37,6 +49,33 @@ ALGORITHMS = {
 }
 #: arguments of ``train`` that are not the algorithm's own hyperparameters
 RUN_KEYS = ("n_envs", "normalize", "checkpoint_every", "net_arch", "policy")
+#: the documented ranges of the SB3 hyperparameters (a value outside is refused before any training)
+HYPERPARAMETER_RANGES = {
+    "learning_rate": Real(0.0, lo_open=True),
+    "gamma": Real(0.0, 1.0),
+    "gae_lambda": Real(0.0, 1.0),
+    "clip_range": Real(0.0, lo_open=True),
+    "clip_range_vf": Optional(Real(0.0, lo_open=True)),
+    "ent_coef": Real(0.0),
+    "vf_coef": Real(0.0),
+    "max_grad_norm": Real(0.0, lo_open=True),
+    "target_kl": Optional(Real(0.0, lo_open=True)),
+    "n_steps": Int(lo=1),
+    "batch_size": Int(lo=1),
+    "n_epochs": Int(lo=1),
+    "buffer_size": Int(lo=1),
+    "learning_starts": Int(lo=0),
+    "tau": Real(0.0, 1.0),
+    "train_freq": Int(lo=1),
+    "gradient_steps": Int(lo=-1),
+    "target_update_interval": Int(lo=1),
+    "exploration_fraction": Real(0.0, 1.0),
+    "exploration_initial_eps": Real(0.0, 1.0),
+    "exploration_final_eps": Real(0.0, 1.0),
+}
+#: checkpoints kept: the newest may be damaged by a crash while it is written; the one before it then serves
+KEEP_CHECKPOINTS = 2
+LOCK_NAME = ".lock"
 
 
 class RunError(ValueError):
@@ -71,6 +110,9 @@ class TrainConfig:
             raise ValueError(f"argument 'seed' must be an integer ≥ 0, got {self.seed!r}")
         if self.policy not in ("mlp", "candidates"):
             raise ValueError(f"argument 'policy' must be 'mlp' or 'candidates', got {self.policy!r}")
+        for name, value in self.hyperparams.items():
+            if name in HYPERPARAMETER_RANGES and not callable(value):
+                HYPERPARAMETER_RANGES[name](name, value)
         env = make(self.env_id, **self.env_kwargs)  # the env's own arguments are checked before any work
         if self.policy == "candidates" and env.observation_layout() is None:
             raise ValueError(
@@ -110,7 +152,13 @@ def load_config_file(path: str | Path, algo: str) -> dict[str, Any]:
         raise RunError(f"--config {path} is not valid JSON: {exc.msg} at line {exc.lineno}") from None
     if not isinstance(data, dict):
         raise RunError(f"--config {path} must hold a JSON object")
-    return data.get(algo, data)
+    if not isinstance(data.get(algo), dict):
+        sections = ", ".join(repr(k) for k, v in data.items() if isinstance(v, dict) and k in ALGORITHMS) or "none"
+        raise RunError(
+            f"--config {path} has no section for algorithm '{algo}' (a JSON object under the key \"{algo}\", as in "
+            f"agents/configs/); its algorithm sections: {sections}"
+        )
+    return data[algo]
 
 
 def split_settings(settings: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -211,22 +259,38 @@ class _Progress:
         self.callback = Callback()
 
 
-def train(config: TrainConfig, out: str | Path, resume: bool = False, progress: bool = True) -> Path:
-    """Train (or with ``resume``, continue) the run in folder ``out``; returns the folder."""
+def train(
+    config: TrainConfig | None,
+    out: str | Path,
+    resume: bool = False,
+    progress: bool = True,
+    requested: dict[str, Any] | None = None,
+) -> Path:
+    """Train (or with ``resume``, continue) the run in folder ``out``; returns the folder.
+
+    With ``resume``, ``requested`` holds the settings the caller named explicitly (``env_id``, ``algo``, ``seed``,
+    ``env_kwargs``, ``timesteps``): each must agree with the run's ``config.json`` — except ``timesteps``, which
+    may extend the run, a finished one included."""
+    out = Path(out)
+    if not resume:
+        config.validate()  # a bad setting leaves no folder behind
+    with run_lock(out):  # the folder is created and locked before any work: one that cannot be written fails here
+        if resume:
+            config = _resumable(out, requested or {})
+        else:
+            if (out / "done.json").exists() or _checkpoints(out):
+                raise RunError(f"{out} already holds a run; pass --resume to continue it or choose another --out")
+            _clear_unstarted(out)  # a run that stopped before its first checkpoint starts over
+        return _train_locked(config, out, resume, progress)
+
+
+def _train_locked(config: TrainConfig, out: Path, resume: bool, progress: bool) -> Path:
     import torch
-    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.logger import Logger, make_output_format
     from stable_baselines3.common.vec_env import VecNormalize
 
     torch.set_num_threads(1)
-    out = Path(out)
     ckpt = out / "checkpoints"
-    if resume:
-        config = _resumable(out)
-    else:
-        config.validate()
-        if (out / "config.json").exists():
-            raise RunError(f"{out} already holds a run; pass --resume to continue it or choose another --out")
-    out.mkdir(parents=True, exist_ok=True)
     ckpt.mkdir(exist_ok=True)
     cls = algorithm_class(config.algo)
     if not resume:
@@ -235,15 +299,9 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False, progress: 
 
     venv = make_training_env(config, config.seed)
     if resume:
-        if config.normalize:
-            venv = VecNormalize.load(str(ckpt / "vecnormalize.pkl"), venv)
-        model = cls.load(
-            str(ckpt / "model.zip"),
-            env=venv,
-            device="cpu",
-            custom_objects=policy_class_override({"policy": config.policy}),
-        )
+        model, venv = _load_newest_checkpoint(cls, config, ckpt, venv)
         done_steps = model.num_timesteps
+        _cut_progress_log(out / "progress.csv", done_steps)
     else:
         if config.normalize:
             venv = VecNormalize(venv, norm_obs=True, norm_reward=True, gamma=config.hyperparams.get("gamma", 0.99))
@@ -261,16 +319,11 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False, progress: 
             policy_kwargs.setdefault("net_arch", list(config.net_arch))
         model = cls(policy, venv, seed=config.seed, device="cpu", verbose=0, policy_kwargs=policy_kwargs, **kwargs)
         done_steps = 0
-    model.set_logger(configure(str(out), ["csv", "tensorboard"]))
+    csv_log = resumed_csv_output(str(out / "progress.csv")) if resume else make_output_format("csv", str(out))
+    model.set_logger(Logger(str(out), [csv_log, make_output_format("tensorboard", str(out))]))
 
-    def save(m, folder: Path = ckpt) -> None:
-        # model first, then statistics, then the step count: a reader trusts state.json only when all exist
-        m.save(str(folder / ".model.tmp.zip"))
-        os.replace(folder / ".model.tmp.zip", folder / "model.zip")
-        if config.normalize:
-            m.get_vec_normalize_env().save(str(folder / ".vecnormalize.tmp.pkl"))
-            os.replace(folder / ".vecnormalize.tmp.pkl", folder / "vecnormalize.pkl")
-        write_json(folder / "state.json", {"num_timesteps": int(m.num_timesteps)})
+    def save(m) -> None:
+        _save_checkpoint(m, config, ckpt)
 
     bar = _Progress(config.timesteps, done_steps, config.checkpoint_every, save, progress)
     remaining = config.timesteps - done_steps
@@ -283,20 +336,199 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False, progress: 
         save(model)
         raise
     save(model)
-    save(model, out)
+    _save_files(model, config, out)
     write_json(out / "done.json", {"num_timesteps": int(model.num_timesteps)})
     venv.close()
     return out
 
 
-def _resumable(out: Path) -> TrainConfig:
-    if not (out / "config.json").exists():
+# ------------------------------------------------------------------------------------------------ run folders
+@contextlib.contextmanager
+def run_lock(out: Path) -> Iterator[None]:
+    """Hold ``out/.lock`` while training: a second process on the same run is refused, naming the holder."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        fd = os.open(out / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as exc:
+        raise RunError(f"cannot write the run folder {out}: {exc.strerror or exc}") from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+            raise RunError(
+                f"{out} is being trained by another process (pid {holder}); wait for it to end or use another --out"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)  # releases the lock (the kernel does the same when the process dies)
+
+
+def has_checkpoint(out: Path) -> bool:
+    """Whether the run in ``out`` wrote a checkpoint (it can be resumed; without one it starts over)."""
+    return bool(_checkpoints(out))
+
+
+def _checkpoints(out: Path) -> list[Path]:
+    """The run's checkpoint folders, newest first (the layout before step folders: one in ``checkpoints/``)."""
+    ckpt = out / "checkpoints"
+    found = sorted(ckpt.glob("step-*/state.json"), key=lambda p: p.parent.name, reverse=True)
+    folders = [p.parent for p in found]
+    if (ckpt / "state.json").exists():
+        folders.append(ckpt)
+    return folders
+
+
+def _clear_unstarted(out: Path) -> None:
+    """Remove what a run that never reached a checkpoint left (its config, logs, half-written checkpoint)."""
+    for path in out.iterdir():
+        if path.name == LOCK_NAME:
+            continue
+        if path.name in ("config.json", "progress.csv", "checkpoints") or path.name.startswith("events.out.tfevents"):
+            shutil.rmtree(path) if path.is_dir() else path.unlink()
+
+
+def _save_files(m, config: TrainConfig, folder: Path) -> None:
+    # model first, then statistics, then the step count: a reader trusts state.json only when all exist
+    m.save(str(folder / ".model.tmp.zip"))
+    os.replace(folder / ".model.tmp.zip", folder / "model.zip")
+    if config.normalize:
+        m.get_vec_normalize_env().save(str(folder / ".vecnormalize.tmp.pkl"))
+        os.replace(folder / ".vecnormalize.tmp.pkl", folder / "vecnormalize.pkl")
+    write_json(folder / "state.json", {"num_timesteps": int(m.num_timesteps)})
+
+
+def _save_checkpoint(m, config: TrainConfig, ckpt: Path) -> None:
+    """A new ``step-<n>`` folder, written whole under a temporary name and renamed; then all but the newest
+    :data:`KEEP_CHECKPOINTS` are removed."""
+    name = f"step-{int(m.num_timesteps):012d}"
+    tmp = ckpt / f".{name}.tmp"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    _save_files(m, config, tmp)
+    shutil.rmtree(ckpt / name, ignore_errors=True)
+    os.replace(tmp, ckpt / name)
+    for old in _checkpoints(ckpt.parent)[KEEP_CHECKPOINTS:]:
+        if old == ckpt:  # the single checkpoint of the old layout
+            for stale in ("model.zip", "vecnormalize.pkl", "state.json"):
+                (ckpt / stale).unlink(missing_ok=True)
+        else:
+            shutil.rmtree(old, ignore_errors=True)
+
+
+def _load_newest_checkpoint(cls, config: TrainConfig, ckpt: Path, venv):
+    """(model, venv) from the newest checkpoint that loads; a damaged one is reported and the older one used."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    base = venv
+    problems = []
+    for folder in _checkpoints(ckpt.parent):
+        try:
+            env = VecNormalize.load(str(folder / "vecnormalize.pkl"), base) if config.normalize else base
+            model = cls.load(
+                str(folder / "model.zip"),
+                env=env,
+                device="cpu",
+                custom_objects=policy_class_override({"policy": config.policy}),
+            )
+            state = json.loads((folder / "state.json").read_text())
+            model.num_timesteps = int(state["num_timesteps"])
+        except Exception as exc:  # noqa: BLE001 - any damage (zip, pickle, JSON) means: try the older one
+            problems.append(f"{folder.name}: {type(exc).__name__}")
+            continue
+        if problems:
+            print(f"resuming from {folder} ({'; '.join(problems)}: damaged, skipped)", file=sys.stderr)
+        return model, env
+    raise RunError(f"cannot resume {ckpt.parent}: no checkpoint loads ({'; '.join(problems)}); start it over")
+
+
+def resumed_csv_output(filename: str):
+    """SB3's CSV log continued in place: SB3's own ``CSVOutputFormat`` opens ``progress.csv`` with ``w+``, which
+    erases the rows of the run being resumed. The header's keys are kept; a new key rewrites it, as SB3 does."""
+    from stable_baselines3.common.logger import CSVOutputFormat  # the train extra
+
+    output = CSVOutputFormat.__new__(CSVOutputFormat)
+    output.file = open(filename, "r+" if os.path.exists(filename) else "w+")  # noqa: SIM115 - the logger closes it
+    header = output.file.readline().rstrip("\n")
+    output.keys = header.split(",") if header else []
+    output.file.seek(0, os.SEEK_END)
+    output.separator, output.quotechar = ",", '"'
+    return output
+
+
+def _cut_progress_log(path: Path, steps: int) -> None:
+    """Drop the rows logged after the checkpoint a run resumes from (the interrupted process got further than
+    what it saved): the resumed rows then continue the log with increasing ``time/total_timesteps``."""
+    if not path.exists():
+        return
+    with open(path, newline="") as fh:
+        rows = list(csv.reader(fh))
+    if not rows:
+        return
+    header, body = rows[0], rows[1:]
+    column = header.index("time/total_timesteps") if "time/total_timesteps" in header else None
+    if column is not None:
+        body = [r for r in body if len(r) > column and r[column] and float(r[column]) <= steps]
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "w", newline="") as fh:
+        csv.writer(fh, lineterminator="\n").writerows([header, *body])
+    os.replace(tmp, path)
+
+
+def _resumable(out: Path, requested: dict[str, Any]) -> TrainConfig:
+    config_path = out / "config.json"
+    if not config_path.exists():
         raise RunError(f"cannot resume {out}: it holds no run (config.json is missing)")
-    if (out / "done.json").exists():
-        raise RunError(f"cannot resume {out}: the run has finished")
-    if not (out / "checkpoints" / "state.json").exists():
-        raise RunError(f"cannot resume {out}: no checkpoint was written yet; start it again")
-    return config_from_record(json.loads((out / "config.json").read_text()))
+    try:
+        record = json.loads(config_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise RunError(f"cannot resume {out}: {config_path} is corrupt (not JSON); start the run over") from None
+    config = config_from_record(record)
+    _check_agreement(config, requested, out)
+    finished = (out / "done.json").exists()
+    if not _checkpoints(out):
+        raise RunError(
+            f"nothing to resume in {out}: it stopped before its first checkpoint; run the same `mrcomm train` "
+            "without --resume to start it over"
+        )
+    wanted = requested.get("timesteps")
+    if finished:
+        done = int(json.loads((out / "done.json").read_text())["num_timesteps"])
+        if wanted is None or wanted <= done:
+            raise RunError(
+                f"cannot resume {out}: the run has finished ({done} agent-steps); pass --timesteps larger than "
+                f"{done} to extend it"
+            )
+    if wanted is not None and wanted != config.timesteps:
+        config.timesteps = int(wanted)
+        write_json(config_path, {**record, "timesteps": config.timesteps})
+    if finished:
+        (out / "done.json").unlink()
+    return config
+
+
+def _check_agreement(config: TrainConfig, requested: dict[str, Any], out: Path) -> None:
+    """A resumed run keeps its own settings: any named setting that differs is refused, naming it."""
+    named = {k: v for k, v in requested.items() if k != "timesteps" and v is not None}
+    if "env_id" in named:
+        named["env_id"] = canonical_id(named["env_id"])
+    clashes = [
+        f"'{key}' is {named[key]!r} but the run has {getattr(config, key)!r}"
+        for key in ("env_id", "algo", "seed")
+        if key in named and named[key] != getattr(config, key)
+    ]
+    for key, value in named.get("env_kwargs", {}).items():
+        if config.env_kwargs.get(key, _UNSET) != value:
+            clashes.append(
+                f"env argument '{key}' is {value!r} but the run has {config.env_kwargs.get(key, 'its default')!r}"
+            )
+    if clashes:
+        raise RunError(f"cannot resume {out} with other settings: {'; '.join(clashes)}")
+
+
+_UNSET = object()
 
 
 def config_from_record(record: dict) -> TrainConfig:

@@ -117,7 +117,10 @@ def test_reproduce_learning_end_to_end_on_a_tiny_budget(tmp_path, monkeypatch):
     assert len(rows) == 1 + 2 + 2  # header, one learned row per cost, two baselines
     assert (docs / "learning" / "ChannelAssociation-v0.png").stat().st_size > 0
     shipped = tmp_path / "pretrained" / "ChannelAssociation-v0"
-    assert {p.name for p in shipped.iterdir()} == {"model.zip", "vecnormalize.pkl", "config.json"}
+    assert {p.name for p in shipped.iterdir()} == {"model.zip", "vecnormalize.pkl", "config.json", "card.json"}
+    card = json.loads((shipped / "card.json").read_text())
+    assert card["env_kwargs"] == json.loads((shipped / "config.json").read_text())["env_kwargs"]
+    assert card["deterministic"] is False  # the mode of the (patched) comparison config above
     # a rerun trains nothing again: every run folder is finished
     runs = sorted((tmp_path / "runs").rglob("done.json"))
     assert len(runs) == 2
@@ -169,3 +172,29 @@ def test_learning_page_is_current_with_its_recorded_tables_and_sweeps(tmp_path):
         fragment.unlink()  # every section is rebuilt, none is copied
     assert main(["reproduce-learning", "--docs-only", "--docs", str(tmp_path)]) == 0
     assert (tmp_path / "learning.md").read_text() == (docs / "learning.md").read_text()
+
+
+@pytest.mark.parametrize("env_id", env_ids())
+def test_every_shipped_model_has_a_card_that_agrees_with_it(env_id):
+    """The card holds the model's training setting and the evaluation mode it was chosen with, which
+    ``--policy pretrained`` uses (MultiHop's was chosen sampling: deterministic, it scored worse than random)."""
+    from mrcomm_agents.learned import model_card
+    from mrcomm_env.experiments.learning import comparison_spec
+
+    card = model_card(env_id)
+    record = json.loads((PRETRAINED_DIR / short_name(env_id) / "config.json").read_text())
+    assert card["env_id"] == record["env_id"] and card["env_kwargs"] == record["env_kwargs"]
+    assert card["algo"] == record["algo"] and card["agent_steps"] == record["timesteps"]
+    assert card["deterministic"] is comparison_spec(env_id).get("deterministic", True)
+    policy = load_policy("pretrained", env_id)
+    assert policy.deterministic is card["deterministic"]
+    assert (
+        load_policy("pretrained", env_id, deterministic=not card["deterministic"]).deterministic
+        is not card["deterministic"]
+    )
+
+
+def test_multihop_pretrained_samples_as_its_card_says():
+    from mrcomm_agents.learned import model_card
+
+    assert model_card("MultiHop-v0")["deterministic"] is False

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import pickle
 
 import numpy as np
@@ -83,7 +84,8 @@ def test_resume_loses_neither_steps_nor_optimizer_nor_statistics(tmp_path, monke
         train(config(target), tmp_path / "run", progress=False)
     monkeypatch.undo()
     assert not (tmp_path / "run" / "done.json").exists()
-    state = json.loads((tmp_path / "run" / "checkpoints" / "state.json").read_text())
+    newest = training._checkpoints(tmp_path / "run")[0]
+    state = json.loads((newest / "state.json").read_text())
     assert 0 < state["num_timesteps"] < target
 
     train(None, tmp_path / "run", resume=True, progress=False)
@@ -98,8 +100,11 @@ def test_resume_loses_neither_steps_nor_optimizer_nor_statistics(tmp_path, monke
     with open(tmp_path / "run" / "vecnormalize.pkl", "rb") as fh:
         stats = pickle.load(fh)
     assert stats.obs_rms.count == pytest.approx(target + 2 * N_AGENTS, abs=1e-3)
-    rows = (tmp_path / "run" / "progress.csv").read_text().splitlines()
-    assert len(rows) >= 1 + rollouts - 2  # the resumed part appended its rows
+    # the resumed run appended to the log: one row per rollout of the whole run, steps increasing, one header
+    with open(tmp_path / "run" / "progress.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    steps = [int(float(r["time/total_timesteps"])) for r in rows]
+    assert steps == [ROLLOUT * (k + 1) for k in range(rollouts)]
 
 
 def test_resume_of_a_finished_run_is_refused(tmp_path, capsys):
@@ -233,6 +238,8 @@ def test_train_seeds_and_grid_run_every_combination_through_the_runner(tmp_path,
         (["--grid", "emission_cost=-1"], "emission_cost"),  # the env's own check, before any training
         (["--grid", "learning_rate"], "--grid takes KEY=V1,V2"),
         (["--seeds", "1,1"], "--seeds takes distinct integers"),
+        (["--grid", "gamma=0.9,2.5"], "'gamma'"),  # SB3 accepted it
+        (["--grid", "clip_range=-1"], "'clip_range'"),
     ],
 )
 def test_bad_sweeps_are_refused_in_one_line_before_any_training(tmp_path, capsys, extra, message):
@@ -242,3 +249,138 @@ def test_bad_sweeps_are_refused_in_one_line_before_any_training(tmp_path, capsys
     err = capsys.readouterr().err.strip()
     assert message in err and "Traceback" not in err and len(err.splitlines()) <= 2
     assert not out.exists()
+
+
+# ------------------------------------------------------------------------------ interruptions and mistakes
+def _cli_error(capsys) -> str:
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1, err
+    return err
+
+
+def _train_cli(run, *extra) -> list[str]:
+    params = [x for k, v in ENV_KWARGS.items() for x in ("--param", f"{k}={v}")]
+    return ["train", ENV, "--out", str(run), "--quiet", *params, *extra]
+
+
+def test_a_run_killed_before_its_first_checkpoint_starts_over(tmp_path, capsys):
+    """``kill -9`` before the first checkpoint leaves config.json and logs but nothing to resume."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    run = tmp_path / "run"
+    cfg = tmp_path / "settings.json"
+    cfg.write_text(json.dumps({"ppo": {**HYPER, "n_envs": 1, "net_arch": [16], "checkpoint_every": 10**9}}))
+    command = [sys.executable, "-m", "mrcomm_env.experiments.cli", *_train_cli(run, "--config", str(cfg))]
+    proc = subprocess.Popen([*command, "--timesteps", str(10**8)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not (run / "progress.csv").exists():
+        time.sleep(0.1)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert (run / "config.json").exists() and not training.has_checkpoint(run)
+    assert main(["train", ENV, "--resume", "--out", str(run), "--quiet"]) != 0
+    assert "nothing to resume" in _cli_error(capsys)
+    assert main(_train_cli(run, "--config", str(cfg), "--timesteps", str(ROLLOUT))) == 0
+    assert json.loads((run / "done.json").read_text())["num_timesteps"] == ROLLOUT
+
+
+def test_a_second_process_on_the_same_run_is_refused_naming_the_holder(tmp_path, capsys):
+    run = tmp_path / "run"
+    with training.run_lock(run):
+        assert main(_train_cli(run, "--timesteps", str(ROLLOUT))) != 0
+        err = _cli_error(capsys)
+        assert f"pid {os.getpid()}" in err
+    train(config(ROLLOUT), run, progress=False)  # the lock went with its holder
+
+
+def test_resume_refuses_settings_that_disagree_with_the_run(tmp_path, capsys):
+    run = tmp_path / "run"
+    train(config(ROLLOUT, checkpoint_every=10**6), run, progress=False)
+    (run / "done.json").unlink()  # as if interrupted after its last checkpoint
+    for other, named in (
+        (["train", "MapSync-v0", "--resume", "--out", str(run)], "'env_id'"),
+        (["train", ENV, "--resume", "--out", str(run), "--param", "n_robots=4"], "'n_robots'"),
+        (["train", ENV, "--resume", "--out", str(run), "--seed", "9"], "'seed'"),
+        (["train", ENV, "--resume", "--out", str(run), "--algo", "dqn"], "'algo'"),
+    ):
+        assert main([*other, "--quiet"]) != 0
+        assert named in _cli_error(capsys)
+
+
+def test_resume_with_more_timesteps_extends_a_finished_run(tmp_path, capsys):
+    run = tmp_path / "run"
+    train(config(ROLLOUT), run, progress=False)
+    assert main(["train", ENV, "--resume", "--out", str(run), "--quiet"]) != 0
+    assert "--timesteps" in _cli_error(capsys)
+    assert main(["train", ENV, "--resume", "--out", str(run), "--timesteps", str(3 * ROLLOUT), "--quiet"]) == 0
+    assert LearnedPolicy(run, ENV).model.num_timesteps == 3 * ROLLOUT
+    assert json.loads((run / "done.json").read_text())["num_timesteps"] == 3 * ROLLOUT
+    assert json.loads((run / "config.json").read_text())["timesteps"] == 3 * ROLLOUT
+
+
+def test_two_checkpoints_are_kept_and_a_damaged_newest_one_is_skipped(tmp_path, monkeypatch, capsys):
+    run = tmp_path / "run"
+    saves = []
+    original = training._Progress.__init__
+
+    def interrupting(self, total, start, every, save, enabled):
+        def save_then_stop(model):
+            save(model)
+            saves.append(model.num_timesteps)
+            if len(saves) == 3:
+                raise KeyboardInterrupt
+
+        original(self, total, start, every, save_then_stop, enabled)
+
+    monkeypatch.setattr(training._Progress, "__init__", interrupting)
+    with pytest.raises(KeyboardInterrupt):
+        train(config(6 * ROLLOUT), run, progress=False)
+    monkeypatch.undo()
+    kept = training._checkpoints(run)
+    assert len(kept) == training.KEEP_CHECKPOINTS
+    (kept[0] / "model.zip").write_bytes(b"PK\x03\x04 cut short by a crash")
+    train(None, run, resume=True, progress=False)
+    assert "damaged" in capsys.readouterr().err
+    assert LearnedPolicy(run, ENV).model.num_timesteps == 6 * ROLLOUT
+
+
+def test_a_corrupt_config_json_is_named_in_one_line(tmp_path, capsys):
+    run = tmp_path / "run"
+    train(config(ROLLOUT, checkpoint_every=10**6), run, progress=False)
+    (run / "done.json").unlink()
+    (run / "config.json").write_text('{"env_id": "mrcomm/Chann')
+    assert main(["train", ENV, "--resume", "--out", str(run), "--quiet"]) != 0
+    assert "config.json" in _cli_error(capsys)
+    assert main(["evaluate", ENV, "--policy", f"ppo:{run}", "--episodes", "1", "--quiet"]) != 0
+    assert "config.json" in _cli_error(capsys)
+
+
+def test_a_config_file_without_the_algorithm_section_is_refused(tmp_path, capsys):
+    cfg = tmp_path / "settings.json"
+    cfg.write_text(json.dumps({"learning_rate": 0.001}))  # settings, but not under "ppo"
+    assert main(_train_cli(tmp_path / "run", "--config", str(cfg))) != 0
+    assert "no section for algorithm 'ppo'" in _cli_error(capsys)
+    assert not (tmp_path / "run").exists()
+
+
+def test_an_output_folder_that_cannot_be_written_is_refused_before_training(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    assert main(_train_cli(blocker / "run", "--timesteps", str(ROLLOUT))) != 0
+    assert "cannot write the run folder" in _cli_error(capsys)
+
+
+def test_a_run_evaluates_in_its_own_env_arguments(tmp_path, capsys):
+    """A run trained on 3 robots has 3-robot observations: ``evaluate ppo:RUN`` uses them, --param overrides."""
+    run = tmp_path / "run"
+    train(config(ROLLOUT), run, progress=False)
+    assert main(["evaluate", ENV, "--policy", f"ppo:{run}", "--episodes", "1", "--quiet"]) == 0
+    assert "'n_robots': 3" in capsys.readouterr().out
+    assert (
+        main(["evaluate", ENV, "--policy", f"ppo:{run}", "--episodes", "1", "--param", "max_cycles=4", "--quiet"]) == 0
+    )
+    out = capsys.readouterr().out
+    assert "'n_robots': 3" in out and "'max_cycles': 4" in out

@@ -39,9 +39,9 @@ def add_train_parser(command) -> None:
 
     p = command("train", help="train one shared SB3 policy for every agent of an env")
     p.add_argument("env_id")
-    p.add_argument("--algo", default="ppo", help="ppo, maskable_ppo or dqn")
+    p.add_argument("--algo", default=None, help="ppo (default), maskable_ppo or dqn")
     p.add_argument("--timesteps", type=positive_int, default=None, help="agent-steps (default: the env's config)")
-    p.add_argument("--seed", type=seed_type, default=0)
+    p.add_argument("--seed", type=seed_type, default=None, help="training seed (default 0)")
     p.add_argument("--out", required=False, help="run folder (default runs/<Name>-<algo>-s<seed>)")
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="environment argument (JSON value)")
     p.add_argument("--config", metavar="FILE", help="JSON settings overriding agents/configs/<Name>-v0.json")
@@ -120,12 +120,18 @@ def cmd_train(args: argparse.Namespace) -> int:
     )
     from mrcomm_env.experiments.cli import parse_params
     from mrcomm_env.experiments.evaluation import limit_threads
-
     limit_threads()
     env_id = canonical_id(args.env_id)
+    explicit = {"algo": args.algo, "seed": args.seed}  # None where the user named nothing
+    args.algo = args.algo or "ppo"
+    args.seed = 0 if args.seed is None else args.seed
     out = Path(args.out or f"runs/{short_name(env_id)}-{args.algo}-s{args.seed}")
     if args.resume:
-        train(None, out, resume=True, progress=not args.quiet)
+        for flag, value in (("--config", args.config), ("--grid", args.grid), ("--seeds", args.seeds)):
+            if value:
+                raise ValueError(f"{flag} cannot be used with --resume: a resumed run keeps its own settings")
+        requested = {"env_id": env_id, **explicit, "env_kwargs": parse_params(args.param), "timesteps": args.timesteps}
+        train(None, out, resume=True, progress=not args.quiet, requested=requested)
         print(f"resumed and finished {out}")
         return 0
     settings = default_config(env_id, args.algo)
@@ -183,7 +189,7 @@ def sweep_configs(base: dict, seeds: list[int], grid: dict[str, list]) -> list[t
         label = ",".join(f"{k}={json.dumps(v, separators=(',', ':'))}" for k, v in point.items()) or "default"
         for seed in seeds:
             TrainConfig(**{**config, "seed": seed}).validate()  # every bad value is reported before any training
-            out.append((f"{label}/s{seed}", {**config, "seed": seed}, point))
+            out.append((run_folder(label, {**config, "seed": seed}), {**config, "seed": seed}, point))
     return out
 
 
@@ -348,22 +354,31 @@ def evaluate_policy(env_id: str, env_kwargs: dict, policy, seeds: list[int], spe
 
 def _train_task(task: dict) -> str:
     """One training run of the comparison (a process of its own: one torch thread)."""
-    from mrcomm_agents.training import TrainConfig, train
+    from mrcomm_agents.training import TrainConfig, has_checkpoint, train
     from mrcomm_env.experiments.evaluation import limit_threads
 
     limit_threads()
     out = Path(task["out"])
     if (out / "done.json").exists():
-        return str(out)  # a rerun skips what is done
-    if (out / "checkpoints" / "state.json").exists():
+        return str(out)  # a rerun skips what is done (the folder's name holds every setting: run_folder)
+    if has_checkpoint(out):
         train(None, out, resume=True, progress=False)
     else:
-        if out.exists():
-            import shutil
-
-            shutil.rmtree(out)  # started but never checkpointed: start again
-        train(TrainConfig(**task["config"]), out, progress=False)
+        train(TrainConfig(**task["config"]), out, progress=False)  # never checkpointed: starts over
     return str(out)
+
+
+def run_folder(label: str, config: dict) -> str:
+    """``<grid point>-<digest>/s<seed>``: the digest covers every setting of the run but its seed (env arguments,
+    algorithm, hyperparameters, agent-steps, …) and the backend of the env's hot loops, so a rerun with any of
+    them changed trains new runs instead of reusing the old ones."""
+    import hashlib
+
+    from mrcomm_env.core import backend
+
+    settings = {k: v for k, v in config.items() if k != "seed"}
+    blob = json.dumps([settings, backend.name()], sort_keys=True, default=str)
+    return f"{label}-{hashlib.sha1(blob.encode()).hexdigest()[:8]}/s{config['seed']}"
 
 
 def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress: bool = True):
@@ -401,7 +416,7 @@ def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress
             )
             tasks.append(
                 {
-                    "out": str(out_dir / "runs" / f"{cost_param}={cost}" / f"s{seed}"),
+                    "out": str(out_dir / "runs" / run_folder(f"{cost_param}={cost}", config)),
                     "config": config,
                     "cost": cost,
                     "seed": seed,
