@@ -15,6 +15,7 @@ import importlib
 import sys
 from pathlib import Path
 
+import networkx as nx
 import pytest
 
 from mrcomm_env.registry import ENTRIES
@@ -164,3 +165,39 @@ def test_no_module_imports_the_bare_names_other_projects_own():
         if name.split(".")[0] in ("agents", "baselines")
     ]
     assert bare == []
+
+
+# ------------------------------------------------------------------------------ no import circles
+def import_graph(files: list[Path]) -> dict[str, set[str]]:
+    """Module → the modules of ours it imports, anywhere in the file (inside functions too). ``from package import
+    module`` depends on that module only (a package's ``__init__`` runs first whatever is imported from it);
+    ``from package import name`` depends on the package."""
+    modules = {module_name(path): path for path in files}
+    graph: dict[str, set[str]] = {name: set() for name in modules}
+    for name, path in modules.items():
+        for _, imported, names in all_imports(path):
+            submodules = {f"{imported}.{n}" for n in names} & modules.keys()
+            targets = submodules if names and len(submodules) == len(names) else {imported, *submodules}
+            graph[name] |= {t for t in targets if t in modules and t != name}
+    return graph
+
+
+def import_cycles(files: list[Path]) -> list[list[str]]:
+    """Every circle of the import graph: each set of two or more modules that reach one another."""
+    graph = nx.DiGraph([(a, b) for a, targets in import_graph(files).items() for b in targets])
+    return sorted(sorted(c) for c in nx.strongly_connected_components(graph) if len(c) > 1)
+
+
+def test_the_import_graph_has_no_circle():
+    assert import_cycles(source_files()) == []
+
+
+def test_the_circle_check_catches_a_circle(tmp_path, monkeypatch):
+    monkeypatch.setitem(globals(), "ROOT", tmp_path)
+    package = tmp_path / "mrcomm_env" / "thing"
+    package.mkdir(parents=True)
+    (package / "__init__.py").write_text("")
+    (package / "a.py").write_text("from mrcomm_env.thing import b\n")
+    (package / "b.py").write_text("def f():\n    from mrcomm_env.thing.a import g\n")  # inside a function too
+    (package / "c.py").write_text("from mrcomm_env.thing import a\n")
+    assert import_cycles(sorted(package.glob("*.py"))) == [["mrcomm_env.thing.a", "mrcomm_env.thing.b"]]

@@ -9,13 +9,19 @@ are all checked before the work starts, and every result file is written atomica
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import statistics
 import sys
 import time
 from pathlib import Path
 
+from mrcomm_env.experiments.arguments import (
+    nonnegative_seconds,
+    parse_params,
+    positive_int,
+    positive_seconds,
+    seed_type,
+)
 from mrcomm_env.experiments.io import (
     atomic_remove,
     atomic_write_json,
@@ -33,20 +39,6 @@ EXIT_FAILURE = 1
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for a program stopped by Ctrl-C
 
 
-def parse_params(pairs: list[str] | None, flag: str = "--param") -> dict:
-    """``key=value`` pairs; values are read as JSON where possible (numbers, true, lists), else kept as text."""
-    params = {}
-    for pair in pairs or []:
-        if "=" not in pair:
-            raise ValueError(f"{flag} takes key=value, got {pair!r}")
-        key, text = pair.split("=", 1)
-        try:
-            params[key.strip()] = json.loads(text)
-        except json.JSONDecodeError:
-            params[key.strip()] = text
-    return params
-
-
 def _json_safe(obj):
     if isinstance(obj, float) and not math.isfinite(obj):
         return None
@@ -55,49 +47,6 @@ def _json_safe(obj):
     if isinstance(obj, (list, tuple)):
         return [_json_safe(v) for v in obj]
     return obj
-
-
-# ---------------------------------------------------------------------------------------------- argument types
-def _integer(text: str, allowed: str, minimum: int) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = None
-    if value is None or value < minimum:
-        raise argparse.ArgumentTypeError(f"must be {allowed}, got {text!r}")
-    return value
-
-
-def seed_type(text: str) -> int:
-    return _integer(text, "an integer ≥ 0", 0)
-
-
-def positive_int(text: str) -> int:
-    return _integer(text, "an integer ≥ 1", 1)
-
-
-def _finite(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
-    return value
-
-
-def positive_seconds(text: str) -> float:
-    value = _finite(text)
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text!r}")
-    return value
-
-
-def nonnegative_seconds(text: str) -> float:
-    value = _finite(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be a number of seconds ≥ 0, got {text!r}")
-    return value
 
 
 # ---------------------------------------------------------------------------------------------- commands

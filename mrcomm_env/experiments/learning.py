@@ -34,7 +34,7 @@ def make_any_policy(env_id: str, name: str, **params):
 
 
 def add_train_parser(command) -> None:
-    from mrcomm_env.experiments.cli import positive_int, seed_type
+    from mrcomm_env.experiments.arguments import positive_int, seed_type
     from mrcomm_env.experiments.sweep import add_runner_arguments
 
     p = command("train", help="train one shared SB3 policy for every agent of an env")
@@ -69,7 +69,7 @@ def add_train_parser(command) -> None:
 
 def seed_list(text: str) -> list[int]:
     """``0,1,2`` → [0, 1, 2]: distinct integers ≥ 0."""
-    from mrcomm_env.experiments.cli import seed_type
+    from mrcomm_env.experiments.arguments import seed_type
 
     seeds = [seed_type(part.strip()) for part in text.split(",") if part.strip()]
     if not seeds or len(set(seeds)) != len(seeds):
@@ -118,8 +118,9 @@ def cmd_train(args: argparse.Namespace) -> int:
         split_settings,
         train,
     )
-    from mrcomm_env.experiments.cli import parse_params
+    from mrcomm_env.experiments.arguments import parse_params
     from mrcomm_env.experiments.evaluation import limit_threads
+
     limit_threads()
     env_id = canonical_id(args.env_id)
     explicit = {"algo": args.algo, "seed": args.seed}  # None where the user named nothing

@@ -404,7 +404,7 @@ def default_workers() -> int:
 
 def add_runner_arguments(parser: argparse.ArgumentParser) -> None:
     """``--workers N`` and ``--ray auto|ADDRESS`` (mutually exclusive)."""
-    from mrcomm_env.experiments.cli import positive_int
+    from mrcomm_env.experiments.arguments import positive_int
 
     group = parser.add_mutually_exclusive_group()
     group.add_argument(
