@@ -246,7 +246,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         self._phase_col = self._obs_dim - self._clock
         self._obs_space = spaces.Box(0.0, 1.0, shape=(self._obs_dim,), dtype=np.float32)
         self._act_space = spaces.Discrete(2)
-        self._ledger = BitLedger(n)
+        self.ledger = BitLedger(n)
         self._max_cycles, self._cost = c.max_cycles, c.emission_cost  # plain attributes: hot path
         # the scene strategy: world, sensing, filter backend and ground truth (the only place that knows
         # whether this is a neighbourhood or a field, and which filter keeps the i-states)
@@ -266,7 +266,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
     # ------------------------------------------------------------------ episode
     def _reset_world(self) -> None:
         n = self.n_agents
-        self._ledger.reset()
+        self.ledger.reset()
         # the observation rows: the static part is written once per episode, the dynamic part (columns
         # _n_static:) in place; that part is sliced where used, not kept as a view, so a pickled copy
         # of the env stays consistent
@@ -334,7 +334,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         dyn[:, 2 : 1 + HISTORY] = dyn[:, 1:HISTORY]  # shift own emission history, newest first
         dyn[:, 1] = emit
         n_emit = int(np.count_nonzero(emit))
-        self._ledger.record(emit * self._msg_bits_f, n_emit)
+        self.ledger.record(emit * self._msg_bits_f, n_emit)
         self.scene.step(emit, n_emit)
         self._refresh()
         if self.cfg.reward_mode == "individual":  # each robot: the observers that have singled it out
@@ -384,7 +384,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         return {"matched": matched, "visual_ids": nv, "edges": ne, "unresolved": unres}
 
     def _agent_infos(self):
-        return {"bits_sent": self._ledger.step_bits}
+        return {"bits_sent": self.ledger.step_bits}
 
     # ------------------------------------------------------------------ ground truth and metrics
     def _metrics(self) -> dict[str, float]:
@@ -400,8 +400,8 @@ class ChannelAssociationEnv(MrcommParallelEnv):
             "edge_ratio": ratio,
             "fraction_wrong": wrong / total if total else 0.0,
             "conflicts": float(self.filter.conflicts),
-            "messages_sent": float(self._ledger.messages),
-            "bits_sent": float(self._ledger.total_bits.sum()),
+            "messages_sent": float(self.ledger.messages),
+            "bits_sent": float(self.ledger.total_bits.sum()),
         }
 
     def associations(self, agent: str) -> dict[int, list[int]]:

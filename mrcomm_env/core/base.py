@@ -54,6 +54,8 @@ class MrcommParallelEnv(ParallelEnv):
 
     # set by _setup()
     n_agents: int
+    #: every env accounts its bits in one BitLedger (set by _reset_world)
+    ledger: Any
     _obs_space: spaces.Space
     _act_space: spaces.Space
 
@@ -175,6 +177,11 @@ class MrcommParallelEnv(ParallelEnv):
         """The paper's metrics of the episode so far (``METRICS`` says what each means); after ``reset()``."""
         self._require_reset("metrics")
         return self._metrics()
+
+    def bits_sent(self) -> float:
+        """Bits every robot has sent since ``reset()``, summed (the env's ``BitLedger``; what recordings show)."""
+        self._require_reset("bits_sent")
+        return float(self.ledger.total_bits.sum())
 
     def _require_reset(self, method: str) -> None:
         # the world exists only after the first reset: say so, as step() does, instead of an AttributeError

@@ -86,6 +86,13 @@ def cmd_evaluate(args) -> int:
         policy.reset(probe.local_views(), args.seed)
     finally:
         probe.close()
+    if args.video:
+        from mrcomm_env.experiments.record import record_episode
+
+        folder = check_writable_dir(args.video, "--video")
+        name = f"{short_name(env_id)}-{args.policy.replace(':', '_').replace('/', '_')}.gif"
+        video = record_episode(env_id, [args.policy], args.seed, folder / name, params, policy_params)
+        print(f"recorded the first episode: {video['path']}", file=sys.stderr)
     metrics = evaluate(lambda: make(env_id, **params), policy, args.episodes, args.seed, progress=not args.quiet)
     width = max(len(name) for name in metrics)
     print(f"{env_id}  policy={args.policy}  episodes={args.episodes}  seed={args.seed}  params={params}")
@@ -104,6 +111,26 @@ def cmd_evaluate(args) -> int:
         # NaN (a metric undefined in an episode, e.g. a subgraph that never completed) becomes null: strict JSON
         atomic_write_json(json_path, _json_safe(record), indent=2, allow_nan=False)
         print(f"wrote {json_path}")
+    return 0
+
+
+def cmd_record(args) -> int:
+    from mrcomm_env.experiments.evaluation import limit_threads
+    from mrcomm_env.experiments.record import record_episode
+
+    limit_threads()
+    out = check_writable_file(args.out, "--out")
+    result = record_episode(
+        args.env_id,
+        args.policy,
+        args.seed,
+        out,
+        params=parse_params(args.param),
+        policy_params=parse_params(args.policy_param, "--policy-param"),
+        max_steps=args.max_steps,
+        fps=args.fps,
+    )
+    print(f"wrote {result['path']}: {result['frames']} frames, {result['bytes'] / 1e6:.2f} MB")
     return 0
 
 
@@ -312,8 +339,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="environment argument (JSON value)")
     p.add_argument("--policy-param", action="append", metavar="KEY=VALUE", help="policy parameter (JSON value)")
     p.add_argument("--json", metavar="PATH")
+    p.add_argument("--video", metavar="DIR", help="also record the first episode into DIR/<Name>-<policy>.gif")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_evaluate)
+
+    p = command("record", help="record one episode, several policies side by side, as a GIF or MP4")
+    p.add_argument("env_id")
+    p.add_argument("--policy", action="append", required=True, help="a policy (repeat for panels side by side)")
+    p.add_argument("--seed", type=seed_type, default=0, help="the episode's seed (the same for every panel)")
+    p.add_argument("--out", required=True, help="episode.gif, or episode.mp4 with the video extra")
+    p.add_argument("--param", action="append", metavar="KEY=VALUE", help="environment argument (JSON value)")
+    p.add_argument("--policy-param", action="append", metavar="KEY=VALUE", help="policy parameter (JSON value)")
+    p.add_argument("--max-steps", type=positive_int, default=None, help="stop after this many steps")
+    p.add_argument("--fps", type=positive_seconds, default=4.0, help="frames per second of the recording")
+    p.set_defaults(func=cmd_record)
 
     p = command("reproduce", help="the papers' experiments with the scripted baselines")
     p.add_argument("env_ids", nargs="*")
