@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import gc
 import os
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +33,7 @@ TITLE_HEIGHT = 44  #: pixels of the caption above each panel
 GC_EVERY = 16  #: frames between collections of what Pillow's GIF encoder leaves in reference cycles
 
 
-def headline_metric(env_id: str, metrics: Sequence[str]) -> str:
+def headline_metric(env_id: str, metrics: Mapping[str, str]) -> str:
     """The metric a panel shows: the one the learned-vs-scripted comparison ranks by, else the env's first."""
     try:
         name = comparison_spec(env_id)["metric"]
@@ -183,16 +183,17 @@ class Mp4Writer(_Writer):
         super().__init__(out)
         self.fps = fps
         self.write_frames = write_frames
-        self.gen = None
+        self.gen: Generator[None, np.ndarray, None] | None = None
 
     def send(self, frame: np.ndarray) -> None:
         frame = np.ascontiguousarray(frame[..., :3])
         if self.gen is None:
             height, width = frame.shape[:2]
-            self.gen = self.write_frames(
+            gen = self.write_frames(
                 str(self.tmp), (width, height), fps=self.fps, codec="libx264", macro_block_size=2, quality=7
             )
-            self.gen.send(None)
+            gen.send(None)  # imageio-ffmpeg's generator starts ffmpeg on its first send
+            self.gen = gen
         self.gen.send(frame)
 
     def _finish(self) -> None:
