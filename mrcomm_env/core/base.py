@@ -320,77 +320,88 @@ def _action_checker(space: spaces.Space):
     batch fails is each agent checked alone, so the error names the right one.
     """
     if isinstance(space, spaces.Discrete):
-        lo, n = int(space.start), int(space.n)
-
-        def fail(agent, action):
-            raise ValueError(f"action of {agent} must be an integer in [{lo}, {lo + n - 1}], got {action!r}")
-
-        def check(agents, actions):
-            if all(type(a) is int for a in actions) and lo <= min(actions) and max(actions) < lo + n:
-                return actions  # plain ints, the common case: no numpy round trip
-            for agent, action in zip(agents, actions):
-                if not _is_int_action(action) or not lo <= int(action) < lo + n:
-                    fail(agent, action)
-            return [int(a) for a in actions]
-
-        return check
+        return _discrete_checker(space)
     if isinstance(space, spaces.Box):
-        low, high, shape = space.low, space.high, space.shape
-
-        def check_one(agent, action):
-            raw = np.asarray(action) if not isinstance(action, (str, bytes)) else None
-            if raw is None or raw.dtype.kind not in "iuf" or raw.shape != shape:
-                what = "not a real array" if raw is None or raw.dtype.kind not in "iuf" else f"shape {raw.shape}"
-                raise ValueError(f"action of {agent} must be a real array of shape {shape} ({what}), got {action!r}")
-            arr = raw.astype(space.dtype)
-            if not (np.isfinite(arr) & (arr >= low) & (arr <= high)).all():
-                raise ValueError(
-                    f"action of {agent} must be finite and within [{float(np.min(low)):g}, {float(np.max(high)):g}], "
-                    f"got {action!r}"
-                )
-
-        def check(agents, actions):
-            try:
-                raw = np.asarray(actions)
-            except ValueError:  # ragged: numpy cannot stack it; find the agent below
-                raw = None
-            if raw is not None and raw.dtype.kind in "iuf" and raw.shape == (len(agents), *shape):
-                arr = raw.astype(space.dtype, copy=False)
-                if (np.isfinite(arr) & (arr >= low) & (arr <= high)).all():
-                    return arr
-            for agent, action in zip(agents, actions):
-                check_one(agent, action)
-            raise AssertionError("unreachable: a batch that fails has a failing agent")  # pragma: no cover
-
-        return check
-
+        return _box_checker(space)
     if isinstance(space, spaces.MultiBinary):
-        shape = space.shape
-
-        def check_bits(agent, action):
-            raw = np.asarray(action) if not isinstance(action, (str, bytes)) else None
-            if raw is None or raw.dtype.kind not in "iubf" or raw.shape != shape or not np.isin(raw, (0, 1)).all():
-                raise ValueError(f"action of {agent} must be an array of 0s and 1s of shape {shape}, got {action!r}")
-
-        def check(agents, actions):
-            try:
-                raw = np.asarray(actions)
-            except ValueError:  # ragged
-                raw = None
-            # gymnasium's MultiBinary.contains takes any real array of exact 0s and 1s (SB3 sends float32)
-            if raw is not None and raw.dtype.kind in "iubf" and raw.shape == (len(agents), *shape):
-                if ((raw == 0) | (raw == 1)).all():
-                    return raw.astype(np.int8, copy=False)
-            for agent, action in zip(agents, actions):
-                check_bits(agent, action)
-            raise AssertionError("unreachable: a batch that fails has a failing agent")  # pragma: no cover
-
-        return check
+        return _multibinary_checker(space)
 
     def check(agents, actions):
         for agent, action in zip(agents, actions):
             if not space.contains(action):
                 raise ValueError(f"action of {agent} must lie in {space}, got {action!r}")
         return list(actions)
+
+    return check
+
+
+def _discrete_checker(space: spaces.Discrete):
+    lo, n = int(space.start), int(space.n)
+
+    def fail(agent, action):
+        raise ValueError(f"action of {agent} must be an integer in [{lo}, {lo + n - 1}], got {action!r}")
+
+    def check(agents, actions):
+        if all(type(a) is int for a in actions) and lo <= min(actions) and max(actions) < lo + n:
+            return actions  # plain ints, the common case: no numpy round trip
+        for agent, action in zip(agents, actions):
+            if not _is_int_action(action) or not lo <= int(action) < lo + n:
+                fail(agent, action)
+        return [int(a) for a in actions]
+
+    return check
+
+
+def _box_checker(space: spaces.Box):
+    low, high, shape = space.low, space.high, space.shape
+
+    def check_one(agent, action):
+        raw = np.asarray(action) if not isinstance(action, (str, bytes)) else None
+        if raw is None or raw.dtype.kind not in "iuf" or raw.shape != shape:
+            what = "not a real array" if raw is None or raw.dtype.kind not in "iuf" else f"shape {raw.shape}"
+            raise ValueError(f"action of {agent} must be a real array of shape {shape} ({what}), got {action!r}")
+        arr = raw.astype(space.dtype)
+        if not (np.isfinite(arr) & (arr >= low) & (arr <= high)).all():
+            raise ValueError(
+                f"action of {agent} must be finite and within [{float(np.min(low)):g}, {float(np.max(high)):g}], "
+                f"got {action!r}"
+            )
+
+    def check(agents, actions):
+        try:
+            raw = np.asarray(actions)
+        except ValueError:  # ragged: numpy cannot stack it; find the agent below
+            raw = None
+        if raw is not None and raw.dtype.kind in "iuf" and raw.shape == (len(agents), *shape):
+            arr = raw.astype(space.dtype, copy=False)
+            if (np.isfinite(arr) & (arr >= low) & (arr <= high)).all():
+                return arr
+        for agent, action in zip(agents, actions):
+            check_one(agent, action)
+        raise AssertionError("unreachable: a batch that fails has a failing agent")  # pragma: no cover
+
+    return check
+
+
+def _multibinary_checker(space: spaces.MultiBinary):
+    shape = space.shape
+
+    def check_bits(agent, action):
+        raw = np.asarray(action) if not isinstance(action, (str, bytes)) else None
+        if raw is None or raw.dtype.kind not in "iubf" or raw.shape != shape or not np.isin(raw, (0, 1)).all():
+            raise ValueError(f"action of {agent} must be an array of 0s and 1s of shape {shape}, got {action!r}")
+
+    def check(agents, actions):
+        try:
+            raw = np.asarray(actions)
+        except ValueError:  # ragged
+            raw = None
+        # gymnasium's MultiBinary.contains takes any real array of exact 0s and 1s (SB3 sends float32)
+        if raw is not None and raw.dtype.kind in "iubf" and raw.shape == (len(agents), *shape):
+            if ((raw == 0) | (raw == 1)).all():
+                return raw.astype(np.int8, copy=False)
+        for agent, action in zip(agents, actions):
+            check_bits(agent, action)
+        raise AssertionError("unreachable: a batch that fails has a failing agent")  # pragma: no cover
 
     return check
