@@ -447,3 +447,20 @@ def test_flooding_fresh_stamp_time_equals_cold_start_time():
     # m = 1 never completes a subgraph with non-adjacent pairs (the 2×2's diagonals)
     res1 = grid_propagation(4, 1, 2, seed=9, blocks={2: blocks[2]}, steady=False, max_frames=20)
     assert np.all(np.isinf(res1["cold"][2][0]))
+
+
+def test_the_render_colour_scale_is_fixed_for_the_episode():
+    """The age colours mean the same in every frame of an episode (they once followed each frame's range)."""
+    from matplotlib.figure import Figure
+
+    env = MultiHopEnv(grid_side=4, max_cycles=30, render_mode="rgb_array")
+    env.reset(seed=0)
+    limits = []
+    for _ in range(3):
+        for _ in range(10):
+            env.step({a: env.action_space(a).sample() for a in env.agents})
+        ax = Figure().add_subplot()
+        env._render(ax)
+        scatter = next(c for c in ax.collections if c.get_array() is not None and c.norm is not None)
+        limits.append((scatter.norm.vmin, scatter.norm.vmax))
+    assert len(set(limits)) == 1 and limits[0][0] < limits[0][1]

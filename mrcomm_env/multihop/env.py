@@ -591,12 +591,16 @@ class MultiHopEnv(MrcommParallelEnv):
     def _render(self, ax) -> None:
         p = self.pos
         from matplotlib.collections import LineCollection
+        from matplotlib.colors import LogNorm
 
         ii, jj = np.nonzero(np.triu(self.adj))
         ax.add_collection(LineCollection(np.stack([p[ii], p[jj]], axis=1), colors="0.8", linewidths=0.6, zorder=1))
         age = (self._ages * ~self._eye).sum(axis=1) / max(self.n_agents - 1, 1)
-        sc = ax.scatter(p[:, 0], p[:, 1], c=age, cmap="viridis", s=30, zorder=2)
-        ax.figure.colorbar(sc, ax=ax, label="mean age of held estimates (s)")
+        # one colour scale for the whole episode (it used to follow each frame's own range): from one frame to
+        # the horizon, on a log axis, since ages span both ends of it over a cold start
+        norm = LogNorm(vmin=self.frame_dur, vmax=self.frame_dur * max(self.cfg.max_cycles, 2), clip=True)
+        sc = ax.scatter(p[:, 0], p[:, 1], c=np.maximum(age, self.frame_dur), cmap="viridis", norm=norm, s=30, zorder=2)
+        ax.figure.colorbar(sc, ax=ax, label="mean age of held estimates (s, log scale)")
         ax.set_xlim(-0.05 * self.side - 0.5, 1.05 * self.side + 0.5)
         ax.set_ylim(-0.05 * self.side - 0.5, 1.05 * self.side + 0.5)
         ax.set_aspect("equal")
