@@ -43,6 +43,23 @@ def config(timesteps: int, **kw) -> TrainConfig:
     return TrainConfig(**settings)
 
 
+def interrupt_after_checkpoints(monkeypatch, count: int) -> None:
+    """Make training raise KeyboardInterrupt (as Ctrl-C) right after its ``count``-th checkpoint."""
+    saves = []
+    original = training._Progress.__init__
+
+    def interrupting(self, total, start, every, save, enabled):
+        def save_then_stop(model):
+            save(model)
+            saves.append(model.num_timesteps)
+            if len(saves) == count:
+                raise KeyboardInterrupt
+
+        original(self, total, start, every, save_then_stop, enabled)
+
+    monkeypatch.setattr(training._Progress, "__init__", interrupting)
+
+
 def adam_steps(model) -> int:
     """Optimizer steps taken so far, from Adam's own state (lost if the optimizer state were not restored)."""
     state = model.policy.optimizer.state_dict()["state"]
@@ -66,20 +83,7 @@ def test_a_run_folder_holds_model_statistics_config_and_logs(tmp_path):
 def test_resume_loses_neither_steps_nor_optimizer_nor_statistics(tmp_path, monkeypatch):
     rollouts = 4
     target = rollouts * ROLLOUT
-    # interrupt the run right after its second checkpoint, as Ctrl-C would
-    real_save_calls = []
-    original = training._Progress.__init__
-
-    def interrupting(self, total, start, every, save, enabled):
-        def save_then_stop(model):
-            save(model)
-            real_save_calls.append(model.num_timesteps)
-            if len(real_save_calls) == 2:
-                raise KeyboardInterrupt
-
-        original(self, total, start, every, save_then_stop, enabled)
-
-    monkeypatch.setattr(training._Progress, "__init__", interrupting)
+    interrupt_after_checkpoints(monkeypatch, 2)  # right after the second checkpoint, as Ctrl-C would
     with pytest.raises(KeyboardInterrupt):
         train(config(target), tmp_path / "run", progress=False)
     monkeypatch.undo()
@@ -323,19 +327,7 @@ def test_resume_with_more_timesteps_extends_a_finished_run(tmp_path, capsys):
 
 def test_two_checkpoints_are_kept_and_a_damaged_newest_one_is_skipped(tmp_path, monkeypatch, capsys):
     run = tmp_path / "run"
-    saves = []
-    original = training._Progress.__init__
-
-    def interrupting(self, total, start, every, save, enabled):
-        def save_then_stop(model):
-            save(model)
-            saves.append(model.num_timesteps)
-            if len(saves) == 3:
-                raise KeyboardInterrupt
-
-        original(self, total, start, every, save_then_stop, enabled)
-
-    monkeypatch.setattr(training._Progress, "__init__", interrupting)
+    interrupt_after_checkpoints(monkeypatch, 3)
     with pytest.raises(KeyboardInterrupt):
         train(config(6 * ROLLOUT), run, progress=False)
     monkeypatch.undo()

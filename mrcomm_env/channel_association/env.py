@@ -61,7 +61,7 @@ import math
 import numpy as np
 from gymnasium import spaces
 
-from mrcomm_env.channel_association.limits import check_field_footprint, documented_maxima, field_footprint
+from mrcomm_env.channel_association.limits import check_field_footprint, documented_maxima, footprint_of
 from mrcomm_env.channel_association.scenes import (
     DenseFieldScene,
     NeighborhoodScene,
@@ -167,15 +167,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
             return base + 8.0 * cfg.w * cfg.v
         if cfg.n_robots <= cls.DENSE_MAX_N:
             return base + 8.0 * float(cfg.n_robots) ** 3
-        footprint = field_footprint(
-            cfg.n_robots,
-            cfg.separation,
-            cfg.mobile_fraction,
-            cfg.speed,
-            cfg.wireless_range,
-            cfg.visual_range,
-            cfg.drop_time,
-        )
+        footprint = footprint_of(cfg)
         return base + 80.0 * (footprint["edges"] + footprint["tracked"])
 
     DOCUMENTED_CONFIGS = {

@@ -58,9 +58,9 @@ def field_footprint(
     return {"edges": n * k_w * k_v, "tracked": tracked, "k_w": k_w, "k_v": k_v}
 
 
-def check_field_footprint(cfg) -> None:
-    """Raise ``ValueError`` when a field would outgrow :data:`FOOTPRINT_BUDGET` (see the module docstring)."""
-    est = field_footprint(
+def footprint_of(cfg) -> dict[str, float]:
+    """:func:`field_footprint` of the env arguments ``cfg``."""
+    return field_footprint(
         cfg.n_robots,
         cfg.separation,
         cfg.mobile_fraction,
@@ -69,6 +69,11 @@ def check_field_footprint(cfg) -> None:
         cfg.visual_range,
         cfg.drop_time,
     )
+
+
+def check_field_footprint(cfg) -> None:
+    """Raise ``ValueError`` when a field would outgrow :data:`FOOTPRINT_BUDGET` (see the module docstring)."""
+    est = footprint_of(cfg)
     total = est["edges"] + est["tracked"]
     if total > FOOTPRINT_BUDGET:
         raise ValueError(
