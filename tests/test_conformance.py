@@ -352,6 +352,7 @@ def test_random_valid_configurations_run(env_id):
     whose memory estimate is over the budget are refused before they allocate anything."""
     cls = env_class(env_id)
     params = cls.PARAMS
+    outcomes = {"ran": 0, "over the memory budget": 0, "refused naming an argument": 0}
 
     @settings(max_examples=FUZZ_EXAMPLES)
     @given(cfg=_config_strategy(env_id), seed=st.integers(0, 2**16))
@@ -365,6 +366,7 @@ def test_random_valid_configurations_run(env_id):
         if estimate > FUZZ_BUDGET_GIB * GIB:
             with pytest.raises(ValueError, match=BUDGET_ARGUMENT):
                 mrcomm_env.make(env_id, **cfg)
+            outcomes["over the memory budget"] += 1
             return
         with warnings.catch_warnings():
             warnings.simplefilter("error", RuntimeWarning)
@@ -372,6 +374,7 @@ def test_random_valid_configurations_run(env_id):
                 env = mrcomm_env.make(env_id, **cfg)
             except ValueError as exc:  # arguments that constrain each other must say which
                 assert any(f"'{arg}'" in str(exc) for arg in params), str(exc)
+                outcomes["refused naming an argument"] += 1
                 return
             rollout_obs_space = env.observation_space("robot_0")
             trace = rollout(env, seed=seed, steps=FUZZ_STEPS)
@@ -380,8 +383,11 @@ def test_random_valid_configurations_run(env_id):
             assert all(rollout_obs_space.contains(o) for o in obs.values())
             assert np.all(np.isfinite(np.fromiter(flat_values([out[1], out[4]]), dtype=float)))
         assert all(math.isfinite(v) for v in trace[-1].values() if not math.isnan(v)), trace[-1]
+        outcomes["ran"] += 1
 
     check()
+    print(f"{env_id}: {sum(outcomes.values())} examples: " + ", ".join(f"{n} {k}" for k, n in outcomes.items()))
+    assert sum(outcomes.values()) >= FUZZ_EXAMPLES and outcomes["ran"] > 0, outcomes
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
