@@ -19,7 +19,6 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import matplotlib  # noqa: E402
-from hypothesis import HealthCheck, settings  # noqa: E402
 
 matplotlib.use("Agg")
 
@@ -42,7 +41,18 @@ def cap_address_space(gib: float) -> int:
 
 cap_address_space(float(os.environ.get(CAP_VARIABLE, DEFAULT_CAP_GIB)))
 
-_COMMON = {"deadline": None, "suppress_health_check": [HealthCheck.too_slow, HealthCheck.filter_too_much]}
-settings.register_profile("ci", derandomize=True, print_blob=True, **_COMMON)
-settings.register_profile("fuzz", max_examples=1000, print_blob=True, **_COMMON)
-settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+def register_hypothesis_profiles() -> None:
+    """The ``ci`` and ``fuzz`` profiles (module docstring); the framework venvs (``make test-torchrl``, …) have no
+    Hypothesis and run no property test."""
+    try:
+        from hypothesis import HealthCheck, settings
+    except ImportError:
+        return
+    common = {"deadline": None, "suppress_health_check": [HealthCheck.too_slow, HealthCheck.filter_too_much]}
+    settings.register_profile("ci", derandomize=True, print_blob=True, **common)
+    settings.register_profile("fuzz", max_examples=1000, print_blob=True, **common)
+    settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+
+register_hypothesis_profiles()
