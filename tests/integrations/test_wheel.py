@@ -12,6 +12,7 @@ import json
 import os
 import subprocess
 import sys
+import sysconfig
 from pathlib import Path
 
 import pytest
@@ -47,8 +48,9 @@ def test_installed_from_the_wheel_not_the_source_tree():
     import mrcomm_baselines
     import mrcomm_env
 
+    installed = Path(sysconfig.get_paths()["purelib"]).resolve()
     for module in (mrcomm_env, mrcomm_agents, mrcomm_baselines):
-        assert "site-packages" in module.__file__ and not module.__file__.startswith(str(REPO)), module.__file__
+        assert Path(module.__file__).resolve().is_relative_to(installed), module.__file__
 
 
 def test_pypi_agents_is_installed_beside_us():
