@@ -18,7 +18,6 @@ from pathlib import Path
 import pytest
 
 
-
 @pytest.fixture
 def foreign_folder(tmp_path: Path) -> Path:
     """A working folder with its own `agents/` and `baselines/` packages, as a user's project might have."""
