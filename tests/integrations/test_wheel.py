@@ -77,7 +77,6 @@ def test_pretrained_policy_evaluates_from_the_wheel(foreign_folder):
 
 
 def test_a_scripted_baseline_evaluates_from_the_wheel(foreign_folder):
-    result = _run(
-        ["evaluate", "AsyncCL-v0", "--episodes", "1", "--seed", "0", "--param", "max_cycles=20"], foreign_folder
-    )
+    args = ["evaluate", "AsyncCL-v0", "--policy", "scheme2_qinf", "--episodes", "1", "--param", "max_cycles=20"]
+    result = _run(args, foreign_folder)
     assert result.returncode == 0, result.stderr

@@ -686,7 +686,11 @@ def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
             r9["max_err"] < 0.05,
             f"max error {r9['max_err']:.3f}; it is close to the exact law (1 − 2^−t)^(w−1)",
         ),
-        ("§6.5 p = ½ is best", rm["best_p"] == 0.5, f"E[T](p) minimal at p = {rm['best_p']:g} (w = 8, v = 7)"),
+        (
+            "§6.5 p = ½ is best",
+            rm["best_p"] == 0.5,
+            f"E[T] as a function of p is minimal at p = {rm['best_p']:g} (w = 8, v = 7)",
+        ),
         (
             "§5.4 population mix has little impact",
             "small" if abs(mix[0][0] - mix[-1][0]) >= 0.02 else abs(mix[0][0] - mix[-1][0]) < 0.02,
