@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 from mrcomm_agents.training import ALGORITHMS, RunError, algorithm_class, policy_class_override
 from mrcomm_env.core.policy import LocalViews, Policy
@@ -108,8 +109,6 @@ class LearnedPolicy(Policy):
     def reset(self, views: LocalViews, seed: int | None = None) -> None:
         super().reset(views, seed)
         if not self.deterministic:
-            import torch
-
             torch.manual_seed(int(self.rng.integers(2**63)))  # SB3 samples from torch's global generator
         model_obs, model_act = self.model.observation_space, self.model.action_space
         if model_obs.shape != views.observation_space.shape or model_act != views.action_space:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import fcntl
+import importlib
 import json
 import os
 import platform
@@ -35,7 +36,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import CSVOutputFormat, Logger, make_output_format
+from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
+from tqdm.auto import tqdm
 
+from mrcomm_agents.policies import CandidatePolicy
 from mrcomm_agents.vecenv import AgentSlotVecEnv
 from mrcomm_env.core.config import Int, Optional, Real
 from mrcomm_env.registry import canonical_id, make, short_name
@@ -137,7 +144,6 @@ def policy_class_override(record: dict[str, Any]) -> dict[str, Any] | None:
     ``agents.policies``), so the class is handed over rather than looked up by that name."""
     if record.get("policy") != "candidates":
         return None
-    from mrcomm_agents.policies import CandidatePolicy  # torch: the train extra
 
     return {"policy_class": CandidatePolicy}
 
@@ -170,7 +176,6 @@ def split_settings(settings: dict[str, Any]) -> tuple[dict[str, Any], dict[str, 
 
 def make_training_env(config: TrainConfig, seed: int):
     """The agent-slot VecEnv under a VecMonitor (episode returns in the logs, counted once per agent slot)."""
-    from stable_baselines3.common.vec_env import VecMonitor
 
     env_fns = [lambda: make(config.env_id, **config.env_kwargs) for _ in range(config.n_envs)]
     venv = AgentSlotVecEnv(env_fns)
@@ -179,7 +184,6 @@ def make_training_env(config: TrainConfig, seed: int):
 
 
 def algorithm_class(algo: str):
-    import importlib
 
     module, name = ALGORITHMS[algo]
     try:
@@ -230,8 +234,6 @@ class _Progress:
     """
 
     def __init__(self, total: int, start: int, every: int, save, enabled: bool):
-        from stable_baselines3.common.callbacks import BaseCallback
-        from tqdm.auto import tqdm
 
         outer = self
         self.rollout_start = start
@@ -285,9 +287,6 @@ def train(
 
 
 def _train_locked(config: TrainConfig, out: Path, resume: bool, progress: bool) -> Path:
-    import torch
-    from stable_baselines3.common.logger import Logger, make_output_format
-    from stable_baselines3.common.vec_env import VecNormalize
 
     torch.set_num_threads(1)
     ckpt = out / "checkpoints"
@@ -308,8 +307,6 @@ def _train_locked(config: TrainConfig, out: Path, resume: bool, progress: bool) 
         kwargs = dict(config.hyperparams)
         policy_kwargs = dict(kwargs.pop("policy_kwargs", {}))
         if config.policy == "candidates":
-            from mrcomm_agents.policies import CandidatePolicy
-
             probe = make(config.env_id, **config.env_kwargs)
             policy = CandidatePolicy
             policy_kwargs.update(layout=probe.observation_layout(), hidden=int(config.net_arch[0]))
@@ -420,7 +417,6 @@ def _save_checkpoint(m, config: TrainConfig, ckpt: Path) -> None:
 
 def _load_newest_checkpoint(cls, config: TrainConfig, ckpt: Path, venv):
     """(model, venv) from the newest checkpoint that loads; a damaged one is reported and the older one used."""
-    from stable_baselines3.common.vec_env import VecNormalize
 
     base = venv
     problems = []
@@ -447,7 +443,6 @@ def _load_newest_checkpoint(cls, config: TrainConfig, ckpt: Path, venv):
 def resumed_csv_output(filename: str):
     """SB3's CSV log continued in place: SB3's own ``CSVOutputFormat`` opens ``progress.csv`` with ``w+``, which
     erases the rows of the run being resumed. The header's keys are kept; a new key rewrites it, as SB3 does."""
-    from stable_baselines3.common.logger import CSVOutputFormat  # the train extra
 
     output = CSVOutputFormat.__new__(CSVOutputFormat)
     output.file = open(filename, "r+" if os.path.exists(filename) else "w+")  # noqa: SIM115 - the logger closes it

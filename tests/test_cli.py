@@ -11,6 +11,7 @@ import pytest
 
 from mrcomm_baselines import default_policy, policy_names
 from mrcomm_env.core.stats import mean_ci95
+from mrcomm_env.experiments import cli
 from mrcomm_env.experiments.cli import main, parse_params
 from mrcomm_env.registry import env_class, env_ids
 
@@ -153,6 +154,7 @@ def no_episode(monkeypatch):
 
     monkeypatch.setattr(evaluation, "run_episode", forbidden)
     monkeypatch.setattr(evaluation, "steps_per_second", forbidden)
+    monkeypatch.setattr(cli, "steps_per_second", forbidden)  # the command's own name for it
 
 
 @pytest.mark.parametrize("seed", ["-1", "1.5", "abc", "1e3"])
@@ -223,8 +225,6 @@ def test_unwritable_bench_out_is_reported_before_timing(blocked_dir, capsys, no_
 
 
 def test_unwritable_reproduce_out_is_reported_before_any_reproduction(blocked_dir, capsys, monkeypatch):
-    from mrcomm_env.experiments import cli
-
     monkeypatch.setattr(cli, "run_reproduction", lambda *a, **k: pytest.fail("reproduction started"))
     assert main(["reproduce", env_ids()[0], "--tiny", "--out", str(blocked_dir)]) == 2
     line = _one_error_line(capsys.readouterr().err)
@@ -268,12 +268,10 @@ def test_huge_mode_number_is_one_line(capsys):
     ],
 )
 def test_failures_during_the_work_are_one_line(raised, code, words, monkeypatch, capsys):
-    from mrcomm_env.experiments import evaluation
-
     def fail(*args, **kwargs):
         raise raised
 
-    monkeypatch.setattr(evaluation, "evaluate", fail)
+    monkeypatch.setattr(cli, "evaluate", fail)
     assert main(_evaluate_argv()) == code
     assert words in _one_error_line(capsys.readouterr().err)
 

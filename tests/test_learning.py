@@ -11,7 +11,7 @@ import torch
 
 from mrcomm_agents.learned import PRETRAINED_DIR, load_policy
 from mrcomm_agents.training import CONFIG_DIR
-from mrcomm_env.experiments import learning
+from mrcomm_env.experiments import comparison
 from mrcomm_env.experiments.cli import main
 from mrcomm_env.registry import env_ids, short_name
 
@@ -34,7 +34,7 @@ def point(metric, bits, metric_ci=0.0, bits_ci=0.0, cost=None):
     ],
 )
 def test_dominates_means_no_more_bits_and_no_worse_metric(learned, baseline, lower, expected):
-    assert learning.dominates(learned, baseline, lower) is expected
+    assert comparison.dominates(learned, baseline, lower) is expected
 
 
 @pytest.mark.parametrize(
@@ -50,14 +50,14 @@ def test_dominates_means_no_more_bits_and_no_worse_metric(learned, baseline, low
     ],
 )
 def test_beats_needs_a_margin_beyond_the_intervals(learned, baseline, expected):
-    assert learning.beats(learned, baseline, lower_is_better=True) is expected
+    assert comparison.beats(learned, baseline, lower_is_better=True) is expected
 
 
 @pytest.mark.parametrize("env_id", env_ids())
 def test_every_env_has_a_learning_configuration_its_baselines_exist(env_id):
     from mrcomm_baselines import policy_names
 
-    spec = learning.comparison_spec(env_id)
+    spec = comparison.comparison_spec(env_id)
     assert spec["baselines"] and spec["costs"] and spec["seeds"] >= 3
     assert {name for name, _ in spec["baselines"]} <= set(policy_names(env_id))
     assert "random" in {name for name, _ in spec["baselines"]}
@@ -179,7 +179,7 @@ def test_every_shipped_model_has_a_card_that_agrees_with_it(env_id):
     """The card holds the model's training setting and the evaluation mode it was chosen with, which
     ``--policy pretrained`` uses (MultiHop's was chosen sampling: deterministic, it scored worse than random)."""
     from mrcomm_agents.learned import model_card
-    from mrcomm_env.experiments.learning import comparison_spec
+    from mrcomm_env.experiments.runs import comparison_spec
 
     card = model_card(env_id)
     record = json.loads((PRETRAINED_DIR / short_name(env_id) / "config.json").read_text())

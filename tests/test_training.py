@@ -16,7 +16,7 @@ from mrcomm_agents import training
 from mrcomm_agents.learned import LearnedPolicy, load_policy
 from mrcomm_agents.training import RunError, TrainConfig, train
 from mrcomm_env.experiments.cli import main
-from mrcomm_env.experiments.learning import sweep_section
+from mrcomm_env.experiments.learning_report import sweep_section
 
 torch.set_num_threads(1)
 

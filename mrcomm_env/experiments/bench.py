@@ -5,20 +5,33 @@ Speed and memory goals are checked here, by measurement, never by timed unit tes
 
 from __future__ import annotations
 
+import json
+import multiprocessing
+import os
+import resource
+import statistics
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict
 from typing import Any
 
+from tqdm.auto import tqdm
+
+from mrcomm_baselines import default_policy, make_policy
+from mrcomm_env.core import backend
+from mrcomm_env.experiments.evaluation import run_episode
+from mrcomm_env.experiments.limits import limit_configs, measure_limit
+from mrcomm_env.experiments.reproductions import module
+from mrcomm_env.experiments.sweep import Runner, Task, one_thread
 from mrcomm_env.registry import make
 
 
 def train_section(targets: list[str], params: dict, timesteps: int, progress: bool = True) -> dict[str, Any]:
     """PPO agent-steps/s through the agent-slot VecEnv on every target and on mpe2's ``simple_spread_v3``, with
     the share of wall time spent in ``env.step`` (the goal: our envs train at least as fast as the reference)."""
-    from tqdm.auto import tqdm
-
-    from mrcomm_env.experiments.learning import train_throughput
 
     def reference():
-        from mpe2 import simple_spread_v3
+        from mpe2 import simple_spread_v3  # extra "bench"
 
         return simple_spread_v3.parallel_env(N=3, continuous_actions=False)
 
@@ -36,6 +49,48 @@ def train_section(targets: list[str], params: dict, timesteps: int, progress: bo
     return out
 
 
+#: the PPO settings every env (and the reference) trains with in ``mrcomm bench --train``: the same work per
+#: agent-step everywhere, so the figures compare the envs and not the settings
+BENCH_PPO: dict[str, Any] = {"n_steps": 64, "n_epochs": 4, "policy_kwargs": {"net_arch": [64, 64]}}
+
+
+def train_throughput(env_fns, timesteps: int, seed: int = 0) -> dict[str, float]:
+    """PPO agent-steps/s through ``AgentSlotVecEnv`` over ``env_fns`` and the share of wall time in ``env.step``."""
+    import torch  # extra "train"
+    from stable_baselines3 import PPO  # extra "train"
+
+    from mrcomm_agents.vecenv import AgentSlotVecEnv  # extra "train"
+
+    torch.set_num_threads(1)
+    venv = AgentSlotVecEnv(env_fns)
+    in_step = [0.0]
+    for env in venv.envs:
+        step = env.step
+
+        def timed(actions, _step=step):
+            start = time.perf_counter()
+            try:
+                return _step(actions)
+            finally:
+                in_step[0] += time.perf_counter() - start
+
+        env.step = timed
+    # one minibatch per epoch: the gradient work per agent-step is then the same whatever the slot count
+    batch = BENCH_PPO["n_steps"] * venv.num_envs
+    model = PPO("MlpPolicy", venv, seed=seed, device="cpu", verbose=0, batch_size=batch, **BENCH_PPO)
+    start = time.perf_counter()
+    model.learn(total_timesteps=timesteps)
+    wall = time.perf_counter() - start
+    venv.close()
+    return {
+        "agent_steps_per_s": model.num_timesteps / wall,
+        "env_step_share": in_step[0] / wall,
+        "agent_steps": model.num_timesteps,
+        "seconds": wall,
+        "slots": venv.num_envs,
+    }
+
+
 def _train_line(result: dict) -> str:
     return (
         f"{result['agent_steps_per_s']:,.0f} PPO agent-steps/s ({result['slots']} slots), "
@@ -45,7 +100,6 @@ def _train_line(result: dict) -> str:
 
 def limits_section(targets: list[str], seconds: float) -> dict[str, Any]:
     """Steps/s and peak memory of every documented maximum (``LIMIT_CONFIGS``), each in a fresh process."""
-    from mrcomm_env.experiments.limits import limit_configs, measure_limit
 
     out = {}
     for env_id in targets:
@@ -61,7 +115,6 @@ def limits_section(targets: list[str], seconds: float) -> dict[str, Any]:
 
 def extras_section(targets: list[str]) -> dict[str, Any]:
     """Env-specific timings a reproduction module offers as ``benchmarks() -> {name: value}``."""
-    from mrcomm_env.experiments.reproductions import module
 
     out = {}
     for env_id in targets:
@@ -89,8 +142,6 @@ RAY_CPUS = 2
 
 def scripted_episode(env_id: str, policy: str, seed: int, params: dict | None = None) -> dict[str, float]:
     """The metrics of one seeded episode of a scripted baseline: a sweep task (importable by name on a worker)."""
-    from mrcomm_baselines import make_policy
-    from mrcomm_env.experiments.evaluation import run_episode
 
     env = make(env_id, **(params or {}))
     try:
@@ -106,8 +157,6 @@ def no_op(index: int) -> int:
 
 def episode_tasks(env_id: str = SWEEP_ENV, n_tasks: int = SWEEP_TASKS, params: dict | None = None) -> list:
     """``n_tasks`` seeded episodes (seeds 0, 1, …) of ``env_id``'s default scripted policy."""
-    from mrcomm_baselines import default_policy
-    from mrcomm_env.experiments.sweep import Task
 
     policy = default_policy(env_id)
     return [
@@ -133,13 +182,6 @@ def sweep_section(
     worker process does. The backends take turns within each run, so that a load that comes and goes on a
     shared machine falls on all of them alike; and for the local backends ``cores`` says how many cores the sweep got (CPU time of this
     process and its workers over wall time: 2 for two workers on two free cores, less when others compete)."""
-    import os
-    import resource
-    import statistics
-    import time
-
-    from mrcomm_env.core import backend
-    from mrcomm_env.experiments.sweep import Runner, Task
 
     tasks = episode_tasks(env_id, n_tasks, params)
     no_ops = [Task(f"{__name__}:no_op", {"index": i}, f"no-op {i}") for i in range(n_tasks)]
@@ -169,7 +211,7 @@ def sweep_section(
     }
     # serially in a fresh process, as `mrcomm … --workers 1` runs: in this process, every run after the first
     # would find the env's modules imported, which the workers of a process pool never do
-    local = {"workers 1": _FreshSerial(), "workers 2": Runner(workers=2, progress=False)}
+    local: dict[str, Any] = {"workers 1": _FreshSerial(), "workers 2": Runner(workers=2, progress=False)}
     samples: dict[str, dict[str, list]] = {name: {"sweep": [], "overhead": [], "cores": []} for name in local}
     results: dict[str, list] = {}
     ray_runs: list[dict] = []
@@ -223,13 +265,11 @@ def sweep_section(
 
 def _same(a: list, b: list) -> bool:
     """Identical numbers, compared as the JSON text they are written as: NaN equals NaN there, and -0.0 is not 0.0."""
-    import json
 
     return json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
 
 
 def _serially(tasks: list[dict]) -> list:
-    from mrcomm_env.experiments.sweep import Runner, Task
 
     return Runner(workers=1, progress=False).map([Task(**task) for task in tasks])
 
@@ -240,11 +280,6 @@ class _FreshSerial:
     backend = "serial"
 
     def map(self, tasks: list, desc: str = "tasks") -> list:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-        from dataclasses import asdict
-
-        from mrcomm_env.experiments.sweep import one_thread
 
         context = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(1, mp_context=context, initializer=one_thread) as pool:
@@ -254,9 +289,6 @@ class _FreshSerial:
 def _ray_run(tasks: list, no_ops: list, timed) -> dict[str, Any]:
     """One run of the Ray column of :func:`sweep_section`: a fresh local instance for each of the two sweeps, so
     that both start their worker processes as the first sweep of a command on a cluster does."""
-    import time
-
-    from mrcomm_env.experiments.sweep import Runner
 
     try:
         import ray

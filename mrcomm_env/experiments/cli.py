@@ -10,11 +10,17 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import statistics
 import sys
 import time
 from pathlib import Path
 
+from tqdm.auto import tqdm
+
+from mrcomm_baselines import default_policy, make_policy, policy_names
+from mrcomm_env.core import backend
+from mrcomm_env.experiments import bench
 from mrcomm_env.experiments.arguments import (
     nonnegative_seconds,
     parse_params,
@@ -22,6 +28,8 @@ from mrcomm_env.experiments.arguments import (
     positive_seconds,
     seed_type,
 )
+from mrcomm_env.experiments.docs import write_docs
+from mrcomm_env.experiments.evaluation import evaluate, limit_threads, make_any_policy, steps_per_second
 from mrcomm_env.experiments.io import (
     atomic_remove,
     atomic_write_json,
@@ -29,8 +37,12 @@ from mrcomm_env.experiments.io import (
     check_writable_dir,
     check_writable_file,
 )
+from mrcomm_env.experiments.learning_report import add_reproduce_learning_parser
+from mrcomm_env.experiments.record import record_episode
 from mrcomm_env.experiments.reproductions import module as reproduction_module
 from mrcomm_env.experiments.reproductions import run_reproduction
+from mrcomm_env.experiments.sweep import SweepError, add_runner_arguments, runner_from_args, using
+from mrcomm_env.experiments.train import add_train_parser
 from mrcomm_env.registry import canonical_id, env_class, env_ids, make, short_name
 
 BENCH_REFERENCE = "mpe2 simple_spread_v3 (N=3, discrete actions, random actions)"
@@ -51,7 +63,6 @@ def _json_safe(obj):
 
 # ---------------------------------------------------------------------------------------------- commands
 def cmd_list(args) -> int:
-    from mrcomm_baselines import default_policy, policy_names
 
     for env_id in env_ids():
         cls = env_class(env_id)
@@ -63,8 +74,6 @@ def cmd_list(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from mrcomm_env.experiments.evaluation import evaluate, limit_threads
-    from mrcomm_env.experiments.learning import make_any_policy
 
     limit_threads()
     env_id = canonical_id(args.env_id)
@@ -87,8 +96,6 @@ def cmd_evaluate(args) -> int:
     finally:
         probe.close()
     if args.video:
-        from mrcomm_env.experiments.record import record_episode
-
         folder = check_writable_dir(args.video, "--video")
         name = f"{short_name(env_id)}-{args.policy.replace(':', '_').replace('/', '_')}.gif"
         video = record_episode(env_id, [args.policy], args.seed, folder / name, params, policy_params)
@@ -115,8 +122,6 @@ def cmd_evaluate(args) -> int:
 
 
 def cmd_record(args) -> int:
-    from mrcomm_env.experiments.evaluation import limit_threads
-    from mrcomm_env.experiments.record import record_episode
 
     limit_threads()
     out = check_writable_file(args.out, "--out")
@@ -138,9 +143,6 @@ REPORT_NAME = "REPORT.md"
 
 
 def cmd_reproduce(args) -> int:
-    from mrcomm_env.core import backend
-    from mrcomm_env.experiments.evaluation import limit_threads
-    from mrcomm_env.experiments.sweep import runner_from_args, using
 
     limit_threads()
     if args.all == bool(args.env_ids):
@@ -184,11 +186,6 @@ def cmd_reproduce(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    import os
-
-    from mrcomm_baselines import default_policy, make_policy
-    from mrcomm_env.core import backend
-    from mrcomm_env.experiments.evaluation import limit_threads, steps_per_second
 
     limit_threads()
     targets = [canonical_id(e) for e in args.env_ids] or env_ids()
@@ -199,8 +196,6 @@ def cmd_bench(args) -> int:
     for env_id in targets:  # every target accepts the params, before the first timed run
         make(env_id, **params).close()
     runs = args.runs
-
-    from tqdm.auto import tqdm
 
     def median_of(measure, label):
         # one untimed warm-up run first: caches, lazily built tables and compiled kernels are then loaded,
@@ -261,7 +256,6 @@ def cmd_bench(args) -> int:
     results["runs"] = runs
     results["seconds_per_run"] = args.seconds
     results["warmup_seconds"] = args.warmup
-    from mrcomm_env.experiments import bench
 
     results["extras"] = bench.extras_section(targets)
     if args.train:
@@ -275,7 +269,6 @@ def cmd_bench(args) -> int:
 
 def _bench_sweep(args, params: dict, out: Path) -> int:
     """``mrcomm bench --sweep``: the sweep runner's backends instead of env-steps/s (docs/scaling.md)."""
-    from mrcomm_env.experiments import bench
 
     if len(args.env_ids) > 1:
         raise ValueError(f"--sweep times one env, got {len(args.env_ids)}: {' '.join(args.env_ids)}")
@@ -288,7 +281,6 @@ def _bench_sweep(args, params: dict, out: Path) -> int:
 
 
 def _policy_speed(env, policy, seconds: float, seed: int) -> tuple[float, float]:
-    from mrcomm_env.experiments.evaluation import steps_per_second
 
     views = env.local_views()
     return steps_per_second(
@@ -297,7 +289,6 @@ def _policy_speed(env, policy, seconds: float, seed: int) -> tuple[float, float]
 
 
 def cmd_docs(args) -> int:
-    from mrcomm_env.experiments.docs import write_docs
 
     changed = write_docs(Path(args.out), check=args.check)
     if args.check and changed:
@@ -364,7 +355,6 @@ def build_parser() -> argparse.ArgumentParser:
         help="smoke-test sizes (seconds per env): every file is written, the numbers mean nothing",
     )
     p.add_argument("--out", default="results")
-    from mrcomm_env.experiments.sweep import add_runner_arguments
 
     add_runner_arguments(p)
     p.set_defaults(func=cmd_reproduce)
@@ -389,9 +379,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="results/bench.json")
     p.set_defaults(func=cmd_bench)
 
-    from mrcomm_env.experiments.learning import add_learning_parsers
-
-    add_learning_parsers(command)
+    add_train_parser(command)
+    add_reproduce_learning_parser(command)
 
     p = command("docs", help="generate docs/envs/*.md from the live environments")
     p.add_argument("--out", default="docs")
@@ -410,7 +399,6 @@ def _error(message: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from mrcomm_env.experiments.sweep import SweepError
 
     argv = sys.argv[1:] if argv is None else list(argv)
     debug = "--debug" in argv  # known before parsing, so that even a parse error can show its traceback

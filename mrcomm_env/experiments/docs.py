@@ -10,6 +10,10 @@ import inspect
 import math
 from pathlib import Path
 
+from mrcomm_baselines import default_policy, policy_module
+from mrcomm_env.experiments.reproductions import module as reproduction_module
+from mrcomm_env.registry import entry, env_class, env_ids, env_module, make, short_name
+
 
 def _fmt(value) -> str:
     if isinstance(value, float) and math.isinf(value):
@@ -28,9 +32,6 @@ def _cell(text: str) -> str:
 
 
 def env_page(env_id: str) -> str:
-    from mrcomm_baselines import policy_module
-    from mrcomm_env.experiments.reproductions import module as reproduction_module
-    from mrcomm_env.registry import entry, env_class, env_module, make, short_name
 
     cls = env_class(env_id)
     shim = env_module(env_id).__name__
@@ -134,8 +135,6 @@ def env_page(env_id: str) -> str:
 
 
 def index_page() -> str:
-    from mrcomm_baselines import default_policy
-    from mrcomm_env.registry import env_class, env_ids, short_name
 
     lines = [
         "# mrcomm-env environments",
@@ -155,7 +154,6 @@ def index_page() -> str:
 
 
 def expected_docs(out: Path) -> dict[Path, str]:
-    from mrcomm_env.registry import env_ids, short_name
 
     pages = {out / "index.md": index_page()}
     for env_id in env_ids():

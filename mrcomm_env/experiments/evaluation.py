@@ -1,4 +1,5 @@
-"""Running a policy in an environment: episodes, evaluation summaries and the speed benchmark."""
+"""Running a policy in an environment: the policies ``--policy`` names, episodes, evaluation summaries, the
+scores the learned-against-scripted comparison uses, and the speed benchmark."""
 
 from __future__ import annotations
 
@@ -8,15 +9,37 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from tqdm.auto import tqdm
 
+from mrcomm_baselines import make_policy, policy_names
 from mrcomm_env.core.stats import mean_ci95
+from mrcomm_env.registry import canonical_id, make
+
+
+def make_any_policy(env_id: str, name: str, **params):
+    """A scripted baseline by name, or a learned model: ``ppo:PATH``, ``maskable_ppo:PATH``, ``dqn:PATH``,
+    ``pretrained``. Unknown names raise ``ValueError`` listing both kinds."""
+    if name in policy_names(env_id):
+        return make_policy(env_id, name, **params)
+    try:
+        from mrcomm_agents.learned import is_learned, load_policy  # extra "train" (SB3, torch)
+    except ImportError:
+        if ":" in name or name == "pretrained":
+            raise ValueError("learned policies need the training extra: pip install 'mrcomm-env[train]'") from None
+        raise
+    if is_learned(name):
+        return load_policy(name, env_id, **params)
+    raise ValueError(
+        f"unknown policy {name!r} for {canonical_id(env_id)}; valid policies are: "
+        f"{', '.join(policy_names(env_id))}, pretrained, or ALGO:RUN_FOLDER with ALGO ppo, maskable_ppo or dqn"
+    )
 
 
 def limit_threads() -> None:
     """One BLAS/torch thread per process: PPO here ran 45× slower with torch's default of 2 threads."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     try:
-        import torch
+        import torch  # extra "train"
     except ImportError:
         return
     torch.set_num_threads(1)
@@ -59,8 +82,6 @@ def run_episode(
 
 def evaluate(env_factory: Callable[[], Any], policy, episodes: int, seed: int, progress: bool = True) -> dict:
     """``episodes`` episodes with seeds ``seed, seed+1, …``; per metric the mean, 95 % CI and all values."""
-    from tqdm.auto import tqdm
-
     env = env_factory()
     values: dict[str, list[float]] = {}
     for k in tqdm(range(episodes), desc="episodes", disable=not progress, leave=False):
@@ -72,6 +93,32 @@ def evaluate(env_factory: Callable[[], Any], policy, episodes: int, seed: int, p
         mean, half = mean_ci95(vals)
         summary[name] = {"mean": mean, "ci95": half, "values": vals}
     return summary
+
+
+def bits_per_agent(env, metrics: dict, per: str = "step") -> float:
+    """Bits sent per agent, per step (``per="step"``) or over the whole episode (``"episode"``: for envs whose
+    episodes end when the task is done, where a per-step rate would hide that a slow policy sends longer)."""
+    steps = max(env.step_count, 1) if per == "step" else 1
+    return float(metrics["bits_sent"]) / (env.n_agents * steps)
+
+
+def evaluate_policy(env_id: str, env_kwargs: dict, policy, seeds: list[int], spec: dict) -> dict[str, list[float]]:
+    """Per episode: the task metric ``spec["metric"]``, bits per agent (per step or per episode) and the return.
+
+    ``spec["unfinished"]``: the value a metric that reports −1 or nan for "not done within the episode" (a
+    completion time) counts as, so that never finishing is not mistaken for finishing at once."""
+    env = make(env_id, **env_kwargs)
+    out: dict[str, list[float]] = {"metric": [], "bits": [], "return": []}
+    for seed in seeds:
+        metrics = run_episode(env, policy, seed)
+        value = float(metrics[spec["metric"]])
+        if "unfinished" in spec and not value >= 0:  # −1 or nan: not done within the episode
+            value = float(spec["unfinished"])
+        out["metric"].append(value)
+        out["bits"].append(bits_per_agent(env, metrics, spec.get("bits_per", "step")))
+        out["return"].append(float(metrics["episode_return"]))
+    env.close()
+    return out
 
 
 def steps_per_second(

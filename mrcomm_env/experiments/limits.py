@@ -24,6 +24,8 @@ import time
 import tracemalloc
 from typing import Any
 
+import numpy as np
+
 from mrcomm_env.registry import env_class, make
 
 #: the hook name; until ``MrcommParallelEnv`` declares it, a class without it has no documented maxima
@@ -97,7 +99,6 @@ def measure_limits(env_id: str, seconds: float = 10.0, **kwargs: Any) -> dict[st
 
 
 def _run(job: dict[str, Any]) -> dict[str, Any]:
-    import numpy as np
 
     if job.get("trace_memory"):
         tracemalloc.start()

@@ -24,7 +24,8 @@ from typing import Any
 import numpy as np
 from PIL import GifImagePlugin, Image, ImageDraw
 
-from mrcomm_env.experiments.learning import comparison_spec, make_any_policy
+from mrcomm_env.experiments.evaluation import make_any_policy
+from mrcomm_env.experiments.runs import comparison_spec
 from mrcomm_env.registry import canonical_id, make
 
 VIDEO_EXTRA = "video"
@@ -37,7 +38,7 @@ def headline_metric(env_id: str, metrics: Mapping[str, str]) -> str:
     """The metric a panel shows: the one the learned-vs-scripted comparison ranks by, else the env's first."""
     try:
         name = comparison_spec(env_id)["metric"]
-    except (ValueError, KeyError):
+    except (ValueError, KeyError, ImportError):  # no comparison configured, or no "train" extra to read it
         name = ""
     return name if name in metrics else next(iter(metrics))
 

@@ -30,18 +30,25 @@ import hashlib
 import importlib
 import importlib.util
 import json
+import multiprocessing
 import os
 import re
 import signal
+import socket
 import sys
 import threading
 import time
 import warnings
 from collections.abc import Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from tqdm.auto import tqdm
+
+from mrcomm_env.core import backend
+from mrcomm_env.experiments.arguments import positive_int
 from mrcomm_env.experiments.io import atomic_write_text
 
 #: prctl(2) option: the signal a process gets when its parent dies
@@ -67,7 +74,6 @@ class Task:
     def key(self) -> str:
         """A file-safe name that changes whenever the function, any argument, the package's code or the backend of
         its hot loops (numba or numpy: their results agree to round-off, not to the bit) does."""
-        from mrcomm_env.core import backend
 
         blob = json.dumps([self.fn, self.kwargs, code_version(), backend.name()], sort_keys=True, default=str)
         digest = hashlib.sha1(blob.encode()).hexdigest()[:12]
@@ -199,8 +205,6 @@ class Runner:
         errors: list[BaseException] = []
         self.stats = {"run": len(todo), "cached": len(tasks) - len(todo), "retried": 0}
 
-        from tqdm.auto import tqdm
-
         bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), desc=desc, disable=not self.progress)
 
         def finished(i: int, result: Any = None, error: BaseException | None = None) -> None:
@@ -248,8 +252,6 @@ class Runner:
             return
 
     def _map_processes(self, tasks: Sequence[Task], todo: list[int], finished) -> None:
-        import multiprocessing
-        from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
         pool = self._pool
         if pool is None:
@@ -292,7 +294,6 @@ class Runner:
             import ray
         except ImportError as exc:
             raise ValueError("argument 'ray' needs Ray: pip install 'mrcomm-env[ray]' (docs/scaling.md)") from exc
-        from mrcomm_env.core import backend
 
         driver = {"code": code_version(), "backend": backend.name()}
         if not ray.is_initialized():
@@ -350,12 +351,8 @@ def _ray_execute(fn: str, kwargs: dict[str, Any], driver: dict[str, str] | None 
     estimates differ by round-off: docs/architecture.md)."""
     one_thread()
     if driver is not None:
-        from mrcomm_env.core import backend
-
         here = {"code": code_version(), "backend": backend.name()}
         if here != driver:
-            import socket
-
             raise CodeMismatch(
                 f"node {socket.gethostname()} runs mrcomm-env code {here['code']} with {here['backend']} hot loops, "
                 f"the driver code {driver['code']} with {driver['backend']}: install the same version of mrcomm-env, "
@@ -404,7 +401,6 @@ def default_workers() -> int:
 
 def add_runner_arguments(parser: argparse.ArgumentParser) -> None:
     """``--workers N`` and ``--ray auto|ADDRESS`` (mutually exclusive)."""
-    from mrcomm_env.experiments.arguments import positive_int
 
     group = parser.add_mutually_exclusive_group()
     group.add_argument(

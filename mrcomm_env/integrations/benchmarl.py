@@ -21,7 +21,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from mrcomm_env.integrations import require
-from mrcomm_env.registry import ENTRIES
+from mrcomm_env.integrations.torchrl import make_env
+from mrcomm_env.registry import ENTRIES, canonical_id, make
 
 EXTRA = "benchmarl"
 CONF_DIR = Path(__file__).with_name("benchmarl_conf")
@@ -45,7 +46,6 @@ class MrcommClass(_common.TaskClass):
 
     def __init__(self, name: str, config: dict | None):
         super().__init__(name, config)
-        from mrcomm_env.registry import make
 
         # build the env once, now: a bad argument fails here with the env's own ValueError, not mid-experiment,
         # and the action space may depend on the config (MultiHop-v0's layout)
@@ -62,7 +62,6 @@ class MrcommClass(_common.TaskClass):
         return ENV_ID_OF_TASK[self.name]
 
     def get_env_fun(self, num_envs, continuous_actions, seed, device):
-        from mrcomm_env.integrations.torchrl import make_env
 
         config = dict(self.config)
         env_id = self.env_id
@@ -120,26 +119,31 @@ class MrcommClass(_common.TaskClass):
         return "mrcomm"
 
 
-class MrcommTask(_common.Task):
-    """The mrcomm tasks, one per registered env (``ENV_ID_OF_TASK``); configs from ``benchmarl_conf/<task>.yaml``."""
-
-    ASYNCCL = None
-    CHANNEL_ASSOCIATION = None
-    MAPSYNC = None
-    MULTIHOP = None
-    RENDEZVOUS_MAPPING = None
+class _MrcommTasks(_common.Task):
+    """What every mrcomm task can do; the members (one per registered env) are made from the registry below."""
 
     @staticmethod
     def associated_class():
         return MrcommClass
 
     def get_from_yaml(self, path: str | None = None):
-        # our yaml files live in this package, not in benchmarl/conf/task
-        return super().get_from_yaml(str(CONF_DIR / f"{self.name.lower()}.yaml") if path is None else path)
+        # our yaml files live in this package, not in benchmarl/conf/task; an env without one (a newly registered
+        # env) runs with its own defaults
+        if path is None:
+            path = str(CONF_DIR / f"{self.name.lower()}.yaml")
+            if not Path(path).exists():
+                return self.get_task(config={})
+        return super().get_from_yaml(path)
 
     @classmethod
-    def from_env_id(cls, env_id: str) -> MrcommTask:
+    def from_env_id(cls, env_id: str) -> _MrcommTasks:
         """``MrcommTask.from_env_id("MapSync-v0")`` → ``MrcommTask.MAPSYNC``; unknown ids raise ``ValueError``."""
-        from mrcomm_env.registry import canonical_id
 
-        return cls[task_name(canonical_id(env_id))]
+        return cls.__members__[task_name(canonical_id(env_id))]
+
+
+#: The mrcomm tasks, one per registered env (``ENV_ID_OF_TASK``), e.g. ``MrcommTask.MAPSYNC``; configs from
+#: ``benchmarl_conf/<task>.yaml``. Derived from the registry, so a newly registered env is a task with no edit here.
+MrcommTask = _MrcommTasks(
+    "MrcommTask", [(name, None) for name in ENV_ID_OF_TASK], module=__name__, qualname="MrcommTask"
+)

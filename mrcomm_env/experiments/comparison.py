@@ -1,0 +1,172 @@
+"""The learned-against-scripted comparison at equal bits (``mrcomm reproduce-learning``): train policies at each
+price of a bit, score them and every baseline on held-out episodes, apply the equal-bits rule (``dominates``,
+``beats``) and ship the best run with its model card."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from mrcomm_baselines import make_policy
+from mrcomm_env.core.stats import mean_ci95
+from mrcomm_env.experiments.evaluation import evaluate_policy
+from mrcomm_env.experiments.io import atomic_write_text
+from mrcomm_env.experiments.runs import comparison_spec, run_folder
+from mrcomm_env.experiments.sweep import Task, run_tasks
+from mrcomm_env.registry import canonical_id, short_name
+
+
+def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress: bool = True):
+    """Train ``seeds`` policies per cost value, evaluate them and every baseline on held-out seeds, and return
+    (rows, markdown). Rows: policy, cost, metric mean ± CI, bits per agent per step mean ± CI. The training runs
+    (each scored on the held-out seeds where it ran) go through the sweep runner the caller chose."""
+    from mrcomm_agents.training import split_settings  # extra "train"
+
+    env_id = canonical_id(env_id)
+    spec = comparison_spec(env_id)
+    algo = spec["algo"]
+    run_settings, hyper = split_settings(spec["settings"].get(algo, {}))
+    env_kwargs = dict(run_settings.pop("env_kwargs", {}))
+    timesteps = run_settings.pop("timesteps", 200_000)
+    if quick:
+        timesteps = spec.get("quick_timesteps", max(timesteps // 10, 1))
+    seeds = list(range(spec.get("seeds", 3)))
+    eval_seeds = [10_000 + k for k in range(spec.get("eval_episodes", 10))]
+    cost_param = spec["cost_param"]
+    tasks = []
+    for cost in spec["costs"]:
+        for seed in seeds:
+            config = dict(
+                env_id=env_id,
+                algo=algo,
+                timesteps=timesteps,
+                seed=seed,
+                hyperparams=hyper,
+                env_kwargs={**env_kwargs, cost_param: cost},
+                **run_settings,
+            )
+            tasks.append(
+                {
+                    "out": str(out_dir / "runs" / run_folder(f"{cost_param}={cost}", config)),
+                    "config": config,
+                    "cost": cost,
+                    "seed": seed,
+                }
+            )
+    sweep = [
+        Task(
+            "mrcomm_env.experiments.runs:train_and_evaluate",
+            {"out": task["out"], "config": task["config"], "eval_seeds": eval_seeds},
+            f"{cost_param}={task['cost']} s{task['seed']}",
+        )
+        for task in tasks
+    ]
+    rows = []
+    learned: dict[float, list[dict]] = {}
+    for task, done in zip(tasks, run_tasks(sweep, desc=f"training {short_name(env_id)}")):
+        result = done["evaluation"]
+        task["score"] = float(np.nanmean(result["metric"]))
+        learned.setdefault(task["cost"], []).append(result)
+    spec["best_run"] = best_run(tasks, spec)
+    for cost, results in learned.items():
+        # one point per training seed (its mean over the evaluation episodes): the CI is over training seeds
+        per_seed_metric = [float(np.nanmean(r["metric"])) for r in results]
+        per_seed_bits = [float(np.mean(r["bits"])) for r in results]
+        rows.append(comparison_row(f"learned ({algo})", cost, per_seed_metric, per_seed_bits, len(results)))
+    # a baseline's actions do not depend on the price of bits, so it is evaluated once, unless the swept argument
+    # changes the setting itself (``baselines_per_cost``: e.g. the communication range)
+    costs = spec["costs"] if spec.get("baselines_per_cost") else [None]
+    for name, params in tqdm(spec["baselines"], desc="evaluating baselines", disable=not progress, leave=False):
+        for cost in costs:
+            policy = make_policy(env_id, name, **params)
+            kwargs = env_kwargs if cost is None else {**env_kwargs, cost_param: cost}
+            result = evaluate_policy(env_id, kwargs, policy, eval_seeds, spec)
+            label = name + (" " + ", ".join(f"{k}={v}" for k, v in params.items()) if params else "")
+            row = comparison_row(label, None, result["metric"], result["bits"], len(eval_seeds))
+            row["setting"] = cost
+            rows.append(row)
+    for row in rows:
+        row.setdefault("setting", row["cost"])
+    return rows, spec
+
+
+def best_run(tasks: list[dict], spec: dict) -> str:
+    """The run with the best task metric on the evaluation episodes (the model ``--export-pretrained`` ships)."""
+    sign = 1.0 if spec.get("lower_is_better") else -1.0
+    return min(tasks, key=lambda t: (sign * t["score"], t["cost"], t["seed"]))["out"]
+
+
+def export_pretrained(run: str | Path, env_id: str) -> Path:
+    """Copy a run's model, statistics and config into ``agents/pretrained/<Name>-v0/`` (shipped in the package;
+    ``mrcomm evaluate ID --policy pretrained``). Checkpoints and logs stay behind: well under 1 MB."""
+    from mrcomm_agents.learned import pretrained_dir  # extra "train"
+
+    target = pretrained_dir(env_id)
+    target.mkdir(parents=True, exist_ok=True)
+    for name in ("model.zip", "vecnormalize.pkl", "config.json"):
+        if (Path(run) / name).exists():
+            tmp = target / f".{name}.tmp"
+            shutil.copyfile(Path(run) / name, tmp)
+            tmp.replace(target / name)
+    write_model_card(env_id, json.loads((target / "config.json").read_text()))
+    return target
+
+
+def write_model_card(env_id: str, record: dict) -> Path:
+    """``card.json`` beside a shipped model: what ``--policy pretrained`` and a reader need to know of it. The
+    evaluation mode is the one the comparison chose the model with (``comparison.deterministic`` of
+    ``agents/configs/<Name>-v0.json``, deterministic by default)."""
+    from mrcomm_agents.learned import CARD_NAME, pretrained_dir  # extra "train"
+
+    try:
+        spec = comparison_spec(env_id)
+    except ValueError:
+        spec = {}
+    card = {
+        "env_id": canonical_id(env_id),
+        "env_kwargs": record.get("env_kwargs", {}),
+        "algo": record.get("algo"),
+        "policy": record.get("policy", "mlp"),
+        "seed": record.get("seed"),
+        "agent_steps": record.get("timesteps"),
+        "deterministic": bool(spec.get("deterministic", True)),
+        "metric": spec.get("metric"),
+        "reproduce": f"mrcomm reproduce-learning {short_name(env_id)} --export-pretrained",
+    }
+    path = pretrained_dir(env_id) / CARD_NAME
+    atomic_write_text(path, json.dumps(card, indent=2) + "\n")
+    return path
+
+
+def comparison_row(policy: str, cost, metric_values, bits_values, n: int) -> dict:
+    """A row of the comparison table: the metric and bits as mean ± 95 % CI over ``n`` values."""
+    m, mh = mean_ci95(metric_values)
+    b, bh = mean_ci95(bits_values)
+    return {"policy": policy, "cost": cost, "metric": m, "metric_ci95": mh, "bits": b, "bits_ci95": bh, "n": n}
+
+
+def dominates(learned: dict, baseline: dict, lower_is_better: bool) -> bool:
+    """*Matches*: the learned point sends no more bits than the baseline (5 % slack for the bits' own noise) and
+    its task metric is not worse beyond the two 95 % intervals."""
+    if learned["bits"] > baseline["bits"] * 1.05 + 1e-9:
+        return False
+    sign = -1.0 if lower_is_better else 1.0
+    return sign * (learned["metric"] - baseline["metric"]) >= -(learned["metric_ci95"] + baseline["metric_ci95"])
+
+
+def beats(learned: dict, baseline: dict, lower_is_better: bool) -> bool:
+    """*Beats*: it matches the baseline and, beyond the two 95 % intervals, either has the better task metric or
+    sends fewer bits (at least 5 % fewer, the slack that matching allows)."""
+    if not dominates(learned, baseline, lower_is_better):
+        return False
+    sign = -1.0 if lower_is_better else 1.0
+    better = sign * (learned["metric"] - baseline["metric"]) > learned["metric_ci95"] + baseline["metric_ci95"]
+    # fewer bits counts only beyond the intervals *and* the 5 % slack that matching allows: a point 2 % cheaper
+    # but worse on average is a match, not a win
+    saved = baseline["bits"] - learned["bits"]
+    cheaper = saved > learned["bits_ci95"] + baseline["bits_ci95"] and saved > 0.05 * baseline["bits"]
+    return better or cheaper

@@ -1,0 +1,296 @@
+"""docs/learning.md and ``mrcomm reproduce-learning``: per env, the comparison's table, its figure (task metric
+against bits) and the verdicts of the equal-bits rule, plus the recorded hyperparameter sweep."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from mrcomm_env.core.stats import mean_ci95
+from mrcomm_env.experiments.comparison import beats, dominates, export_pretrained, reproduce_learning
+from mrcomm_env.experiments.evaluation import limit_threads
+from mrcomm_env.experiments.io import atomic_write_text
+from mrcomm_env.experiments.runs import comparison_spec
+from mrcomm_env.experiments.sweep import add_runner_arguments, runner_from_args, using
+from mrcomm_env.registry import canonical_id, env_ids, short_name
+
+
+def plot_comparison(rows: list[dict], spec: dict, title: str, path: Path) -> None:
+    """``metric`` against bits per agent: the learned points (one per price of a bit) and every baseline."""
+    fig = Figure(figsize=(6.4, 4.2))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    learned = [r for r in rows if r["cost"] is not None]
+    ax.errorbar(
+        [r["bits"] for r in learned],
+        [r["metric"] for r in learned],
+        xerr=[r["bits_ci95"] for r in learned],
+        yerr=[r["metric_ci95"] for r in learned],
+        fmt="o-",
+        color="black",
+        label=f"learned ({spec['algo']}), one point per {spec['cost_param']}",
+    )
+    for r in learned:
+        ax.annotate(
+            f"{spec['cost_param']}={r['cost']:g}",
+            (r["bits"], r["metric"]),
+            fontsize=7,
+            xytext=(4, 4),
+            textcoords="offset points",
+        )
+    for k, r in enumerate(r for r in rows if r["cost"] is None):
+        ax.errorbar(
+            [r["bits"]],
+            [r["metric"]],
+            xerr=[r["bits_ci95"]],
+            yerr=[r["metric_ci95"]],
+            fmt="s",
+            color=f"C{k % 10}",
+            label=r["policy"] if r["setting"] is None else f"{r['policy']} ({spec['cost_param']}={r['setting']:g})",
+        )
+    ax.set_xlabel(f"bits sent per agent per {spec.get('bits_per', 'step')}")
+    ax.set_ylabel(spec["metric"] + (" (lower is better)" if spec.get("lower_is_better") else " (higher is better)"))
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    fig.savefig(tmp, dpi=90)
+    tmp.replace(path)
+
+
+def learning_section(env_id: str, rows: list[dict], spec: dict, figure: str) -> str:
+    """An env's section of docs/learning.md: the table, the figure and the verdicts the equal-bits rule gives."""
+    lower = bool(spec.get("lower_is_better"))
+    learned = [r for r in rows if r["cost"] is not None]
+    baselines = [r for r in rows if r["cost"] is None]
+    lines = [
+        f"## `{env_id}`",
+        "",
+        spec.get("setting", ""),
+        "",
+        f"![{spec['metric']} against bits]({figure})",
+        "",
+        f"| policy | {spec['cost_param']} | {spec['metric']} (mean ± 95 % CI) | bits / agent / {spec.get('bits_per', 'step')} | n |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for r in rows:
+        cost = "—" if r["setting"] is None else f"{r['setting']:g}"
+        lines.append(
+            f"| {r['policy']} | {cost} | {r['metric']:.4g} ± {r['metric_ci95']:.2g} "
+            f"| {r['bits']:.4g} ± {r['bits_ci95']:.2g} | {r['n']} |"
+        )
+
+    per_setting = bool(spec.get("baselines_per_cost"))
+
+    def verdict(name: str) -> str:
+        # with per-setting baselines a learned point is compared with the baseline in its own setting only
+        candidates = [b for b in baselines if b["policy"] == name]
+
+        def where(test) -> str:
+            hits = [
+                r
+                for r in learned
+                for b in candidates
+                if (not per_setting or b["setting"] == r["cost"]) and test(r, b, lower)
+            ]
+            return ", ".join(f"{r['cost']:g}" for r in hits)
+
+        won, matched = where(beats), where(dominates)
+        if won:
+            return f"- `{name}`: **beaten** at equal or fewer bits ({spec['cost_param']} = {won})"
+        if matched:
+            return f"- `{name}`: **matched** (not worse, not better) at equal or fewer bits ({spec['cost_param']} = {matched})"
+        return f"- `{name}`: **not matched** at equal or fewer bits"
+
+    names = list(dict.fromkeys(b["policy"] for b in baselines))
+    verdicts = [verdict(n) for n in sorted(names, key=lambda n: n != "random")]
+    lines += [
+        "",
+        "Outcome, computed from the table. A learned point *matches* a baseline when it sends at most 5 % more "
+        "bits and its metric is not worse beyond the two 95 % intervals; it *beats* it when, in addition, its "
+        "metric is better beyond the intervals, or it sends at least 5 % fewer bits, also beyond the intervals:",
+        "",
+        *verdicts,
+    ]
+    if spec.get("notes"):
+        lines += ["", spec["notes"]]
+    return "\n".join(lines) + "\n"
+
+
+def cmd_reproduce_learning(args: argparse.Namespace) -> int:
+    from mrcomm_agents.training import CONFIG_DIR  # extra "train"
+
+    limit_threads()
+    targets = [canonical_id(e) for e in args.env_ids] or [
+        e for e in env_ids() if (CONFIG_DIR / f"{short_name(e)}.json").exists()
+    ]
+    out = Path(args.out)
+    docs = Path(args.docs)
+    (docs / "learning").mkdir(parents=True, exist_ok=True)
+    if args.docs_only:  # re-render every section from its recorded table (e.g. after ``make sweep``)
+        for env_id in targets:
+            name = short_name(env_id)
+            table = docs / "learning" / f"{name}.csv"
+            if not table.exists():
+                continue
+            rows = read_rows(table)
+            section = learning_section(env_id, rows, comparison_spec(env_id), f"learning/{name}.png")
+            atomic_write_text(docs / "learning" / f"{name}.md", section + sweep_section(env_id, docs))
+        print(f"wrote {write_learning_page(docs)}")
+        return 0
+    with using(runner_from_args(args, progress=not args.quiet)):  # one set of workers for every env
+        for env_id in targets:
+            name = short_name(env_id)
+            rows, spec = reproduce_learning(env_id, out / name, quick=args.quick, progress=not args.quiet)
+            csv_path = docs / "learning" / f"{name}.csv"
+            tmp = csv_path.with_name(f".{csv_path.name}.tmp")
+            with open(tmp, "w", newline="") as fh:
+                writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+                writer.writeheader()
+                writer.writerows(rows)
+            tmp.replace(csv_path)
+            figure = docs / "learning" / f"{name}.png"
+            plot_comparison(rows, spec, f"{env_id}: learned vs scripted at equal bits", figure)
+            section = learning_section(env_id, rows, spec, f"learning/{name}.png") + sweep_section(env_id, docs)
+            # one fragment per env: rerunning one env keeps the others' sections in the page
+            atomic_write_text(docs / "learning" / f"{name}.md", section)
+            if args.export_pretrained:
+                print(f"shipped {spec['best_run']} as {export_pretrained(spec['best_run'], env_id)}")
+    page = write_learning_page(docs, quick=args.quick)
+    print(f"wrote {page}")
+    return 0
+
+
+def read_rows(path: Path) -> list[dict]:
+    """The comparison rows as ``reproduce-learning`` wrote them to ``docs/learning/<Name>-v0.csv``."""
+
+    def number(text: str):
+        return None if text == "" else float(text)
+
+    rows = []
+    for raw in csv.DictReader(open(path)):
+        row = {k: number(v) for k, v in raw.items() if k not in ("policy",)}
+        row["policy"], row["n"] = raw["policy"], int(float(raw["n"]))
+        rows.append(row)
+    return rows
+
+
+def write_learning_page(docs: Path, quick: bool = False) -> Path:
+    """``docs/learning.md``: the header, every env's fragment ``docs/learning/<Name>-v0.md`` (registry order) and
+    the footer."""
+    sections = [
+        (docs / "learning" / f"{short_name(e)}.md").read_text()
+        for e in env_ids()
+        if (docs / "learning" / f"{short_name(e)}.md").exists()
+    ]
+    header = LEARNING_HEADER.format(command="mrcomm reproduce-learning" + (" --quick" if quick else ""))
+    page = docs / "learning.md"
+    atomic_write_text(page, header + "\n".join(sections) + LEARNING_FOOTER)
+    return page
+
+
+def sweep_section(env_id: str, docs: Path) -> str:
+    """The recorded hyperparameter sweep of ``env_id`` (``make sweep``: ``docs/learning/sweep-<Name>-v0.csv`` and
+    its ``.json``), as a table of grid points ranked by their mean held-out score; empty when none is recorded."""
+    name = short_name(env_id)
+    table, record = docs / "learning" / f"sweep-{name}.csv", docs / "learning" / f"sweep-{name}.json"
+    if not (table.exists() and record.exists()):
+        return ""
+    meta = json.loads(record.read_text())
+    rows = list(csv.DictReader(open(table)))
+    metric, keys = meta["metric"], list(meta["grid"])
+    groups: dict[tuple, list[dict]] = {}
+    for row in rows:
+        groups.setdefault(tuple(row[k] for k in keys), []).append(row)
+    sign = 1.0 if meta.get("lower_is_better") else -1.0
+
+    def score(group):  # the metric first; at equal metric, fewer bits
+        return (
+            sign * float(np.mean([float(r[f"eval_{metric}"]) for r in group])),
+            float(np.mean([float(r["eval_bits"]) for r in group])),
+        )
+
+    lines = [
+        "",
+        "### Hyperparameter sweep",
+        "",
+        f"`{meta['command']}` ({len(rows)} runs of {int(float(rows[0]['timesteps'])):,} agent-steps; every other "
+        f"setting as in `agents/configs/{name}.json`; each run scored on {meta['eval_episodes']} held-out episodes, "
+        f"seeds apart from the comparison's). Ranked by the held-out {metric}; the interval is over training seeds.",
+        "",
+        f"| {' | '.join(keys)} | {metric} | bits / agent / {meta.get('bits_per', 'step')} | final training return "
+        "| minutes per run |",
+        "| " + " | ".join("---" for _ in range(len(keys) + 4)) + " |",
+    ]
+    for values, group in sorted(groups.items(), key=lambda kv: score(kv[1])):
+        m, h = mean_ci95([float(r[f"eval_{metric}"]) for r in group])
+        bits = np.mean([float(r["eval_bits"]) for r in group])
+        ret = np.mean([float(r["final_train_return"]) for r in group])
+        minutes = np.mean([float(r["seconds"]) for r in group]) / 60
+        lines.append(f"| {' | '.join(values)} | {m:.4g} ± {h:.2g} | {bits:.4g} | {ret:.4g} | {minutes:.1f} |")
+    from mrcomm_agents.training import default_config  # extra "train"
+
+    settings = default_config(env_id, meta.get("algo", "ppo"))
+    chosen = ", ".join(f"`{k}={json.dumps(settings.get(k, settings.get('env_kwargs', {}).get(k)))}`" for k in keys)
+    lines += ["", f"`agents/configs/{name}.json` trains with {chosen}."]
+    return "\n".join(lines) + "\n"
+
+
+LEARNING_HEADER = """# Learned communication against the papers' algorithms, at equal bits
+
+_Generated by `{command}` (`make learn`); do not edit by hand. Settings: `agents/configs/<Name>-v0.json`,
+chosen by the recorded hyperparameter sweep under each env's section (`make sweep`)._
+
+One PPO policy is shared by every agent (parameter sharing, `agents/vecenv.py`). For each env, the price of a
+bit in the reward (the cost argument) is swept; each value is trained with several seeds and each trained
+policy is evaluated deterministically on held-out episode seeds. A learned point's interval is over training
+seeds; a baseline's over episodes. The scripted baselines see more than the learned policy where the env's
+page says so (`docs/envs/<Name>-v0.md`, column "global knowledge"), and their own per-robot memory: see
+"What the baselines read" below.
+
+"""
+
+LEARNING_FOOTER = """
+## What the baselines read beyond the observation
+
+A learned policy sees only its observation. The scripted baselines read their robot's local view (the env's
+`LOCAL_VIEW`, listed on each env page) and keep memory across steps; a comparison favours them by that much.
+
+| env | baseline | reads beyond the observation |
+| --- | --- | --- |
+| AsyncCL-v0 | `scheme*`, `silent` | nothing (a fixed mode every step) |
+| ChannelAssociation-v0 | `coin_flip`, `bernoulli` | nothing |
+| ChannelAssociation-v0 | `id_bits` | its own ID and the step clock modulo B + 1 (both also in the observation since v0 rev 2) |
+| MultiHop-v0 | `location_based` | its estimate list (stamps, estimated distances) and Algorithm 1's counters, kept across frames |
+| MultiHop-v0 | `age_aware` | its estimate list and the stamp it last broadcast for each robot (`sent_stamp`) |
+| MultiHop-v0 | `probabilistic` | its estimate list |
+| MultiHop-v0 | `flooding` | a frame counter |
+| MapSync-v0 | `periodic_*` | the step clock (every 10 moves) and when it last tested, kept across steps |
+| RendezvousMapping-v0 | `paper_protocol` | its group's fused map (landmark estimates, information, counts) and the positions it knows, to run §IV's planner; the last actions |
+| RendezvousMapping-v0 | `greedy`, `no_partition` | the candidate utilities of its local view |
+"""
+
+
+def add_reproduce_learning_parser(command) -> None:
+    """``reproduce-learning``; ``command(name, **kw)`` adds a subcommand parser."""
+    p = command("reproduce-learning", help="learned policies against every baseline at equal bits")
+    p.add_argument("env_ids", nargs="*", help="default: every env with a learning configuration")
+    p.add_argument("--out", default="results/learning", help="training runs and evaluations")
+    p.add_argument("--docs", default="docs", help="where learning.md and its figures go")
+    p.add_argument("--quick", action="store_true", help="a tenth of the training budget (a smoke run)")
+    p.add_argument("--export-pretrained", action="store_true", help="ship each env's best run in agents/pretrained")
+    p.add_argument(
+        "--docs-only",
+        action="store_true",
+        help="no training: re-render learning.md from the recorded tables and sweeps",
+    )
+    p.add_argument("--quiet", action="store_true")
+    add_runner_arguments(p)
+    p.set_defaults(func=cmd_reproduce_learning)

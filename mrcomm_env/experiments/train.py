@@ -1,0 +1,248 @@
+"""``mrcomm train``: one shared SB3 policy for every agent of an env, or a sweep of runs over seeds and a grid of
+settings (``--seeds``, ``--grid``) ranked by their held-out score."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import importlib
+import inspect
+import itertools
+import json
+import shlex
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from mrcomm_env.core.stats import mean_ci95
+from mrcomm_env.experiments.arguments import parse_params, positive_int, seed_type
+from mrcomm_env.experiments.evaluation import limit_threads
+from mrcomm_env.experiments.io import atomic_open, atomic_write_text
+from mrcomm_env.experiments.runs import comparison_spec, run_folder
+from mrcomm_env.experiments.sweep import Task, add_runner_arguments, runner_from_args
+from mrcomm_env.registry import canonical_id, short_name
+
+
+def add_train_parser(command) -> None:
+    """``train``; ``command(name, **kw)`` adds a subcommand parser."""
+    p = command("train", help="train one shared SB3 policy for every agent of an env")
+    p.add_argument("env_id")
+    p.add_argument("--algo", default=None, help="ppo (default), maskable_ppo or dqn")
+    p.add_argument("--timesteps", type=positive_int, default=None, help="agent-steps (default: the env's config)")
+    p.add_argument("--seed", type=seed_type, default=None, help="training seed (default 0)")
+    p.add_argument("--out", required=False, help="run folder (default runs/<Name>-<algo>-s<seed>)")
+    p.add_argument("--param", action="append", metavar="KEY=VALUE", help="environment argument (JSON value)")
+    p.add_argument("--config", metavar="FILE", help="JSON settings overriding agents/configs/<Name>-v0.json")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    p.add_argument(
+        "--seeds", type=seed_list, metavar="S,S,…", help="train one run per seed (a sweep; instead of --seed)"
+    )
+    p.add_argument(
+        "--grid",
+        action="append",
+        metavar="KEY=V,V,…",
+        help="sweep KEY over the values (repeatable: every combination); KEY is a hyperparameter of --algo, a "
+        "run setting (n_envs, net_arch, timesteps, …) or else an environment argument",
+    )
+    p.add_argument(
+        "--eval-episodes",
+        type=positive_int,
+        default=5,
+        help="sweeps: held-out episodes each run is scored on (seeds 20000+, apart from reproduce-learning's)",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_runner_arguments(p)
+    p.set_defaults(func=cmd_train)
+
+
+def seed_list(text: str) -> list[int]:
+    """``0,1,2`` → [0, 1, 2]: distinct integers ≥ 0."""
+    seeds = [seed_type(part.strip()) for part in text.split(",") if part.strip()]
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise argparse.ArgumentTypeError(f"--seeds takes distinct integers ≥ 0 separated by commas, got {text!r}")
+    return seeds
+
+
+def split_values(text: str) -> list[str]:
+    """Comma-separated values, where commas inside brackets belong to a value (``net_arch=[64,64],[128,128]``)."""
+    values, depth, start = [], 0, 0
+    for i, char in enumerate(text):
+        depth += char in "[{"
+        depth -= char in "]}"
+        if char == "," and depth == 0:
+            values.append(text[start:i])
+            start = i + 1
+    values.append(text[start:])
+    return [v.strip() for v in values]
+
+
+def parse_grid(pairs: list[str] | None) -> dict[str, list]:
+    """``["lam=0.01,0.1", "learning_rate=3e-4,1e-3"]`` → {key: [values]} (values read as JSON where possible)."""
+    grid: dict[str, list] = {}
+    for pair in pairs or []:
+        key, sep, text = pair.partition("=")
+        key = key.strip()
+        if not sep or not key or not text.strip():
+            raise ValueError(f"--grid takes KEY=V1,V2,…, got {pair!r}")
+        if key in grid:
+            raise ValueError(f"--grid names {key!r} twice")
+        values = []
+        for item in split_values(text):
+            try:
+                values.append(json.loads(item))
+            except json.JSONDecodeError:
+                values.append(item)
+        grid[key] = values
+    return grid
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from mrcomm_agents.training import TrainConfig, default_config, load_config_file, split_settings, train  # "train"
+
+    limit_threads()
+    env_id = canonical_id(args.env_id)
+    explicit = {"algo": args.algo, "seed": args.seed}  # None where the user named nothing
+    args.algo = args.algo or "ppo"
+    args.seed = 0 if args.seed is None else args.seed
+    out = Path(args.out or f"runs/{short_name(env_id)}-{args.algo}-s{args.seed}")
+    if args.resume:
+        for flag, value in (("--config", args.config), ("--grid", args.grid), ("--seeds", args.seeds)):
+            if value:
+                raise ValueError(f"{flag} cannot be used with --resume: a resumed run keeps its own settings")
+        requested = {"env_id": env_id, **explicit, "env_kwargs": parse_params(args.param), "timesteps": args.timesteps}
+        train(None, out, resume=True, progress=not args.quiet, requested=requested)
+        print(f"resumed and finished {out}")
+        return 0
+    settings = default_config(env_id, args.algo)
+    if args.config:
+        settings = {**settings, **load_config_file(args.config, args.algo)}
+    run, hyper = split_settings(settings)
+    env_kwargs = {**run.pop("env_kwargs", {}), **parse_params(args.param)}
+    timesteps = args.timesteps if args.timesteps is not None else run.pop("timesteps", 200_000)
+    run.pop("timesteps", None)
+    base = dict(env_id=env_id, algo=args.algo, timesteps=timesteps, env_kwargs=env_kwargs, hyperparams=hyper, **run)
+    if args.seeds is not None or args.grid:
+        default_out = f"runs/{short_name(env_id)}-{args.algo}-sweep"
+        return train_sweep(base, args.seeds or [args.seed], parse_grid(args.grid), Path(args.out or default_out), args)
+    config = TrainConfig(seed=args.seed, **base)
+    train(config, out, progress=not args.quiet)
+    print(f"wrote {out}/model.zip, {out}/config.json, {out}/progress.csv")
+    return 0
+
+
+def grid_setting(algo: str, key: str) -> str:
+    """Where a --grid key goes: ``"run"`` (TrainConfig's own settings), ``"hyper"`` (the algorithm's constructor)
+    or ``"env"`` (an environment argument, checked by the env itself)."""
+    from mrcomm_agents.training import ALGORITHMS, RUN_KEYS  # extra "train"
+
+    if key in (*RUN_KEYS, "timesteps"):
+        return "run"
+    module, name = ALGORITHMS[algo]
+    algorithm = getattr(importlib.import_module(module), name)
+    if key in inspect.signature(algorithm.__init__).parameters and key not in ("env", "policy", "seed", "device"):
+        return "hyper"
+    return "env"
+
+
+def sweep_configs(base: dict, seeds: list[int], grid: dict[str, list]) -> list[tuple[str, dict, dict]]:
+    """One (folder, TrainConfig arguments, grid point) per combination of the grid's values and per seed, in a
+    fixed order: the grid's keys as given, each key's values as given, then the seeds."""
+    from mrcomm_agents.training import TrainConfig  # extra "train"
+
+    places = {key: grid_setting(base["algo"], key) for key in grid}
+    out = []
+    for values in itertools.product(*grid.values()):
+        point = dict(zip(grid, values))
+        config = {**base, "env_kwargs": dict(base["env_kwargs"]), "hyperparams": dict(base["hyperparams"])}
+        for key, value in point.items():
+            if places[key] == "run":
+                config[key] = value
+            elif places[key] == "hyper":
+                config["hyperparams"][key] = value
+            else:
+                config["env_kwargs"][key] = value
+        label = ",".join(f"{k}={json.dumps(v, separators=(',', ':'))}" for k, v in point.items()) or "default"
+        for seed in seeds:
+            TrainConfig(**{**config, "seed": seed}).validate()  # every bad value is reported before any training
+            out.append((run_folder(label, {**config, "seed": seed}), {**config, "seed": seed}, point))
+    return out
+
+
+def sweep_rows(runs: list[tuple[str, dict, dict]], results: list[dict], metric: str) -> list[dict]:
+    """One row of ``summary.csv`` per run: its grid point, seed, training summary and held-out means."""
+    rows = []
+    for (name, config, point), result in zip(runs, results):
+        evaluation = result["evaluation"]
+        rows.append(
+            {
+                **point,
+                "seed": config["seed"],
+                **result["training"],
+                f"eval_{metric}": float(np.mean(evaluation["metric"])),
+                "eval_bits": float(np.mean(evaluation["bits"])),
+                "eval_return": float(np.mean(evaluation["return"])),
+                "run": name,
+            }
+        )
+    return rows
+
+
+def print_ranking(rows: list[dict], metric: str, lower_is_better: bool) -> None:
+    """The grid points by their mean held-out metric over seeds; at equal metric, fewer bits first."""
+    points: dict[str, list[dict]] = {}
+    for row in rows:
+        points.setdefault(row["run"].rsplit("/", 1)[0], []).append(row)
+    sign = 1.0 if lower_is_better else -1.0
+    ranked = sorted(
+        points.items(),
+        key=lambda kv: (
+            sign * float(np.mean([r[f"eval_{metric}"] for r in kv[1]])),
+            float(np.mean([r["eval_bits"] for r in kv[1]])),
+        ),
+    )
+    print(f"{len(rows)} runs; grid points by held-out {metric} ({'lower' if lower_is_better else 'higher'} is better):")
+    for label, group in ranked:
+        m, h = mean_ci95([r[f"eval_{metric}"] for r in group])
+        b = float(np.mean([r["eval_bits"] for r in group]))
+        print(f"  {label}: {metric} {m:.4g} ± {h:.2g}, bits {b:.4g} ({len(group)} seeds)")
+
+
+def train_sweep(base: dict, seeds: list[int], grid: dict[str, list], out: Path, args) -> int:
+    """``mrcomm train --seeds/--grid``: every run through the sweep runner, then ``summary.csv`` (one row per run)
+    and a ranking of the grid points by their mean held-out score."""
+    runs = sweep_configs(base, seeds, grid)
+    eval_seeds = [20_000 + k for k in range(args.eval_episodes)]
+    tasks = [
+        Task(
+            "mrcomm_env.experiments.runs:train_and_evaluate",
+            {"out": str(out / name), "config": config, "eval_seeds": eval_seeds},
+            name,
+        )
+        for name, config, _ in runs
+    ]
+    results = runner_from_args(args, progress=not args.quiet).map(tasks, desc=f"training {len(tasks)} runs")
+    try:
+        spec = comparison_spec(base["env_id"])
+    except ValueError:
+        spec = {"metric": "episode_return", "lower_is_better": False}
+    metric = spec["metric"]
+    rows = sweep_rows(runs, results, metric)
+    with atomic_open(out / "summary.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    print_ranking(rows, metric, bool(spec.get("lower_is_better")))
+    record = {
+        "command": "mrcomm " + " ".join(shlex.quote(a) for a in getattr(args, "argv", []) or sys.argv[1:]),
+        "algo": base["algo"],
+        "grid": grid,
+        "seeds": seeds,
+        "eval_episodes": len(eval_seeds),
+        "metric": metric,
+        "lower_is_better": bool(spec.get("lower_is_better")),
+        "bits_per": spec.get("bits_per", "step"),
+    }
+    atomic_write_text(out / "sweep.json", json.dumps(record, indent=2) + "\n")
+    print(f"wrote {out / 'summary.csv'} and {out / 'sweep.json'}")
+    return 0
