@@ -67,6 +67,29 @@ ENTRIES: dict[str, EnvEntry] = {
 }
 
 
+def register(env_id: str, item: EnvEntry) -> None:
+    """Add an environment to the registry: ``register("mrcomm/Name-v0", EnvEntry(shim, policies, reproduction))``.
+
+    The entry's three module paths must be importable wherever the env runs (sweep workers and the limit
+    measurements import them in fresh processes). Every command, the docs generator, the integrations and the
+    tests then see it like the five built in (docs/adding-an-environment.md). Also registers it with
+    PettingZoo when :func:`register_all` has run."""
+    if not isinstance(env_id, str) or not env_id.startswith(NAMESPACE) or not env_id[len(NAMESPACE) :]:
+        raise ValueError(f"argument 'env_id' must be '{NAMESPACE}<Name>-v<version>', got {env_id!r}")
+    if env_id in ENTRIES:
+        raise ValueError(f"argument 'env_id': {env_id} is already registered")
+    if not isinstance(item, EnvEntry):
+        raise ValueError(f"argument 'item' must be an EnvEntry, got {type(item).__name__}")
+    ENTRIES[env_id] = item
+    if _registered:
+        register_all()
+
+
+def unregister(env_id: str) -> None:
+    """Remove an environment added by :func:`register` (PettingZoo's registry keeps its entry point)."""
+    del ENTRIES[canonical_id(env_id)]
+
+
 def env_ids() -> list[str]:
     return list(ENTRIES)
 

@@ -14,6 +14,7 @@ Run as a module it measures one configuration and prints one JSON line (that is 
 
 from __future__ import annotations
 
+import importlib
 import json
 import math
 import os
@@ -26,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from mrcomm_env.registry import env_class, make
+from mrcomm_env.registry import entry, env_class
 
 #: the hook name; until ``MrcommParallelEnv`` declares it, a class without it has no documented maxima
 LIMIT_ATTRIBUTE = "LIMIT_CONFIGS"
@@ -71,6 +72,8 @@ def measure_limit(
         )
     job = {
         "env_id": env_id,
+        # the child builds the env from its shim module, so an env registered at run time (register()) is found
+        "env_module": entry(env_id).env,
         "config": config,
         "seconds": seconds,
         "min_steps": min_steps,
@@ -100,10 +103,11 @@ def measure_limits(env_id: str, seconds: float = 10.0, **kwargs: Any) -> dict[st
 
 def _run(job: dict[str, Any]) -> dict[str, Any]:
 
+    make_env = importlib.import_module(job["env_module"]).parallel_env  # importing is not the env's memory
     if job.get("trace_memory"):
         tracemalloc.start()
     start = time.perf_counter()
-    env = make(job["env_id"], **job["config"])
+    env = make_env(**job["config"])
     built = time.perf_counter()
     obs, infos = env.reset(seed=job["seed"])
     reset_done = time.perf_counter()
