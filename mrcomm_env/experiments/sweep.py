@@ -316,28 +316,50 @@ class Runner:
                 complete, _ = ray.wait(list(pending), num_returns=1)
                 for ref in complete:
                     i, attempt = pending.pop(ref)
-                    try:
-                        result = ray.get(ref)
-                    except ray.exceptions.RayTaskError as exc:  # the task's function raised
-                        if attempt < ATTEMPTS:
-                            self.stats["retried"] += 1
-                            pending[submit(i)] = (i, attempt + 1)
-                        else:
-                            cause = getattr(exc, "cause", None)
-                            if isinstance(cause, BaseException) and cause.__cause__ is None:
-                                # the error as the task raised it, chained to Ray's copy that holds the remote
-                                # traceback (what ``mrcomm --debug`` then shows)
-                                cause.__cause__ = exc
-                            finished(i, error=cause if isinstance(cause, BaseException) else exc)
-                    except ray.exceptions.RayError as exc:  # its worker or node died twice, or it was cancelled
-                        finished(i, error=exc)
+                    outcome = _ray_outcome(ray, ref)
+                    if isinstance(outcome, _RayTaskFailed) and attempt < ATTEMPTS:
+                        self.stats["retried"] += 1
+                        pending[submit(i)] = (i, attempt + 1)
+                    elif isinstance(outcome, (_RayTaskFailed, _RayLost)):
+                        finished(i, error=outcome.error)
                     else:
-                        finished(i, result)
+                        finished(i, outcome)
         finally:
             # an interrupted or failed driver leaves no task of its sweep running on the cluster
             for ref in pending:
                 with contextlib.suppress(Exception):
                     ray.cancel(ref, force=True)
+
+
+@dataclass(frozen=True)
+class _RayTaskFailed:
+    """The task's function raised (it is retried once): ``error`` is the exception as the task raised it."""
+
+    error: BaseException
+
+
+@dataclass(frozen=True)
+class _RayLost:
+    """Ray gave up on the task: its worker or node died twice, or it was cancelled (not retried here)."""
+
+    error: BaseException
+
+
+def _ray_outcome(ray, ref) -> Any:
+    """The task's result, or why there is none (:class:`_RayTaskFailed`, :class:`_RayLost`)."""
+    try:
+        return ray.get(ref)
+    except ray.exceptions.RayTaskError as exc:
+        cause = getattr(exc, "cause", None)
+        if not isinstance(cause, BaseException):
+            return _RayTaskFailed(exc)
+        if cause.__cause__ is None:
+            # the error as the task raised it, chained to Ray's copy that holds the remote traceback (what
+            # ``mrcomm --debug`` then shows)
+            cause.__cause__ = exc
+        return _RayTaskFailed(cause)
+    except ray.exceptions.RayError as exc:
+        return _RayLost(exc)
 
 
 class CodeMismatch(RuntimeError):
