@@ -476,3 +476,30 @@ def test_clustering_coefficient_is_networkx_average_clustering(n_landmarks, side
     pos = world.jittered_grid(n_landmarks, side, sigma, np.random.default_rng(7))
     graph = nx.from_numpy_array(world.landmark_graph(pos, radius).astype(np.int8))
     assert world.clustering_coefficient(pos, radius) == nx.average_clustering(graph)
+
+
+def test_a_split_team_reconnects_within_the_phases_to_cross_the_area():
+    """A split team regroups at the point where its last whole-team plan placed l_c, the same point for every
+    vehicle, so every split ends within ⌈√2·side / d_max⌉ phases: the farthest any vehicle can be from that point,
+    covered at d_max = speed·t_window per phase. Runs at Fig. 10's settings (d_comms = 10 < d_max = 30), where
+    the team splits often; before the fix, subgroups aimed at their own estimates of l_c and some never met."""
+    env = RendezvousMappingEnv(d_comms=10.0, t_window=30.0, max_cycles=150)
+    bound = math.ceil(math.sqrt(2.0) * env.side / env.d_max)
+    splits = 0
+    for seed in range(8):
+        for sigma in (0.0, 12.0):
+            env = RendezvousMappingEnv(d_comms=10.0, t_window=30.0, sigma=sigma, max_cycles=150)
+            policy = PaperProtocol()
+            obs, _ = env.reset(seed=seed)
+            policy.reset(env.local_views(), seed)
+            split_for = 0
+            while env.agents:
+                obs, *_ = env.step(policy.act(obs, env.local_views()))
+                if env.n_groups > 1:
+                    splits += split_for == 0
+                    split_for += 1
+                    assert split_for <= bound, f"seed {seed}, σ {sigma}: split for {split_for} phases (bound {bound})"
+                    # every vehicle of a split team heads for the one regroup point
+                    assert np.ptp(env.local_views().team("rendezvous_point"), axis=0).max() == 0.0
+                split_for = split_for if env.n_groups > 1 else 0
+    assert splits >= 5, "these settings must split the team for the test to mean anything"

@@ -158,6 +158,8 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         "recommended_landmark": "l_p(v) of the group's plan, −1 when unassigned",
         "in_main_cluster": "l_p(v) lies in the plan's main cluster μ_max",
         "rendezvous_landmark": "l_c of the group's plan; while the team is split, the l_c of the last whole-team plan",
+        "rendezvous_point": "where the rendezvous action leads (m): l_c as the group's map places it; while the team "
+        "is split, where the last whole-team plan placed its l_c, the same point for every vehicle",
         "plan_connected": "the group's plan ended connected (not marked unconnected, §IV-D)",
         "action_mask": "(K + 2,) bool: feasible actions",
     }
@@ -206,7 +208,13 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         "single_vehicle": {"n_vehicles": 1, "n_landmarks": 20, "area": 900.0, "k_candidates": 3, "max_cycles": 30},
     }
     VERSION_HISTORY = [
-        ("v0", "first version: one step = one decision phase, Discrete(K + 2) actions, fused-map reward")
+        ("v0", "first version: one step = one decision phase, Discrete(K + 2) actions, fused-map reward"),
+        (
+            "v0 rev 2",
+            "a split team regroups at the point where the last whole-team plan placed its l_c, which every vehicle "
+            "holds alike, instead of at each subgroup's own estimate of that landmark (subgroups could miss each "
+            "other for good); the observation's and local view's rendezvous point is that point",
+        ),
     ]
 
     def __init__(self, render_mode: str | None = None, **kwargs):
@@ -266,8 +274,14 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         self.connected_phases = 0
         self.rendezvous_windows = 0
         self.half_phase = math.nan
-        # each vehicle's regroup landmark: l_c of the last plan the whole team made together (all start together)
+        # where a split team regroups: l_c of the last plan the whole team made together, as a landmark and as
+        # the point that plan's shared map placed it at. Every vehicle took part in that plan and holds the same
+        # point, so the subgroups of a split team head for one place: their own maps' estimates of l_c have
+        # drifted apart since, and two subgroups aiming at two estimates could miss each other for good
+        # (§IV computes l_c from the information the whole team shares; §V assumes the team never splits).
+        # All vehicles start together, at the start point, which is where they regroup before the first plan.
         self.regroup = np.zeros(n, dtype=np.int64)
+        self.regroup_point = self.pos.copy()
         self.action_kind = np.full(n, HOLD, dtype=np.int64)
         self.action_ok = np.ones(n, dtype=bool)
         self.step_obs = np.zeros(n, dtype=np.int64)
@@ -323,14 +337,15 @@ class RendezvousMappingEnv(MrcommParallelEnv):
             return [(est[lm], lm, None)]
         if a == self.K:
             lp, lc = int(self.assignment[v]), int(self.central[v])
+            meet = self.rendezvous_point[v]
             if lp >= 0 and lp != lc:
                 d1 = float(np.hypot(*(est[lp] - self.pos[v])))
-                d2 = float(np.hypot(*(est[lc] - est[lp])))
+                d2 = float(np.hypot(*(meet - est[lp])))
                 if d1 + d2 < c.speed * c.t_window:  # Fig. 5 condition 4: observe l_p(v), then reach l_c in time
                     self.action_kind[v] = DETOUR_RENDEZVOUS
-                    return [(est[lp], lp, c.t_window - d2 / c.speed), (est[lc], lc, None)]
+                    return [(est[lp], lp, c.t_window - d2 / c.speed), (meet, lc, None)]
             self.action_kind[v] = RENDEZVOUS
-            return [(est[lc], lc, None)]
+            return [(meet, lc, None)]
         self.action_kind[v] = HOLD
         lm = int(self.at_landmark[v])
         return [(self.pos[v], lm, None)] if lm >= 0 else []
@@ -412,6 +427,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         self.assignment = np.full(n, -1, dtype=np.int64)
         self.in_main = np.zeros(n, dtype=bool)
         self.central = np.zeros(n, dtype=np.int64)
+        self.rendezvous_point = np.zeros((n, 2))
         self.plan_connected = np.zeros(n, dtype=bool)
         # every vehicle's eq. (1) row from its own map; members of a group hold the same map after fusion, so
         # a group's rows form the utility matrix its members assemble from the shared vectors (§IV-A)
@@ -435,8 +451,12 @@ class RendezvousMappingEnv(MrcommParallelEnv):
             if len(members) == n:  # the whole team planned together: its l_c is the regroup point from now on
                 self.central[members] = rec.central
                 self.regroup[:] = rec.central
+                # members hold one fused map after the decision phase: they all place l_c at this point
+                self.regroup_point[:] = self._estimates[int(members[0]), rec.central]
+                self.rendezvous_point[members] = self._estimates[members, rec.central]
             else:  # a split team regroups where it last agreed to meet (our rule; §V assumes no split)
                 self.central[members] = self.regroup[members]
+                self.rendezvous_point[members] = self.regroup_point[members]
         self.candidates, self.candidate_utility = candidate_lists(self.utility, self.assignment, K)
         self.mask = np.ones((n, K + 2), dtype=bool)
         self.mask[:, :K] = self.candidates >= 0
@@ -488,6 +508,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
                 "recommended_landmark": self.assignment,
                 "in_main_cluster": self.in_main,
                 "rendezvous_landmark": self.central,
+                "rendezvous_point": self.rendezvous_point,
                 "plan_connected": self.plan_connected,
                 "action_mask": self.mask,
             }
@@ -532,7 +553,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
             )
             * valid[..., None]
         )
-        lc = self._estimates[rows, self.central]
+        lc = self.rendezvous_point
         lp = self._estimates[rows, np.maximum(self.assignment, 0)]
         d1 = np.hypot(*(lp - self.pos).T)
         d2 = np.hypot(*(lc - lp).T)
@@ -610,7 +631,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         ax.scatter(
             self.pos[:, 0], self.pos[:, 1], c=self.labels, cmap="tab10", marker="s", s=40, zorder=3, edgecolors="k"
         )
-        lc = self._estimates[np.arange(self.n_agents), self.central]
+        lc = self.rendezvous_point
         ax.scatter(lc[:, 0], lc[:, 1], marker="*", s=120, facecolors="none", edgecolors="r", zorder=4)
         ax.set_xlim(-0.02 * self.side, 1.02 * self.side)
         ax.set_ylim(-0.02 * self.side, 1.02 * self.side)
