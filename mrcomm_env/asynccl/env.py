@@ -96,6 +96,7 @@ from mrcomm_env.core import (
     combined_links,
     disk_links,
 )
+from mrcomm_env.core import render as rendering
 from mrcomm_env.core.config import Bool, Choice, Int, ListOf, Optional, Param, Real, Validator
 
 PAPER_SIGMA_V, PAPER_SIGMA_OMEGA_DEG, PAPER_SIGMA_D, PAPER_SIGMA_THETA_DEG = 0.02, 1.0, 0.02, 1.0  # §IV
@@ -484,6 +485,7 @@ class AsyncCLEnv(MrcommParallelEnv):
         modes = self._codes[actions]
         t = tab.t
         bits, links = tab.exchange(modes, self.adj, self.delivered, cfg["bit_budget"])
+        self._sent_per_link = np.divide(bits, links, out=np.zeros(self.n_agents), where=np.asarray(links) > 0)
         n_links = float(_sum(links, axis=None))
         self.ledger.record(bits, messages=int(n_links))
         self._links_used += n_links
@@ -607,8 +609,12 @@ class AsyncCLEnv(MrcommParallelEnv):
 
     def _render(self, ax) -> None:
         x = self.world.x
-        for i, j in zip(*np.nonzero(np.triu(self.adj)), strict=True):
+        pairs = np.argwhere(np.triu(np.asarray(self.adj)))
+        for i, j in pairs:
             ax.plot(x[[i, j], 0], x[[i, j], 1], color="0.8", lw=0.8, zorder=1)
+        if self.step_count:  # a sender's table goes to each receiver alike: bits over a link = its share, both ways
+            per = self.__dict__.get("_sent_per_link", np.zeros(self.n_agents))
+            rendering.draw_link_bits(ax, x[:, :2], pairs, per[pairs[:, 0]] + per[pairs[:, 1]])
         ax.scatter(x[:, 0], x[:, 1], c="tab:blue", s=30, zorder=2, label="truth")
         if self.cfg["estimation"]:
             e = self.est.X[0].reshape(-1, 3)

@@ -69,6 +69,7 @@ from mrcomm_env.channel_association.scenes import (
     SparseFieldScene,
     layout_field,
 )
+from mrcomm_env.core import render as rendering
 from mrcomm_env.core.base import MrcommParallelEnv
 from mrcomm_env.core.comm import BitLedger
 from mrcomm_env.core.config import Choice, Int, Param, Real
@@ -408,8 +409,18 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         ax.scatter(pos[self.moving, 0], pos[self.moving, 1], facecolors="none", edgecolors="red", s=40)
         lit = self._emit
         ax.scatter(pos[lit, 0], pos[lit, 1], marker="*", color="gold", s=30)
+        # the radio is a broadcast heard by every robot (no link of its own): each transmitter's bits this step
+        for i in np.flatnonzero(lit)[: rendering.MAX_LINK_LABELS]:
+            ax.annotate(
+                rendering.format_bits(self.ledger.step_bits[i]),
+                pos[i],
+                xytext=(3, 3),
+                textcoords="offset points",
+                fontsize=6,
+                color="tab:brown",
+            )
         r = self.scene.render_radius
-        from matplotlib.patches import Circle
+        from matplotlib.patches import Circle  # on first render (mrcomm_env/core/render.py)
 
         ax.add_patch(Circle(pos[0], r, fill=False, color="tab:blue"))
         ax.set_aspect("equal")

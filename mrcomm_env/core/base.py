@@ -216,6 +216,8 @@ class MrcommParallelEnv(ParallelEnv):
         self._live = dict.fromkeys(self.agents)  # key view compared with each step's actions in C
         self.step_count = 0
         self._reset_world()
+        if self.render_mode == "human":
+            self.render()
         return self._observations(), self._infos()
 
     def step(self, actions: dict[str, Any]):
@@ -251,6 +253,8 @@ class MrcommParallelEnv(ParallelEnv):
         trunc_dict = dict.fromkeys(agents, truncated and not terminated)
         if terminated or truncated:
             self.agents = []
+        if self.render_mode == "human":  # gymnasium's convention: human mode draws every step by itself
+            self.render()
         return observations, reward_dict, term_dict, trunc_dict, infos
 
     def render(self):
@@ -263,6 +267,9 @@ class MrcommParallelEnv(ParallelEnv):
 
         if self.render_mode == "rgb_array":
             return _render.to_rgb_array(self._render)
+        if not _render.has_display():
+            _render.warn_no_display()
+            return None
         self._figure = _render.show_human(self._render, self._figure, self.metadata.get("render_fps", 10))
         return None
 

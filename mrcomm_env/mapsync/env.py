@@ -46,6 +46,7 @@ import numpy as np
 from gymnasium import spaces
 
 from mrcomm_env.core import BitLedger, MrcommParallelEnv, backend, bernoulli_links, disk_links
+from mrcomm_env.core import render as rendering
 from mrcomm_env.core.config import Bool, Choice, Int, Optional, Param, Real
 from mrcomm_env.mapsync import protocol as proto
 from mrcomm_env.mapsync import world
@@ -793,6 +794,10 @@ class MapSyncEnv(MrcommParallelEnv):
         ax.scatter(xs, ys, c=colors, s=60, zorder=3, edgecolors="k")
         for s in self.sessions.values():
             ax.plot([xs[s.alice], xs[s.bob]], [ys[s.alice], ys[s.bob]], "--", color="0.5", zorder=2)
+        # a robot syncs with one peer at a time (it is busy meanwhile): its bits this step crossed that link
+        pairs = np.array([(s.alice, s.bob) for s in self.sessions.values()], dtype=np.int64).reshape(-1, 2)
+        sent = self.ledger.step_bits
+        rendering.draw_link_bits(ax, np.column_stack([xs, ys]), pairs, sent[pairs[:, 0]] + sent[pairs[:, 1]])
         ax.set_xlim(-0.5, size - 0.5)
         ax.set_ylim(-0.5, size - 0.5)
         ax.set_aspect("equal")

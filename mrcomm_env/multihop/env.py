@@ -37,6 +37,7 @@ from gymnasium import spaces
 from scipy.sparse.csgraph import shortest_path
 
 from mrcomm_env.core import BitLedger, MrcommParallelEnv, TDMASchedule, disk_links, grid_links
+from mrcomm_env.core import render as rendering
 from mrcomm_env.core.config import Choice, Int, Optional, Param, Real
 from mrcomm_env.multihop import coverage as cov
 from mrcomm_env.multihop import protocol as proto
@@ -595,6 +596,9 @@ class MultiHopEnv(MrcommParallelEnv):
 
         ii, jj = np.nonzero(np.triu(self.adj))
         ax.add_collection(LineCollection(np.stack([p[ii], p[jj]], axis=1), colors="0.8", linewidths=0.6, zorder=1))
+        # a slot's broadcast crosses every link of its sender: the bits over a link are both ends' broadcasts
+        sent = self.ledger.step_bits
+        rendering.draw_link_bits(ax, p, np.column_stack([ii, jj]), sent[ii] + sent[jj])
         age = (self._ages * ~self._eye).sum(axis=1) / max(self.n_agents - 1, 1)
         # one colour scale for the whole episode (it used to follow each frame's own range): from one frame to
         # the horizon, on a log axis, since ages span both ends of it over a cold start

@@ -6,7 +6,7 @@
 | Actions | `Discrete(K + 2)`, K = `k_candidates`: `0 … K−1` go to candidate landmark i and observe it (slot 0 is the group's recommended landmark l_p(v) when the vehicle has one); `K` rendezvous at the group's central landmark l_c, observing l_p(v) on the way when the detour fits the window (Fig. 5 actions 2 and 3); `K + 1` hold (keep observing the landmark it is at). Infeasible actions (empty candidate slots) are masked: `env.action_masks()` (N, K+2) and the infos `action_mask_0 …`; taken anyway they act as hold |
 | Observations | `Box(0, 1, (11 + 12K,))`: own position, phase, group share, whole-team connected, own map's information fraction; per candidate (relative position, eq. (1) utility, travel time, in main cluster, recommended, valid); the rendezvous landmark (relative position, travel time, detour fits, plan connected); the K nearest vehicles it knows of (relative position, linked now, staleness, valid) |
 | Reward | team reward: increase of Σ_l ln det Y_l of the **fused** global map (the information every vehicle holds) over the step, in units of one landmark's available information per vehicle |
-| Arguments | `n_vehicles`, `n_landmarks`, `area`, `speed`, `t_window`, `d_comms`, `sigma`, `k_candidates`, `prior_sigma`, `obs_sigma`, `obs_rate`, `obs_per_landmark`, `max_cycles` (alias `max_phases`) |
+| Arguments | `n_vehicles`, `n_landmarks`, `area`, `speed`, `t_window`, `d_comms`, `sigma`, `clumping`, `k_candidates`, `prior_sigma`, `obs_sigma`, `obs_rate`, `obs_per_landmark`, `max_cycles` (alias `max_phases`) |
 
 **One env step is one decision phase** (§I, Fig. 1): the actions chosen at phase k are carried out over the
 gathering window t_window (travel at speed u, observe, wait), and the window ends with the next decision
@@ -14,7 +14,8 @@ phase, at which every connected group fuses its maps over a Dijkstra spanning tr
 
 **Landmarks** start on a uniform grid and are shifted by N(0, σ²) within the area (§VI-B.1); σ sets the
 mean clustering coefficient C of the landmark graphs at d_comms and d_max = u·t_window (metrics
-``clustering_dcomms``, ``clustering_dmax``). Every vehicle starts with the same prior map (§III: each
+``clustering_dcomms``, ``clustering_dmax``); ``clumping`` then pulls landmarks into clumps, for C beyond what
+the σ shift reaches (our extension). Every vehicle starts with the same prior map (§III: each
 landmark's estimate off by N(0, σ₀²)), and all start together at a launch point drawn in the area.
 
 **Filters and fusion** (``filters.py``): information form per landmark, observations z = x + N(0, σ_obs²I)
@@ -30,8 +31,9 @@ eigenvector centrality, partition eq. (7)–(8)). It defines each member's recom
 the main cluster and the rendezvous landmark l_c of the actions above. **Regrouping** (our rule: the
 paper assumes the planned network always forms, §V, and is silent on a split team): while the team is
 split into several groups, the rendezvous landmark of every group is the l_c of the last plan the whole
-team made together, a landmark every vehicle knows, so that vehicles taking the rendezvous action meet
-again there. A vehicle's candidates are
+team made together, and the rendezvous action leads to the point where that plan's shared map placed it:
+every vehicle holds the same point, so the subgroups meet again (their own maps' estimates of l_c drift
+apart while they are split; aimed at those, two subgroups could miss each other for good). A vehicle's candidates are
 l_p(v) then its highest-utility landmarks; landmarks it believes exhausted are not candidates.
 
 **Moving** goes to the vehicle's own estimate of a landmark, straight at speed u; a target out of reach
@@ -47,6 +49,7 @@ import numpy as np
 from gymnasium import spaces
 
 from mrcomm_env.core import BitLedger, MrcommParallelEnv
+from mrcomm_env.core import render as rendering
 from mrcomm_env.core.config import Int, Param, Real
 from mrcomm_env.rendezvous import filters, protocol, theory, world
 
@@ -91,6 +94,13 @@ class RendezvousMappingEnv(MrcommParallelEnv):
             3.0,
             "σ (m) of the N(0, σ²) shift of the landmark grid (§VI-B.1), at most 10 km; sets the clustering C",
             Real(lo=0.0, hi=1e4, fuzz=(0.0, 30.0)),
+        ),
+        "clumping": Param(
+            0.0,
+            "after the σ shift, each landmark moves this fraction of the way to the nearest of ⌈N_l/8⌉ centres "
+            "drawn in the area (our extension of §VI-B.1: 0 is the paper's layout; it raises C past a random "
+            "layout's, about 0.55 in sparse graphs, towards 1)",
+            Real(lo=0.0, hi=0.95, fuzz=(0.0, 0.9)),
         ),
         "k_candidates": Param(5, "K: candidate landmarks listed per vehicle", Int(lo=1, hi=64, fuzz=(1, 8))),
         "prior_sigma": Param(
@@ -211,7 +221,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         ("v0", "first version: one step = one decision phase, Discrete(K + 2) actions, fused-map reward"),
         (
             "v0 rev 2",
-            "a split team regroups at the point where the last whole-team plan placed its l_c, which every vehicle "
+            "the argument `clumping` (landmark clumps beyond §VI-B.1's shift, for C up to 1); a split team regroups at the point where the last whole-team plan placed its l_c, which every vehicle "
             "holds alike, instead of at each subgroup's own estimate of that landmark (subgroups could miss each "
             "other for good); the observation's and local view's rendezvous point is that point",
         ),
@@ -257,7 +267,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
     def _reset_world(self) -> None:
         c, n, rng = self.cfg, self.n_agents, self.np_random
         L = c.n_landmarks
-        self.landmarks = world.jittered_grid(L, self.side, c.sigma, rng)
+        self.landmarks = world.clump(world.jittered_grid(L, self.side, c.sigma, rng), self.side, c.clumping, rng)
         prior_mean = self.landmarks + rng.normal(0.0, c.prior_sigma, size=(L, 2))
         Y0 = np.broadcast_to(np.eye(2) * self.y0_info, (L, 2, 2)).copy()
         y0 = prior_mean * self.y0_info
@@ -395,6 +405,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         bits = np.zeros(n)
         self.group = self.labels[:, None] == self.labels[None, :]
         messages = 0
+        self.link_bits: dict[tuple[int, int], float] = {}  # bits over each tree edge at this decision phase
         own = np.arange(n)
         self.known_pos[own, own] = self.pos  # a vehicle always knows where it is
         self.known_phase[own, own] = self.phases
@@ -412,6 +423,9 @@ class RendezvousMappingEnv(MrcommParallelEnv):
                 per_vehicle = POSITION_BITS + L * filters.FLOAT_BITS
                 bits[a] += n * filters.COUNT_BITS + sent[(a, b)] + len(side) * per_vehicle
                 bits[b] += n * filters.COUNT_BITS + sent[(b, a)] + (len(members) - len(side)) * per_vehicle
+                self.link_bits[(a, b)] = (
+                    2 * n * filters.COUNT_BITS + sent[(a, b)] + sent[(b, a)] + len(members) * per_vehicle
+                )
             self.known_pos[np.ix_(members, members)] = self.pos[members][None, :, :]
             self.known_phase[np.ix_(members, members)] = self.phases
         self.ledger.record(bits, messages=messages)
@@ -631,6 +645,8 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         ax.scatter(
             self.pos[:, 0], self.pos[:, 1], c=self.labels, cmap="tab10", marker="s", s=40, zorder=3, edgecolors="k"
         )
+        edges = np.array(list(self.link_bits), dtype=np.int64).reshape(-1, 2)
+        rendering.draw_link_bits(ax, self.pos, edges, np.array(list(self.link_bits.values()), dtype=float))
         lc = self.rendezvous_point
         ax.scatter(lc[:, 0], lc[:, 1], marker="*", s=120, facecolors="none", edgecolors="r", zorder=4)
         ax.set_xlim(-0.02 * self.side, 1.02 * self.side)
