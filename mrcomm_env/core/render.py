@@ -90,7 +90,7 @@ def draw_link_bits(ax, points: np.ndarray, pairs: np.ndarray, bits: np.ndarray) 
         return
     pairs, bits = pairs[used], bits[used]
     ends = np.asarray(points, dtype=float)[pairs]  # (K, 2 ends, 2)
-    ax.add_collection(LineCollection(ends, colors="tab:orange", linewidths=1.2, alpha=0.8, zorder=2.5))
+    ax.add_collection(LineCollection(list(ends), colors="tab:orange", linewidths=1.2, alpha=0.8, zorder=2.5))
     middles = ends.mean(axis=1)
     spacing = LABEL_SPACING * max(float(np.ptp(np.asarray(points, dtype=float), axis=0).max()), 1e-9)
     placed: list[np.ndarray] = []

@@ -34,6 +34,7 @@ import math
 import statistics
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -62,7 +63,7 @@ EXPERIMENTS = {
     "decision_phase_ms": "wall time of one decision phase (policy + env step) under paper_protocol, 10 × 200",
 }
 
-SCENARIOS = {
+SCENARIOS: dict[str, dict[str, Any]] = {
     "fig8_infinite_comms": {
         "d_comms": math.inf,
         "t_window": 15.0,
@@ -176,7 +177,7 @@ def summarise(rows: list[dict]) -> dict:
     out: dict = {}
     for r in rows:
         out.setdefault(r["planner"], {}).setdefault((r["sigma"], r["clumping"]), []).append(r)
-    table = {}
+    table: dict[str, list[dict]] = {}
     for planner, by_layout in out.items():
         table[planner] = []
         for (sigma, clumping), rs in sorted(by_layout.items()):
