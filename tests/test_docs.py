@@ -3,6 +3,8 @@
 import re
 from pathlib import Path
 
+from PIL import Image
+
 from mrcomm_env.experiments.docs import expected_docs
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -66,3 +68,37 @@ def test_citation_names_every_env_paper():
     for env_id in env_ids():
         title = entry(env_id).paper.split("*")[1]
         assert f'title: "{title}"' in citation and f'notes: "{env_id}"' in citation, env_id
+
+
+def _gif_frames(path: Path) -> int:
+    with Image.open(path) as image:
+        assert image.format == "GIF", path
+        return image.n_frames
+
+
+def test_every_env_page_and_the_readme_show_a_recording_of_the_papers_algorithm():
+    from mrcomm_env.experiments.docs import MEDIA_LIMIT_BYTES, MEDIA_STEPS, media_path
+    from mrcomm_env.registry import env_ids, short_name
+
+    readme = (ROOT / "README.md").read_text()
+    for env_id in env_ids():
+        gif = media_path(DOCS, env_id)
+        page = (DOCS / "envs" / f"{short_name(env_id)}.md").read_text()
+        assert f"(media/{gif.name})" in page and f"(docs/envs/media/{gif.name})" in readme, env_id
+        assert gif.stat().st_size < MEDIA_LIMIT_BYTES, f"{gif} is {gif.stat().st_size:,} bytes"
+        assert _gif_frames(gif) == MEDIA_STEPS + 1  # the reset frame, then one per step
+
+
+def test_learning_page_shows_each_shipped_model_beside_the_papers_algorithm():
+    from mrcomm_env.experiments.docs import MEDIA_LIMIT_BYTES, learned_media_path
+    from mrcomm_env.registry import env_ids, short_name
+
+    page = (DOCS / "learning.md").read_text()
+    for env_id in env_ids():
+        if not (ROOT / "agents" / "pretrained" / short_name(env_id) / "model.zip").exists():
+            continue
+        gif = learned_media_path(DOCS, env_id)
+        assert f"(learning/{gif.name})" in page, env_id
+        assert gif.stat().st_size < MEDIA_LIMIT_BYTES and _gif_frames(gif) > 1, gif
+        with Image.open(gif) as image:
+            assert image.size[0] == 2 * 400, "two panels side by side"

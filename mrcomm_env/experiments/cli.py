@@ -28,7 +28,7 @@ from mrcomm_env.experiments.arguments import (
     positive_seconds,
     seed_type,
 )
-from mrcomm_env.experiments.docs import write_docs
+from mrcomm_env.experiments.docs import media_path, write_docs, write_media
 from mrcomm_env.experiments.evaluation import evaluate, limit_threads, make_any_policy, steps_per_second
 from mrcomm_env.experiments.io import (
     atomic_remove,
@@ -290,10 +290,16 @@ def _policy_speed(env, policy, seconds: float, seed: int) -> tuple[float, float]
 
 def cmd_docs(args) -> int:
 
-    changed = write_docs(Path(args.out), check=args.check)
-    if args.check and changed:
-        print("out of date: " + ", ".join(map(str, changed)))
+    out = Path(args.out)
+    changed = write_docs(out, check=args.check)
+    missing = [media_path(out, env_id) for env_id in env_ids() if not media_path(out, env_id).exists()]
+    if args.check and (changed or missing):
+        print("out of date: " + ", ".join(map(str, changed + missing)))
         return 1
+    if not args.check:
+        recorded = write_media(out, refresh=args.media)
+        if recorded:
+            print(f"recorded {', '.join(map(str, recorded))}")
     print("docs up to date" if args.check else f"wrote docs into {args.out}")
     return 0
 
@@ -385,6 +391,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = command("docs", help="generate docs/envs/*.md from the live environments")
     p.add_argument("--out", default="docs")
     p.add_argument("--check", action="store_true", help="exit 1 when the committed docs differ")
+    p.add_argument("--media", action="store_true", help="record every env's GIF again (default: only missing ones)")
     p.set_defaults(func=cmd_docs)
     return parser
 

@@ -11,8 +11,53 @@ import math
 from pathlib import Path
 
 from mrcomm_baselines import default_policy, policy_module
+from mrcomm_env.experiments.record import record_episode
 from mrcomm_env.experiments.reproductions import module as reproduction_module
 from mrcomm_env.registry import entry, env_class, env_ids, env_module, make, short_name
+
+#: the recorded episode on each env page and in the README: the paper's algorithm (the default baseline), seed 0,
+#: its first ``MEDIA_STEPS`` steps at ``MEDIA_FPS`` frames per second (each GIF well under 2 MB)
+MEDIA_SEED = 0
+MEDIA_STEPS = 40
+MEDIA_FPS = 4.0
+MEDIA_LIMIT_BYTES = 2_000_000
+
+
+def media_path(out: Path, env_id: str) -> Path:
+    """``docs/envs/media/<Name>-v0.gif``: the env page's recording of the paper's algorithm."""
+    return out / "envs" / "media" / f"{short_name(env_id)}.gif"
+
+
+def learned_media_path(out: Path, env_id: str) -> Path:
+    """``docs/learning/<Name>-v0.gif``: the shipped learned policy beside the paper's algorithm (docs/learning.md)."""
+    return out / "learning" / f"{short_name(env_id)}.gif"
+
+
+def write_media(out: Path, refresh: bool = False) -> list[Path]:
+    """Record every env's GIF that is missing (all of them with ``refresh``), and, where a learned model ships and
+    the "train" extra is installed, the learned policy beside the paper's algorithm; returns those written. GIF
+    bytes depend on the matplotlib and Pillow versions, so ``mrcomm docs --check`` compares the pages, not them."""
+    written = []
+    for env_id in env_ids():
+        jobs = [(media_path(out, env_id), [default_policy(env_id)])]
+        if has_pretrained(env_id):
+            jobs.append((learned_media_path(out, env_id), ["pretrained", default_policy(env_id)]))
+        for path, policies in jobs:
+            if path.exists() and not refresh:
+                continue
+            path.parent.mkdir(parents=True, exist_ok=True)
+            record_episode(env_id, policies, MEDIA_SEED, path, max_steps=MEDIA_STEPS, fps=MEDIA_FPS)
+            written.append(path)
+    return written
+
+
+def has_pretrained(env_id: str) -> bool:
+    """Whether ``env_id`` ships a learned model that this install can run (the "train" extra)."""
+    try:
+        from mrcomm_agents.learned import pretrained_dir  # extra "train"
+    except ImportError:
+        return False
+    return (pretrained_dir(env_id) / "model.zip").exists()
 
 
 def _fmt(value) -> str:
@@ -47,6 +92,12 @@ def env_page(env_id: str) -> str:
         cls.DESCRIPTION,
         "",
         f"Paper: {entry(env_id).paper}. If you use this environment, cite it and the software (`CITATION.cff`).",
+        "",
+        f"![`{default_policy(env_id)}`, the paper's algorithm, on seed {MEDIA_SEED}: the first {MEDIA_STEPS} steps]"
+        f"(media/{name}.gif)",
+        "",
+        f"_`mrcomm record {name} --policy {default_policy(env_id)} --seed {MEDIA_SEED} --max-steps {MEDIA_STEPS} "
+        f"--out {name}.gif`; links show the bits that crossed them in the step._",
         "",
         "```python",
         "import pettingzoo, mrcomm_env",

@@ -12,6 +12,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from mrcomm_baselines import default_policy
 from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.comparison import beats, dominates, export_pretrained, reproduce_learning
 from mrcomm_env.experiments.evaluation import limit_threads
@@ -65,7 +66,22 @@ def plot_comparison(rows: list[dict], spec: dict, title: str, path: Path) -> Non
     tmp.replace(path)
 
 
-def learning_section(env_id: str, rows: list[dict], spec: dict, figure: str) -> str:
+def side_by_side(env_id: str, docs: Path | None) -> list[str]:
+    """The recording of the shipped learned policy beside the paper's algorithm, where ``mrcomm docs`` made one
+    (``docs/learning/<Name>-v0.gif``)."""
+    name = short_name(env_id)
+    if docs is None or not (docs / "learning" / f"{name}.gif").exists():
+        return []
+    return [
+        f"![the shipped learned policy (left) and the paper's algorithm (right), seed 0](learning/{name}.gif)",
+        "",
+        f"_`mrcomm record {name} --policy pretrained --policy {default_policy(env_id)} --seed 0 --max-steps 40 "
+        f"--out {name}.gif`_",
+        "",
+    ]
+
+
+def learning_section(env_id: str, rows: list[dict], spec: dict, figure: str, docs: Path | None = None) -> str:
     """An env's section of docs/learning.md: the table, the figure and the verdicts the equal-bits rule gives."""
     lower = bool(spec.get("lower_is_better"))
     learned = [r for r in rows if r["cost"] is not None]
@@ -77,6 +93,7 @@ def learning_section(env_id: str, rows: list[dict], spec: dict, figure: str) -> 
         "",
         f"![{spec['metric']} against bits]({figure})",
         "",
+        *side_by_side(env_id, docs),
         f"| policy | {spec['cost_param']} | {spec['metric']} (mean ± 95 % CI) | bits / agent / {spec.get('bits_per', 'step')} | n |",
         "| --- | --- | --- | --- | --- |",
     ]
@@ -141,7 +158,7 @@ def cmd_reproduce_learning(args: argparse.Namespace) -> int:
             if not table.exists():
                 continue
             rows = read_rows(table)
-            section = learning_section(env_id, rows, comparison_spec(env_id), f"learning/{name}.png")
+            section = learning_section(env_id, rows, comparison_spec(env_id), f"learning/{name}.png", docs)
             atomic_write_text(docs / "learning" / f"{name}.md", section + sweep_section(env_id, docs))
         print(f"wrote {write_learning_page(docs)}")
         return 0
@@ -158,7 +175,7 @@ def cmd_reproduce_learning(args: argparse.Namespace) -> int:
             tmp.replace(csv_path)
             figure = docs / "learning" / f"{name}.png"
             plot_comparison(rows, spec, f"{env_id}: learned vs scripted at equal bits", figure)
-            section = learning_section(env_id, rows, spec, f"learning/{name}.png") + sweep_section(env_id, docs)
+            section = learning_section(env_id, rows, spec, f"learning/{name}.png", docs) + sweep_section(env_id, docs)
             # one fragment per env: rerunning one env keeps the others' sections in the page
             atomic_write_text(docs / "learning" / f"{name}.md", section)
             if args.export_pretrained:

@@ -113,7 +113,8 @@ def _panel(env, name: str, step: int, metric: str) -> np.ndarray:
     caption = Image.new("RGB", (image.shape[1], TITLE_HEIGHT), "white")
     draw = ImageDraw.Draw(caption)
     draw.text((6, 4), name, fill="black")
-    draw.text((6, 22), f"step {step}   {metric} {value:.4g}   bits {env.bits_sent():,.0f}", fill="black")
+    shown = "not yet" if value != value else f"{value:.4g}"  # nan: a time to an event that has not happened
+    draw.text((6, 22), f"step {step}   {metric} {shown}   bits {env.bits_sent():,.0f}", fill="black")
     return np.vstack([np.asarray(caption), image])
 
 
