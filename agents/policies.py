@@ -30,12 +30,25 @@ class CandidateExtractor(nn.Module):
     ``extra_actions`` logits from the own features. Critic: own features and the mean of the candidates'
     embeddings."""
 
-    def __init__(self, candidates: int, features: int, globals: int, extra_actions: int = 0, hidden: int = 64):
+    def __init__(
+        self,
+        candidates: int,
+        features: int,
+        globals: int,
+        extra_actions: int = 0,
+        hidden: int = 64,
+        context: bool = False,
+    ):
         super().__init__()
         self.k, self.f, self.g, self.e = candidates, features, globals, extra_actions
         self.latent_dim_pi = candidates + extra_actions
         self.latent_dim_vf = hidden
-        self.scorer = nn.Sequential(_mlp([features + globals, hidden, hidden]), nn.Linear(hidden, 1))
+        # context: each candidate is also scored against the whole list (the mean and the max of an embedding of
+        # every candidate, a Deep Sets summary), so a score can say "among the best few", which a choice of the
+        # top m − 1 (MultiHop's slot) needs; without it a candidate is judged alone
+        self.context = _mlp([features + globals, hidden]) if context else None
+        extra_inputs = 2 * hidden if context else 0
+        self.scorer = nn.Sequential(_mlp([features + globals + extra_inputs, hidden, hidden]), nn.Linear(hidden, 1))
         self.extra = nn.Sequential(_mlp([globals, hidden]), nn.Linear(hidden, extra_actions)) if extra_actions else None
         self.value_candidates = _mlp([features + globals, hidden])
         self.value_own = _mlp([globals, hidden])
@@ -49,6 +62,10 @@ class CandidateExtractor(nn.Module):
 
     def forward_actor(self, obs: torch.Tensor) -> torch.Tensor:
         paired, own = self._split(obs)
+        if self.context is not None:
+            embedded = self.context(paired)
+            summary = torch.cat([embedded.mean(dim=1), embedded.max(dim=1).values], dim=-1)
+            paired = torch.cat([paired, summary[:, None, :].expand(-1, self.k, -1)], dim=-1)
         logits = self.scorer(paired).squeeze(-1)
         if self.extra is not None:
             logits = torch.cat([logits, self.extra(own)], dim=-1)
@@ -66,9 +83,10 @@ class CandidateExtractor(nn.Module):
 class CandidatePolicy(ActorCriticPolicy):
     """SB3 actor-critic whose logits are the candidate scores themselves (no mixing layer after them)."""
 
-    def __init__(self, *args, layout: dict, hidden: int = 64, **kwargs):
+    def __init__(self, *args, layout: dict, hidden: int = 64, context: bool = False, **kwargs):
         self.layout = dict(layout)
         self.hidden = hidden
+        self.context = context
         super().__init__(*args, **kwargs)
 
     def _build_mlp_extractor(self) -> None:
@@ -78,6 +96,7 @@ class CandidatePolicy(ActorCriticPolicy):
             self.layout["globals"],
             self.layout.get("extra_actions", 0),
             self.hidden,
+            self.context,
         )
 
     def _build(self, lr_schedule) -> None:
@@ -92,8 +111,8 @@ class CandidatePolicy(ActorCriticPolicy):
 
     def _get_constructor_parameters(self) -> dict:
         data = super()._get_constructor_parameters()
-        data.update(layout=self.layout, hidden=self.hidden)
+        data.update(layout=self.layout, hidden=self.hidden, context=self.context)
         return data
 
 
-POLICIES = {"mlp": "MlpPolicy", "candidates": CandidatePolicy}
+POLICIES = {"mlp": "MlpPolicy", "candidates": CandidatePolicy, "candidate_set": CandidatePolicy}

@@ -44,7 +44,9 @@ from tqdm.auto import tqdm
 
 from mrcomm_agents.policies import CandidatePolicy
 from mrcomm_agents.vecenv import AgentSlotVecEnv
+from mrcomm_agents.warm_start import clone
 from mrcomm_env.core.config import Int, Optional, Real
+from mrcomm_env.core.policy import Policy
 from mrcomm_env.registry import canonical_id, make, short_name
 
 CONFIG_DIR = Path(__file__).with_name("configs")
@@ -55,7 +57,7 @@ ALGORITHMS = {
     "dqn": ("stable_baselines3", "DQN"),
 }
 #: arguments of ``train`` that are not the algorithm's own hyperparameters
-RUN_KEYS = ("n_envs", "normalize", "checkpoint_every", "net_arch", "policy")
+RUN_KEYS = ("n_envs", "normalize", "checkpoint_every", "net_arch", "policy", "init_from")
 #: the documented ranges of the SB3 hyperparameters (a value outside is refused before any training)
 HYPERPARAMETER_RANGES = {
     "learning_rate": Real(0.0, lo_open=True),
@@ -100,10 +102,14 @@ class TrainConfig:
     n_envs: int = 4  #: copies of the parallel env; the VecEnv has n_envs × N agent slots
     normalize: bool = True  #: VecNormalize on observations and returns
     net_arch: list[int] = field(default_factory=lambda: [64, 64])
-    #: ``mlp`` (SB3's MlpPolicy) or ``candidates`` (one shared scorer per candidate, ``agents/policies.py``;
-    #: needs an env whose ``observation_layout()`` lists candidates)
+    #: ``mlp`` (SB3's MlpPolicy), ``candidates`` (one shared scorer per candidate, ``agents/policies.py``; needs
+    #: an env whose ``observation_layout()`` lists candidates) or ``candidate_set`` (the same, each candidate also
+    #: scored against a summary of the whole list)
     policy: str = "mlp"
     checkpoint_every: int = 50_000  #: agent-steps between checkpoints
+    #: ``baseline:NAME``: clone that scripted policy's decisions before PPO (``agents/warm_start.py``); the caller
+    #: passes the policy itself to :func:`train` as ``teacher``
+    init_from: str | None = None
 
     def validate(self) -> TrainConfig:
         self.env_id = canonical_id(self.env_id)
@@ -115,13 +121,17 @@ class TrainConfig:
                 raise ValueError(f"argument '{name}' must be an integer ≥ 1, got {value!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ValueError(f"argument 'seed' must be an integer ≥ 0, got {self.seed!r}")
-        if self.policy not in ("mlp", "candidates"):
-            raise ValueError(f"argument 'policy' must be 'mlp' or 'candidates', got {self.policy!r}")
+        if self.init_from is not None and not (
+            isinstance(self.init_from, str) and self.init_from.startswith("baseline:")
+        ):
+            raise ValueError(f"argument 'init_from' must be None or 'baseline:NAME', got {self.init_from!r}")
+        if self.policy not in ("mlp", "candidates", "candidate_set"):
+            raise ValueError(f"argument 'policy' must be 'mlp', 'candidates' or 'candidate_set', got {self.policy!r}")
         for name, value in self.hyperparams.items():
             if name in HYPERPARAMETER_RANGES and not callable(value):
                 HYPERPARAMETER_RANGES[name](name, value)
         env = make(self.env_id, **self.env_kwargs)  # the env's own arguments are checked before any work
-        if self.policy == "candidates" and env.observation_layout() is None:
+        if self.policy != "mlp" and env.observation_layout() is None:
             raise ValueError(
                 f"policy 'candidates' needs an observation of candidates; {self.env_id} with "
                 f"{self.env_kwargs} has a flat one"
@@ -142,7 +152,7 @@ def policy_class_override(record: dict[str, Any]) -> dict[str, Any] | None:
     """The policy class for SB3's ``load`` when a run used our own (``policy: candidates``): its model.zip names
     the class by the module path it was saved under (models saved before the packages were renamed say
     ``agents.policies``), so the class is handed over rather than looked up by that name."""
-    if record.get("policy") != "candidates":
+    if record.get("policy") not in ("candidates", "candidate_set"):
         return None
 
     return {"policy_class": CandidatePolicy}
@@ -267,15 +277,19 @@ def train(
     resume: bool = False,
     progress: bool = True,
     requested: dict[str, Any] | None = None,
+    teacher: Policy | None = None,
 ) -> Path:
     """Train (or with ``resume``, continue) the run in folder ``out``; returns the folder.
 
     With ``resume``, ``requested`` holds the settings the caller named explicitly (``env_id``, ``algo``, ``seed``,
     ``env_kwargs``, ``timesteps``): each must agree with the run's ``config.json`` — except ``timesteps``, which
-    may extend the run, a finished one included."""
+    may extend the run, a finished one included. ``teacher``: the policy ``config.init_from`` names, cloned
+    before PPO starts (a new run only)."""
     out = Path(out)
     if not resume:
         config.validate()  # a bad setting leaves no folder behind
+        if (config.init_from is None) != (teacher is None):
+            raise ValueError("pass the policy that 'init_from' names as 'teacher' (and only then)")
     with run_lock(out):  # the folder is created and locked before any work: one that cannot be written fails here
         if resume:
             config = _resumable(out, requested or {})
@@ -283,10 +297,10 @@ def train(
             if (out / "done.json").exists() or _checkpoints(out):
                 raise RunError(f"{out} already holds a run; pass --resume to continue it or choose another --out")
             _clear_unstarted(out)  # a run that stopped before its first checkpoint starts over
-        return _train_locked(config, out, resume, progress)
+        return _train_locked(config, out, resume, progress, teacher)
 
 
-def _train_locked(config: TrainConfig, out: Path, resume: bool, progress: bool) -> Path:
+def _train_locked(config: TrainConfig, out: Path, resume: bool, progress: bool, teacher: Policy | None) -> Path:
 
     torch.set_num_threads(1)
     ckpt = out / "checkpoints"
@@ -306,16 +320,21 @@ def _train_locked(config: TrainConfig, out: Path, resume: bool, progress: bool) 
             venv = VecNormalize(venv, norm_obs=True, norm_reward=True, gamma=config.hyperparams.get("gamma", 0.99))
         kwargs = dict(config.hyperparams)
         policy_kwargs = dict(kwargs.pop("policy_kwargs", {}))
-        if config.policy == "candidates":
+        if config.policy in ("candidates", "candidate_set"):
             probe = make(config.env_id, **config.env_kwargs)
             policy = CandidatePolicy
             policy_kwargs.update(layout=probe.observation_layout(), hidden=int(config.net_arch[0]))
+            if config.policy == "candidate_set":
+                policy_kwargs.update(context=True)
             probe.close()
         else:
             policy = "MlpPolicy"
             policy_kwargs.setdefault("net_arch", list(config.net_arch))
         model = cls(policy, venv, seed=config.seed, device="cpu", verbose=0, policy_kwargs=policy_kwargs, **kwargs)
         done_steps = 0
+        if teacher is not None:
+            report = clone(model, venv, teacher, config.env_id, config.env_kwargs, config.seed)
+            write_json(out / "warm_start.json", {"teacher": config.init_from, **report.as_dict()})
     csv_log = resumed_csv_output(str(out / "progress.csv")) if resume else make_output_format("csv", str(out))
     model.set_logger(Logger(str(out), [csv_log, make_output_format("tensorboard", str(out))]))
 

@@ -9,7 +9,9 @@ import hashlib
 import json
 from pathlib import Path
 
+from mrcomm_baselines import make_policy, policy_names
 from mrcomm_env.core import backend
+from mrcomm_env.core.policy import Policy
 from mrcomm_env.experiments.evaluation import evaluate_policy, limit_threads
 from mrcomm_env.registry import canonical_id, short_name
 
@@ -40,6 +42,20 @@ def run_folder(label: str, config: dict) -> str:
     return f"{label}-{hashlib.sha1(blob.encode()).hexdigest()[:8]}/s{config['seed']}"
 
 
+def teacher_for(env_id: str, init_from: str | None) -> Policy | None:
+    """The scripted policy ``--init-from baseline:NAME`` names (``None`` for none); unknown names raise
+    ``ValueError`` listing the valid ones."""
+    if init_from is None:
+        return None
+    kind, _, name = str(init_from).partition(":")
+    if kind != "baseline" or name not in policy_names(env_id):
+        raise ValueError(
+            f"argument 'init_from' must be baseline:NAME with NAME one of {', '.join(policy_names(env_id))}, "
+            f"got {init_from!r}"
+        )
+    return make_policy(env_id, name)
+
+
 def train_run(out: str, config: dict) -> str:
     """Train one run into ``out`` (a process of its own: one torch thread). A finished run is skipped, a
     checkpointed one resumed, one never checkpointed starts over."""
@@ -52,7 +68,8 @@ def train_run(out: str, config: dict) -> str:
     if has_checkpoint(folder):
         train(None, folder, resume=True, progress=False)
     else:
-        train(TrainConfig(**config), folder, progress=False)
+        teacher = teacher_for(config["env_id"], config.get("init_from"))
+        train(TrainConfig(**config), folder, progress=False, teacher=teacher)
     return out
 
 

@@ -19,7 +19,7 @@ from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.arguments import parse_params, positive_int, seed_type
 from mrcomm_env.experiments.evaluation import limit_threads
 from mrcomm_env.experiments.io import atomic_open, atomic_write_text
-from mrcomm_env.experiments.runs import comparison_spec, run_folder
+from mrcomm_env.experiments.runs import comparison_spec, run_folder, teacher_for
 from mrcomm_env.experiments.sweep import Task, add_runner_arguments, runner_from_args
 from mrcomm_env.registry import canonical_id, short_name
 
@@ -35,6 +35,11 @@ def add_train_parser(command) -> None:
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="environment argument (JSON value)")
     p.add_argument("--config", metavar="FILE", help="JSON settings overriding agents/configs/<Name>-v0.json")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    p.add_argument(
+        "--init-from",
+        metavar="baseline:NAME",
+        help="warm start: clone that scripted policy's decisions (DAgger) before PPO fine-tunes (agents/warm_start.py)",
+    )
     p.add_argument(
         "--seeds", type=seed_list, metavar="S,S,…", help="train one run per seed (a sweep; instead of --seed)"
     )
@@ -107,7 +112,12 @@ def cmd_train(args: argparse.Namespace) -> int:
     args.seed = 0 if args.seed is None else args.seed
     out = Path(args.out or f"runs/{short_name(env_id)}-{args.algo}-s{args.seed}")
     if args.resume:
-        for flag, value in (("--config", args.config), ("--grid", args.grid), ("--seeds", args.seeds)):
+        for flag, value in (
+            ("--config", args.config),
+            ("--grid", args.grid),
+            ("--seeds", args.seeds),
+            ("--init-from", args.init_from),
+        ):
             if value:
                 raise ValueError(f"{flag} cannot be used with --resume: a resumed run keeps its own settings")
         requested = {"env_id": env_id, **explicit, "env_kwargs": parse_params(args.param), "timesteps": args.timesteps}
@@ -121,12 +131,15 @@ def cmd_train(args: argparse.Namespace) -> int:
     env_kwargs = {**run.pop("env_kwargs", {}), **parse_params(args.param)}
     timesteps = args.timesteps if args.timesteps is not None else run.pop("timesteps", 200_000)
     run.pop("timesteps", None)
+    if args.init_from is not None:
+        teacher_for(env_id, args.init_from)  # a bad name is reported before any work
+        run["init_from"] = args.init_from
     base = dict(env_id=env_id, algo=args.algo, timesteps=timesteps, env_kwargs=env_kwargs, hyperparams=hyper, **run)
     if args.seeds is not None or args.grid:
         default_out = f"runs/{short_name(env_id)}-{args.algo}-sweep"
         return train_sweep(base, args.seeds or [args.seed], parse_grid(args.grid), Path(args.out or default_out), args)
     config = TrainConfig(seed=args.seed, **base)
-    train(config, out, progress=not args.quiet)
+    train(config, out, progress=not args.quiet, teacher=teacher_for(env_id, config.init_from))
     print(f"wrote {out}/model.zip, {out}/config.json, {out}/progress.csv")
     return 0
 
