@@ -287,6 +287,8 @@ def train(
     before PPO starts (a new run only)."""
     out = Path(out)
     if not resume:
+        if config is None:
+            raise ValueError("argument 'config' is needed for a new run (only --resume reads it from the run)")
         config.validate()  # a bad setting leaves no folder behind
         if (config.init_from is None) != (teacher is None):
             raise ValueError("pass the policy that 'init_from' names as 'teacher' (and only then)")
@@ -297,6 +299,7 @@ def train(
             if (out / "done.json").exists() or _checkpoints(out):
                 raise RunError(f"{out} already holds a run; pass --resume to continue it or choose another --out")
             _clear_unstarted(out)  # a run that stopped before its first checkpoint starts over
+        assert config is not None  # a new run was given one; a resumed run read its own
         return _train_locked(config, out, resume, progress, teacher)
 
 

@@ -15,6 +15,7 @@ in the units VecNormalize gives the rewards, so that PPO's first advantages are 
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -47,7 +48,10 @@ class CloneReport:
 
 
 def _normalized(venv, observations: np.ndarray) -> np.ndarray:
-    return venv.normalize_obs(observations) if isinstance(venv, VecNormalize) else observations
+    """The observations as the policy sees them in training (VecNormalize's running statistics, when on)."""
+    if isinstance(venv, VecNormalize):
+        return np.asarray(venv.normalize_obs(observations))
+    return observations
 
 
 def _rollout(model, venv, teacher: Policy, env_id: str, env_kwargs: dict, seed: int, learner_acts: bool):
@@ -87,7 +91,6 @@ def _returns(steps, gamma: float) -> np.ndarray:
 
 def clone(model, venv, teacher: Policy, env_id: str, env_kwargs: dict, seed: int) -> CloneReport:
     """Train ``model``'s policy and critic on ``teacher``'s decisions (DAgger); see the module docstring."""
-    import time
 
     start = time.perf_counter()
     policy = model.policy

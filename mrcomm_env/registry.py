@@ -15,6 +15,8 @@ from dataclasses import dataclass
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
+import pettingzoo
+
 if TYPE_CHECKING:  # annotations only: the registry imports no environment code
     from mrcomm_env.core.base import MrcommParallelEnv
 
@@ -135,7 +137,6 @@ def register_all() -> None:
 
     Entry points are strings, so registering imports no environment code.
     """
-    import pettingzoo
 
     for env_id, item in ENTRIES.items():
         if env_id in _registered:

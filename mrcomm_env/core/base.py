@@ -14,10 +14,11 @@ from numbers import Integral
 from typing import Any, ClassVar
 
 import numpy as np
-from gymnasium import spaces
+from gymnasium import logger, spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
+from mrcomm_env.core import render as _render
 from mrcomm_env.core.config import Config, Param, validate_config
 from mrcomm_env.core.memory import BUDGET_ARGUMENT, MEMORY_BUDGET_PARAM, check_memory_budget
 from mrcomm_env.core.policy import LocalViews
@@ -259,11 +260,8 @@ class MrcommParallelEnv(ParallelEnv):
 
     def render(self):
         if self.render_mode is None:
-            from gymnasium import logger
-
             logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
             return None
-        from mrcomm_env.core import render as _render
 
         if self.render_mode == "rgb_array":
             return _render.to_rgb_array(self._render)
@@ -275,8 +273,6 @@ class MrcommParallelEnv(ParallelEnv):
 
     def close(self) -> None:
         if self._figure is not None:
-            from mrcomm_env.core import render as _render
-
             _render.close(self._figure)
             self._figure = None
 

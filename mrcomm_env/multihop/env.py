@@ -591,7 +591,7 @@ class MultiHopEnv(MrcommParallelEnv):
 
     def _render(self, ax) -> None:
         p = self.pos
-        from matplotlib.collections import LineCollection
+        from matplotlib.collections import LineCollection  # on first render (mrcomm_env/core/render.py)
         from matplotlib.colors import LogNorm
 
         ii, jj = np.nonzero(np.triu(self.adj))

@@ -632,7 +632,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         }
 
     def _render(self, ax) -> None:
-        from matplotlib.collections import LineCollection
+        from matplotlib.collections import LineCollection  # on first render (mrcomm_env/core/render.py)
 
         lm = self.landmarks
         est = self._estimates[0]

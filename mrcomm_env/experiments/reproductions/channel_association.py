@@ -18,6 +18,7 @@ import numpy as np
 from mrcomm_baselines import make_policy
 from mrcomm_env.channel_association import theory
 from mrcomm_env.channel_association.batch import MobileField, neighborhood_trials
+from mrcomm_env.channel_association_v0 import parallel_env
 from mrcomm_env.experiments.reproductions.common import (
     atomic_open,
     atomic_write_json,
@@ -119,7 +120,6 @@ def random_id_times(w: int, trials: int) -> list[float]:
 def env_fraction_matched(policy: str, max_cycles: int) -> dict:
     """The mobile field through the environment (400 robots, seed 1) under ``policy`` (a sweep task): steady
     fraction matched (mean over the second half) and the final edge ratio."""
-    from mrcomm_env.channel_association_v0 import parallel_env
 
     env = parallel_env(n_robots=400, separation=5.0, max_cycles=max_cycles)
     fm = []
@@ -634,22 +634,21 @@ def _id_bits(out: Path, random_ids: list[list[float]], env_runs: list[dict]) -> 
 
 
 # ====================================================================== entry point
-def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    size = size_of(quick, tiny)
-    t0 = time.perf_counter()
-    runs = run_sweeps(out, sweep_plan(size), "fig5, fig6, fig7_8, fig9, mobile, id_bits")
-    md5, r5 = _fig5(out, size, runs["fig5"])
-    md6 = _fig6(out, r5["store"], runs["fig6"])
-    md78, r78 = _fig7_8(out, runs["fig7_8"])
-    md9, r9 = _fig9(out, runs["fig9"])
-    mdm, rm = _markov(out)
-    mdmob, rmob = _mobile(out, size, runs["mobile"])
-    mdmod, rmod = _models(out, rmob)
-    mdid, rid = _id_bits(out, runs["id_bits"], runs["id_bits_env"])
-    h = lambda res: len(res["fm"]) // 2  # noqa: E731
-    steady = {k: (float(v["fm"][h(v) :].mean()), float(v["er"][h(v) :].mean())) for k, v in rmob.items()}
+def _verdict(agrees) -> str:
+    if agrees == "small":
+        return "⚠️ partly (effect small but systematic)"
+    return "✅ agrees" if agrees else "❌ differs"
+
+
+def _steady_state(result: dict) -> tuple[float, float]:
+    """Fraction matched and edge ratio over the second half of a mobile run (its steady state)."""
+    half = len(result["fm"]) // 2
+    return float(result["fm"][half:].mean()), float(result["er"][half:].mean())
+
+
+def claims_table(fig5: dict, fig7_8: dict, fig9: dict, markov: dict, mobile: dict, models: dict) -> tuple[str, list]:
+    """The paper's claims, one by one, each with our verdict and its evidence, then the slips in its text."""
+    steady = {k: _steady_state(v) for k, v in mobile.items()}
 
     def trend(key, vals):
         return [steady[(key, x)] for x in vals]
@@ -658,38 +657,37 @@ def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
     rng_t = trend("range", [10.0, 16.0, 22.0])
     den = trend("separation", [8.0, 5.0, 3.2])
     spd = trend("speed", [16 / 20, 16 / 11, 16 / 8])
-    ok = lambda b: "⚠️ partly (effect small but systematic)" if b == "small" else ("✅ agrees" if b else "❌ differs")  # noqa: E731
     claims = [
         (
             "§4.3.2 minimum completion time is log2(v)",
-            r5["stats"]["cells_below_log2v"] == 0,
+            fig5["stats"]["cells_below_log2v"] == 0,
             "no trial finished in fewer than ⌈log2 v⌉ steps",
         ),
         (
             "§4.3.2 simulation matches the exact expectation for w ≤ 8",
-            r5["stats"]["frac_within_3se"] > 0.97,
-            f"{100 * r5['stats']['frac_within_3se']:.1f} % of all cells within 3 SE of our exact E[T] (all w, not only ≤ 8)",
+            fig5["stats"]["frac_within_3se"] > 0.97,
+            f"{100 * fig5['stats']['frac_within_3se']:.1f} % of all cells within 3 SE of our exact E[T] (all w, not only ≤ 8)",
         ),
         (
             "§4.3.1 the Markov chain is prohibitively expensive",
             False,
-            f"a lumped chain gives w ≤ 8 in well under a second and a closed form gives every w (agreement {rm['maxdiff']:.0e})",
+            f"a lumped chain gives w ≤ 8 in well under a second and a closed form gives every w (agreement {markov['maxdiff']:.0e})",
         ),
-        ("§4.3.3 BP eq. (1) underestimates", r78["under"], "eq. (1) < exact for every odd v at w = 20 and 40"),
+        ("§4.3.3 BP eq. (1) underestimates", fig7_8["under"], "eq. (1) < exact for every odd v at w = 20 and 40"),
         (
             "§4.3.3 BP eq. (1) is closer for higher v",
-            r78["closer_high_v"],
+            fig7_8["closer_high_v"],
             "gap at v = w−1 smaller than at v = 1 for w = 20 and 40",
         ),
         (
             "§4.4.2 fraction-matched model is 'startlingly effective'",
-            r9["max_err"] < 0.05,
-            f"max error {r9['max_err']:.3f}; it is close to the exact law (1 − 2^−t)^(w−1)",
+            fig9["max_err"] < 0.05,
+            f"max error {fig9['max_err']:.3f}; it is close to the exact law (1 − 2^−t)^(w−1)",
         ),
         (
             "§6.5 p = ½ is best",
-            rm["best_p"] == 0.5,
-            f"E[T] as a function of p is minimal at p = {rm['best_p']:g} (w = 8, v = 7)",
+            markov["best_p"] == 0.5,
+            f"E[T] as a function of p is minimal at p = {markov['best_p']:g} (w = 8, v = 7)",
         ),
         (
             "§5.4 population mix has little impact",
@@ -721,17 +719,17 @@ def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
         ),
         (
             "§5.7 mobile fraction-matched model underestimates",
-            rmod["fm_under"],
-            f"our reading of §5.7 lies *above* the simulation in {rmod['fm_over']} of {rmod['fm_n']} cases",
+            models["fm_under"],
+            f"our reading of §5.7 lies *above* the simulation in {models['fm_over']} of {models['fm_n']} cases",
         ),
         (
             "§5.8 two-/multi-region models track the simulation",
-            max(rmod["rel2"], rmod["relm"]) < 0.15,
-            f"mean relative error two-region {100 * rmod['rel2']:.1f} %, multi-region {100 * rmod['relm']:.1f} %",
+            max(models["rel2"], models["relm"]) < 0.15,
+            f"mean relative error two-region {100 * models['rel2']:.1f} %, multi-region {100 * models['relm']:.1f} %",
         ),
     ]
-    claim_md = "| claim | verdict | evidence |\n|---|---|---|\n" + "\n".join(
-        f"| {c} | {ok(b)} | {e} |" for c, b, e in claims
+    table = "| claim | verdict | evidence |\n|---|---|---|\n" + "\n".join(
+        f"| {c} | {_verdict(b)} | {e} |" for c, b, e in claims
     )
     slips = (
         "\n\n**Slips in the paper's text.** (1) §5.5 gives the speeds r/8, r/11, r/20 as \"2, 1.4 and 1.25 "
@@ -740,15 +738,32 @@ def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
         "(separation 4 gives ≈ 50 in range); our sweeps use 5, the environment's `separation` default follows the "
         "issue (4). (3) Eq. (11) gives true edges the same exit probability as false edges (one *or* the other ID "
         "leaves); a true edge's two IDs belong to one robot, so it exits with v_exit/v_rest only — with that "
-        f"correction the two-region model's mean error drops from {100 * rmod['rel2']:.1f} % to {100 * rmod['relf']:.1f} %. (4) §5.4 says fewer than 10 % of "
+        f"correction the two-region model's mean error drops from {100 * models['rel2']:.1f} % to {100 * models['relf']:.1f} %. (4) §5.4 says fewer than 10 % of "
         "robots are mobile, while Figs 10–11 use 10/50/90 %. (5) §4.3.1 calls the exact chain O(w!³); lumping "
         "i-states by class sizes makes it cheap, and for p = ½ a closed form exists (theory.py)."
     )
-    claim_md += slips
+    return table + slips, claims
+
+
+def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    size = size_of(quick, tiny)
+    t0 = time.perf_counter()
+    runs = run_sweeps(out, sweep_plan(size), "fig5, fig6, fig7_8, fig9, mobile, id_bits")
+    fig5_md, fig5 = _fig5(out, size, runs["fig5"])
+    fig6_md = _fig6(out, fig5["store"], runs["fig6"])
+    fig7_8_md, fig7_8 = _fig7_8(out, runs["fig7_8"])
+    fig9_md, fig9 = _fig9(out, runs["fig9"])
+    markov_md, markov = _markov(out)
+    mobile_md, mobile = _mobile(out, size, runs["mobile"])
+    models_md, models = _models(out, mobile)
+    id_bits_md, _ = _id_bits(out, runs["id_bits"], runs["id_bits_env"])
+    claims_md, claims = claims_table(fig5, fig7_8, fig9, markov, mobile, models)
     atomic_write_json(
         out / "summary.json",
         {
-            "fig5": r5["stats"],
+            "fig5": fig5["stats"],
             "claims": [(c, str(b), e) for c, b, e in claims],
             "seconds": time.perf_counter() - t0,
             "quick": quick,
@@ -761,21 +776,21 @@ def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
         f"{'Tiny run (smoke-test sizes; the numbers mean nothing)' if tiny else 'Quick run (subsets, fewer trials)' if quick else 'Full run'}; {time.perf_counter() - t0:.0f} s. "
         "All sweeps drive the environment's own filter classes in batch.\n\n"
         "### The paper's claims, one by one\n\n"
-        + claim_md
+        + claims_md
         + "\n\n### Stationary neighbourhoods (§4)\n\n"
-        + md5
+        + fig5_md
         + "\n"
-        + md6
+        + fig6_md
         + "\n"
-        + md78
+        + fig7_8_md
         + "\n"
-        + md9
+        + fig9_md
         + "\n"
-        + mdm
+        + markov_md
         + "\n### Mobile robots (§5)\n\n"
-        + mdmob
+        + mobile_md
         + "\n"
-        + mdmod
+        + models_md
         + "\n### Beyond the paper\n\n"
-        + mdid
+        + id_bits_md
     )

@@ -23,6 +23,10 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from tqdm.auto import tqdm
+
 from mrcomm_env.experiments.evaluation import run_episode
 from mrcomm_env.experiments.io import atomic_open, atomic_savefig, atomic_write_json, atomic_write_text
 from mrcomm_env.experiments.sweep import Task, run_tasks
@@ -68,7 +72,6 @@ def pick(size: str, *, full: T, quick: T, tiny: T = _UNSET) -> T:
 
 def progress(iterable: Iterable[T], desc: str) -> Iterable[T]:
     """A progress bar over ``iterable`` that disappears when done (the CLI's output stays readable)."""
-    from tqdm.auto import tqdm
 
     return tqdm(iterable, desc=desc, leave=False)
 
@@ -118,8 +121,6 @@ def figure(
     with ``tight_layout`` before saving; ``dpi`` is the saved resolution (default: the figure's, 100).
     Nothing is written when the block raises.
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
 
     fig = Figure(figsize=figsize)
     FigureCanvasAgg(fig)

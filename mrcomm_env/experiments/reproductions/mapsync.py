@@ -18,7 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from mrcomm_baselines import default_policy, make_policy, policy_names
+from mrcomm_env.core import backend
 from mrcomm_env.core.stats import mean_ci95
+from mrcomm_env.experiments.evaluation import evaluate, steps_per_second
 from mrcomm_env.experiments.reproductions.common import (
     atomic_open,
     atomic_write_json,
@@ -34,6 +36,7 @@ from mrcomm_env.experiments.reproductions.common import (
 from mrcomm_env.mapsync import protocol as proto
 from mrcomm_env.mapsync import theory
 from mrcomm_env.mapsync.philox import SharedStrings
+from mrcomm_env.registry import make
 
 EXPERIMENTS = {
     "props_1_2": "Proposition 1's bit cost k(⌈log2 100n⌉+1) counted in runs, and Proposition 2's one-sided error "
@@ -110,8 +113,6 @@ def protocol1_seconds(n: int = 1024, k: int = 7, repeats: int = 2000, seed: int 
 
 def env_steps_per_second(seconds: float = 3.0, policy: str | None = None, seed: int = 0, **env_kwargs) -> float:
     """Env steps per second of MapSync-v0 driven by a scripted baseline (default: the paper's case study)."""
-    from mrcomm_env.experiments.evaluation import steps_per_second
-    from mrcomm_env.registry import make
 
     env = make(ENV_ID, **env_kwargs)
     pol = make_policy(ENV_ID, policy or default_policy(ENV_ID))
@@ -341,7 +342,6 @@ def fig3(out: Path, size: str) -> tuple[str, dict]:
         f"| | paper | ours |\n| --- | --- | --- |\n| n = 1024, k = 7 | 3.17 s | {ours * 1e3:.3f} ms |\n"
         f"| n = 16 (fastest) | 0.04 s | {ours16 * 1e3:.3f} ms |"
     )
-    from mrcomm_env.core import backend
 
     return text, {"protocol1_n1024_k7_s": ours, "protocol1_n16_min_s": ours16, "backend": backend.name()}
 
@@ -420,7 +420,6 @@ def figs4_6(out: Path, results: list[list[dict]]) -> str:
 # ----------------------------------------------------------------------------------------------- Fig. 7
 def case_study_run(seed: int) -> dict:
     """One episode of the Fig. 7 case study (a sweep task): the steps at which a difference was detected."""
-    from mrcomm_env.registry import make
 
     env = make(ENV_ID, preset="paper")
     metrics = run_episode(env, make_policy(ENV_ID, "periodic_equality_then_bisection"), seed)
@@ -600,8 +599,6 @@ def sketch_false_accept(out: Path, rows: list[dict]) -> str:
 # ----------------------------------------------------------------------------------------------- policies
 def policy_row(policy: str, episodes: int) -> dict:
     """One baseline's episodes on the paper preset from seed 1000 (a sweep task): mean metrics."""
-    from mrcomm_env.experiments.evaluation import evaluate
-    from mrcomm_env.registry import make
 
     summary = evaluate(
         lambda: make(ENV_ID, preset="paper"), make_policy(ENV_ID, policy), episodes, seed=1000, progress=False
@@ -656,22 +653,37 @@ def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
     }
     results = run_sweeps(out, plan, "Props 1-2, Figs 2, 4-7, bits tables, policies")
     timing["sweeps"] = time.perf_counter() - start
-    props = props_1_2(out, size, results["props_1_2"])
-    alg1 = alg1_worst_case(out, results["alg1_worst_case"][0])
-    f2, f2_info = fig2(out, size, results["fig2_success_rate"])
+    props_table = props_1_2(out, size, results["props_1_2"])
+    alg1_table = alg1_worst_case(out, results["alg1_worst_case"][0])
+    fig2_table, fig2_info = fig2(out, size, results["fig2_success_rate"])
     # Fig. 3 measures wall time: here, alone, after the sweep's workers have finished
     start = time.perf_counter()
-    f3, f3_info = fig3(out, size)
+    fig3_table, fig3_info = fig3(out, size)
     timing["fig3_runtime"] = time.perf_counter() - start
-    f46 = figs4_6(out, results["figs4_6_corrected"])
-    f7, f7_info = fig7(out, results["fig7_case_study"])
-    table, table_info = bits_table(out, results["bits_table"])
-    false_accept = sketch_false_accept(out, results["sketch_false_accept"])
-    pol = policies(out, results["policies"])
-    summary = {"timing_s": timing, **f2_info, **f3_info, **f7_info, **table_info, "quick": quick}
+    figs4_6_table = figs4_6(out, results["figs4_6_corrected"])
+    fig7_table, fig7_info = fig7(out, results["fig7_case_study"])
+    bits_md, bits_info = bits_table(out, results["bits_table"])
+    false_accept_table = sketch_false_accept(out, results["sketch_false_accept"])
+    policies_table = policies(out, results["policies"])
+    summary = {"timing_s": timing, **fig2_info, **fig3_info, **fig7_info, **bits_info, "quick": quick}
     atomic_write_json(out / "summary.json", summary, indent=1, default=float)
-    below = ", ".join(f"(n={n}, k={k})" for n, k in f2_info["below_90_at_50_runs"]) or "none"
-    name = out.name
+    folder = out.name
+    return "\n".join(
+        [
+            report_header(size),
+            report_props(folder, props_table),
+            report_alg1(alg1_table),
+            report_fig2(folder, fig2_table, fig2_info),
+            report_fig3(folder, fig3_table, fig3_info),
+            report_figs4_6(folder, figs4_6_table),
+            report_fig7(fig7_table),
+            report_bits(folder, bits_md, bits_info, false_accept_table),
+            report_policies(policies_table),
+        ]
+    )
+
+
+def report_header(size: str) -> str:
     size_note = pick(
         size,
         full="",
@@ -683,87 +695,112 @@ def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
 {size_note}Protocol 1 runs with step 4 fixed ("counter greater than zero" means different; as printed, "≥ 0", it answers
 "different" always); r_i come from a counter-based Philox4x32-10 generator keyed by a shared seed (the paper's
 database of 100n strings is virtual). Algorithm 1 runs as request/response rounds, one per recursion level.
+"""
 
-### Propositions 1–2 (n = 256)
 
-{props}
+def report_props(folder: str, props_table: str) -> str:
+    return f"""### Propositions 1–2 (n = 256)
 
-![Props 1–2]({name}/props_1_2.png)
+{props_table}
+
+![Props 1–2]({folder}/props_1_2.png)
 
 Bits match Proposition 1 exactly, equal maps are never called different, and the false-"equal" rate sits at
 2^−k: Proposition 2's bound is attained (a uniform r_i splits any X ≠ Y with probability exactly ½).
+"""
 
-### Algorithm 1: bits against §IV-B's worst case (k = 10, res = 1)
 
-{alg1}
+def report_alg1(alg1_table: str) -> str:
+    return f"""### Algorithm 1: bits against §IV-B's worst case (k = 10, res = 1)
+
+{alg1_table}
 
 §IV-B charges one Protocol 1 per recursion level, but Algorithm 1 tests *both* halves of every segment that
 tested different, each at the full k(⌈log2 100n⌉+1): even one difference costs 1 + 2(log2(n/res) − 1) tests,
 about twice the formula, and d differences up to 2d tests per level. The formula is not an upper bound; the
 true worst case (segment tree, at most 2·min(#segments, d) visits per level) is, and it is attained at d = 1.
+"""
 
-### Fig. 2: success rate of Protocol 1
 
-{f2}
+def report_fig2(folder: str, fig2_table: str, fig2_info: dict) -> str:
+    below = ", ".join(f"(n={n}, k={k})" for n, k in fig2_info["below_90_at_50_runs"]) or "none"
+    return f"""### Fig. 2: success rate of Protocol 1
 
-![Fig. 2]({name}/fig2_success_rate.png)
+{fig2_table}
+
+![Fig. 2]({folder}/fig2_success_rate.png)
 
 Paper: "> 90 % except with k = 3 and n = 128" (50 runs). Ours at 50 runs, ≤ 90 % at: {below}. With more runs
 every cell converges to 1 − 2^−k whatever n (random X, Y differ, so success = detection). With the printed step
 4 the success rate on these (different) pairs is 100 %: the paper's sub-100 % numbers imply its code used the
 fixed rule.
+"""
 
-### Fig. 3: run time of Protocol 1
 
-{f3}
+def report_fig3(folder: str, fig3_table: str, fig3_info: dict) -> str:
+    return f"""### Fig. 3: run time of Protocol 1
 
-![Fig. 3]({name}/fig3_runtime.png)
+{fig3_table}
+
+![Fig. 3]({folder}/fig3_runtime.png)
 
 GF(2) inner products on bit-packed words (popcount), r_i generated on demand (no database, no cache); inner
-loop: {f3_info["backend"]} (`MRCOMM_BACKEND`).
+loop: {fig3_info["backend"]} (`MRCOMM_BACKEND`).
+"""
 
-### Figs 4–6: differences corrected by Algorithm 1 (res = 1)
 
-{f46}
+def report_figs4_6(folder: str, figs4_6_table: str) -> str:
+    return f"""### Figs 4–6: differences corrected by Algorithm 1 (res = 1)
 
-![Figs 4–6]({name}/figs4_6_corrected.png)
+{figs4_6_table}
+
+![Figs 4–6]({folder}/figs4_6_corrected.png)
 
 The paper reports ≥ 80 %. A difference is corrected when every test on the ⌈log2 n⌉ segments on its path from
 the root says "different", each with probability 1 − 2^−k (Proposition 2), so in expectation a fraction
 (1 − 2^−k)^⌈log2 n⌉ is corrected: 94.7 % at n = 128, k = 7 and 99 % at n = 1024, k = 10. One miss high in the
 tree loses every difference below it, hence the spread between runs.
+"""
 
-### Fig. 7: case study (preset `paper`, every 10 moves, k = 10)
 
-{f7}
+def report_fig7(fig7_table: str) -> str:
+    return f"""### Fig. 7: case study (preset `paper`, every 10 moves, k = 10)
+
+{fig7_table}
 
 Our random walk is not the paper's, so the steps differ; detections only happen at sync times (multiples of 10),
 at about the paper's rate.
+"""
 
-### Bits to exact agreement (one way: Bob learns Alice's map)
 
-{table}
+def report_bits(folder: str, bits_md: str, bits_info: dict, false_accept_table: str) -> str:
+    return f"""### Bits to exact agreement (one way: Bob learns Alice's map)
 
-![Bits to exact agreement]({name}/bits_table.png)
+{bits_md}
+
+![Bits to exact agreement]({folder}/bits_table.png)
 
 `sketch`: streaming PinSketch over GF(2^⌈log2 n⌉) verified by v public-coin parity bits (v = 8 below n = 1024,
 ⌊2 log2 n⌋ − ⌈log2 n⌉ − 2 from there: 8, 10, 14) and a 1-bit stop, with no knowledge of d; worst sketch/bound
-over n ≥ 1024: {table_info["worst_sketch_ratio_n_ge_1024"]:.2f} (target ≤ 2). Exact in {table_info["sketch_exact_runs"]} of
-{table_info["sketch_runs"]} runs: a wrong candidate passes the parities with probability 2^−v, at most about e·2^−v per run
+over n ≥ 1024: {bits_info["worst_sketch_ratio_n_ge_1024"]:.2f} (target ≤ 2). Exact in {bits_info["sketch_exact_runs"]} of
+{bits_info["sketch_runs"]} runs: a wrong candidate passes the parities with probability 2^−v, at most about e·2^−v per run
 (1.1 % at n = 1024, 0.3 % at 4096, 0.02 % at 65536; measured below), the price of fitting one difference into
 2 log2 n bits. The 2× target fails just above a power of two (n ∈ [1025, 1204] at d near 64: up to 2.09×), where
 the field gains a bit. The last column charges Bob one continue/stop bit per syndrome
 instead of relying on the short round trip. `bisection` at res = 1 pays k(⌈log2 100n⌉+1) per test, about
 2d·log2(n)·k·log2(100n) bits for d spread differences, so it sends fewer bits than `full` only where
-n ≫ 2d·k·log2(100n)·log2 n; here at {", ".join(table_info["bisection_below_full"]) or "none of these sizes"}.
+n ≫ 2d·k·log2(100n)·log2 n; here at {", ".join(bits_info["bisection_below_full"]) or "none of these sizes"}.
 
 #### How often the sketch accepts a wrong map
 
-{false_accept}
+{false_accept_table}
+"""
 
-### Baselines in the env (preset `paper`)
 
-{pol}
+def report_policies(policies_table: str) -> str:
+    return f"""### Baselines in the env (preset `paper`)
+
+{policies_table}
 """
 
 

@@ -30,7 +30,7 @@ from mrcomm_env.experiments.reproductions.common import (
 )
 from mrcomm_env.multihop import protocol as proto
 from mrcomm_env.multihop import theory
-from mrcomm_env.multihop.env import AGE_SCALE_FRAMES
+from mrcomm_env.multihop.env import AGE_SCALE_FRAMES, MultiHopEnv
 from mrcomm_env.multihop.sweep import grid_propagation
 
 EXPERIMENTS = {
@@ -260,7 +260,6 @@ def rules_m7(size: str, table, results: list[dict]) -> tuple[str, list[dict]]:
 # ----------------------------------------------------------------------------------- env-driven parts
 def _make(**kw):
     """The env with the paper's action semantics: v0's priority per robot (``layout="absolute"``)."""
-    from mrcomm_env.multihop.env import MultiHopEnv
 
     return MultiHopEnv(layout="absolute", **kw)
 
@@ -512,6 +511,60 @@ def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
         default=float,
     )
 
+    folder = out.name
+    sections = [
+        report_header(size),
+        report_fig2(folder, how, best_md),
+        report_claim_m7(claim_md, claim),
+        report_rules(rules_md),
+        report_fig3(folder, cov_md, cov),
+        report_fig5(folder, stale_md),
+        report_policies(pol_md),
+        f"Runtime {time.perf_counter() - start:.0f} s.\n",
+    ]
+    return "".join(sections)
+
+
+def report_header(size: str) -> str:
+    """The section's title, run size and setting."""
+    size_note = pick(
+        size,
+        full="",
+        quick="Quick run (subset of m, few runs): numbers are indicative only. ",
+        tiny="Tiny run (smoke-test sizes): the numbers mean nothing. ",
+    )
+    return f"""## MultiHop-v0 — Julian, Schwager, Angermann & Rus, location-based multi-hopping (paper 003)
+
+{size_note}Setting: 10×10 stationary grid,
+4-neighbour links, 192-bit estimates at 3000 baud (one estimate = 64 ms; slot = 64·m ms), α = 1, a random TDMA
+order per run, Algorithm 1 run at each slot with the §3.2 rule (lowest counter). Flooding is m = n = 100 (with
+m ≥ known estimates Algorithm 1 sends everything, so it *is* flooding). m = 1 never completes any subgraph (only
+neighbours ever hear a robot; even the 2×2 has non-adjacent diagonal pairs), so it is left out.
+
+"""
+
+
+def report_fig2(folder: str, how: str, best_md: str) -> str:
+    """Fig. 2: propagation time, its definition, and where each curve has its minimum."""
+    return f"""**Propagation time, defined.** Paper §4: "the time it took for all subgraph members to exchange state estimates".
+We measure it in seconds, up to the end of the slot that delivers the last needed estimate, in two readings:
+*cold start* (everyone knows only itself at t = 0; time until every member holds some estimate of every other
+member) and *fresh stamp in steady state* (after the cold start plus 5 frames, at a frame boundary t0: time until
+every member holds an estimate of every other member stamped ≥ t0). Besides the paper's "all members" (max over
+pairs) we also report the mean over pairs. Sweep: {how}.
+
+![Fig 2]({folder}/fig2_propagation.png)
+
+Where each curve has its minimum (paper: "for small subgraphs … faster with smaller time slot lengths. For
+larger subgraphs, the optimal length was around m = 7"):
+
+{best_md}
+
+"""
+
+
+def report_claim_m7(claim_md: str, claim: list[dict]) -> str:
+    """The > 47 % claim at m = 7 under every reading."""
     labels = [lab for _, _, lab in READINGS]
     all_hold = [lab for lab in labels if all(c["holds"] for c in claim if c["reading"] == lab)]
     fails = "; ".join(
@@ -530,39 +583,19 @@ def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
         if slower
         else ""
     )
-    early = min(cov, key=lambda k: cov[k]["early"] if "ours" not in k else math.inf)  # paper's three schemes
-    final = min(cov, key=lambda k: cov[k]["final"] if "ours" not in k else math.inf)
-    name = out.name
-    md = f"""## MultiHop-v0 — Julian, Schwager, Angermann & Rus, location-based multi-hopping (paper 003)
-
-{pick(size, full="", quick="Quick run (subset of m, few runs): numbers are indicative only. ", tiny="Tiny run (smoke-test sizes): the numbers mean nothing. ")}Setting: 10×10 stationary grid,
-4-neighbour links, 192-bit estimates at 3000 baud (one estimate = 64 ms; slot = 64·m ms), α = 1, a random TDMA
-order per run, Algorithm 1 run at each slot with the §3.2 rule (lowest counter). Flooding is m = n = 100 (with
-m ≥ known estimates Algorithm 1 sends everything, so it *is* flooding). m = 1 never completes any subgraph (only
-neighbours ever hear a robot; even the 2×2 has non-adjacent diagonal pairs), so it is left out.
-
-**Propagation time, defined.** Paper §4: "the time it took for all subgraph members to exchange state estimates".
-We measure it in seconds, up to the end of the slot that delivers the last needed estimate, in two readings:
-*cold start* (everyone knows only itself at t = 0; time until every member holds some estimate of every other
-member) and *fresh stamp in steady state* (after the cold start plus 5 frames, at a frame boundary t0: time until
-every member holds an estimate of every other member stamped ≥ t0). Besides the paper's "all members" (max over
-pairs) we also report the mean over pairs. Sweep: {how}.
-
-![Fig 2]({name}/fig2_propagation.png)
-
-Where each curve has its minimum (paper: "for small subgraphs … faster with smaller time slot lengths. For
-larger subgraphs, the optimal length was around m = 7"):
-
-{best_md}
-
-### Claim: at m = 7 every subgraph's propagation time drops by > 47 % against flooding
+    return f"""### Claim: at m = 7 every subgraph's propagation time drops by > 47 % against flooding
 
 {claim_md}
 
 Readings under which the claim holds for *every* subgraph: {", ".join(all_hold) or "**none**"}.
 Subgraphs where it fails, by reading: {fails or "none"}. {claim_note}
 
-### Algorithm 1: text (argmin) vs listing (argmax), eq. (2), and our age_aware rule, m = 7 (all pairs)
+"""
+
+
+def report_rules(rules_md: str) -> str:
+    """Algorithm 1 as its text and its listing give it, eq. (2), and age_aware."""
+    return f"""### Algorithm 1: text (argmin) vs listing (argmax), eq. (2), and our age_aware rule, m = 7 (all pairs)
 
 {rules_md}
 
@@ -571,11 +604,18 @@ even the 2×2: the text's argmin is the working algorithm (README slip confirmed
 d^-α × (freshness gained since the robot last sent that estimate): resending a stamp every neighbour already
 holds is wasted room.
 
-### Fig. 3: coverage cost, nine robots, m = 1 / 3 / 9 at 3000 baud, 192-bit estimates
+"""
+
+
+def report_fig3(folder: str, cov_md: str, cov: dict) -> str:
+    """Fig. 3: coverage cost of the three schemes."""
+    early = min(cov, key=lambda k: cov[k]["early"] if "ours" not in k else math.inf)  # paper's three schemes
+    final = min(cov, key=lambda k: cov[k]["final"] if "ours" not in k else math.inf)
+    return f"""### Fig. 3: coverage cost, nine robots, m = 1 / 3 / 9 at 3000 baud, 192-bit estimates
 
 {cov_md}
 
-![Fig 3]({name}/fig3_coverage.png)
+![Fig 3]({folder}/fig3_coverage.png)
 
 Frame rates match the paper (1.74 / 0.58 / 0.19 Hz vs "1.7 / about 0.6 / about 0.2 Hz"). Among the paper's three
 schemes, lowest mean cost over the first 30 s: **{early}**; lowest final cost: **{final}**. The paper: location-based
@@ -585,19 +625,27 @@ controller on their received estimates; no-hop ends worse because it keeps stale
 of range. Lloyd's method can settle in non-optimal centroidal configurations, so single take-offs differ; the
 last column counts them.
 
-### Fig. 5-style staleness against distance (corner robot, steady state)
+"""
+
+
+def report_fig5(folder: str, stale_md: str) -> str:
+    """Fig. 5-style staleness against distance."""
+    return f"""### Fig. 5-style staleness against distance (corner robot, steady state)
 
 {stale_md}
 
-![Fig 5]({name}/fig5_staleness.png)
+![Fig 5]({folder}/fig5_staleness.png)
 
 As in Fig. 5, closer robots' estimates are fresher under the location-based rule; flooding's ages grow with hop
 count but from a 14× longer frame.
 
-### Baselines in the env (grid, m = 7, one step = one frame)
+"""
+
+
+def report_policies(pol_md: str) -> str:
+    """The baselines in the env."""
+    return f"""### Baselines in the env (grid, m = 7, one step = one frame)
 
 {pol_md}
 
-Runtime {time.perf_counter() - start:.0f} s.
 """
-    return md

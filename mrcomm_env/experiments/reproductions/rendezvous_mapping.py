@@ -37,8 +37,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from matplotlib.collections import LineCollection
+from scipy.stats import spearmanr
 
 from mrcomm_baselines import make_policy
+from mrcomm_env.experiments.evaluation import limit_threads
 from mrcomm_env.experiments.reproductions.common import (
     atomic_open,
     atomic_write_json,
@@ -203,7 +206,6 @@ def summarise(rows: list[dict]) -> dict:
 
 def spearman(x, y) -> float:
     """Rank correlation (ties averaged); nan when either side is constant."""
-    from scipy.stats import spearmanr
 
     if len(set(x)) < 2 or len(set(y)) < 2:
         return math.nan
@@ -212,7 +214,6 @@ def spearman(x, y) -> float:
 
 # ----------------------------------------------------------------------------------- Fig. 4
 def fig4(out: Path) -> str:
-    from matplotlib.collections import LineCollection
 
     rng = np.random.default_rng(4)
     side, L, n, d_comms, t_window = 100.0, 200, 10, 10.0, 15.0
@@ -482,7 +483,6 @@ def time_decision_phase(phases: int = 30, seed: int = 0, **env_kwargs) -> dict[s
 
 # ----------------------------------------------------------------------------------- report
 def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
-    from mrcomm_env.experiments.evaluation import limit_threads
 
     limit_threads()
     out = Path(out_dir)
@@ -500,11 +500,7 @@ def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
         rows[scenario] = results[scenario]
         tables[scenario] = summarise(rows[scenario])
         plot_sweep(out, scenario, tables[scenario], rows[scenario])
-    all_rows = [r for scenario in SCENARIOS for r in rows[scenario]]
-    with atomic_open(out / "figs8_10_sweeps.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(all_rows[0]))
-        w.writeheader()
-        w.writerows(all_rows)
+    write_sweep_rows(out / "figs8_10_sweeps.csv", [r for scenario in SCENARIOS for r in rows[scenario]])
     claims = check_claims(tables, rows)
     timing = time_decision_phase(phases=pick(size, full=40, quick=10, tiny=2))
     atomic_write_json(
@@ -521,7 +517,11 @@ def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
         default=float,
     )
 
-    name = out.name
+    return report(out.name, size, fig4_md, fig6_md, tables, claims, timing)
+
+
+def report(name: str, size: str, fig4_md: str, fig6_md: str, tables: dict, claims: list[dict], timing: dict) -> str:
+    """The markdown section: Figs 4 and 6, the layouts, Figs 8–10 and the paper's statements, the timing."""
     lines = ["## RendezvousMapping-v0 — Chapman & Sukkarieh, decentralised mapping with limited connectivity", ""]
     if size == "quick":
         lines += [
@@ -574,6 +574,14 @@ def run(out_dir: Path, quick: bool, tiny: bool = False) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def write_sweep_rows(path: Path, rows: list[dict]) -> None:
+    """Every run of the Figs 8–10 sweeps, one CSV row each (atomically)."""
+    with atomic_open(path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
 
 
 def sweep_section(scenario: str, spec: dict, table: dict, name: str) -> list[str]:
