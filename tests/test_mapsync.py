@@ -602,3 +602,14 @@ def test_incremental_observation_and_infos_equal_a_full_recompute(monkeypatch, c
         env._stale, env._infos_key = 31, None  # forget every cache
         assert np.array_equal(np.stack(list(obs.values())), env._observe())
         assert infos == env._infos()
+
+
+@pytest.mark.parametrize("backend_name", ["numba", "numpy"])
+def test_stamps_past_two_to_the_31_steps_stay_step_numbers(backend_name, monkeypatch):
+    """max_cycles reaches 2^53: a stamp (the step a cell was sensed) must not wrap or overflow at step 2^31."""
+    monkeypatch.setenv("MRCOMM_BACKEND", backend_name)
+    env = MapSyncEnv(max_cycles=2**40)
+    env.reset(seed=0)
+    env.step_count = 2**31 + 5  # as if the episode had run that long
+    env.step({agent: IDLE for agent in env.agents})
+    assert env.stamps.max() == 2**31 + 6

@@ -40,25 +40,38 @@ bits per robot costs `lam`, the same as disagreeing on every cell. The per-step 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from collections import deque
 
 import numpy as np
 from gymnasium import spaces
 
-from mrcomm_env.core import BitLedger, MrcommParallelEnv, backend, bernoulli_links, disk_links
+from mrcomm_env.core import BitLedger, MrcommParallelEnv, backend
 from mrcomm_env.core import render as rendering
 from mrcomm_env.core.config import Bool, Choice, Int, Optional, Param, Real
-from mrcomm_env.mapsync import protocol as proto
 from mrcomm_env.mapsync import world
+from mrcomm_env.mapsync.dynamics import WorldDynamics
 from mrcomm_env.mapsync.philox import SharedStrings
-
-ACTIONS = ("idle", "equality", "bisection", "full", "sketch")
-IDLE, EQUALITY, BISECTION, FULL, SKETCH = range(5)
-TEST_NONE, TEST_SAME, TEST_DIFFERENT = -1, 1, 0  # last_test: Protocol 1's return values, −1 = no test yet
-_TEST_CODE = np.array([0.0, 1.0, 0.5])  # observation of last_test + 1: none 0, different 1, same ½
-# parts of the observation recomputed only after they change (the clock columns are updated every step)
-_STALE_NEW, _STALE_LINKS, _STALE_SESSIONS, _STALE_RECENT, _STALE_KNOWN = 1, 2, 4, 8, 16
-_STALE_ALL = 31
+from mrcomm_env.mapsync.sessions import (  # noqa: F401 — the action and test codes are part of this module's API
+    _STALE_ALL,
+    _STALE_KNOWN,
+    _STALE_LINKS,
+    _STALE_NEW,
+    _STALE_RECENT,
+    _STALE_SESSIONS,
+    _TEST_CODE,
+    ACTIONS,
+    BISECTION,
+    DETECTIONS_KEPT,
+    EQUALITY,
+    FULL,
+    IDLE,
+    SKETCH,
+    TEST_DIFFERENT,
+    TEST_NONE,
+    TEST_SAME,
+    Session,
+    SyncSessions,
+)
 
 
 def _kernels():
@@ -68,22 +81,7 @@ def _kernels():
     return kernels_numba
 
 
-@dataclass
-class Session:
-    """One sync between Alice (the requester) and Bob, in flight over their link."""
-
-    alice: int
-    bob: int
-    protocol: str
-    start_step: int
-    messages: list  #: [(sender, bits)] in the order they are sent
-    outcome: object  #: EqualityResult or Reconciliation, computed on the maps at the start
-    snapshot: dict = field(default_factory=dict)
-    sent: int = 0  #: bits delivered so far
-    total: int = 0
-
-
-class MapSyncEnv(MrcommParallelEnv):
+class MapSyncEnv(WorldDynamics, SyncSessions, MrcommParallelEnv):
     ENV_ID = "mrcomm/MapSync-v0"
     DESCRIPTION = (
         "When and how robots reconcile occupancy maps over a narrow channel (equality test, bisection, sketch)"
@@ -203,22 +201,22 @@ class MapSyncEnv(MrcommParallelEnv):
     }
     #: configurations at the documented maxima (``tests/test_limits.py``, ``mrcomm bench --limits``)
     MEMORY_FORMULA = (
-        "2 MiB + 450·n + 12·N·n for n = `grid_size`² cells and N = `n_robots` (the world and Protocol 1's per-cell "
+        "2 MiB + 450·n + 16·N·n for n = `grid_size`² cells and N = `n_robots` (the world and Protocol 1's per-cell "
         "work, every robot's map and stamps), + 90·n² with `explicit_database` (Protocol 1's 100n strings of n "
         "bits). Nothing grows with `max_cycles`"
     )
     MEMORY_ARGS = ("grid_size", "n_robots", "explicit_database")
     MEMORY_PROBES = {
         "map_181x181": {"grid_size": 181, "max_cycles": 3},
-        "map_256x256_64_robots": {"grid_size": 256, "n_robots": 64, "max_cycles": 3},
         "explicit_database_32x32": {"grid_size": 32, "explicit_database": True, "max_cycles": 3},
+        "map_256x256_64_robots": {"grid_size": 256, "n_robots": 64, "max_cycles": 3},
     }
 
     @classmethod
     def memory_estimate(cls, cfg) -> float:
         cells = float(cfg.grid_size) ** 2
         database = 90.0 * cells * cells if cfg.explicit_database else 0.0
-        return 2.0 * 2**20 + 450.0 * cells + 12.0 * cfg.n_robots * cells + database
+        return 2.0 * 2**20 + 450.0 * cells + 16.0 * cfg.n_robots * cells + database
 
     LIMIT_CONFIGS = {
         "largest_team_and_map": {
@@ -345,7 +343,9 @@ class MapSyncEnv(MrcommParallelEnv):
             self.pos = rng.choice(free, size=N, replace=free.size < N).astype(np.int64)
         self.truth = truth
         self.maps = np.zeros((N, n), dtype=bool)
-        self.stamps = np.full((N, n), -1, dtype=np.int32)
+        # int64: a stamp is a step number, up to max_cycles ≤ 2^53 (int32 would overflow at step 2^31: the numpy
+        # path raises OverflowError, the compiled one wraps to negative stamps, read as "never observed")
+        self.stamps = np.full((N, n), -1, dtype=np.int64)
         self._make_views()
         self.last_sync = np.zeros((N, N), dtype=np.int64)  # step at which each pair's maps were last made equal
         self._last_sync_peers = np.zeros((N, N - 1), dtype=np.int64)  # last_sync in observation order
@@ -374,9 +374,12 @@ class MapSyncEnv(MrcommParallelEnv):
         self._counts = dict.fromkeys(("syncs", "false_equal", "equality_tests", "detections", "aborted_syncs"), 0)
         self._corrected = 0
         self._to_correct = 0
-        self._latencies: list[int] = []
-        #: (step, alice, bob, protocol) of every equality test that found a difference (Fig. 7's list)
-        self.detections: list[tuple[int, int, int, str]] = []
+        # sync latencies as a running sum and count (a list of every one would grow with the episode)
+        self._latency_sum = 0
+        self._latency_count = 0
+        #: (step, alice, bob, protocol) of the equality tests that found a difference (Fig. 7's list), the most recent
+        #: DETECTIONS_KEPT of them
+        self.detections: deque[tuple[int, int, int, str]] = deque(maxlen=DETECTIONS_KEPT)
         self.known = np.zeros(N, dtype=np.int64)
         self._events = 0  # counts changes of anything the observation shows besides the clock
         self._stale = _STALE_ALL  # which parts of the observation must be recomputed
@@ -431,251 +434,6 @@ class MapSyncEnv(MrcommParallelEnv):
         self._sum_error += self._error_mean
         return -self._disagreement_mean - self.cfg.lam * team_bits / self._bit_scale
 
-    def _links(self) -> None:
-        c, N = self.cfg, self.n_agents
-        if self._static_links:
-            return
-        if c.comm_range is None:
-            adj = ~self._eye
-        else:
-            ys, xs = np.divmod(self.pos, self.size)
-            adj = disk_links(np.column_stack([xs, ys]).astype(np.float64), c.comm_range)
-        if c.link_prob < 1.0:
-            adj = adj & bernoulli_links(self.np_random, N, c.link_prob)
-        self.linked = adj
-
-    def _change_world(self) -> None:
-        c, rng, truth = self.cfg, self.np_random, self.truth
-        occupied = np.zeros(self.n, dtype=bool)
-        occupied[self.pos] = True
-        appear = (~truth) & (~occupied) & (rng.random(self.n) < c.appear_rate)
-        vanish = truth & (rng.random(self.n) < c.vanish_rate)
-        truth[appear] = True
-        truth[vanish] = False
-
-    def _move_and_sense(self, stamp: int, walk: bool) -> None:
-        """Every robot moves one step (when ``walk``), then senses its cell and the 4-neighbours (§V-C)."""
-        if self._walk_and_sense is None:
-            if walk:
-                self.pos = world.random_walk(self.np_random, self.pos, self._neighbours, self.truth)
-            self._sense(stamp)
-            return
-        keys = self.np_random.random((self.n_agents, 4)) if walk else self._no_keys  # as random_walk draws them
-        self.pos, flags = self._walk_and_sense(
-            walk,
-            keys,
-            self.pos,
-            self._neighbour_table,
-            self.truth,
-            self._sensed,
-            self._sensed_distinct,
-            self.maps,
-            self.stamps,
-            self.known,
-            self.new_cells,
-            stamp,
-        )
-        if flags & 1:  # as _sense: a cell observed for the first time
-            self._events += 1
-            self._stale |= _STALE_KNOWN
-        if flags & 2:  # a bit of a map changed
-            self._dirty = True
-            self._events += 1
-            self._stale |= _STALE_NEW
-
-    def _sense(self, stamp: int) -> None:
-        """Numpy reference of the sensing (compiled twin: ``kernels_numba.walk_and_sense``)."""
-        cells = self._sensed.take(self.pos, axis=0)  # (N, 5): off-grid neighbours repeat the own cell
-        flat = cells + self._row_offsets  # into the flattened (N, n) maps and stamps
-        seen = self.truth.take(cells)
-        maps, stamps = self._maps_flat, self._stamps_flat
-        changed = maps.take(flat) != seen
-        before = stamps.take(flat)
-        if before.min() < 0:  # a cell never observed before
-            unseen = before < 0
-            self.known += np.count_nonzero(unseen & self._sensed_distinct.take(self.pos, axis=0), axis=1)
-            self._events += 1
-            self._stale |= _STALE_KNOWN
-        if changed.any():
-            # own sensing changed these cells: new since the last sync with every peer
-            self.new_cells += np.count_nonzero(changed & self._sensed_distinct.take(self.pos, axis=0), axis=1)[:, None]
-            np.fill_diagonal(self.new_cells, 0)
-            maps.put(flat, seen)
-            self._dirty = True
-            self._events += 1
-            self._stale |= _STALE_NEW
-        stamps.put(flat, stamp)
-
-    def _update_disagreement(self) -> None:
-        if not self._dirty:
-            return
-        self._dirty = False
-        self._map_version += 1
-        maps = self.maps.astype(np.float64)
-        ones = maps.sum(axis=1)
-        ham = (ones[:, None] + ones[None, :] - 2.0 * (maps @ maps.T)) / self.n
-        self._hamming = ham
-        self._disagreement_column = ham.sum(axis=1) / (self.n_agents - 1)
-        pairs = ham[self._pairs]
-        self._disagreement_mean = float(pairs.sum()) / pairs.size  # what .mean() computes, without its overhead
-        self._errors = (self.maps != self.truth).sum(axis=1) / self.n
-        self._error_mean = float(self._errors.sum()) / self.n_agents
-
-    # ----------------------------------------------------------------- syncs
-    def _choose_peer(self, i: int) -> int:
-        free = self.session_of < 0
-        best, best_age = -1, -(2**62)
-        for j in self._peer_order[i].tolist():
-            if free[j] and self.linked[i, j] and -self.last_sync[i, j] > best_age:
-                best, best_age = j, int(-self.last_sync[i, j])
-        return best
-
-    def _start_sessions(self, actions: list, t: int) -> None:
-        for i, act in enumerate(actions):
-            if act == IDLE or self.session_of[i] >= 0:
-                continue
-            j = self._choose_peer(i)
-            if j < 0:
-                continue
-            # both ends asking: j's request is served by this one sync (j is busy from now on)
-            self._open_session(i, j, ACTIONS[act], t)
-
-    def _open_session(self, a: int, b: int, name: str, t: int) -> None:
-        x, y = self.maps[a], self.maps[b]
-        nonce = self._next_session
-        self._next_session += 1
-        if name == "equality":
-            outcome = proto.equality(x, y, self.strings, self.cfg.k, self.np_random)
-            messages = [(a, outcome.alice_bits), (b, outcome.bob_bits)]
-            snapshot = {"differ": bool((x != y).any())}
-        else:
-            if name == "bisection":
-                outcome = proto.bisection(x, y, self.strings, self.cfg.k, self.cfg.res, self.np_random)
-                messages = [(a if who == "alice" else b, bits) for who, bits in outcome.extra["messages"]]
-            elif name == "full":
-                outcome = proto.full(x, y)
-                messages = [(a, outcome.alice_bits)]
-            else:
-                outcome = proto.sketch(x, y, self.sketch_seed, nonce)
-                messages = [(a, outcome.alice_bits), (b, outcome.bob_bits)]
-            found = outcome.found
-            messages.append((b, proto.return_bits(outcome.candidates, found.size)))
-            if self._lww and found.size:
-                messages += [(b, found.size * self._stamp_bits), (a, found.size * self._stamp_bits)]
-            snapshot = {"found": found, "differ": int(np.count_nonzero(x != y)), "right": 0}
-            if found.size:  # what each sent about the found cells (nothing to merge otherwise, see _merge)
-                snapshot["x"], snapshot["y"] = x[found], y[found]  # fancy indexing copies
-                snapshot["sa"], snapshot["sb"] = self.stamps[a][found], self.stamps[b][found]
-                snapshot["right"] = int(np.count_nonzero(snapshot["x"] != snapshot["y"]))
-        messages = [(who, int(bits)) for who, bits in messages if bits > 0]
-        session = Session(a, b, name, t, messages, outcome, snapshot, 0, sum(bits for _, bits in messages))
-        self.sessions[nonce] = session
-        self.session_of[a] = self.session_of[b] = nonce
-        self._busy_column = (self.session_of >= 0).astype(np.float64)
-        self._events += 1
-        self._stale |= _STALE_SESSIONS
-
-    def _progress_sessions(self, t: int) -> None:
-        cap = self.cfg.bits_per_step
-        for key in list(self.sessions):
-            s = self.sessions[key]
-            if not self.linked[s.alice, s.bob]:
-                self._close(key)
-                self._counts["aborted_syncs"] += 1
-                continue
-            budget = s.total - s.sent if cap is None else min(cap, s.total - s.sent)
-            self._deliver(s, budget)
-            if s.sent >= s.total:
-                self._complete(s, t)
-                self._close(key)
-
-    def _deliver(self, s: Session, budget: int) -> None:
-        """Charge the next ``budget`` bits of the transcript to their senders, in order."""
-        done = 0
-        charged: dict[int, list[int]] = {}  # sender → [bits, messages]: one ledger entry per sender
-        for who, bits in s.messages:
-            if budget <= 0:
-                break
-            if done + bits <= s.sent:
-                done += bits
-                continue
-            part = min(bits - max(0, s.sent - done), budget)
-            entry = charged.setdefault(who, [0, 0])
-            entry[0] += part
-            entry[1] += 1
-            s.sent += part
-            budget -= part
-            done += bits
-        for who, (bits, messages) in charged.items():  # whole bits: the float sums are exact in any grouping
-            self.ledger.add(who, bits, messages=messages)
-            self._charged = True
-
-    def _close(self, key: int) -> None:
-        s = self.sessions.pop(key)
-        self.session_of[s.alice] = self.session_of[s.bob] = -1
-        self._busy_column = (self.session_of >= 0).astype(np.float64)
-        self._events += 1
-        self._stale |= _STALE_SESSIONS | _STALE_NEW | _STALE_KNOWN
-
-    def _complete(self, s: Session, t: int) -> None:
-        a, b = s.alice, s.bob
-        self._counts["syncs"] += 1
-        self.robot_syncs[a] += 1  # a ≠ b
-        self.robot_syncs[b] += 1
-        self._syncs_column = self.robot_syncs.copy()
-        self._latencies.append(t - s.start_step + 1)
-        synced = True
-        if s.protocol == "equality":
-            synced = self._verdict(s, s.outcome.equal)
-        else:
-            if s.protocol == "bisection":
-                self._verdict(s, not s.outcome.detected)
-            self._merge(s)
-            self._to_correct += s.snapshot["differ"]
-            self._corrected += s.snapshot["right"]
-        if synced:
-            for i, j in ((a, b), (b, a)):
-                self.last_sync[i, j] = t + 1
-                self.new_cells[i, j] = 0
-            self._last_sync_peers = self.last_sync.take(self._peer_flat)
-
-    def _verdict(self, s: Session, equal: bool) -> bool:
-        a, b = s.alice, s.bob
-        self._counts["equality_tests"] += 1
-        if equal and s.snapshot["differ"]:
-            self._counts["false_equal"] += 1
-        if not equal:
-            self._counts["detections"] += 1
-            self.detections.append((s.start_step, a, b, s.protocol))
-        self.last_test[a, b] = self.last_test[b, a] = TEST_SAME if equal else TEST_DIFFERENT
-        return equal
-
-    def _merge(self, s: Session) -> None:
-        """Last-writer-wins on the cells Bob found (OR when nothing vanishes), into the maps as they are now.
-
-        Each robot believes the other holds the opposite bit on every found cell (true unless a sketch was
-        wrongly accepted); it adopts that bit where the other's stamp is newer than its own current stamp.
-        """
-        snap = s.snapshot
-        found = snap["found"]
-        if found.size == 0:
-            return
-        for me, other_bit, other_stamp in ((s.alice, ~snap["x"], snap["sb"]), (s.bob, ~snap["y"], snap["sa"])):
-            my_map, my_stamps = self.maps[me], self.stamps[me]  # row views: 1-d indexing below
-            if self._lww:
-                adopt = other_stamp > my_stamps[found]
-            else:  # only appearances: a 1 is never stale, so the merge is OR
-                adopt = other_bit & ~my_map[found]
-            cells = found[adopt]
-            if cells.size == 0:
-                continue
-            stamps_now = my_stamps[cells]
-            self.known[me] += int(np.count_nonzero(stamps_now < 0))
-            my_map[cells] = other_bit[adopt]
-            my_stamps[cells] = np.maximum(stamps_now, other_stamp[adopt])
-        self._dirty = True
-
-    # ----------------------------------------------------------------- views
     def steps_since(self) -> np.ndarray:
         """(N, N) steps since each pair's maps were last made equal (own entry 0)."""
         out = self.step_count - self.last_sync
@@ -777,7 +535,8 @@ class MapSyncEnv(MrcommParallelEnv):
         }
         out.update({k: float(v) for k, v in self._counts.items()})
         out["corrected_fraction"] = self._corrected / self._to_correct if self._to_correct else math.nan
-        out["sync_latency_steps"] = float(np.mean(self._latencies)) if self._latencies else math.nan
+        # whole numbers: the sum is exact, and the quotient is the mean np.mean gave of the list once kept
+        out["sync_latency_steps"] = self._latency_sum / self._latency_count if self._latency_count else math.nan
         out["coverage"] = float(self.known.mean() / self.n)
         return out
 

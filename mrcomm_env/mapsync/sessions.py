@@ -1,0 +1,240 @@
+"""MapSync's sync protocol as a state machine over the links: a robot's action opens a session with a peer
+(Protocol 1's equality test, Algorithm 1's bisection, a full map, or a PinSketch), the session's messages cross
+the link at its bit budget over the following steps, and when the last one arrives the maps are merged (or the
+equality test's verdict recorded). Bits are charged to each sender through the env's ``BitLedger``.
+
+A mixin of :class:`mrcomm_env.mapsync.env.MapSyncEnv`, which owns the state; the attributes it reads and writes
+are declared below.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from mrcomm_env.mapsync import protocol as proto
+
+ACTIONS = ("idle", "equality", "bisection", "full", "sketch")
+IDLE, EQUALITY, BISECTION, FULL, SKETCH = range(5)
+#: detections kept in ``MapSyncEnv.detections`` (the most recent; ``metrics()["detections"]`` counts them all): a
+#: list of every one would grow with the episode without bound
+DETECTIONS_KEPT = 10_000
+TEST_NONE, TEST_SAME, TEST_DIFFERENT = -1, 1, 0  # last_test: Protocol 1's return values, −1 = no test yet
+_TEST_CODE = np.array([0.0, 1.0, 0.5])  # observation of last_test + 1: none 0, different 1, same ½
+# parts of the observation recomputed only after they change (the clock columns are updated every step)
+_STALE_NEW, _STALE_LINKS, _STALE_SESSIONS, _STALE_RECENT, _STALE_KNOWN = 1, 2, 4, 8, 16
+_STALE_ALL = 31
+
+
+@dataclass
+class Session:
+    """One sync between Alice (the requester) and Bob, in flight over their link."""
+
+    alice: int
+    bob: int
+    protocol: str
+    start_step: int
+    messages: list  #: [(sender, bits)] in the order they are sent
+    outcome: Any  #: EqualityResult or Reconciliation, computed on the maps at the start
+    snapshot: dict[str, Any] = field(default_factory=dict)
+    sent: int = 0  #: bits delivered so far
+    total: int = 0
+
+
+class SyncSessions:
+    """Opening, carrying and closing sync sessions, and merging maps at their end."""
+
+    _busy_column: Any
+    _charged: Any
+    _corrected: Any
+    _counts: Any
+    _dirty: Any
+    _events: Any
+    _last_sync_peers: Any
+    _latency_sum: Any
+    _latency_count: Any
+    _lww: Any
+    _next_session: Any
+    _peer_flat: Any
+    _peer_order: Any
+    _stale: Any
+    _stamp_bits: Any
+    _syncs_column: Any
+    _to_correct: Any
+    cfg: Any
+    detections: Any
+    known: Any
+    last_sync: Any
+    last_test: Any
+    ledger: Any
+    linked: Any
+    maps: Any
+    new_cells: Any
+    np_random: Any
+    robot_syncs: Any
+    session_of: Any
+    sessions: Any
+    sketch_seed: Any
+    stamps: Any
+    strings: Any
+
+    # ----------------------------------------------------------------- syncs
+    def _choose_peer(self, i: int) -> int:
+        free = self.session_of < 0
+        best, best_age = -1, -(2**62)
+        for j in self._peer_order[i].tolist():
+            if free[j] and self.linked[i, j] and -self.last_sync[i, j] > best_age:
+                best, best_age = j, int(-self.last_sync[i, j])
+        return best
+
+    def _start_sessions(self, actions: list, t: int) -> None:
+        for i, act in enumerate(actions):
+            if act == IDLE or self.session_of[i] >= 0:
+                continue
+            j = self._choose_peer(i)
+            if j < 0:
+                continue
+            # both ends asking: j's request is served by this one sync (j is busy from now on)
+            self._open_session(i, j, ACTIONS[act], t)
+
+    def _open_session(self, a: int, b: int, name: str, t: int) -> None:
+        x, y = self.maps[a], self.maps[b]
+        nonce = self._next_session
+        self._next_session += 1
+        outcome: Any  # EqualityResult (equality) or Reconciliation (the others)
+        snapshot: dict[str, Any]
+        if name == "equality":
+            outcome = proto.equality(x, y, self.strings, self.cfg.k, self.np_random)
+            messages = [(a, outcome.alice_bits), (b, outcome.bob_bits)]
+            snapshot = {"differ": bool((x != y).any())}
+        else:
+            if name == "bisection":
+                outcome = proto.bisection(x, y, self.strings, self.cfg.k, self.cfg.res, self.np_random)
+                messages = [(a if who == "alice" else b, bits) for who, bits in outcome.extra["messages"]]
+            elif name == "full":
+                outcome = proto.full(x, y)
+                messages = [(a, outcome.alice_bits)]
+            else:
+                outcome = proto.sketch(x, y, self.sketch_seed, nonce)
+                messages = [(a, outcome.alice_bits), (b, outcome.bob_bits)]
+            found = outcome.found
+            messages.append((b, proto.return_bits(outcome.candidates, found.size)))
+            if self._lww and found.size:
+                messages += [(b, found.size * self._stamp_bits), (a, found.size * self._stamp_bits)]
+            snapshot = {"found": found, "differ": int(np.count_nonzero(x != y)), "right": 0}
+            if found.size:  # what each sent about the found cells (nothing to merge otherwise, see _merge)
+                snapshot["x"], snapshot["y"] = x[found], y[found]  # fancy indexing copies
+                snapshot["sa"], snapshot["sb"] = self.stamps[a][found], self.stamps[b][found]
+                snapshot["right"] = int(np.count_nonzero(snapshot["x"] != snapshot["y"]))
+        messages = [(who, int(bits)) for who, bits in messages if bits > 0]
+        session = Session(a, b, name, t, messages, outcome, snapshot, 0, sum(bits for _, bits in messages))
+        self.sessions[nonce] = session
+        self.session_of[a] = self.session_of[b] = nonce
+        self._busy_column = (self.session_of >= 0).astype(np.float64)
+        self._events += 1
+        self._stale |= _STALE_SESSIONS
+
+    def _progress_sessions(self, t: int) -> None:
+        cap = self.cfg.bits_per_step
+        for key in list(self.sessions):
+            s = self.sessions[key]
+            if not self.linked[s.alice, s.bob]:
+                self._close(key)
+                self._counts["aborted_syncs"] += 1
+                continue
+            budget = s.total - s.sent if cap is None else min(cap, s.total - s.sent)
+            self._deliver(s, budget)
+            if s.sent >= s.total:
+                self._complete(s, t)
+                self._close(key)
+
+    def _deliver(self, s: Session, budget: int) -> None:
+        """Charge the next ``budget`` bits of the transcript to their senders, in order."""
+        done = 0
+        charged: dict[int, list[int]] = {}  # sender → [bits, messages]: one ledger entry per sender
+        for who, bits in s.messages:
+            if budget <= 0:
+                break
+            if done + bits <= s.sent:
+                done += bits
+                continue
+            part = min(bits - max(0, s.sent - done), budget)
+            entry = charged.setdefault(who, [0, 0])
+            entry[0] += part
+            entry[1] += 1
+            s.sent += part
+            budget -= part
+            done += bits
+        for who, (bits, messages) in charged.items():  # whole bits: the float sums are exact in any grouping
+            self.ledger.add(who, bits, messages=messages)
+            self._charged = True
+
+    def _close(self, key: int) -> None:
+        s = self.sessions.pop(key)
+        self.session_of[s.alice] = self.session_of[s.bob] = -1
+        self._busy_column = (self.session_of >= 0).astype(np.float64)
+        self._events += 1
+        self._stale |= _STALE_SESSIONS | _STALE_NEW | _STALE_KNOWN
+
+    def _complete(self, s: Session, t: int) -> None:
+        a, b = s.alice, s.bob
+        self._counts["syncs"] += 1
+        self.robot_syncs[a] += 1  # a ≠ b
+        self.robot_syncs[b] += 1
+        self._syncs_column = self.robot_syncs.copy()
+        self._latency_sum += t - s.start_step + 1
+        self._latency_count += 1
+        synced = True
+        if s.protocol == "equality":
+            synced = self._verdict(s, s.outcome.equal)
+        else:
+            if s.protocol == "bisection":
+                self._verdict(s, not s.outcome.detected)
+            self._merge(s)
+            self._to_correct += s.snapshot["differ"]
+            self._corrected += s.snapshot["right"]
+        if synced:
+            for i, j in ((a, b), (b, a)):
+                self.last_sync[i, j] = t + 1
+                self.new_cells[i, j] = 0
+            self._last_sync_peers = self.last_sync.take(self._peer_flat)
+
+    def _verdict(self, s: Session, equal: bool) -> bool:
+        a, b = s.alice, s.bob
+        self._counts["equality_tests"] += 1
+        if equal and s.snapshot["differ"]:
+            self._counts["false_equal"] += 1
+        if not equal:
+            self._counts["detections"] += 1
+            self.detections.append((s.start_step, a, b, s.protocol))
+        self.last_test[a, b] = self.last_test[b, a] = TEST_SAME if equal else TEST_DIFFERENT
+        return equal
+
+    def _merge(self, s: Session) -> None:
+        """Last-writer-wins on the cells Bob found (OR when nothing vanishes), into the maps as they are now.
+
+        Each robot believes the other holds the opposite bit on every found cell (true unless a sketch was
+        wrongly accepted); it adopts that bit where the other's stamp is newer than its own current stamp.
+        """
+        snap = s.snapshot
+        found = snap["found"]
+        if found.size == 0:
+            return
+        for me, other_bit, other_stamp in ((s.alice, ~snap["x"], snap["sb"]), (s.bob, ~snap["y"], snap["sa"])):
+            my_map, my_stamps = self.maps[me], self.stamps[me]  # row views: 1-d indexing below
+            if self._lww:
+                adopt = other_stamp > my_stamps[found]
+            else:  # only appearances: a 1 is never stale, so the merge is OR
+                adopt = other_bit & ~my_map[found]
+            cells = found[adopt]
+            if cells.size == 0:
+                continue
+            stamps_now = my_stamps[cells]
+            self.known[me] += int(np.count_nonzero(stamps_now < 0))
+            my_map[cells] = other_bit[adopt]
+            my_stamps[cells] = np.maximum(stamps_now, other_stamp[adopt])
+        self._dirty = True
+
+    # ----------------------------------------------------------------- views
