@@ -29,7 +29,7 @@ from mrcomm_env.registry import make
 #: rollouts per DAgger round, rounds, and passes over the gathered data after each round
 EPISODES_PER_ROUND = 8
 ROUNDS = 4
-EPOCHS = 25
+EPOCHS = 8
 BATCH = 512
 
 

@@ -1,0 +1,91 @@
+"""Warm start (``mrcomm train --init-from baseline:NAME``): the cloned policy takes the teacher's decisions."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from stable_baselines3 import PPO
+from test_adding_an_environment import ENTRY, ENV_ID
+
+from mrcomm_agents.training import make_training_env
+from mrcomm_agents.warm_start import clone
+from mrcomm_env.core.policy import Policy
+from mrcomm_env.experiments.cli import main
+from mrcomm_env.registry import register, unregister
+
+torch.set_num_threads(1)
+
+
+class BroadcastWhenBehind(Policy):
+    """Broadcast exactly when the robot knows no more of the tokens than the team on average: a decision
+    that is a function of the observation (own share, team share), so a policy can learn it exactly."""
+
+    name = "broadcast_when_behind"
+
+    def act(self, observations, views):
+        return {agent: int(obs[0] <= obs[1]) for agent, obs in observations.items()}
+
+
+@pytest.fixture
+def gossip():
+    register(ENV_ID, ENTRY)
+    try:
+        yield ENV_ID
+    finally:
+        unregister(ENV_ID)
+
+
+def _agreement(model, venv, teacher, env_id, seeds) -> float:
+    from mrcomm_env.registry import make
+
+    agree = total = 0
+    for seed in seeds:
+        env = make(env_id, n_robots=8, p_link=0.3)
+        observations, _ = env.reset(seed=seed)
+        teacher.reset(env.local_views(), seed)
+        while env.agents:
+            agents = list(observations)
+            obs = np.stack([observations[a] for a in agents])
+            chosen, _ = model.predict(venv.normalize_obs(obs), deterministic=True)
+            labels = teacher.act(observations, env.local_views())
+            agree += sum(int(chosen[i]) == labels[a] for i, a in enumerate(agents))
+            total += len(agents)
+            observations, *_ = env.step(labels)
+    return agree / total
+
+
+def test_cloning_takes_the_teachers_decisions_on_held_out_episodes(gossip):
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from mrcomm_agents.training import TrainConfig
+
+    config = TrainConfig(env_id=gossip, env_kwargs={"n_robots": 8, "p_link": 0.3}, n_envs=1, seed=0)
+    venv = VecNormalize(make_training_env(config, 0), norm_obs=True, norm_reward=True)
+    model = PPO("MlpPolicy", venv, seed=0, device="cpu", n_steps=32, policy_kwargs={"net_arch": [32, 32]})
+    teacher = BroadcastWhenBehind()
+    before = _agreement(model, venv, teacher, gossip, seeds=[900, 901])
+    report = clone(model, venv, teacher, gossip, config.env_kwargs, seed=0)
+    after = _agreement(model, venv, teacher, gossip, seeds=[900, 901])
+    assert report.agreement[0] == 1.0  # round 0 rolls out the teacher itself
+    assert report.samples > 0 and after >= 0.95 and after > before, (before, after, report)
+
+
+def test_init_from_names_a_baseline_or_is_refused_before_any_work(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["train", "MultiHop-v0", "--init-from", "baseline:nope", "--timesteps", "10", "--out", str(out)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "init_from" in err and "age_aware" in err and not out.exists()
+
+
+def test_a_warm_started_run_records_its_teacher(tmp_path):
+    out = tmp_path / "run"
+    argv = ["train", "ChannelAssociation-v0", "--init-from", "baseline:id_bits", "--timesteps", "64", "--quiet"]
+    argv += ["--param", "max_cycles=8", "--out", str(out)]
+    assert main(argv) == 0
+    record = json.loads((out / "warm_start.json").read_text())
+    assert record["teacher"] == "baseline:id_bits" and record["samples"] > 0
+    assert json.loads((out / "config.json").read_text())["init_from"] == "baseline:id_bits"
