@@ -197,7 +197,6 @@ def summarise(rows: list[dict]) -> dict:
                     "final_info": float(np.median([r["final_info_fraction"] for r in rs])),
                     "union_info": float(np.median([r["union_info_fraction"] for r in rs])),
                     "connected": float(np.median([r["connected_fraction"] for r in rs])),
-                    "ended_connected": int(sum(r["connected_fraction"] > 0 for r in rs)),
                     "n": len(rs),
                 }
             )
