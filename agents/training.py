@@ -37,11 +37,12 @@ from typing import Any
 
 import numpy as np
 import torch
-from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.logger import CSVOutputFormat, Logger, make_output_format
 from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 from tqdm.auto import tqdm
 
+from mrcomm_agents.heldout import HeldOutEvaluation
 from mrcomm_agents.policies import CandidatePolicy
 from mrcomm_agents.vecenv import AgentSlotVecEnv
 from mrcomm_agents.warm_start import clone
@@ -57,7 +58,17 @@ ALGORITHMS = {
     "dqn": ("stable_baselines3", "DQN"),
 }
 #: arguments of ``train`` that are not the algorithm's own hyperparameters
-RUN_KEYS = ("n_envs", "normalize", "checkpoint_every", "net_arch", "policy", "init_from")
+RUN_KEYS = (
+    "n_envs",
+    "normalize",
+    "checkpoint_every",
+    "net_arch",
+    "policy",
+    "init_from",
+    "eval_every",
+    "eval_episodes",
+    "eval_deterministic",
+)
 #: the documented ranges of the SB3 hyperparameters (a value outside is refused before any training)
 HYPERPARAMETER_RANGES = {
     "learning_rate": Real(0.0, lo_open=True),
@@ -110,6 +121,11 @@ class TrainConfig:
     #: ``baseline:NAME``: clone that scripted policy's decisions before PPO (``agents/warm_start.py``); the caller
     #: passes the policy itself to :func:`train` as ``teacher``
     init_from: str | None = None
+    #: held-out evaluation while training (``agents/heldout.py``): every ``eval_every`` agent-steps (0: only at
+    #: the end), ``eval_episodes`` episodes (0: none), the policy acting deterministically or not
+    eval_every: int = 50_000
+    eval_episodes: int = 2
+    eval_deterministic: bool = True
 
     def validate(self) -> TrainConfig:
         self.env_id = canonical_id(self.env_id)
@@ -119,8 +135,12 @@ class TrainConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"argument '{name}' must be an integer ≥ 1, got {value!r}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise ValueError(f"argument 'seed' must be an integer ≥ 0, got {self.seed!r}")
+        for name in ("seed", "eval_every", "eval_episodes"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"argument '{name}' must be an integer ≥ 0, got {value!r}")
+        if not isinstance(self.eval_deterministic, bool):
+            raise ValueError(f"argument 'eval_deterministic' must be true or false, got {self.eval_deterministic!r}")
         if self.init_from is not None and not (
             isinstance(self.init_from, str) and self.init_from.startswith("baseline:")
         ):
@@ -345,9 +365,15 @@ def _train_locked(config: TrainConfig, out: Path, resume: bool, progress: bool, 
         _save_checkpoint(m, config, ckpt)
 
     bar = _Progress(config.timesteps, done_steps, config.checkpoint_every, save, progress)
+    callbacks: list[BaseCallback] = [bar.callback]
+    if config.eval_episodes:
+        every = config.eval_every or config.timesteps + 1
+        callbacks.append(
+            HeldOutEvaluation(config.env_id, config.env_kwargs, every, config.eval_episodes, config.eval_deterministic)
+        )
     remaining = config.timesteps - done_steps
     try:
-        model.learn(total_timesteps=remaining, callback=bar.callback, reset_num_timesteps=not resume)
+        model.learn(total_timesteps=remaining, callback=CallbackList(callbacks), reset_num_timesteps=not resume)
     except KeyboardInterrupt:
         # an interrupted run resumes from the start of the rollout it was collecting: those steps were not
         # trained on yet, so they are not counted

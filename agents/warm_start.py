@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from stable_baselines3.common.vec_env import VecNormalize
 
+from mrcomm_agents.heldout import normalized, uses_masks
 from mrcomm_env.core.policy import Policy
 from mrcomm_env.registry import make
 
@@ -47,33 +48,32 @@ class CloneReport:
         return {"samples": self.samples, "agreement": self.agreement, "seconds": self.seconds}
 
 
-def _normalized(venv, observations: np.ndarray) -> np.ndarray:
-    """The observations as the policy sees them in training (VecNormalize's running statistics, when on)."""
-    if isinstance(venv, VecNormalize):
-        return np.asarray(venv.normalize_obs(observations))
-    return observations
-
-
 def _rollout(model, venv, teacher: Policy, env_id: str, env_kwargs: dict, seed: int, learner_acts: bool):
-    """One episode: (observations, teacher actions, executed actions, rewards) per step, agents stacked."""
+    """One episode: (observations, teacher actions, executed actions, rewards, action masks or None) per step,
+    agents stacked."""
     env = make(env_id, **env_kwargs)
     observations, _ = env.reset(seed=seed)
     views = env.local_views()
     teacher.reset(views, seed)
+    masked = uses_masks(model) and callable(getattr(env, "action_masks", None))
     steps = []
     while env.agents:
         agents = list(observations)
         obs = np.stack([observations[a] for a in agents]).astype(np.float32)
+        masks = np.asarray(env.action_masks(), dtype=bool) if masked else None
         labels = teacher.act(observations, views)
         label_array = np.stack([np.asarray(labels[a]) for a in agents])
+        if masks is not None:  # an action the teacher takes is one it can take: never a log-probability of −∞
+            masks[np.arange(len(agents)), label_array.astype(np.int64)] = True
         if learner_acts:
-            chosen, _ = model.predict(_normalized(venv, obs), deterministic=False)
+            extra = {"action_masks": masks} if masks is not None else {}
+            chosen, _ = model.predict(normalized(venv, obs), deterministic=False, **extra)
             actions = {a: chosen[i] for i, a in enumerate(agents)}
         else:
             actions = labels
         executed = np.stack([np.asarray(actions[a]) for a in agents])
         observations, rewards, _, _, _ = env.step(actions)
-        steps.append((obs, label_array, executed, np.array([rewards[a] for a in agents], dtype=np.float64)))
+        steps.append((obs, label_array, executed, np.array([rewards[a] for a in agents], dtype=np.float64), masks))
     env.close()
     return steps
 
@@ -97,7 +97,7 @@ def clone(model, venv, teacher: Policy, env_id: str, env_kwargs: dict, seed: int
     gamma = float(model.gamma)
     optimizer = torch.optim.Adam(policy.parameters(), lr=1e-3)
     rng = np.random.default_rng(seed)
-    data_obs, data_act, data_ret = [], [], []
+    data_obs, data_act, data_ret, data_mask = [], [], [], []
     agreement = []
     for round_index in range(ROUNDS):
         agree = total = 0
@@ -116,13 +116,16 @@ def clone(model, venv, teacher: Policy, env_id: str, env_kwargs: dict, seed: int
             data_obs.append(obs)
             data_act.append(labels)
             data_ret.append(returns)
+            if steps[0][4] is not None:
+                data_mask.append(np.concatenate([s[4] for s in steps]))
         agreement.append(agree / max(total, 1))
-        _fit(policy, optimizer, venv, data_obs, data_act, data_ret, rng)
+        _fit(policy, optimizer, venv, data_obs, data_act, data_ret, data_mask, rng)
     return CloneReport(sum(len(o) for o in data_obs), agreement, time.perf_counter() - start)
 
 
-def _fit(policy, optimizer, venv, data_obs, data_act, data_ret, rng) -> None:
-    obs = _normalized(venv, np.concatenate(data_obs))
+def _fit(policy, optimizer, venv, data_obs, data_act, data_ret, data_mask, rng) -> None:
+    obs = normalized(venv, np.concatenate(data_obs))
+    masks = np.concatenate(data_mask) if data_mask else None
     actions = np.concatenate(data_act)
     returns = np.concatenate(data_ret)
     if isinstance(venv, VecNormalize):  # the critic learns returns in the units VecNormalize gives rewards
@@ -135,7 +138,10 @@ def _fit(policy, optimizer, venv, data_obs, data_act, data_ret, rng) -> None:
         order = rng.permutation(len(obs))
         for lo in range(0, len(order), BATCH):
             idx = torch.as_tensor(order[lo : lo + BATCH])
-            values, log_prob, _ = policy.evaluate_actions(obs_t[idx], act_t[idx])
+            if masks is None:
+                values, log_prob, _ = policy.evaluate_actions(obs_t[idx], act_t[idx])
+            else:
+                values, log_prob, _ = policy.evaluate_actions(obs_t[idx], act_t[idx], action_masks=masks[order[lo : lo + BATCH]])
             loss = -log_prob.mean() + 0.5 * torch.nn.functional.mse_loss(values.flatten(), ret_t[idx])
             optimizer.zero_grad()
             loss.backward()

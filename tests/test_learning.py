@@ -121,6 +121,8 @@ def test_reproduce_learning_end_to_end_on_a_tiny_budget(tmp_path, monkeypatch):
     card = json.loads((shipped / "card.json").read_text())
     assert card["env_kwargs"] == json.loads((shipped / "config.json").read_text())["env_kwargs"]
     assert card["deterministic"] is False  # the mode of the (patched) comparison config above
+    assert card["best_baseline"]["policy"] == "coin_flip"  # the one paper algorithm here (random is a reference)
+    assert card["heldout"]["episodes"] == 2 and 0 <= card["heldout"]["metric"] <= 12  # 12: the tiny max_cycles
     # a rerun trains nothing again: every run folder is finished
     runs = sorted((tmp_path / "runs").rglob("done.json"))
     assert len(runs) == 2
@@ -198,3 +200,34 @@ def test_multihop_pretrained_samples_as_its_card_says():
     from mrcomm_agents.learned import model_card
 
     assert model_card("MultiHop-v0")["deterministic"] is False
+
+
+def test_the_shipped_run_never_buys_its_metric_with_more_bits_than_the_best_paper_algorithm():
+    """`--export-pretrained` ships the best metric among the runs within the best baseline's bits (5 % slack),
+    and says so on the card; with no such run it falls back to the best metric."""
+    spec = {"lower_is_better": True, "bits_per": "episode"}
+    baselines = [
+        {"policy": "id_bits", "setting": None, "metric": 5.0, "bits": 13.0},
+        {"policy": "coin_flip", "setting": None, "metric": 10.0, "bits": 30.0},
+        {"policy": "random", "setting": None, "metric": 4.0, "bits": 1.0},  # a reference, never "the best"
+    ]
+    runs = [
+        {"out": "cheap0", "cost": 0.0, "seed": 0, "score": 5.0, "bits": 15.2},  # best metric, 17 % more bits
+        {"out": "frugal", "cost": 0.1, "seed": 1, "score": 5.1, "bits": 13.5},  # within 5 % of id_bits' bits
+        {"out": "stingy", "cost": 0.4, "seed": 0, "score": 6.0, "bits": 12.0},
+    ]
+    shipped = comparison.shipped_run(runs, baselines, spec, episodes=20)
+    assert shipped["run"] == "frugal" and shipped["within_baseline_bits"]
+    assert shipped["best_baseline"] == {"policy": "id_bits", "metric": 5.0, "bits": 13.0}
+    assert shipped["heldout"]["metric"] == 5.1 and shipped["heldout"]["bits"] == 13.5
+    assert shipped["heldout"]["episodes"] == 20
+    too_dear = [dict(r, bits=r["bits"] + 10) for r in runs]
+    fallback = comparison.shipped_run(too_dear, baselines, spec, episodes=20)
+    assert fallback["run"] == "cheap0" and not fallback["within_baseline_bits"]
+    # per-setting baselines (RendezvousMapping's communication range): each run is held to its own setting's
+    per_setting = {**spec, "baselines_per_cost": True}
+    ranged = [
+        {"policy": "paper_protocol", "setting": 0.0, "metric": 5.0, "bits": 100.0},
+        {"policy": "paper_protocol", "setting": 0.1, "metric": 5.0, "bits": 10.0},
+    ]
+    assert comparison.shipped_run(runs[:2], ranged, per_setting, episodes=5)["run"] == "cheap0"

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import os
 import pickle
 
@@ -77,7 +78,35 @@ def test_a_run_folder_holds_model_statistics_config_and_logs(tmp_path):
     assert {"stable-baselines3", "torch", "numpy"} <= set(record["versions"])
     assert "git_commit" in record
     rows = (out / "progress.csv").read_text().splitlines()
-    assert len(rows) == 1 + 2  # header + one row per rollout
+    assert len(rows) == 1 + 2 + 1  # header, one row per rollout, and the final held-out evaluation's
+
+
+def test_training_logs_a_held_out_evaluation_of_the_paper_metric_and_bits(tmp_path):
+    """progress.csv (and TensorBoard) carry the env's metric and bits per robot on held-out episodes, at the
+    requested period and at the end; the evaluation draws nothing from the training's random streams."""
+    from mrcomm_agents.heldout import HELDOUT_SEEDS, evaluate_episodes
+
+    evaluated = train(config(4 * ROLLOUT, eval_every=2 * ROLLOUT, eval_episodes=2), tmp_path / "a", progress=False)
+    with open(evaluated / "progress.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    logged = [r for r in rows if r.get("heldout/completion_time")]
+    steps = [int(float(r["time/total_timesteps"])) for r in logged]
+    assert steps == [2 * ROLLOUT, 4 * ROLLOUT, 4 * ROLLOUT]  # every 2 rollouts, and the final policy's row
+    for row in logged:
+        bits_step = float(row["heldout/bits_per_agent_step"])
+        bits_episode = float(row["heldout/bits_per_agent_episode"])
+        assert math.isfinite(bits_step) and bits_episode >= bits_step >= 0
+        assert -1 <= float(row["heldout/completion_time"]) <= ENV_KWARGS["max_cycles"]
+    # the logged final figures are the trained model's on the held-out seeds
+    policy = LearnedPolicy(evaluated, ENV)
+    again = evaluate_episodes(policy.model, policy.normalizer, ENV, ENV_KWARGS, [HELDOUT_SEEDS, HELDOUT_SEEDS + 1], True)
+    for key in ("completion_time", "bits_per_agent_episode"):
+        assert float(logged[-1][f"heldout/{key}"]) == pytest.approx(again[key], rel=1e-12), key
+    # training with the evaluation gives the same weights as without it
+    plain = train(config(4 * ROLLOUT, eval_episodes=0), tmp_path / "b", progress=False)
+    a, b = LearnedPolicy(evaluated, ENV).model.policy, LearnedPolicy(plain, ENV).model.policy
+    for (name, x), (_, y) in zip(a.state_dict().items(), b.state_dict().items()):
+        assert torch.equal(x, y), name
 
 
 def test_resume_loses_neither_steps_nor_optimizer_nor_statistics(tmp_path, monkeypatch):
@@ -104,11 +133,12 @@ def test_resume_loses_neither_steps_nor_optimizer_nor_statistics(tmp_path, monke
     with open(tmp_path / "run" / "vecnormalize.pkl", "rb") as fh:
         stats = pickle.load(fh)
     assert stats.obs_rms.count == pytest.approx(target + 2 * N_AGENTS, abs=1e-3)
-    # the resumed run appended to the log: one row per rollout of the whole run, steps increasing, one header
+    # the resumed run appended to the log: one row per rollout of the whole run, steps increasing, one header,
+    # and the final held-out evaluation's row (the interrupted process, stopped by Ctrl-C, wrote none)
     with open(tmp_path / "run" / "progress.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     steps = [int(float(r["time/total_timesteps"])) for r in rows]
-    assert steps == [ROLLOUT * (k + 1) for k in range(rollouts)]
+    assert steps == [ROLLOUT * (k + 1) for k in range(rollouts)] + [target]
 
 
 def test_resume_of_a_finished_run_is_refused(tmp_path, capsys):

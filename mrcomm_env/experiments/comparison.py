@@ -70,8 +70,8 @@ def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress
     for task, done in zip(tasks, run_tasks(sweep, desc=f"training {short_name(env_id)}")):
         result = done["evaluation"]
         task["score"] = float(np.nanmean(result["metric"]))
+        task["bits"] = float(np.mean(result["bits"]))
         learned.setdefault(task["cost"], []).append(result)
-    spec["best_run"] = best_run(tasks, spec)
     for cost, results in learned.items():
         # one point per training seed (its mean over the evaluation episodes): the CI is over training seeds
         per_seed_metric = [float(np.nanmean(r["metric"])) for r in results]
@@ -91,18 +91,51 @@ def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress
             rows.append(row)
     for row in rows:
         row.setdefault("setting", row["cost"])
+    spec["shipped"] = shipped_run(tasks, [r for r in rows if r["cost"] is None], spec, len(eval_seeds))
+    spec["best_run"] = spec["shipped"]["run"]
     return rows, spec
 
 
-def best_run(tasks: list[dict], spec: dict) -> str:
-    """The run with the best task metric on the evaluation episodes (the model ``--export-pretrained`` ships)."""
+def best_baseline(baseline_rows: list[dict], setting, spec: dict) -> dict | None:
+    """The paper algorithm with the best task metric in ``setting`` (fewer bits breaks a tie); ``random`` is a
+    reference, not a paper algorithm."""
     sign = 1.0 if spec.get("lower_is_better") else -1.0
-    return min(tasks, key=lambda t: (sign * t["score"], t["cost"], t["seed"]))["out"]
+    rows = [r for r in baseline_rows if r["setting"] == setting and r["policy"].split()[0] != "random"]
+    return min(rows, key=lambda r: (sign * r["metric"], r["bits"])) if rows else None
 
 
-def export_pretrained(run: str | Path, env_id: str) -> Path:
+def shipped_run(tasks: list[dict], baseline_rows: list[dict], spec: dict, episodes: int) -> dict:
+    """The run ``--export-pretrained`` ships, and what its card says of it: the best task metric on the held-out
+    episodes among the runs that send no more bits than the best paper algorithm of their setting (with the 5 %
+    slack of :func:`dominates`), so that a shipped model never buys its metric with more bits; the best metric
+    overall when no run is that frugal."""
+    sign = 1.0 if spec.get("lower_is_better") else -1.0
+    per_cost = bool(spec.get("baselines_per_cost"))
+    for task in tasks:
+        task["baseline"] = best_baseline(baseline_rows, task["cost"] if per_cost else None, spec)
+    frugal = [t for t in tasks if t["baseline"] is None or t["bits"] <= t["baseline"]["bits"] * 1.05 + 1e-9]
+    best = min(frugal or tasks, key=lambda t: (sign * t["score"], t["bits"], t["cost"], t["seed"]))
+    baseline = best["baseline"]
+    return {
+        "run": best["out"],
+        "heldout": {
+            "metric": best["score"],
+            "bits": best["bits"],
+            "bits_per": spec.get("bits_per", "step"),
+            "episodes": episodes,
+            "first_seed": 10_000,
+        },
+        "best_baseline": None
+        if baseline is None
+        else {"policy": baseline["policy"], "metric": baseline["metric"], "bits": baseline["bits"]},
+        "within_baseline_bits": bool(frugal),
+    }
+
+
+def export_pretrained(run: str | Path, env_id: str, shipped: dict | None = None) -> Path:
     """Copy a run's model, statistics and config into ``agents/pretrained/<Name>-v0/`` (shipped in the package;
-    ``mrcomm evaluate ID --policy pretrained``). Checkpoints and logs stay behind: well under 1 MB."""
+    ``mrcomm evaluate ID --policy pretrained``). Checkpoints and logs stay behind: well under 1 MB. ``shipped``:
+    the comparison's account of the run (:func:`shipped_run`), written into the card."""
     from mrcomm_agents.learned import pretrained_dir  # extra "train"
 
     target = pretrained_dir(env_id)
@@ -112,11 +145,11 @@ def export_pretrained(run: str | Path, env_id: str) -> Path:
             tmp = target / f".{name}.tmp"
             shutil.copyfile(Path(run) / name, tmp)
             tmp.replace(target / name)
-    write_model_card(env_id, json.loads((target / "config.json").read_text()))
+    write_model_card(env_id, json.loads((target / "config.json").read_text()), shipped)
     return target
 
 
-def write_model_card(env_id: str, record: dict) -> Path:
+def write_model_card(env_id: str, record: dict, shipped: dict | None = None) -> Path:
     """``card.json`` beside a shipped model: what ``--policy pretrained`` and a reader need to know of it. The
     evaluation mode is the one the comparison chose the model with (``comparison.deterministic`` of
     ``agents/configs/<Name>-v0.json``, deterministic by default)."""
@@ -137,6 +170,11 @@ def write_model_card(env_id: str, record: dict) -> Path:
         "metric": spec.get("metric"),
         "reproduce": f"mrcomm reproduce-learning {short_name(env_id)} --export-pretrained",
     }
+    if record.get("init_from"):
+        card["init_from"] = record["init_from"]
+    if shipped is not None:
+        card["heldout"] = shipped["heldout"]
+        card["best_baseline"] = shipped["best_baseline"]
     path = pretrained_dir(env_id) / CARD_NAME
     atomic_write_text(path, json.dumps(card, indent=2) + "\n")
     return path

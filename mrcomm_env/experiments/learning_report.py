@@ -179,7 +179,7 @@ def cmd_reproduce_learning(args: argparse.Namespace) -> int:
             # one fragment per env: rerunning one env keeps the others' sections in the page
             atomic_write_text(docs / "learning" / f"{name}.md", section)
             if args.export_pretrained:
-                print(f"shipped {spec['best_run']} as {export_pretrained(spec['best_run'], env_id)}")
+                print(f"shipped {spec['best_run']} as {export_pretrained(spec['best_run'], env_id, spec['shipped'])}")
     page = write_learning_page(docs, quick=args.quick)
     print(f"wrote {page}")
     return 0

@@ -1,0 +1,116 @@
+"""Held-out evaluation while training: the env's own metrics and bits, logged beside SB3's training statistics.
+
+PPO's training return mixes the task with the price of a bit, and is measured on the episodes it trains on. A
+user who tunes what and when to communicate wants to see the trade-off itself move: every ``eval_every``
+agent-steps, :class:`HeldOutEvaluation` plays ``eval_episodes`` whole episodes on seeds no training run or
+comparison uses (:data:`HELDOUT_SEEDS` on), with the policy as it is then, and records under ``heldout/``
+
+* every scalar of the env's ``metrics()`` (its paper metric among them: ``mean_delay``, ``completion_time``,
+  ``disagreement``, ``weighted_mean_age``, ``iterations_to_half_info``), averaged over the episodes;
+* ``bits_per_agent_step``: bits sent per robot per step, and ``bits_per_agent_episode``;
+* ``episode_return``.
+
+They reach ``progress.csv`` and TensorBoard with the rollout's own row (``tensorboard --logdir runs/``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import VecNormalize
+
+from mrcomm_env.registry import make
+
+#: first episode seed of the held-out evaluation (comparisons use 10000+, sweeps 20000+)
+HELDOUT_SEEDS = 30_000
+PREFIX = "heldout/"
+
+
+def normalized(venv, observations: np.ndarray) -> np.ndarray:
+    """The observations as the policy sees them in training (VecNormalize's running statistics, when on)."""
+    if isinstance(venv, VecNormalize):
+        return np.asarray(venv.normalize_obs(observations))
+    return observations
+
+
+def uses_masks(model) -> bool:
+    """MaskablePPO: its distribution is over the allowed actions only, so it is given the env's masks."""
+    return type(model).__name__ == "MaskablePPO"
+
+
+def team_actions(model, venv, env, observations: dict, deterministic: bool) -> dict:
+    """One shared-policy decision for every live agent of ``env`` (a PettingZoo parallel env)."""
+    agents = list(observations)
+    obs = normalized(venv, np.stack([observations[a] for a in agents]).astype(np.float32))
+    extra = {}
+    if uses_masks(model) and callable(getattr(env, "action_masks", None)):
+        extra["action_masks"] = np.asarray(env.action_masks(), dtype=bool)
+    chosen, _ = model.predict(obs, deterministic=deterministic, **extra)
+    return {a: chosen[i] for i, a in enumerate(agents)}
+
+
+def evaluate_episodes(model, venv, env_id: str, env_kwargs: dict, seeds, deterministic: bool) -> dict[str, float]:
+    """Mean over the episodes of each scalar metric, bits per agent (per step and per episode) and the return."""
+    env = make(env_id, **env_kwargs)
+    totals: dict[str, list[float]] = {}
+    for seed in seeds:
+        observations, _ = env.reset(seed=int(seed))
+        episode_return = 0.0
+        while env.agents:
+            observations, rewards, _, _, _ = env.step(team_actions(model, venv, env, observations, deterministic))
+            episode_return += float(np.mean(list(rewards.values()))) if rewards else 0.0
+        metrics = env.metrics()
+        row = {k: float(v) for k, v in metrics.items() if np.isscalar(v) and not isinstance(v, str)}
+        bits = float(metrics.get("bits_sent", env.bits_sent()))
+        row["bits_per_agent_episode"] = bits / env.n_agents
+        row["bits_per_agent_step"] = bits / (env.n_agents * max(env.step_count, 1))
+        row["episode_return"] = episode_return
+        for key, value in row.items():
+            totals.setdefault(key, []).append(value)
+    env.close()
+    return {key: float(np.mean(values)) for key, values in totals.items()}
+
+
+class HeldOutEvaluation(BaseCallback):
+    """When a rollout ends and ``every`` agent-steps have passed since the last time, and once more when training
+    ends: see the module docstring.
+
+    The evaluation draws no random number from the training: it saves and restores torch's global generator,
+    which SB3 samples actions from, so a run with evaluation trains exactly as one without."""
+
+    def __init__(self, env_id: str, env_kwargs: dict, every: int, episodes: int, deterministic: bool):
+        super().__init__()
+        self.env_id, self.env_kwargs = env_id, dict(env_kwargs)
+        self.every, self.episodes, self.deterministic = int(every), int(episodes), bool(deterministic)
+        self.next_at = self.every
+
+    def _on_training_start(self) -> None:
+        self.next_at = (self.num_timesteps // self.every + 1) * self.every
+
+    def _evaluate(self) -> None:
+        state = torch.get_rng_state()
+        try:
+            seeds = range(HELDOUT_SEEDS, HELDOUT_SEEDS + self.episodes)
+            means = evaluate_episodes(
+                self.model, self.training_env, self.env_id, self.env_kwargs, seeds, self.deterministic
+            )
+        finally:
+            torch.set_rng_state(state)
+        for key, value in means.items():
+            self.logger.record(PREFIX + key, value)
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_rollout_end(self) -> None:
+        if self.num_timesteps >= self.next_at:
+            self._evaluate()
+            self.next_at = (self.num_timesteps // self.every + 1) * self.every
+
+    def _on_training_end(self) -> None:
+        # one more row: the final policy's evaluation (a rollout's row shows the policy that collected it, before
+        # the update on it), with the last update's statistics, which SB3 records after its last dump and drops
+        self._evaluate()
+        self.logger.record("time/total_timesteps", self.num_timesteps)
+        self.logger.dump(self.num_timesteps)
