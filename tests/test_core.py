@@ -162,3 +162,17 @@ def test_local_views_are_read_only_and_follow_every_step_and_reset():
     env.reset(seed=1)
     np.testing.assert_array_equal(views.team("stamps"), env.stamps)
     assert views["robot_2"]["slot"] == env.tdma.slot_of[2]
+
+
+def test_iqm_is_the_quarter_trimmed_mean_with_a_reproducible_bootstrap_interval():
+    from mrcomm_env.core.stats import iqm_ci95
+
+    # 5 runs: a quarter of 5 rounds down to 1 run cut at each end, so the IQM is the mean of 2, 3, 4 = 3, and the
+    # outlier 100 moves it not at all
+    iqm, low, high = iqm_ci95([4.0, 1.0, 100.0, 3.0, 2.0])
+    assert iqm == 3.0
+    assert 1.0 <= low <= iqm <= high <= 100.0
+    assert iqm_ci95([4.0, 1.0, 100.0, 3.0, 2.0]) == (iqm, low, high)  # seeded: the page is the same on a rerun
+    # 3 runs: nothing is cut, the IQM is the mean; equal runs have a zero-width interval; NaNs are ignored
+    assert iqm_ci95([1.0, 2.0, 6.0])[0] == 3.0
+    assert iqm_ci95([5.0, 5.0, float("nan")]) == (5.0, 5.0, 5.0)

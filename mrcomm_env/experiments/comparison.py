@@ -12,7 +12,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from mrcomm_baselines import make_policy
-from mrcomm_env.core.stats import mean_ci95
+from mrcomm_env.core.stats import iqm_ci95, mean_ci95
 from mrcomm_env.experiments.evaluation import evaluate_policy
 from mrcomm_env.experiments.io import atomic_write_text
 from mrcomm_env.experiments.runs import comparison_spec, run_folder
@@ -76,7 +76,9 @@ def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress
         # one point per training seed (its mean over the evaluation episodes): the CI is over training seeds
         per_seed_metric = [float(np.nanmean(r["metric"])) for r in results]
         per_seed_bits = [float(np.mean(r["bits"])) for r in results]
-        rows.append(comparison_row(f"learned ({algo})", cost, per_seed_metric, per_seed_bits, len(results)))
+        row = comparison_row(f"learned ({algo})", cost, per_seed_metric, per_seed_bits, len(results))
+        row["metric_iqm"], row["metric_iqm_low"], row["metric_iqm_high"] = iqm_ci95(per_seed_metric)
+        rows.append(row)
     # a baseline's actions do not depend on the price of bits, so it is evaluated once, unless the swept argument
     # changes the setting itself (``baselines_per_cost``: e.g. the communication range)
     costs = spec["costs"] if spec.get("baselines_per_cost") else [None]
@@ -184,7 +186,19 @@ def comparison_row(policy: str, cost, metric_values, bits_values, n: int) -> dic
     """A row of the comparison table: the metric and bits as mean ± 95 % CI over ``n`` values."""
     m, mh = mean_ci95(metric_values)
     b, bh = mean_ci95(bits_values)
-    return {"policy": policy, "cost": cost, "metric": m, "metric_ci95": mh, "bits": b, "bits_ci95": bh, "n": n}
+    return {
+        "policy": policy,
+        "cost": cost,
+        "metric": m,
+        "metric_ci95": mh,
+        "bits": b,
+        "bits_ci95": bh,
+        "n": n,
+        # a learned row's interquartile mean over training seeds (rliable's IQM and bootstrap, core/stats.py)
+        "metric_iqm": None,
+        "metric_iqm_low": None,
+        "metric_iqm_high": None,
+    }
 
 
 def dominates(learned: dict, baseline: dict, lower_is_better: bool) -> bool:

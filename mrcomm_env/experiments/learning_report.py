@@ -94,13 +94,17 @@ def learning_section(env_id: str, rows: list[dict], spec: dict, figure: str, doc
         f"![{spec['metric']} against bits]({figure})",
         "",
         *side_by_side(env_id, docs),
-        f"| policy | {spec['cost_param']} | {spec['metric']} (mean ± 95 % CI) | bits / agent / {spec.get('bits_per', 'step')} | n |",
-        "| --- | --- | --- | --- | --- |",
+        f"| policy | {spec['cost_param']} | {spec['metric']} (mean ± 95 % CI) | IQM [95 % bootstrap] "
+        f"| bits / agent / {spec.get('bits_per', 'step')} | n |",
+        "| --- | --- | --- | --- | --- | --- |",
     ]
     for r in rows:
         cost = "—" if r["setting"] is None else f"{r['setting']:g}"
+        iqm = "—"
+        if r.get("metric_iqm") is not None:
+            iqm = f"{r['metric_iqm']:.4g} [{r['metric_iqm_low']:.4g}, {r['metric_iqm_high']:.4g}]"
         lines.append(
-            f"| {r['policy']} | {cost} | {r['metric']:.4g} ± {r['metric_ci95']:.2g} "
+            f"| {r['policy']} | {cost} | {r['metric']:.4g} ± {r['metric_ci95']:.2g} | {iqm} "
             f"| {r['bits']:.4g} ± {r['bits_ci95']:.2g} | {r['n']} |"
         )
 
@@ -267,8 +271,14 @@ chosen by the recorded hyperparameter sweep under each env's section (`make swee
 
 One PPO policy is shared by every agent (parameter sharing, `agents/vecenv.py`). For each env, the price of a
 bit in the reward (the cost argument) is swept; each value is trained with several seeds and each trained
-policy is evaluated deterministically on held-out episode seeds. A learned point's interval is over training
-seeds; a baseline's over episodes. The scripted baselines see more than the learned policy where the env's
+policy is evaluated on held-out episode seeds (deterministically unless the env's section says otherwise). A
+learned point's interval is over training seeds; a baseline's over episodes. Beside a learned point's mean, the
+column "IQM" gives rliable's interquartile mean over its training seeds with a 95 % percentile-bootstrap
+interval (`mrcomm_env/core/stats.py`: with 3 seeds the IQM is the mean; "—" where the recorded table predates
+the column). Each shipped model is the best run within the bits of the best paper algorithm of its setting;
+its card (`agents/pretrained/<Name>-v0/card.json`) gives its held-out metric and bits beside that algorithm's.
+While training, `progress.csv` and TensorBoard carry a held-out evaluation under `heldout/` (the env's metrics
+and bits per robot; `agents/heldout.py`). The scripted baselines see more than the learned policy where the env's
 page says so (`docs/envs/<Name>-v0.md`, column "global knowledge"), and their own per-robot memory: see
 "What the baselines read" below.
 
