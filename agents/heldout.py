@@ -6,7 +6,8 @@ agent-steps, :class:`HeldOutEvaluation` plays ``eval_episodes`` whole episodes o
 comparison uses (:data:`HELDOUT_SEEDS` on), with the policy as it is then, and records under ``heldout/``
 
 * every scalar of the env's ``metrics()`` (its paper metric among them: ``mean_delay``, ``completion_time``,
-  ``disagreement``, ``weighted_mean_age``, ``iterations_to_half_info``), averaged over the episodes;
+  ``disagreement``, ``weighted_mean_age``, ``iterations_to_half_info``), averaged over the episodes; a time
+  that was never reached (the env's ``UNREACHED_TIMES``, −1 or NaN) counts as the episode's length;
 * ``bits_per_agent_step``: bits sent per robot per step, and ``bits_per_agent_episode``;
 * ``episode_return``.
 
@@ -62,6 +63,9 @@ def evaluate_episodes(model, venv, env_id: str, env_kwargs: dict, seeds, determi
             episode_return += float(np.mean(list(rewards.values()))) if rewards else 0.0
         metrics = env.metrics()
         row = {k: float(v) for k, v in metrics.items() if np.isscalar(v) and not isinstance(v, str)}
+        for name in getattr(env, "UNREACHED_TIMES", ()):  # never reached: counted at the episode's length
+            if name in row and not row[name] >= 0:
+                row[name] = float(env.step_count)
         bits = float(metrics.get("bits_sent", env.bits_sent()))
         row["bits_per_agent_episode"] = bits / env.n_agents
         row["bits_per_agent_step"] = bits / (env.n_agents * max(env.step_count, 1))

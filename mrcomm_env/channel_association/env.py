@@ -132,6 +132,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         ),
         "emission_cost": Param(0.0, "reward cost per emission (team-averaged)", Real(0.0, 1e6, fuzz=(0.0, 1.0))),
     }
+    UNREACHED_TIMES = ("completion_time",)
     METRICS = {
         "completion_time": "stationary scenes: steps until every observer's i-state is final (−1 if not yet / mobile)",
         "fraction_matched": "mean over measured observers of visual IDs with exactly one candidate / visual IDs tracked",

@@ -32,6 +32,9 @@ class MrcommParallelEnv(ParallelEnv):
     DESCRIPTION: ClassVar[str] = ""
     PARAMS: ClassVar[dict[str, Param]] = {}
     METRICS: ClassVar[dict[str, str]] = {}
+    #: metrics that are a time until something happens, reported as −1 or NaN while it has not: an evaluation
+    #: that averages episodes counts such an episode at its length (the comparisons' "unfinished" value)
+    UNREACHED_TIMES: ClassVar[tuple[str, ...]] = ()
     INFO_KEYS: ClassVar[dict[str, str]] = {}
     #: per-robot knowledge a policy may read through ``local_views()``: field name → description. Row i of
     #: every field returned by ``_local_view()`` is what robot i itself knows.

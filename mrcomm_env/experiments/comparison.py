@@ -93,6 +93,7 @@ def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress
             rows.append(row)
     for row in rows:
         row.setdefault("setting", row["cost"])
+    spec["tasks"] = [{"out": t["out"], "cost": t["cost"], "seed": t["seed"]} for t in tasks]
     spec["shipped"] = shipped_run(tasks, [r for r in rows if r["cost"] is None], spec, len(eval_seeds))
     spec["best_run"] = spec["shipped"]["run"]
     return rows, spec

@@ -66,6 +66,89 @@ def plot_comparison(rows: list[dict], spec: dict, title: str, path: Path) -> Non
     tmp.replace(path)
 
 
+def curve_rows(tasks: list[dict], spec: dict) -> list[dict]:
+    """Every run's held-out evaluations against agent-steps (the ``heldout/`` columns of its progress.csv,
+    ``agents/heldout.py``). Where a step has two rows (the rollout's policy and, at the end, the final one), the
+    later one is kept. ``seconds``: the run's training wall time so far."""
+    metric, per = spec["metric"], spec.get("bits_per", "step")
+    rows = []
+    for task in tasks:
+        path = Path(task["out"]) / "progress.csv"
+        if not path.exists():
+            continue
+        points: dict[int, dict] = {}
+        with open(path, newline="") as fh:
+            for raw in csv.DictReader(fh):
+                value, bits = raw.get(f"heldout/{metric}"), raw.get(f"heldout/bits_per_agent_{per}")
+                if not value or not bits or not raw.get("time/total_timesteps"):
+                    continue
+                steps = int(float(raw["time/total_timesteps"]))
+                elapsed = raw.get("time/time_elapsed") or (points[max(points)]["seconds"] if points else 0.0)
+                points[steps] = {
+                    "cost": task["cost"],
+                    "seed": task["seed"],
+                    "agent_steps": steps,
+                    "metric": float(value),
+                    "bits": float(bits),
+                    "seconds": float(elapsed),
+                }
+        rows += [points[k] for k in sorted(points)]
+    return rows
+
+
+def plot_curves(rows: list[dict], spec: dict, title: str, path: Path) -> None:
+    """The learning curve: held-out metric and bits against agent-steps, a thin line per training seed and a
+    thick one for their mean, a colour per price of a bit."""
+    fig = Figure(figsize=(9.6, 3.6))
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, 2)
+    for k, cost in enumerate(sorted({r["cost"] for r in rows})):
+        mine = [r for r in rows if r["cost"] == cost]
+        for panel, key in zip(axes, ("metric", "bits")):
+            for seed in sorted({r["seed"] for r in mine}):
+                run = [r for r in mine if r["seed"] == seed]
+                panel.plot([r["agent_steps"] for r in run], [r[key] for r in run], color=f"C{k}", alpha=0.3, lw=0.8)
+            steps = sorted({r["agent_steps"] for r in mine})
+            mean = [np.mean([r[key] for r in mine if r["agent_steps"] == x]) for x in steps]
+            panel.plot(steps, mean, color=f"C{k}", lw=2, label=f"{spec['cost_param']} = {cost:g}")
+    axes[0].set_ylabel(f"held-out {spec['metric']}")
+    axes[1].set_ylabel(f"bits per agent per {spec.get('bits_per', 'step')}")
+    for panel in axes:
+        panel.set_xlabel("agent-steps")
+        panel.grid(alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    fig.savefig(tmp, dpi=90)
+    tmp.replace(path)
+
+
+def curves_paragraph(env_id: str, docs: Path | None) -> list[str]:
+    """The learning-curve figure and its budget, where ``reproduce-learning`` recorded the runs' curves."""
+    name = short_name(env_id)
+    table = None if docs is None else docs / "learning" / f"{name}-curves.csv"
+    if table is None or not table.exists():
+        return []
+    with open(table, newline="") as fh:
+        rows = [{k: float(v) for k, v in raw.items()} for raw in csv.DictReader(fh)]
+    if not rows:
+        return []
+    runs = {(r["cost"], r["seed"]) for r in rows}
+    last = {run: max((r for r in rows if (r["cost"], r["seed"]) == run), key=lambda r: r["agent_steps"]) for run in runs}
+    steps = sorted({int(r["agent_steps"]) for r in last.values()})
+    minutes = [r["seconds"] / 60 for r in last.values()]
+    return [
+        f"![learning curves: held-out metric and bits against agent-steps](learning/{name}-curves.png)",
+        "",
+        f"_Learning curves: {len(runs)} runs ({len({r['seed'] for r in rows})} training seeds per price), "
+        f"{', '.join(f'{s:,}' for s in steps)} agent-steps each, {min(minutes):.1f}–{max(minutes):.1f} minutes of "
+        "training per run (after any warm start); each point is the held-out evaluation logged while training "
+        f"(`heldout/` in the run's progress.csv; recorded in `docs/learning/{name}-curves.csv`)._",
+        "",
+    ]
+
+
 def side_by_side(env_id: str, docs: Path | None) -> list[str]:
     """The recording of the shipped learned policy beside the paper's algorithm, where ``mrcomm docs`` made one
     (``docs/learning/<Name>-v0.gif``)."""
@@ -93,6 +176,7 @@ def learning_section(env_id: str, rows: list[dict], spec: dict, figure: str, doc
         "",
         f"![{spec['metric']} against bits]({figure})",
         "",
+        *curves_paragraph(env_id, docs),
         *side_by_side(env_id, docs),
         f"| policy | {spec['cost_param']} | {spec['metric']} (mean ± 95 % CI) | IQM [95 % bootstrap] "
         f"| bits / agent / {spec.get('bits_per', 'step')} | n |",
@@ -177,6 +261,16 @@ def cmd_reproduce_learning(args: argparse.Namespace) -> int:
                 writer.writeheader()
                 writer.writerows(rows)
             tmp.replace(csv_path)
+            curves = curve_rows(spec["tasks"], spec)
+            if curves:
+                curves_path = docs / "learning" / f"{name}-curves.csv"
+                tmp = curves_path.with_name(f".{curves_path.name}.tmp")
+                with open(tmp, "w", newline="") as fh:
+                    writer = csv.DictWriter(fh, fieldnames=list(curves[0]))
+                    writer.writeheader()
+                    writer.writerows(curves)
+                tmp.replace(curves_path)
+                plot_curves(curves, spec, f"{env_id}: learning curves", docs / "learning" / f"{name}-curves.png")
             figure = docs / "learning" / f"{name}.png"
             plot_comparison(rows, spec, f"{env_id}: learned vs scripted at equal bits", figure)
             section = learning_section(env_id, rows, spec, f"learning/{name}.png", docs) + sweep_section(env_id, docs)

@@ -129,6 +129,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
             100, "episode length in decision phases (`max_phases` is accepted as an alias)", Int(lo=1, fuzz=(1, 30))
         ),
     }
+    UNREACHED_TIMES = ("iterations_to_half_info",)
     METRICS = {
         "iterations_to_half_info": "decision phases until the fused map held 50 % of the information available "
         "(§VI-B; nan while not reached)",
