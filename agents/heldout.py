@@ -16,6 +16,8 @@ They reach ``progress.csv`` and TensorBoard with the rollout's own row (``tensor
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
@@ -77,8 +79,8 @@ def evaluate_episodes(model, venv, env_id: str, env_kwargs: dict, seeds, determi
 
 
 class HeldOutEvaluation(BaseCallback):
-    """When a rollout ends and ``every`` agent-steps have passed since the last time, and once more when training
-    ends: see the module docstring.
+    """When a new run starts (agent-step 0), when a rollout ends and ``every`` agent-steps have passed since the
+    last time, and once more when training ends: see the module docstring.
 
     The evaluation draws no random number from the training: it saves and restores torch's global generator,
     which SB3 samples actions from, so a run with evaluation trains exactly as one without."""
@@ -91,6 +93,15 @@ class HeldOutEvaluation(BaseCallback):
 
     def _on_training_start(self) -> None:
         self.next_at = (self.num_timesteps // self.every + 1) * self.every
+        if self.num_timesteps == 0:  # a new run: the starting point of the curve (a warm start's clone, or chance)
+            self._evaluate()
+            self._dump()
+
+    def _dump(self) -> None:
+        self.logger.record("time/total_timesteps", self.num_timesteps)
+        # seconds since learn() started, as SB3's own rows count them
+        self.logger.record("time/time_elapsed", max((time.time_ns() - self.model.start_time) / 1e9, 0.0))
+        self.logger.dump(self.num_timesteps)
 
     def _evaluate(self) -> None:
         state = torch.get_rng_state()
@@ -116,5 +127,4 @@ class HeldOutEvaluation(BaseCallback):
         # one more row: the final policy's evaluation (a rollout's row shows the policy that collected it, before
         # the update on it), with the last update's statistics, which SB3 records after its last dump and drops
         self._evaluate()
-        self.logger.record("time/total_timesteps", self.num_timesteps)
-        self.logger.dump(self.num_timesteps)
+        self._dump()

@@ -8,12 +8,19 @@ same small network (permutation-equivariant, as in pointer/attention policies), 
 candidate applies to all, and the same network serves any K.
 
 An env declares its layout with ``observation_layout()`` → ``{"candidates": K, "features": F,
-"globals": G, "extra_actions": E}``; ``E`` more logits (e.g. "hold") come from the robot's own features.
+"globals": G, "extra_actions": E}``; ``E`` more logits (e.g. "hold") come from the robot's own features. An env
+whose select bits choose *at most* ``c`` candidates (MultiHop's slot: the env sends the first ``m − 1`` selected)
+adds ``"choose": c``; the ``candidate_subset`` policy then draws that subset as the decision it is
+(:class:`SubsetDistribution`) rather than as K independent coins.
 """
 
 from __future__ import annotations
 
+import itertools
+import math
+
 import torch
+from stable_baselines3.common.distributions import Distribution
 from stable_baselines3.common.policies import ActorCriticPolicy
 from torch import nn
 
@@ -80,13 +87,117 @@ class CandidateExtractor(nn.Module):
         return self.forward_actor(obs), self.forward_critic(obs)
 
 
-class CandidatePolicy(ActorCriticPolicy):
-    """SB3 actor-critic whose logits are the candidate scores themselves (no mixing layer after them)."""
+class SubsetDistribution(Distribution):
+    """A choice of at most ``choose`` of K candidates as a MultiBinary action: candidates are drawn one at a time
+    without replacement, each with probability ∝ exp(score) among those left *and a "stop" item* (Plackett–Luce,
+    sampled as Gumbel-top-k), until ``choose`` are drawn or "stop" is. So the policy can say "exactly these m − 1"
+    (MultiHop's slot), which K independent Bernoulli bits say only by luck, and can still send fewer to save bits.
 
-    def __init__(self, *args, layout: dict, hidden: int = 64, context: bool = False, **kwargs):
+    The probability of a set S of j ≤ c chosen candidates sums the orders they could have been drawn in:
+    P(S) = Σ_σ Π_t exp(s_σt) / Z_t · [j < c] exp(s_stop) / Z_j, with Z_t the sum over what is left at draw t.
+    That is j! orders (6 for MultiHop's m = 4), enumerated; ``choose`` is held to :data:`MAX_CHOOSE`. An action
+    with more than c bits set counts as its first c in candidate order, which is what the env sends. The entropy
+    has no closed form: PPO then uses −log-probability, SB3's estimate.
+
+    Logits: (B, K + 1), the last is "stop".
+    """
+
+    MAX_CHOOSE = 6
+
+    def __init__(self, candidates: int, choose: int):
+        super().__init__()
+        if not 1 <= choose <= self.MAX_CHOOSE:
+            raise ValueError(f"argument 'choose' must be between 1 and {self.MAX_CHOOSE}, got {choose!r}")
+        self.k, self.c = int(candidates), min(int(choose), int(candidates))
+        self.orders = torch.tensor(list(itertools.permutations(range(self.c))), dtype=torch.long)  # (c!, c)
+        # order p serves a set of j chosen when its first j positions hold 0 … j − 1; each order of the j chosen
+        # then appears (c − j)! times among the valid orders, which the sum divides out
+        valid = torch.stack([(self.orders[:, :j] < j).all(dim=1) for j in range(self.c + 1)], dim=1)  # (c!, c + 1)
+        self.valid = valid
+        self.repeats = torch.tensor([math.lgamma(self.c - j + 1) for j in range(self.c + 1)], dtype=torch.float64)
+        self.logits: torch.Tensor | None = None
+
+    def proba_distribution_net(self, latent_dim: int) -> nn.Module:
+        return nn.Identity()  # the extractor's outputs are the K + 1 scores
+
+    def proba_distribution(self, action_logits: torch.Tensor) -> SubsetDistribution:
+        self.logits = action_logits
+        return self
+
+    def _chosen(self, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B, c) indices of the first c set bits in candidate order (padded with 0) and their count j."""
+        bits = actions.reshape(-1, self.k) > 0.5
+        key = bits * (self.k - torch.arange(self.k, device=bits.device))  # earlier candidates rank higher
+        top = torch.topk(key, self.c, dim=1)
+        count = (top.values > 0).sum(dim=1)
+        return torch.where(top.values > 0, top.indices, torch.zeros_like(top.indices)), count
+
+    def _order_log_prob(self, items: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
+        """log P of drawing ``items[:, :count]`` in that order, then "stop" when count < c."""
+        assert self.logits is not None
+        logits = self.logits
+        removed = torch.zeros_like(logits, dtype=torch.bool)
+        total = torch.zeros(logits.shape[0], dtype=logits.dtype, device=logits.device)
+        for t in range(self.c + 1):
+            norm = torch.logsumexp(logits.masked_fill(removed, -torch.inf), dim=1)
+            if t < self.c:
+                drawn = logits.gather(1, items[:, t : t + 1]).squeeze(1) - norm
+                total = total + torch.where(t < count, drawn, torch.zeros_like(drawn))
+            stop = logits[:, -1] - norm
+            total = total + torch.where(count == t, stop, torch.zeros_like(stop)) * (t < self.c)
+            if t < self.c:
+                took = nn.functional.one_hot(items[:, t], self.k + 1).bool() & (t < count)[:, None]
+                removed = removed | took
+        return total
+
+    def log_prob(self, actions: torch.Tensor) -> torch.Tensor:
+        items, count = self._chosen(actions)
+        per_order = torch.stack([self._order_log_prob(items[:, order], count) for order in self.orders])  # (c!, B)
+        valid = self.valid[:, count.cpu()].to(per_order.device)  # (c!, B)
+        per_order = per_order.masked_fill(~valid, -torch.inf)
+        return torch.logsumexp(per_order, dim=0) - self.repeats.to(per_order.device, per_order.dtype)[count]
+
+    def entropy(self) -> None:
+        return None
+
+    def _take(self, scores: torch.Tensor) -> torch.Tensor:
+        """The MultiBinary action of drawing in descending ``scores`` until c are drawn or "stop" is."""
+        order = torch.argsort(scores, dim=1, descending=True)[:, : self.c]
+        before_stop = torch.cumsum(order == self.k, dim=1) == 0
+        actions = torch.zeros(scores.shape[0], self.k + 1, dtype=torch.float32, device=scores.device)
+        actions.scatter_(1, order, before_stop.float())
+        return actions[:, : self.k]
+
+    def sample(self) -> torch.Tensor:
+        assert self.logits is not None
+        gumbel = -torch.log(-torch.log(torch.rand_like(self.logits).clamp(1e-20, 1.0)))
+        return self._take(self.logits + gumbel)
+
+    def mode(self) -> torch.Tensor:
+        assert self.logits is not None
+        return self._take(self.logits)
+
+    def actions_from_params(self, action_logits: torch.Tensor, deterministic: bool = False) -> torch.Tensor:
+        self.proba_distribution(action_logits)
+        return self.get_actions(deterministic=deterministic)
+
+    def log_prob_from_params(self, action_logits: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        actions = self.actions_from_params(action_logits)
+        return actions, self.log_prob(actions)
+
+
+class CandidatePolicy(ActorCriticPolicy):
+    """SB3 actor-critic whose logits are the candidate scores themselves (no mixing layer after them); with
+    ``subset`` the scores (and a "stop" score from the robot's own features) drive a :class:`SubsetDistribution`
+    over the layout's ``choose``."""
+
+    def __init__(self, *args, layout: dict, hidden: int = 64, context: bool = False, subset: bool = False, **kwargs):
         self.layout = dict(layout)
         self.hidden = hidden
         self.context = context
+        self.subset = subset
+        if subset and not self.layout.get("choose"):
+            raise ValueError("policy 'candidate_subset' needs an env whose observation_layout() gives 'choose'")
         super().__init__(*args, **kwargs)
 
     def _build_mlp_extractor(self) -> None:
@@ -94,12 +205,19 @@ class CandidatePolicy(ActorCriticPolicy):
             self.layout["candidates"],
             self.layout["features"],
             self.layout["globals"],
-            self.layout.get("extra_actions", 0),
+            self.layout.get("extra_actions", 0) + (1 if self.subset else 0),  # the "stop" score
             self.hidden,
             self.context,
         )
 
+    def _get_action_dist_from_latent(self, latent_pi: torch.Tensor):
+        if self.subset:
+            return self.action_dist.proba_distribution(action_logits=self.action_net(latent_pi))
+        return super()._get_action_dist_from_latent(latent_pi)
+
     def _build(self, lr_schedule) -> None:
+        if self.subset:
+            self.action_dist = SubsetDistribution(self.layout["candidates"], int(self.layout["choose"]))
         super()._build(lr_schedule)
         # the extractor's actor output already is one logit per action: SB3's linear action head would mix them
         self.action_net = nn.Identity()
@@ -111,8 +229,13 @@ class CandidatePolicy(ActorCriticPolicy):
 
     def _get_constructor_parameters(self) -> dict:
         data = super()._get_constructor_parameters()
-        data.update(layout=self.layout, hidden=self.hidden, context=self.context)
+        data.update(layout=self.layout, hidden=self.hidden, context=self.context, subset=self.subset)
         return data
 
 
-POLICIES = {"mlp": "MlpPolicy", "candidates": CandidatePolicy, "candidate_set": CandidatePolicy}
+POLICIES = {
+    "mlp": "MlpPolicy",
+    "candidates": CandidatePolicy,
+    "candidate_set": CandidatePolicy,
+    "candidate_subset": CandidatePolicy,
+}

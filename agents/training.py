@@ -51,6 +51,7 @@ from mrcomm_env.core.policy import Policy
 from mrcomm_env.registry import canonical_id, make, short_name
 
 CONFIG_DIR = Path(__file__).with_name("configs")
+POLICY_NAMES = ("mlp", "candidates", "candidate_set", "candidate_subset")
 #: algorithms ``mrcomm train`` knows: name → (module, class); MaskablePPO needs the env's action masks
 ALGORITHMS = {
     "ppo": ("stable_baselines3", "PPO"),
@@ -114,8 +115,9 @@ class TrainConfig:
     normalize: bool = True  #: VecNormalize on observations and returns
     net_arch: list[int] = field(default_factory=lambda: [64, 64])
     #: ``mlp`` (SB3's MlpPolicy), ``candidates`` (one shared scorer per candidate, ``agents/policies.py``; needs
-    #: an env whose ``observation_layout()`` lists candidates) or ``candidate_set`` (the same, each candidate also
-    #: scored against a summary of the whole list)
+    #: an env whose ``observation_layout()`` lists candidates), ``candidate_set`` (the same, each candidate also
+    #: scored against a summary of the whole list) or ``candidate_subset`` (``candidate_set`` whose select bits are
+    #: one draw of at most ``choose`` candidates, ``SubsetDistribution``)
     policy: str = "mlp"
     checkpoint_every: int = 50_000  #: agent-steps between checkpoints
     #: ``baseline:NAME``: clone that scripted policy's decisions before PPO (``agents/warm_start.py``); the caller
@@ -145,16 +147,21 @@ class TrainConfig:
             isinstance(self.init_from, str) and self.init_from.startswith("baseline:")
         ):
             raise ValueError(f"argument 'init_from' must be None or 'baseline:NAME', got {self.init_from!r}")
-        if self.policy not in ("mlp", "candidates", "candidate_set"):
-            raise ValueError(f"argument 'policy' must be 'mlp', 'candidates' or 'candidate_set', got {self.policy!r}")
+        if self.policy not in POLICY_NAMES:
+            raise ValueError(f"argument 'policy' must be one of {', '.join(POLICY_NAMES)}, got {self.policy!r}")
         for name, value in self.hyperparams.items():
             if name in HYPERPARAMETER_RANGES and not callable(value):
                 HYPERPARAMETER_RANGES[name](name, value)
         env = make(self.env_id, **self.env_kwargs)  # the env's own arguments are checked before any work
         if self.policy != "mlp" and env.observation_layout() is None:
             raise ValueError(
-                f"policy 'candidates' needs an observation of candidates; {self.env_id} with "
+                f"policy {self.policy!r} needs an observation of candidates; {self.env_id} with "
                 f"{self.env_kwargs} has a flat one"
+            )
+        if self.policy == "candidate_subset" and not (env.observation_layout() or {}).get("choose"):
+            raise ValueError(
+                f"policy 'candidate_subset' needs actions that choose a few candidates; {self.env_id} with "
+                f"{self.env_kwargs} declares no 'choose' in its observation_layout()"
             )
         env.close()
         return self
@@ -343,12 +350,14 @@ def _train_locked(config: TrainConfig, out: Path, resume: bool, progress: bool, 
             venv = VecNormalize(venv, norm_obs=True, norm_reward=True, gamma=config.hyperparams.get("gamma", 0.99))
         kwargs = dict(config.hyperparams)
         policy_kwargs = dict(kwargs.pop("policy_kwargs", {}))
-        if config.policy in ("candidates", "candidate_set"):
+        if config.policy in ("candidates", "candidate_set", "candidate_subset"):
             probe = make(config.env_id, **config.env_kwargs)
             policy = CandidatePolicy
             policy_kwargs.update(layout=probe.observation_layout(), hidden=int(config.net_arch[0]))
-            if config.policy == "candidate_set":
+            if config.policy in ("candidate_set", "candidate_subset"):
                 policy_kwargs.update(context=True)
+            if config.policy == "candidate_subset":
+                policy_kwargs.update(subset=True)
             probe.close()
         else:
             policy = "MlpPolicy"

@@ -117,11 +117,12 @@ def test_reproduce_learning_end_to_end_on_a_tiny_budget(tmp_path, monkeypatch):
     rows = (docs / "learning" / "ChannelAssociation-v0.csv").read_text().splitlines()
     assert len(rows) == 1 + 2 + 2  # header, one learned row per cost, two baselines
     assert (docs / "learning" / "ChannelAssociation-v0.png").stat().st_size > 0
-    # learning curves from the runs' held-out evaluations: here one point per run, its final policy's, since the
-    # 64-step budget ends before the default evaluation period
+    # learning curves from the runs' held-out evaluations: here the start and the final policy of each run, since
+    # the 64-step budget ends before the default evaluation period
     with open(docs / "learning" / "ChannelAssociation-v0-curves.csv", newline="") as fh:
         curve = list(csv.DictReader(fh))
-    assert sorted((float(r["cost"]), int(r["agent_steps"])) for r in curve) == [(0.0, 64), (0.5, 64)]
+    assert sorted((float(r["cost"]), int(r["agent_steps"])) for r in curve) == [(0.0, 0), (0.0, 64), (0.5, 0), (0.5, 64)]
+    assert all(float(r["seconds"]) > 0 for r in curve if int(r["agent_steps"]) == 64)
     assert all(0 <= float(r["metric"]) <= 12 for r in curve)  # an unfinished episode counts as its 12 steps
     assert (docs / "learning" / "ChannelAssociation-v0-curves.png").stat().st_size > 0
     assert "learning/ChannelAssociation-v0-curves.png" in page and "64 agent-steps each" in page

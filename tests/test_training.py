@@ -78,7 +78,7 @@ def test_a_run_folder_holds_model_statistics_config_and_logs(tmp_path):
     assert {"stable-baselines3", "torch", "numpy"} <= set(record["versions"])
     assert "git_commit" in record
     rows = (out / "progress.csv").read_text().splitlines()
-    assert len(rows) == 1 + 2 + 1  # header, one row per rollout, and the final held-out evaluation's
+    assert len(rows) == 1 + 1 + 2 + 1  # header, the held-out evaluations at the start, per rollout and at the end
 
 
 def test_training_logs_a_held_out_evaluation_of_the_paper_metric_and_bits(tmp_path):
@@ -91,7 +91,7 @@ def test_training_logs_a_held_out_evaluation_of_the_paper_metric_and_bits(tmp_pa
         rows = list(csv.DictReader(fh))
     logged = [r for r in rows if r.get("heldout/completion_time")]
     steps = [int(float(r["time/total_timesteps"])) for r in logged]
-    assert steps == [2 * ROLLOUT, 4 * ROLLOUT, 4 * ROLLOUT]  # every 2 rollouts, and the final policy's row
+    assert steps == [0, 2 * ROLLOUT, 4 * ROLLOUT, 4 * ROLLOUT]  # the start, every 2 rollouts, the final policy
     for row in logged:
         bits_step = float(row["heldout/bits_per_agent_step"])
         bits_episode = float(row["heldout/bits_per_agent_episode"])
@@ -134,11 +134,12 @@ def test_resume_loses_neither_steps_nor_optimizer_nor_statistics(tmp_path, monke
         stats = pickle.load(fh)
     assert stats.obs_rms.count == pytest.approx(target + 2 * N_AGENTS, abs=1e-3)
     # the resumed run appended to the log: one row per rollout of the whole run, steps increasing, one header,
-    # and the final held-out evaluation's row (the interrupted process, stopped by Ctrl-C, wrote none)
+    # and the held-out evaluations of the new run's start and of the end (the interrupted process, stopped by
+    # Ctrl-C, wrote no final one; the resumed one no start)
     with open(tmp_path / "run" / "progress.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     steps = [int(float(r["time/total_timesteps"])) for r in rows]
-    assert steps == [ROLLOUT * (k + 1) for k in range(rollouts)] + [target]
+    assert steps == [0] + [ROLLOUT * (k + 1) for k in range(rollouts)] + [target]
 
 
 def test_resume_of_a_finished_run_is_refused(tmp_path, capsys):

@@ -138,12 +138,14 @@ def curves_paragraph(env_id: str, docs: Path | None) -> list[str]:
     last = {run: max((r for r in rows if (r["cost"], r["seed"]) == run), key=lambda r: r["agent_steps"]) for run in runs}
     steps = sorted({int(r["agent_steps"]) for r in last.values()})
     minutes = [r["seconds"] / 60 for r in last.values()]
+    spread = f"{min(minutes):.1f}" if f"{min(minutes):.1f}" == f"{max(minutes):.1f}" else f"{min(minutes):.1f}–{max(minutes):.1f}"
     return [
         f"![learning curves: held-out metric and bits against agent-steps](learning/{name}-curves.png)",
         "",
         f"_Learning curves: {len(runs)} runs ({len({r['seed'] for r in rows})} training seeds per price), "
-        f"{', '.join(f'{s:,}' for s in steps)} agent-steps each, {min(minutes):.1f}–{max(minutes):.1f} minutes of "
-        "training per run (after any warm start); each point is the held-out evaluation logged while training "
+        f"{', '.join(f'{s:,}' for s in steps)} agent-steps each, {spread} minutes of PPO per run (after any warm "
+        "start; the curve starts at agent-step 0 with the policy PPO starts from); each point is the held-out "
+        "evaluation logged while training "
         f"(`heldout/` in the run's progress.csv; recorded in `docs/learning/{name}-curves.csv`)._",
         "",
     ]

@@ -424,7 +424,14 @@ class MultiHopEnv(MrcommParallelEnv):
     def observation_layout(self) -> dict[str, int] | None:
         if not self._relative:
             return None
-        return {"candidates": self.n_agents - 1, "features": RELATIVE_FEATURES, "globals": 3, "extra_actions": 0}
+        # choose: the env sends at most m − 1 selected candidates besides the robot's own estimate
+        return {
+            "candidates": self.n_agents - 1,
+            "features": RELATIVE_FEATURES,
+            "globals": 3,
+            "extra_actions": 0,
+            "choose": self.m - 1,
+        }
 
     def _priorities(self, actions) -> np.ndarray:
         """(N, N) priorities of the frame: the v0 action itself, or the selected candidates by rank."""

@@ -1,0 +1,75 @@
+"""The candidate policies' action distributions (``agents/policies.py``)."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+import torch
+
+from mrcomm_agents.policies import SubsetDistribution
+
+torch.set_num_threads(1)
+
+
+def all_subsets(k: int, c: int) -> torch.Tensor:
+    """Every MultiBinary action with at most c of k bits set, one per row."""
+    rows = [
+        [1.0 if i in chosen else 0.0 for i in range(k)]
+        for j in range(c + 1)
+        for chosen in itertools.combinations(range(k), j)
+    ]
+    return torch.tensor(rows, dtype=torch.float64)
+
+
+@pytest.mark.parametrize("k, c", [(5, 3), (4, 1), (6, 2), (3, 3)])
+def test_subset_probabilities_sum_to_one_over_every_choice(k, c):
+    generator = torch.Generator().manual_seed(k * 10 + c)
+    logits = torch.randn(2, k + 1, generator=generator, dtype=torch.float64) * 2
+    actions = all_subsets(k, c)
+    dist = SubsetDistribution(k, c).proba_distribution(logits.repeat_interleave(len(actions), dim=0))
+    log_p = dist.log_prob(actions.repeat(2, 1)).reshape(2, -1)
+    # a sum of ~2^k terms of size ~1: float64 rounding is far below 1e-12
+    torch.testing.assert_close(log_p.exp().sum(dim=1), torch.ones(2, dtype=torch.float64), rtol=0, atol=1e-12)
+
+
+def test_subset_probability_of_a_pair_is_the_sum_over_its_two_draw_orders():
+    # K = 3 candidates and stop, scores 0, log 2, log 3 and stop log 4: Z = 1 + 2 + 3 + 4 = 10. Choosing exactly
+    # {0, 1} with c = 2: 1/10 · 2/9 + 2/10 · 1/8 (no stop after the second draw, c is reached)
+    logits = torch.tensor([[0.0, np.log(2), np.log(3), np.log(4)]], dtype=torch.float64)
+    dist = SubsetDistribution(3, 2).proba_distribution(logits)
+    expected = 1 / 10 * 2 / 9 + 2 / 10 * 1 / 8
+    assert dist.log_prob(torch.tensor([[1.0, 1.0, 0.0]])).exp().item() == pytest.approx(expected, rel=1e-12)
+    # {2} alone: 3/10, then stop among 1 + 2 + 4 = 7 left
+    assert dist.log_prob(torch.tensor([[0.0, 0.0, 1.0]])).exp().item() == pytest.approx(3 / 10 * 4 / 7, rel=1e-12)
+    # nothing: stop first
+    assert dist.log_prob(torch.tensor([[0.0, 0.0, 0.0]])).exp().item() == pytest.approx(4 / 10, rel=1e-12)
+    # more bits than c: the first c in candidate order count, as the env sends them
+    assert dist.log_prob(torch.tensor([[1.0, 1.0, 1.0]])).item() == pytest.approx(np.log(expected), rel=1e-12)
+
+
+def test_subset_samples_follow_the_probabilities_and_the_mode_is_the_greedy_draw():
+    k, c = 4, 2
+    logits = torch.tensor([[1.0, 0.2, -0.5, 0.7, 0.1]], dtype=torch.float64)  # the last: stop
+    dist = SubsetDistribution(k, c).proba_distribution(logits.repeat(20_000, 1))
+    torch.manual_seed(0)
+    samples = dist.sample()
+    assert ((samples.sum(dim=1) <= c) & ((samples == 0) | (samples == 1)).all(dim=1)).all()
+    actions = all_subsets(k, c)
+    exact = SubsetDistribution(k, c).proba_distribution(logits.repeat(len(actions), 1)).log_prob(actions).exp()
+    observed = torch.stack([(samples == a).all(dim=1).double().mean() for a in actions])
+    # 20,000 draws: a frequency p has standard error sqrt(p(1 − p)/20000) ≤ 0.0036; 5 standard errors
+    assert torch.all((observed - exact).abs() <= 5 * torch.sqrt(exact * (1 - exact) / 20_000) + 1e-9)
+    # the mode draws the best two (candidates 0 and 3) and never reaches stop, scored below both
+    mode = SubsetDistribution(k, c).proba_distribution(logits).mode()
+    assert mode.tolist() == [[1.0, 0.0, 0.0, 1.0]]
+    stop_first = SubsetDistribution(k, c).proba_distribution(torch.tensor([[0.0, 0.0, 0.0, 0.0, 5.0]])).mode()
+    assert stop_first.tolist() == [[0.0, 0.0, 0.0, 0.0]]
+
+
+def test_a_subset_policy_is_refused_without_a_choose_in_the_layout(tmp_path):
+    from mrcomm_agents.training import TrainConfig
+
+    with pytest.raises(ValueError, match="candidate_subset"):
+        TrainConfig(env_id="RendezvousMapping-v0", policy="candidate_subset").validate()
