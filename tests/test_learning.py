@@ -7,6 +7,7 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -189,7 +190,7 @@ def test_learning_page_is_current_with_its_recorded_tables_and_sweeps(tmp_path):
 @pytest.mark.parametrize("env_id", SHIPPED)
 def test_every_shipped_model_has_a_card_that_agrees_with_it(env_id):
     """The card holds the model's training setting and the evaluation mode it was chosen with, which
-    ``--policy pretrained`` uses (MultiHop's was chosen sampling: deterministic, it scored worse than random)."""
+    ``--policy pretrained`` uses."""
     from mrcomm_agents.learned import model_card
     from mrcomm_env.experiments.runs import comparison_spec
 
@@ -206,12 +207,24 @@ def test_every_shipped_model_has_a_card_that_agrees_with_it(env_id):
     )
 
 
-def test_multihop_pretrained_samples_as_its_card_says():
-    from mrcomm_agents.learned import model_card
+def test_multihop_pretrained_fills_a_slot_as_one_choice_of_at_most_m_minus_1():
+    """The shipped MultiHop model draws its select bits as one subset (``candidate_subset``): never more than the
+    slot holds, which independent select bits could not promise."""
+    from mrcomm_agents.policies import SubsetDistribution
+    from mrcomm_env.registry import make
 
-    assert model_card("MultiHop-v0")["deterministic"] is False
-
-
+    policy = load_policy("pretrained", "MultiHop-v0")
+    assert isinstance(policy.model.policy.action_dist, SubsetDistribution)
+    env = make("MultiHop-v0", **policy.env_kwargs)
+    observations, _ = env.reset(seed=10_000)
+    policy.reset(env.local_views(), seed=10_000)
+    room = policy.env_kwargs.get("slot_size", 4) - 1
+    sent = []
+    for _ in range(10):
+        actions = policy.act(observations, env.local_views())
+        sent += [int(np.sum(a)) for a in actions.values()]
+        observations, *_ = env.step(actions)
+    assert max(sent) <= room and np.mean(sent) > 0
 def test_the_shipped_run_never_buys_its_metric_with_more_bits_than_the_best_paper_algorithm():
     """`--export-pretrained` ships the best metric among the runs within the best baseline's bits (5 % slack),
     and says so on the card; with no such run it falls back to the best metric."""

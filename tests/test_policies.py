@@ -73,3 +73,35 @@ def test_a_subset_policy_is_refused_without_a_choose_in_the_layout(tmp_path):
 
     with pytest.raises(ValueError, match="candidate_subset"):
         TrainConfig(env_id="RendezvousMapping-v0", policy="candidate_subset").validate()
+
+
+def test_a_subset_policy_trains_saves_loads_and_never_selects_more_than_the_slot_holds(tmp_path):
+    from mrcomm_agents.learned import LearnedPolicy
+    from mrcomm_agents.training import TrainConfig, train
+    from mrcomm_env.experiments.evaluation import run_episode
+    from mrcomm_env.registry import make
+
+    kwargs = {"grid_side": 3, "slot_size": 3, "max_cycles": 6}
+    config = TrainConfig(
+        env_id="MultiHop-v0",
+        timesteps=9 * 8,
+        seed=1,
+        env_kwargs=kwargs,
+        hyperparams={"n_steps": 8, "batch_size": 24, "n_epochs": 1},
+        n_envs=1,
+        net_arch=[16],
+        policy="candidate_subset",
+        eval_episodes=0,
+    )
+    run = train(config, tmp_path / "run", progress=False)
+    for deterministic in (True, False):
+        policy = LearnedPolicy(run, "MultiHop-v0", deterministic=deterministic)
+        assert isinstance(policy.model.policy.action_dist, SubsetDistribution)
+        env = make("MultiHop-v0", **kwargs)
+        observations, _ = env.reset(seed=3)
+        policy.reset(env.local_views(), seed=3)
+        for _ in range(4):
+            actions = policy.act(observations, env.local_views())
+            assert all(int(np.sum(a)) <= kwargs["slot_size"] - 1 for a in actions.values())
+            observations, *_ = env.step(actions)
+        assert np.isfinite(run_episode(env, policy, 4)["weighted_mean_age"])
