@@ -55,6 +55,23 @@ def test_beats_needs_a_margin_beyond_the_intervals(learned, baseline, expected):
     assert comparison.beats(learned, baseline, lower_is_better=True) is expected
 
 
+def test_one_collapsed_seed_does_not_buy_a_match_through_a_wide_t_interval():
+    """Five seeds, one collapsed (AsyncCL at a high bit price): the t-interval of the mean is wide enough to call a
+    delay 12 times the baseline's "not worse"; the bootstrap interval of the IQM is not."""
+    from mrcomm_env.core.stats import iqm_ci95
+
+    seeds = [1.9, 2.0, 2.1, 2.2, 70.0]
+    learned = comparison.comparison_row("learned (ppo)", 0.5, seeds, [1474.0] * 5, 5)
+    learned["metric_iqm"], learned["metric_iqm_low"], learned["metric_iqm_high"] = iqm_ci95(seeds)
+    baseline = point(1.286, 2219.0, 0.027, 17.0)
+    assert learned["metric"] - learned["metric_ci95"] < baseline["metric"]  # the t-interval alone would match
+    assert not comparison.dominates(learned, baseline, lower_is_better=True)
+    steady = comparison.comparison_row("learned (ppo)", 0.02, [1.28, 1.29, 1.30, 1.29, 1.30], [2200.0] * 5, 5)
+    steady["metric_iqm"], steady["metric_iqm_low"], steady["metric_iqm_high"] = iqm_ci95([1.28, 1.29, 1.30, 1.29, 1.30])
+    assert comparison.dominates(steady, baseline, lower_is_better=True)
+    assert not comparison.beats(steady, baseline, lower_is_better=True)
+
+
 @pytest.mark.parametrize("env_id", env_ids())
 def test_every_env_has_a_learning_configuration_its_baselines_exist(env_id):
     from mrcomm_baselines import policy_names

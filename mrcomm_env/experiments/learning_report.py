@@ -221,8 +221,10 @@ def learning_section(env_id: str, rows: list[dict], spec: dict, figure: str, doc
     lines += [
         "",
         "Outcome, computed from the table. A learned point *matches* a baseline when it sends at most 5 % more "
-        "bits and its metric is not worse beyond the two 95 % intervals; it *beats* it when, in addition, its "
-        "metric is better beyond the intervals, or it sends at least 5 % fewer bits, also beyond the intervals:",
+        "bits and its metric is not worse beyond the two 95 % intervals (a learned point's: the bootstrap interval "
+        "of its IQM over training seeds; a baseline's: its t-interval over episodes); it *beats* it when, in "
+        "addition, its metric is better beyond the intervals, or it sends at least 5 % fewer bits, also beyond the "
+        "intervals:",
         "",
         *verdicts,
     ]
