@@ -271,3 +271,24 @@ def test_the_shipped_run_never_buys_its_metric_with_more_bits_than_the_best_pape
         {"policy": "paper_protocol", "setting": 0.1, "metric": 5.0, "bits": 10.0},
     ]
     assert comparison.shipped_run(runs[:2], ranged, per_setting, episodes=5)["run"] == "cheap0"
+
+
+@pytest.mark.parametrize("env_id", SHIPPED)
+def test_a_shipped_models_card_agrees_with_the_learning_page(env_id):
+    """The card's best paper algorithm is the one docs/learning.md's table gives in the model's setting, and the
+    shipped model sends no more bits than it (with the equal-bits rule's 5 % slack): a model is never shipped for
+    a metric bought with bits."""
+    from mrcomm_agents.learned import model_card
+    from mrcomm_env.experiments.learning_report import read_rows
+    from mrcomm_env.experiments.runs import comparison_spec
+
+    card = model_card(env_id)
+    if "best_baseline" not in card:
+        pytest.fail(f"{env_id}'s card predates the comparison's account (rerun reproduce-learning --export-pretrained)")
+    spec = comparison_spec(env_id)
+    rows = read_rows(Path(__file__).parents[1] / "docs" / "learning" / f"{short_name(env_id)}.csv")
+    setting = card["env_kwargs"][spec["cost_param"]] if spec.get("baselines_per_cost") else None
+    best = comparison.best_baseline([r for r in rows if r["cost"] is None], setting, spec)
+    assert best is not None and best["policy"] == card["best_baseline"]["policy"]
+    assert card["best_baseline"]["metric"] == pytest.approx(best["metric"], rel=1e-9)
+    assert card["heldout"]["bits"] <= 1.05 * card["best_baseline"]["bits"] + 1e-9
