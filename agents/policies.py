@@ -216,7 +216,9 @@ class CandidatePolicy(ActorCriticPolicy):
         return super()._get_action_dist_from_latent(latent_pi)
 
     def _build(self, lr_schedule) -> None:
-        super()._build(lr_schedule)  # with the Bernoulli distribution SB3 gives MultiBinary, which it knows how to build
+        super()._build(
+            lr_schedule
+        )  # with the Bernoulli distribution SB3 gives MultiBinary, which it knows how to build
         if self.subset:
             self.action_dist = SubsetDistribution(self.layout["candidates"], int(self.layout["choose"]))
         # the extractor's actor output already is one logit per action: SB3's linear action head would mix them

@@ -45,7 +45,7 @@ from tqdm.auto import tqdm
 from mrcomm_agents.heldout import HeldOutEvaluation
 from mrcomm_agents.policies import CandidatePolicy
 from mrcomm_agents.vecenv import AgentSlotVecEnv
-from mrcomm_agents.warm_start import clone
+from mrcomm_agents.warm_start import CriticWarmup, clone
 from mrcomm_env.core.config import Int, Optional, Real
 from mrcomm_env.core.policy import Policy
 from mrcomm_env.registry import canonical_id, make, short_name
@@ -69,6 +69,8 @@ RUN_KEYS = (
     "eval_every",
     "eval_episodes",
     "eval_deterministic",
+    "critic_warmup",
+    "freeze_normalization",
 )
 #: the documented ranges of the SB3 hyperparameters (a value outside is refused before any training)
 HYPERPARAMETER_RANGES = {
@@ -128,6 +130,12 @@ class TrainConfig:
     eval_every: int = 50_000
     eval_episodes: int = 2
     eval_deterministic: bool = True
+    #: agent-steps at the start of PPO during which only the critic learns (the actor is frozen); meant for a
+    #: warm start, whose critic was fitted to the rollouts of other policies
+    critic_warmup: int = 0
+    #: after a warm start, keep VecNormalize's statistics as the clone was fitted with them (else PPO keeps
+    #: updating them, which moves a fitted policy's inputs)
+    freeze_normalization: bool = False
 
     def validate(self) -> TrainConfig:
         self.env_id = canonical_id(self.env_id)
@@ -137,10 +145,19 @@ class TrainConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"argument '{name}' must be an integer ≥ 1, got {value!r}")
-        for name in ("seed", "eval_every", "eval_episodes"):
+        for name in ("seed", "eval_every", "eval_episodes", "critic_warmup"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"argument '{name}' must be an integer ≥ 0, got {value!r}")
+        if not isinstance(self.freeze_normalization, bool):
+            raise ValueError(
+                f"argument 'freeze_normalization' must be true or false, got {self.freeze_normalization!r}"
+            )
+        if self.freeze_normalization and (self.init_from is None or not self.normalize):
+            raise ValueError(
+                "argument 'freeze_normalization' needs a warm start ('init_from') and 'normalize': it keeps the "
+                "statistics the clone was fitted with"
+            )
         if not isinstance(self.eval_deterministic, bool):
             raise ValueError(f"argument 'eval_deterministic' must be true or false, got {self.eval_deterministic!r}")
         if self.init_from is not None and not (
@@ -344,6 +361,8 @@ def _train_locked(config: TrainConfig, out: Path, resume: bool, progress: bool, 
     if resume:
         model, venv = _load_newest_checkpoint(cls, config, ckpt, venv)
         done_steps = model.num_timesteps
+        if config.freeze_normalization and isinstance(venv, VecNormalize):
+            venv.training = False  # as the run left them (the checkpoint holds the clone's statistics)
         _cut_progress_log(out / "progress.csv", done_steps)
     else:
         if config.normalize:
@@ -367,6 +386,9 @@ def _train_locked(config: TrainConfig, out: Path, resume: bool, progress: bool, 
         if teacher is not None:
             report = clone(model, venv, teacher, config.env_id, config.env_kwargs, config.seed)
             write_json(out / "warm_start.json", {"teacher": config.init_from, **report.as_dict()})
+            if config.freeze_normalization and isinstance(venv, VecNormalize):
+                # the clone was fitted to these statistics: PPO fine-tunes it in the same input units
+                venv.training = False
     csv_log = resumed_csv_output(str(out / "progress.csv")) if resume else make_output_format("csv", str(out))
     model.set_logger(Logger(str(out), [csv_log, make_output_format("tensorboard", str(out))]))
 
@@ -380,6 +402,8 @@ def _train_locked(config: TrainConfig, out: Path, resume: bool, progress: bool, 
         callbacks.append(
             HeldOutEvaluation(config.env_id, config.env_kwargs, every, config.eval_episodes, config.eval_deterministic)
         )
+    if config.critic_warmup:
+        callbacks.append(CriticWarmup(config.critic_warmup))
     remaining = config.timesteps - done_steps
     try:
         model.learn(total_timesteps=remaining, callback=CallbackList(callbacks), reset_num_timesteps=not resume)

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecNormalize
 
 from mrcomm_agents.heldout import normalized, uses_masks
@@ -141,10 +142,53 @@ def _fit(policy, optimizer, venv, data_obs, data_act, data_ret, data_mask, rng) 
             if masks is None:
                 values, log_prob, _ = policy.evaluate_actions(obs_t[idx], act_t[idx])
             else:
-                values, log_prob, _ = policy.evaluate_actions(obs_t[idx], act_t[idx], action_masks=masks[order[lo : lo + BATCH]])
+                values, log_prob, _ = policy.evaluate_actions(
+                    obs_t[idx], act_t[idx], action_masks=masks[order[lo : lo + BATCH]]
+                )
             loss = -log_prob.mean() + 0.5 * torch.nn.functional.mse_loss(values.flatten(), ret_t[idx])
             optimizer.zero_grad()
             loss.backward()
             torch.nn.utils.clip_grad_norm_(policy.parameters(), 0.5)
             optimizer.step()
     policy.set_training_mode(False)
+
+
+def critic_parameters(policy) -> set[int]:
+    """The ids of the critic's parameters: SB3's ``value_net`` and every extractor layer named for the value
+    (``mlp_extractor.value_net`` of an MlpPolicy; ``value_candidates``, ``value_own``, ``value_head`` of a candidate
+    policy). Everything else (the shared features, the actor, its action head) is the actor's."""
+    return {id(p) for name, p in policy.named_parameters() if "value" in name.split(".")[0] or ".value" in name}
+
+
+class CriticWarmup(BaseCallback):
+    """For the first ``steps`` agent-steps of PPO after a warm start, only the critic learns: the actor's
+    parameters are frozen. A cloned actor with a critic fitted to another policy's returns gets noisy advantages,
+    and PPO's first updates then move it away from the teacher's level before the critic has caught up."""
+
+    def __init__(self, steps: int):
+        super().__init__()
+        self.steps = int(steps)
+        self.frozen: list[torch.nn.Parameter] = []
+
+    def _on_training_start(self) -> None:
+        if self.num_timesteps >= self.steps:
+            return
+        critic = critic_parameters(self.model.policy)
+        self.frozen = [p for p in self.model.policy.parameters() if id(p) not in critic and p.requires_grad]
+        for parameter in self.frozen:
+            parameter.requires_grad_(False)
+
+    def _on_rollout_start(self) -> None:
+        if self.frozen and self.num_timesteps >= self.steps:
+            self._release()
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_training_end(self) -> None:
+        self._release()
+
+    def _release(self) -> None:
+        for parameter in self.frozen:
+            parameter.requires_grad_(True)
+        self.frozen = []

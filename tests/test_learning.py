@@ -139,7 +139,12 @@ def test_reproduce_learning_end_to_end_on_a_tiny_budget(tmp_path, monkeypatch):
     # the 64-step budget ends before the default evaluation period
     with open(docs / "learning" / "ChannelAssociation-v0-curves.csv", newline="") as fh:
         curve = list(csv.DictReader(fh))
-    assert sorted((float(r["cost"]), int(r["agent_steps"])) for r in curve) == [(0.0, 0), (0.0, 64), (0.5, 0), (0.5, 64)]
+    assert sorted((float(r["cost"]), int(r["agent_steps"])) for r in curve) == [
+        (0.0, 0),
+        (0.0, 64),
+        (0.5, 0),
+        (0.5, 64),
+    ]
     assert all(float(r["seconds"]) > 0 for r in curve if int(r["agent_steps"]) == 64)
     assert all(0 <= float(r["metric"]) <= 12 for r in curve)  # an unfinished episode counts as its 12 steps
     assert (docs / "learning" / "ChannelAssociation-v0-curves.png").stat().st_size > 0
@@ -242,6 +247,8 @@ def test_multihop_pretrained_fills_a_slot_as_one_choice_of_at_most_m_minus_1():
         sent += [int(np.sum(a)) for a in actions.values()]
         observations, *_ = env.step(actions)
     assert max(sent) <= room and np.mean(sent) > 0
+
+
 def test_the_shipped_run_never_buys_its_metric_with_more_bits_than_the_best_paper_algorithm():
     """`--export-pretrained` ships the best metric among the runs within the best baseline's bits (5 % slack),
     and says so on the card; with no such run it falls back to the best metric."""

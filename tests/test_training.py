@@ -99,7 +99,9 @@ def test_training_logs_a_held_out_evaluation_of_the_paper_metric_and_bits(tmp_pa
         assert 0 <= float(row["heldout/completion_time"]) <= ENV_KWARGS["max_cycles"]  # unfinished: its length
     # the logged final figures are the trained model's on the held-out seeds
     policy = LearnedPolicy(evaluated, ENV)
-    again = evaluate_episodes(policy.model, policy.normalizer, ENV, ENV_KWARGS, [HELDOUT_SEEDS, HELDOUT_SEEDS + 1], True)
+    again = evaluate_episodes(
+        policy.model, policy.normalizer, ENV, ENV_KWARGS, [HELDOUT_SEEDS, HELDOUT_SEEDS + 1], True
+    )
     for key in ("completion_time", "bits_per_agent_episode"):
         assert float(logged[-1][f"heldout/{key}"]) == pytest.approx(again[key], rel=1e-12), key
     # training with the evaluation gives the same weights as without it

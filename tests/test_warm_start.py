@@ -130,3 +130,50 @@ def test_a_maskable_clone_takes_the_teachers_decisions_over_the_allowed_actions(
     assert all(torch.isfinite(p).all() for p in model.policy.parameters())
     after = agreement()
     assert after >= 0.85 and after > before, (before, after)
+
+
+def test_critic_warmup_trains_only_the_critic_then_releases_the_actor():
+    import gymnasium as gym
+
+    from mrcomm_agents.warm_start import CriticWarmup, critic_parameters
+
+    model = PPO("MlpPolicy", gym.make("CartPole-v1"), seed=0, device="cpu", n_steps=64, batch_size=64, n_epochs=2)
+    critic = critic_parameters(model.policy)
+    names = {id(p): n for n, p in model.policy.named_parameters()}
+    assert {names[i].split(".")[-2] for i in critic} >= {"value_net"}  # the value head and its layers
+    before = {n: p.detach().clone() for n, p in model.policy.named_parameters()}
+    model.learn(128, callback=CriticWarmup(10**9))
+    changed = {n for n, p in model.policy.named_parameters() if not torch.equal(p, before[n])}
+    assert changed and changed == {names[i] for i in critic if names[i] in changed}  # the critic only
+    assert all(p.requires_grad for p in model.policy.parameters())  # released when training ends
+    actor = {n for n, p in model.policy.named_parameters() if id(p) not in critic}
+    model.learn(128, callback=CriticWarmup(0), reset_num_timesteps=False)
+    assert any(not torch.equal(p, before[n]) for n, p in model.policy.named_parameters() if n in actor)
+
+
+def test_freeze_normalization_keeps_the_statistics_the_clone_was_fitted_with(tmp_path, capsys):
+    import pickle
+
+    counts = {}
+    for frozen in (False, True):
+        config = tmp_path / f"config-{frozen}.json"
+        config.write_text(json.dumps({"ppo": {"freeze_normalization": frozen, "eval_episodes": 0}}))
+        out = tmp_path / f"run-{frozen}"
+        argv = ["train", "ChannelAssociation-v0", "--init-from", "baseline:id_bits", "--timesteps", "128", "--quiet"]
+        argv += ["--param", "max_cycles=8", "--config", str(config), "--out", str(out)]
+        assert main(argv) == 0
+        with open(out / "vecnormalize.pkl", "rb") as handle:
+            counts[frozen] = pickle.load(handle).obs_rms.count
+    # the same seed clones from the same rollouts; only the unfrozen run goes on counting PPO's observations
+    assert counts[False] - counts[True] >= 128, counts
+
+
+def test_freeze_normalization_without_a_warm_start_is_refused(tmp_path, capsys):
+    config = tmp_path / "config.json"
+    config.write_text(json.dumps({"ppo": {"freeze_normalization": True}}))
+    out = tmp_path / "run"
+    assert (
+        main(["train", "ChannelAssociation-v0", "--config", str(config), "--timesteps", "64", "--out", str(out)]) == 2
+    )
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "freeze_normalization" in err and "init_from" in err and not out.exists()

@@ -135,10 +135,16 @@ def curves_paragraph(env_id: str, docs: Path | None) -> list[str]:
     if not rows:
         return []
     runs = {(r["cost"], r["seed"]) for r in rows}
-    last = {run: max((r for r in rows if (r["cost"], r["seed"]) == run), key=lambda r: r["agent_steps"]) for run in runs}
+    last = {
+        run: max((r for r in rows if (r["cost"], r["seed"]) == run), key=lambda r: r["agent_steps"]) for run in runs
+    }
     steps = sorted({int(r["agent_steps"]) for r in last.values()})
     minutes = [r["seconds"] / 60 for r in last.values()]
-    spread = f"{min(minutes):.1f}" if f"{min(minutes):.1f}" == f"{max(minutes):.1f}" else f"{min(minutes):.1f}–{max(minutes):.1f}"
+    spread = (
+        f"{min(minutes):.1f}"
+        if f"{min(minutes):.1f}" == f"{max(minutes):.1f}"
+        else f"{min(minutes):.1f}–{max(minutes):.1f}"
+    )
     return [
         f"![learning curves: held-out metric and bits against agent-steps](learning/{name}-curves.png)",
         "",
