@@ -15,6 +15,8 @@ exploration off CI.
 import os
 import resource
 
+import pytest
+
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
@@ -59,3 +61,17 @@ def register_hypothesis_profiles() -> None:
 
 
 register_hypothesis_profiles()
+
+
+@pytest.fixture(autouse=True, scope="session")
+def sb3_logs_in_the_suites_temporary_folder(tmp_path_factory):
+    """SB3 makes an empty ``<tmp>/SB3-<time>`` folder on every ``learn()`` of a model without a logger of its own
+    (``stable_baselines3.common.logger.configure``); the tests that train such models put it in pytest's
+    temporary folder instead of leaving hundreds in /tmp."""
+    previous = os.environ.get("SB3_LOGDIR")
+    os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3-logs"))
+    yield
+    if previous is None:
+        os.environ.pop("SB3_LOGDIR", None)
+    else:
+        os.environ["SB3_LOGDIR"] = previous

@@ -308,3 +308,17 @@ def test_json_is_written_atomically(tmp_path, monkeypatch, capsys):
     assert main(_evaluate_argv("--json", str(path))) == 130
     assert json.loads(path.read_text()) == {"previous": True}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["eval.json"]
+
+
+def test_bench_train_measures_ppo_without_leaving_sb3_folders_in_tmp(tmp_path, monkeypatch):
+    import tempfile
+
+    from mrcomm_env.experiments.bench import train_throughput
+    from mrcomm_env.registry import make
+
+    monkeypatch.delenv("SB3_LOGDIR", raising=False)  # as a user runs it (the suite points SB3 elsewhere)
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    result = train_throughput([lambda: make("mrcomm/ChannelAssociation-v0", max_cycles=8)] * 2, 128)
+    assert result["agent_steps"] >= 128 and result["agent_steps_per_s"] > 0
+    assert 0 < result["env_step_share"] < 1
+    assert not list(tmp_path.glob("SB3-*"))

@@ -58,6 +58,7 @@ def train_throughput(env_fns, timesteps: int, seed: int = 0) -> dict[str, float]
     """PPO agent-steps/s through ``AgentSlotVecEnv`` over ``env_fns`` and the share of wall time in ``env.step``."""
     import torch  # extra "train"
     from stable_baselines3 import PPO  # extra "train"
+    from stable_baselines3.common.logger import Logger  # extra "train"
 
     from mrcomm_agents.vecenv import AgentSlotVecEnv  # extra "train"
 
@@ -78,6 +79,8 @@ def train_throughput(env_fns, timesteps: int, seed: int = 0) -> dict[str, float]
     # one minibatch per epoch: the gradient work per agent-step is then the same whatever the slot count
     batch = BENCH_PPO["n_steps"] * venv.num_envs
     model = PPO("MlpPolicy", venv, seed=seed, device="cpu", verbose=0, batch_size=batch, **BENCH_PPO)
+    # a logger with no outputs: without one, SB3 makes an empty <tmp>/SB3-<time> folder on every learn()
+    model.set_logger(Logger(folder=None, output_formats=[]))
     start = time.perf_counter()
     model.learn(total_timesteps=timesteps)
     wall = time.perf_counter() - start
