@@ -129,6 +129,17 @@ def test_atomic_file_gets_the_permissions_of_a_plain_open(tmp_path):
     assert (tmp_path / "atomic").stat().st_mode == (tmp_path / "plain").stat().st_mode
 
 
+def test_atomic_csv_reads_back_as_the_rows_it_was_given(tmp_path):
+    import csv
+
+    rows = [{"policy": "age_aware", "bits": 758.8, "note": "a, quoted"}, {"policy": "flooding", "bits": 1, "note": ""}]
+    io.atomic_write_csv(tmp_path / "table.csv", rows)
+    with open(tmp_path / "table.csv", newline="") as handle:
+        back = list(csv.DictReader(handle))
+    assert back == [{key: str(value) for key, value in row.items()} for row in rows]
+    assert sorted(tmp_path.iterdir()) == [tmp_path / "table.csv"]
+
+
 def test_atomic_savefig_writes_a_complete_png(tmp_path):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure

@@ -11,6 +11,7 @@ truncated one. On any error the temporary file is removed.
 from __future__ import annotations
 
 import contextlib
+import csv
 import functools
 import json
 import os
@@ -74,6 +75,14 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
 def atomic_write_json(path: str | os.PathLike, obj: Any, **dump_kwargs: Any) -> None:
     """``json.dump(obj, …, **dump_kwargs)`` into ``path``; the object is serialised before the file is touched."""
     atomic_write_text(path, json.dumps(obj, **dump_kwargs))
+
+
+def atomic_write_csv(path: str | os.PathLike, rows: list[dict[str, Any]]) -> None:
+    """``rows`` (dicts with the keys of the first, in its order) as a CSV with a header, atomically."""
+    with atomic_open(path, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
 
 
 def atomic_savefig(fig, path: str | os.PathLike, **savefig_kwargs: Any) -> None:

@@ -16,7 +16,7 @@ from mrcomm_baselines import default_policy
 from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.comparison import beats, dominates, export_pretrained, reproduce_learning
 from mrcomm_env.experiments.evaluation import limit_threads
-from mrcomm_env.experiments.io import atomic_write_text
+from mrcomm_env.experiments.io import atomic_write_csv, atomic_write_text
 from mrcomm_env.experiments.runs import comparison_spec
 from mrcomm_env.experiments.sweep import add_runner_arguments, runner_from_args, using
 from mrcomm_env.registry import canonical_id, env_ids, short_name
@@ -264,22 +264,10 @@ def cmd_reproduce_learning(args: argparse.Namespace) -> int:
         for env_id in targets:
             name = short_name(env_id)
             rows, spec = reproduce_learning(env_id, out / name, quick=args.quick, progress=not args.quiet)
-            csv_path = docs / "learning" / f"{name}.csv"
-            tmp = csv_path.with_name(f".{csv_path.name}.tmp")
-            with open(tmp, "w", newline="") as fh:
-                writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-                writer.writeheader()
-                writer.writerows(rows)
-            tmp.replace(csv_path)
+            atomic_write_csv(docs / "learning" / f"{name}.csv", rows)
             curves = curve_rows(spec["tasks"], spec)
             if curves:
-                curves_path = docs / "learning" / f"{name}-curves.csv"
-                tmp = curves_path.with_name(f".{curves_path.name}.tmp")
-                with open(tmp, "w", newline="") as fh:
-                    writer = csv.DictWriter(fh, fieldnames=list(curves[0]))
-                    writer.writeheader()
-                    writer.writerows(curves)
-                tmp.replace(curves_path)
+                atomic_write_csv(docs / "learning" / f"{name}-curves.csv", curves)
                 plot_curves(curves, spec, f"{env_id}: learning curves", docs / "learning" / f"{name}-curves.png")
             figure = docs / "learning" / f"{name}.png"
             plot_comparison(rows, spec, f"{env_id}: learned vs scripted at equal bits", figure)

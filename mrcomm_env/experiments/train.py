@@ -4,7 +4,6 @@ settings (``--seeds``, ``--grid``) ranked by their held-out score."""
 from __future__ import annotations
 
 import argparse
-import csv
 import importlib
 import inspect
 import itertools
@@ -18,7 +17,7 @@ import numpy as np
 from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.arguments import parse_params, positive_int, seed_type
 from mrcomm_env.experiments.evaluation import limit_threads
-from mrcomm_env.experiments.io import atomic_open, atomic_write_text
+from mrcomm_env.experiments.io import atomic_write_csv, atomic_write_text
 from mrcomm_env.experiments.runs import comparison_spec, run_folder, teacher_for
 from mrcomm_env.experiments.sweep import Task, add_runner_arguments, runner_from_args
 from mrcomm_env.registry import canonical_id, short_name
@@ -241,10 +240,7 @@ def train_sweep(base: dict, seeds: list[int], grid: dict[str, list], out: Path, 
         spec = {"metric": "episode_return", "lower_is_better": False}
     metric = spec["metric"]
     rows = sweep_rows(runs, results, metric)
-    with atomic_open(out / "summary.csv", "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    atomic_write_csv(out / "summary.csv", rows)
     print_ranking(rows, metric, bool(spec.get("lower_is_better")))
     record = {
         "command": "mrcomm " + " ".join(shlex.quote(a) for a in getattr(args, "argv", []) or sys.argv[1:]),

@@ -10,7 +10,6 @@ environment with the scripted baselines, through the shared episode loop (:func:
 
 from __future__ import annotations
 
-import csv
 import math
 import time
 from pathlib import Path
@@ -22,7 +21,7 @@ from mrcomm_env.core import backend
 from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.evaluation import evaluate, steps_per_second
 from mrcomm_env.experiments.reproductions.common import (
-    atomic_open,
+    atomic_write_csv,
     atomic_write_json,
     figure,
     label_axes,
@@ -79,10 +78,7 @@ ARTIFACTS = (
 
 
 def _write_csv(path: Path, rows: list[dict]) -> None:
-    with atomic_open(path, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    atomic_write_csv(path, rows)
 
 
 def _random_pair(rng, n, d):

@@ -19,6 +19,7 @@ from mrcomm_baselines import make_policy
 from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.reproductions.common import (
     atomic_open,
+    atomic_write_csv,
     atomic_write_json,
     figure,
     label_axes,
@@ -116,10 +117,7 @@ def fig2(out: Path, size: str, results: list[dict]) -> tuple[str, dict]:
                         "completed": int(np.isfinite(values).sum()),
                     }
                 )
-    with atomic_open(out / "fig2_propagation.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    atomic_write_csv(out / "fig2_propagation.csv", rows)
     _plot_fig2(out, ms, table)
     return f"{len(ms)} slot lengths × {runs} random slot orders (frame cap {cap})", table
 
@@ -394,10 +392,7 @@ def fig5(out: Path, results: list[dict]) -> str:
             title="Staleness vs distance, corner robot of the 10×10 grid (cf. Fig. 5)",
             legend=8,
         )
-    with atomic_open(out / "fig5_staleness.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    atomic_write_csv(out / "fig5_staleness.csv", rows)
     return "\n".join(lines)
 
 

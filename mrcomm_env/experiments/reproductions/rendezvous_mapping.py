@@ -44,6 +44,7 @@ from mrcomm_baselines import make_policy
 from mrcomm_env.experiments.evaluation import limit_threads
 from mrcomm_env.experiments.reproductions.common import (
     atomic_open,
+    atomic_write_csv,
     atomic_write_json,
     figure,
     label_axes,
@@ -577,10 +578,7 @@ def report(name: str, size: str, fig4_md: str, fig6_md: str, tables: dict, claim
 
 def write_sweep_rows(path: Path, rows: list[dict]) -> None:
     """Every run of the Figs 8–10 sweeps, one CSV row each (atomically)."""
-    with atomic_open(path, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    atomic_write_csv(path, rows)
 
 
 def sweep_section(scenario: str, spec: dict, table: dict, name: str) -> list[str]:
