@@ -12,8 +12,8 @@
   :func:`label_axes` for the labels, scales, title and legend;
 * :func:`run_episode` — :func:`mrcomm_env.experiments.evaluation.run_episode`, the one episode loop,
   re-exported so that a reproduction imports everything it shares from here;
-* :func:`atomic_open`, :func:`atomic_write_json`, :func:`atomic_write_text` — every CSV/JSON goes through
-  these (:mod:`mrcomm_env.experiments.io`).
+* :func:`atomic_open`, :func:`atomic_write_csv`, :func:`atomic_write_json`, :func:`atomic_write_text` — every
+  CSV/JSON goes through these (:mod:`mrcomm_env.experiments.io`).
 """
 
 from __future__ import annotations
@@ -28,12 +28,19 @@ from matplotlib.figure import Figure
 from tqdm.auto import tqdm
 
 from mrcomm_env.experiments.evaluation import run_episode
-from mrcomm_env.experiments.io import atomic_open, atomic_savefig, atomic_write_json, atomic_write_text
+from mrcomm_env.experiments.io import (
+    atomic_open,
+    atomic_savefig,
+    atomic_write_csv,
+    atomic_write_json,
+    atomic_write_text,
+)
 from mrcomm_env.experiments.sweep import Task, run_tasks
 
 __all__ = [
     "SIZES",
     "atomic_open",
+    "atomic_write_csv",
     "atomic_write_json",
     "atomic_write_text",
     "figure",
