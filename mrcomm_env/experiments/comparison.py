@@ -19,6 +19,17 @@ from mrcomm_env.experiments.runs import comparison_spec, run_folder
 from mrcomm_env.experiments.sweep import Task, run_tasks
 from mrcomm_env.registry import canonical_id, short_name
 
+#: the first episode seed the comparison scores every policy on (training uses its own; held-out logs 30000+)
+COMPARISON_SEEDS = 10_000
+#: a learned point *matches* with up to this fraction more bits than a baseline (the bits' own noise), and sends
+#: *fewer* only below the same fraction less
+BITS_SLACK = 0.05
+
+
+def within_bits(bits: float, baseline_bits: float) -> bool:
+    """At most :data:`BITS_SLACK` more bits than the baseline's."""
+    return bits <= baseline_bits * (1.0 + BITS_SLACK) + 1e-9
+
 
 def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress: bool = True):
     """Train ``seeds`` policies per cost value, evaluate them and every baseline on held-out seeds, and return
@@ -35,7 +46,7 @@ def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress
     if quick:
         timesteps = spec.get("quick_timesteps", max(timesteps // 10, 1))
     seeds = list(range(spec.get("seeds", 3)))
-    eval_seeds = [10_000 + k for k in range(spec.get("eval_episodes", 10))]
+    eval_seeds = [COMPARISON_SEEDS + k for k in range(spec.get("eval_episodes", 10))]
     cost_param = spec["cost_param"]
     tasks = []
     for cost in spec["costs"]:
@@ -116,7 +127,7 @@ def shipped_run(tasks: list[dict], baseline_rows: list[dict], spec: dict, episod
     per_cost = bool(spec.get("baselines_per_cost"))
     for task in tasks:
         task["baseline"] = best_baseline(baseline_rows, task["cost"] if per_cost else None, spec)
-    frugal = [t for t in tasks if t["baseline"] is None or t["bits"] <= t["baseline"]["bits"] * 1.05 + 1e-9]
+    frugal = [t for t in tasks if t["baseline"] is None or within_bits(t["bits"], t["baseline"]["bits"])]
     best = min(frugal or tasks, key=lambda t: (sign * t["score"], t["bits"], t["cost"], t["seed"]))
     baseline = best["baseline"]
     return {
@@ -126,7 +137,7 @@ def shipped_run(tasks: list[dict], baseline_rows: list[dict], spec: dict, episod
             "bits": best["bits"],
             "bits_per": spec.get("bits_per", "step"),
             "episodes": episodes,
-            "first_seed": 10_000,
+            "first_seed": COMPARISON_SEEDS,
         },
         "best_baseline": None
         if baseline is None
@@ -214,7 +225,7 @@ def metric_interval(point: dict) -> tuple[float, float]:
 def dominates(learned: dict, baseline: dict, lower_is_better: bool) -> bool:
     """*Matches*: the learned point sends no more bits than the baseline (5 % slack for the bits' own noise) and
     its task metric is not worse beyond the two 95 % intervals (:func:`metric_interval`)."""
-    if learned["bits"] > baseline["bits"] * 1.05 + 1e-9:
+    if not within_bits(learned["bits"], baseline["bits"]):
         return False
     low, high = metric_interval(learned)
     base_low, base_high = metric_interval(baseline)
@@ -232,5 +243,5 @@ def beats(learned: dict, baseline: dict, lower_is_better: bool) -> bool:
     # fewer bits counts only beyond the intervals *and* the 5 % slack that matching allows: a point 2 % cheaper
     # but worse on average is a match, not a win
     saved = baseline["bits"] - learned["bits"]
-    cheaper = saved > learned["bits_ci95"] + baseline["bits_ci95"] and saved > 0.05 * baseline["bits"]
+    cheaper = saved > learned["bits_ci95"] + baseline["bits_ci95"] and saved > BITS_SLACK * baseline["bits"]
     return better or cheaper
