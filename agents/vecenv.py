@@ -46,6 +46,7 @@ from pettingzoo.utils.wrappers import BaseParallelWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
 import mrcomm_env
+from mrcomm_env.core.batched import BatchedEnv, copies_of_one_env
 
 #: the env method sb3-contrib's MaskablePPO calls through ``env_method`` (``get_action_masks``)
 ACTION_MASKS_METHOD = "action_masks"
@@ -89,6 +90,11 @@ class AgentSlotVecEnv(VecEnv):
         self._copy_returns = np.zeros(self.n_copies, dtype=np.float64)
         self._copy_lengths = np.zeros(self.n_copies, dtype=np.int64)
         self._actions: np.ndarray | None = None
+        # mrcomm envs (unwrapped) are stepped as one batch of arrays, without per-agent dictionaries; any other
+        # PettingZoo env (wrapped, foreign, with agents that come and go) through its own step()
+        self.batch: BatchedEnv | None = None
+        if copies_of_one_env(self.envs):
+            self.batch = BatchedEnv.of(self.envs, argument="env_fns")
 
     def _shared_spaces(self) -> tuple[spaces.Box, spaces.Space]:
         first_env, first_agent = self.envs[0], self.agent_names[0]
@@ -117,6 +123,15 @@ class AgentSlotVecEnv(VecEnv):
 
     # ----------------------------------------------------------------- reset and step
     def reset(self) -> VecEnvObs:
+        if self.batch is not None:
+            seeds = [self._seeds[copy_index * self.n_agents] for copy_index in range(self.n_copies)]
+            copy_options = [self._options[copy_index * self.n_agents] or None for copy_index in range(self.n_copies)]
+            observations, info_columns = self.batch.reset(seed=seeds, options=copy_options)
+            for copy_index in range(self.n_copies):
+                self._start_batched_episode(copy_index, observations[copy_index], info_columns, copy_index)
+            self._reset_seeds()
+            self._reset_options()
+            return self._observations.copy()
         for copy_index, env in enumerate(self.envs):
             first_slot = copy_index * self.n_agents
             options = self._options[first_slot]
@@ -144,6 +159,8 @@ class AgentSlotVecEnv(VecEnv):
             slot_actions: Sequence[Any] = self._actions.reshape(self.num_envs).tolist()
         else:
             slot_actions = self._actions
+        if self.batch is not None:
+            return self._step_batch()
         self._actions = None
 
         rewards = np.zeros(self.num_envs, dtype=np.float32)
@@ -209,6 +226,62 @@ class AgentSlotVecEnv(VecEnv):
                 self._start_episode(copy_index, observations, reset_infos)
 
         return self._observations.copy(), rewards, dones, infos
+
+    def _step_batch(self) -> VecEnvStepReturn:
+        """``step_wait`` for mrcomm envs: every copy in one ``BatchedEnv.step``; the same transitions, infos and
+        automatic resets as the per-agent path below (``tests/test_vecenv.py`` compares them)."""
+        assert self._actions is not None and self.batch is not None
+        n = self.n_agents
+        actions = self._actions.reshape(self.n_copies, n, *(self.action_space.shape or ()))
+        self._actions = None
+        out = self.batch.step(actions)
+        rewards = out.rewards.astype(np.float32).reshape(self.num_envs)
+        dones = np.repeat(out.ended, n)
+        keys = list(out.infos)
+        rows = np.stack([out.infos[key] for key in keys], axis=-1).reshape(self.num_envs, len(keys)).tolist()
+        truncated = np.repeat(out.truncated, n).tolist()
+        infos: list[dict[str, Any]] = []
+        for slot, (row, slot_truncated) in enumerate(zip(rows, truncated)):
+            info = dict(zip(keys, row))
+            info["TimeLimit.truncated"] = slot_truncated
+            infos.append(info)
+            self._info_masks[slot] = _info_mask(info)
+        for copy_index, copy_rewards in enumerate(out.rewards.tolist()):
+            total = self._copy_returns[copy_index]
+            for reward in copy_rewards:  # in agent order, as the per-agent path adds them
+                total += reward
+            self._copy_returns[copy_index] = total
+        self._copy_lengths += 1
+        self._observations[:] = out.observations.reshape(self._observations.shape)
+        for copy_index, final in out.final_observations.items():
+            first_slot = copy_index * n
+            copy_episode = {
+                "r": float(self._copy_returns[copy_index] / n),
+                "l": int(self._copy_lengths[copy_index]),
+            }
+            for agent_index in range(n):
+                info = infos[first_slot + agent_index]
+                info["terminal_observation"] = np.array(final[agent_index], dtype=self.observation_space.dtype)
+                info["copy_episode"] = dict(copy_episode)
+            self._start_batched_episode(copy_index, out.observations[copy_index], out.reset_infos[copy_index], None)
+        return self._observations.copy(), rewards, dones, infos
+
+    def _start_batched_episode(
+        self, copy_index: int, observations: np.ndarray, info_columns: dict[str, np.ndarray], row: int | None
+    ) -> None:
+        """``_start_episode`` from a batch: ``info_columns`` key → (M, N) with ``row`` the copy's, or (N,)."""
+        first_slot = copy_index * self.n_agents
+        keys = list(info_columns)
+        columns = [info_columns[key] if row is None else info_columns[key][row] for key in keys]
+        rows = np.stack(columns, axis=-1).tolist() if keys else [[] for _ in range(self.n_agents)]
+        for agent_index, values in enumerate(rows):
+            slot = first_slot + agent_index
+            self._active[slot] = True
+            self._observations[slot] = observations[agent_index]
+            self.reset_infos[slot] = dict(zip(keys, values))
+            self._info_masks[slot] = _info_mask(self.reset_infos[slot])
+        self._copy_returns[copy_index] = 0.0
+        self._copy_lengths[copy_index] = 0
 
     def _start_episode(self, copy_index: int, observations: dict[str, Any], infos: dict[str, dict]) -> None:
         """Load a copy's first observations and reset infos into its slots."""

@@ -19,6 +19,7 @@ import pettingzoo
 
 if TYPE_CHECKING:  # annotations only: the registry imports no environment code
     from mrcomm_env.core.base import MrcommParallelEnv
+    from mrcomm_env.core.batched import BatchedEnv
 
 NAMESPACE = "mrcomm/"
 
@@ -127,6 +128,15 @@ def env_class(env_id: str) -> type[MrcommParallelEnv]:
 def make(env_id: str, **kwargs: Any) -> MrcommParallelEnv:
     """Build the parallel form of any registered environment: ``mrcomm_env.make("MapSync-v0", n_robots=3)``."""
     return env_class(env_id)(**kwargs)
+
+
+def make_batched(env_id: str, n_copies: int, **kwargs: Any) -> BatchedEnv:
+    """``n_copies`` copies of ``make(env_id, **kwargs)`` stepped as arrays with a leading copy axis
+    (:class:`~mrcomm_env.core.batched.BatchedEnv`): ``mrcomm_env.make_batched("MapSync-v0", 64)``."""
+    from mrcomm_env.core.batched import BatchedEnv  # on use: the registry imports no environment code
+
+    cls = env_class(env_id)
+    return BatchedEnv(lambda: cls(**kwargs), n_copies)
 
 
 _registered: set[str] = set()

@@ -107,6 +107,25 @@ def test_bench_writes_json_with_ratio(tmp_path):
 
 
 @pytest.mark.xdist_group("processes")
+def test_bench_batched_steps_each_batch_size_in_its_own_process(tmp_path, capsys):
+    pytest.importorskip("mpe2")
+    out = tmp_path / "bench.json"
+    argv = ["bench", "MapSync-v0", "--param", "max_cycles=3", "--batched", "--copies", "1", "3"]
+    assert main([*argv, "--runs", "1", "--seconds", "0.1", "--warmup", "0", "--out", str(out)]) == 0
+    batched = json.loads(out.read_text())["batched"]["mrcomm/MapSync-v0"]
+    assert set(batched) == {"1", "3"}
+    for copies, result in batched.items():
+        assert result["n_copies"] == int(copies) and result["n_agents"] == 2 and result["finite"]
+        # max_cycles=3: the copies reset on their own within the timed steps
+        assert result["steps"] >= 2 and result["agent_steps_per_s"] > 0 and result["peak_rss_mb"] > 0
+        assert result["agent_steps_per_s"] == pytest.approx(result["env_steps_per_s"] * 2)
+    assert batched["3"]["speedup_over_smallest"] == pytest.approx(
+        batched["3"]["agent_steps_per_s"] / batched["1"]["agent_steps_per_s"]
+    )
+    assert "batch  mrcomm/MapSync-v0 M=3" in capsys.readouterr().out
+
+
+@pytest.mark.xdist_group("processes")
 def test_bench_sweep_times_each_backend_on_identical_results(tmp_path, monkeypatch, capsys):
     from mrcomm_env.experiments import bench
 

@@ -464,3 +464,54 @@ def test_the_render_colour_scale_is_fixed_for_the_episode():
         scatter = next(c for c in ax.collections if c.get_array() is not None and c.norm is not None)
         limits.append((scatter.norm.vmin, scatter.norm.vmax))
     assert len(set(limits)) == 1 and limits[0][0] < limits[0][1]
+
+
+def _use_frame_backend(monkeypatch, compiled: bool) -> None:
+    """The compiled frame or the numpy reference (decided by the env at reset)."""
+    import types
+
+    from mrcomm_env.multihop import env as env_module
+
+    monkeypatch.setattr(env_module, "backend", types.SimpleNamespace(compiled=lambda: compiled))
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "policy"),
+    [
+        ({"grid_side": 6, "max_cycles": 40}, "location_based"),  # cold start to steady state: first arrivals
+        ({"grid_side": 5, "slot_size": 25, "max_cycles": 12}, "random"),  # flooding
+        ({"grid_side": 4, "slot_size": 1, "max_cycles": 12}, "random"),  # no hop
+        ({"scene": "field", "n_robots": 15, "speed": 0.0, "max_cycles": 15}, "age_aware"),  # static disk links
+        ({"grid_side": 4, "layout": "absolute", "reward_mode": "neighbourhood", "max_cycles": 15}, "random"),
+        ({"scene": "field", "n_robots": 8, "speed": 2.0, "max_cycles": 6}, "random"),  # moving: the reference on both
+    ],
+)
+def test_whole_episodes_are_identical_with_the_compiled_frame(monkeypatch, kwargs, policy):
+    pytest.importorskip("numba")
+    from mrcomm_baselines import make_policy
+
+    def episode(compiled):
+        _use_frame_backend(monkeypatch, compiled)
+        env = MultiHopEnv(**kwargs)
+        pol = make_policy("MultiHop-v0", policy)
+        views = env.local_views()
+        obs, infos = env.reset(seed=23)
+        pol.reset(views, 23)
+        assert (env._send_frame is not None) == (compiled and not env._moving)
+        trace = [(obs, infos)]
+        while env.agents:
+            obs, rewards, _, _, infos = env.step(pol.act(obs, views))
+            arrays = (env.stamps, env.first_known, env.last_sent, env.sent_stamp)
+            trace.append((obs, rewards, infos, env.t, *(a.copy() for a in arrays)))
+        return trace, repr(env.metrics()), env.ledger.total_bits.tolist()
+
+    def same(a, b) -> bool:  # bit for bit: arrays by their bytes, dicts (per agent) key by key
+        if isinstance(a, dict):
+            return a.keys() == b.keys() and all(same(a[key], b[key]) for key in a)
+        return np.asarray(a).dtype == np.asarray(b).dtype and np.asarray(a).tobytes() == np.asarray(b).tobytes()
+
+    reference, compiled = episode(False), episode(True)
+    assert len(reference[0]) == len(compiled[0]) > 1
+    for want, got in zip(reference[0], compiled[0]):
+        assert all(same(a, b) for a, b in zip(want, got, strict=True))
+    assert reference[1:] == compiled[1:]

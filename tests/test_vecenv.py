@@ -546,3 +546,47 @@ def test_render_tiles_one_image_per_copy():
     silent = make_vec_env("ChannelAssociation-v0", n_envs=1, **channel_kwargs(3))
     with pytest.warns(UserWarning, match="render_mode"):
         assert silent.render() is None
+
+
+BATCH_PATH_CASES = [
+    ("ChannelAssociation-v0", channel_kwargs(3, horizon=6)),
+    ("MultiHop-v0", multihop_kwargs(horizon=4)),
+    ("MultiHop-v0", {"grid_side": 2, HORIZON_ARG: 4}),  # MultiBinary actions
+    ("MapSync-v0", {HORIZON_ARG: 5}),
+    ("AsyncCL-v0", {"n_robots": 3, HORIZON_ARG: 5}),
+    ("RendezvousMapping-v0", {"n_vehicles": 3, "n_landmarks": 30, "area": 1600.0, HORIZON_ARG: 3}),
+]
+
+
+@pytest.mark.parametrize(("env_id", "kwargs"), BATCH_PATH_CASES, ids=lambda v: str(v))
+def test_mrcomm_copies_step_as_one_batch_with_the_same_transitions_as_the_per_agent_path(env_id, kwargs):
+    """Unwrapped mrcomm copies are stepped through ``BatchedEnv`` (arrays); any wrapped env through its own
+    ``step()``. Both paths give SB3 the same observations, rewards, dones, infos and reset infos."""
+    n_copies, seed = 2, 4
+    batched = make_vec_env(env_id, n_envs=n_copies, seed=seed, **kwargs)
+    per_agent = AgentSlotVecEnv(
+        [functools.partial(lambda: BaseParallelWrapper(mrcomm_env.make(env_id, **kwargs))) for _ in range(n_copies)]
+    )
+    per_agent.seed(seed)
+    assert batched.batch is not None and per_agent.batch is None
+    assert batched.reset().tobytes() == per_agent.reset().tobytes()
+    assert batched.reset_infos == per_agent.reset_infos
+    rng = np.random.default_rng(3)
+    space = batched.action_space
+    for _ in range(3 * kwargs[HORIZON_ARG] + 1):
+        if isinstance(space, spaces.MultiBinary):
+            actions = rng.integers(0, 2, size=(batched.num_envs, *space.shape)).astype(np.float32)
+        else:
+            actions = random_actions(rng, space, batched.num_envs)
+        first, second = batched.step(actions), per_agent.step(actions)
+        for got, want in zip(first[:3], second[:3]):
+            assert got.dtype == want.dtype and got.tobytes() == want.tobytes()
+        for got, want in zip(first[3], second[3]):
+            assert got.keys() == want.keys()
+            for key in got:
+                if key == "terminal_observation":
+                    assert got[key].dtype == want[key].dtype and got[key].tobytes() == want[key].tobytes()
+                else:
+                    assert got[key] == want[key], key
+        assert batched.reset_infos == per_agent.reset_infos
+    assert batched.get_attr("step_count") == per_agent.get_attr("step_count")

@@ -62,6 +62,9 @@ class MrcommParallelEnv(ParallelEnv):
     ledger: Any
     _obs_space: spaces.Space
     _act_space: spaces.Space
+    # the info columns of the last _agent_infos() object, as float64 arrays and (lazily) as per-agent rows
+    _info_arrays: tuple[list[str], list[np.ndarray]]
+    _info_rows: list[tuple[float, ...]] | None
 
     def __init_subclass__(cls, **kwargs: Any):
         super().__init_subclass__(**kwargs)
@@ -211,6 +214,23 @@ class MrcommParallelEnv(ParallelEnv):
         return self.local_views()[agent]
 
     def reset(self, seed: int | None = None, options: dict | None = None):
+        self._begin_episode(seed)
+        if self.render_mode == "human":
+            self.render()
+        return self._observations(), self._infos()
+
+    def reset_arrays(
+        self, seed: int | None = None, options: dict | None = None
+    ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """:meth:`reset` as arrays, the same code without the per-agent dictionaries: the observations
+        ``(N, *obs_shape)`` in agent order and the infos as columns, key → ``(N,)`` float64. What
+        :class:`~mrcomm_env.core.batched.BatchedEnv` steps."""
+        self._begin_episode(seed)
+        if self.render_mode == "human":
+            self.render()
+        return self._observe(), self._info_columns_array()
+
+    def _begin_episode(self, seed: int | None) -> None:
         if seed is not None:
             if isinstance(seed, bool) or not isinstance(seed, Integral) or seed < 0:
                 raise ValueError(f"argument 'seed' must be None or an integer ≥ 0, got {seed!r}")
@@ -220,9 +240,6 @@ class MrcommParallelEnv(ParallelEnv):
         self._live = dict.fromkeys(self.agents)  # key view compared with each step's actions in C
         self.step_count = 0
         self._reset_world()
-        if self.render_mode == "human":
-            self.render()
-        return self._observations(), self._infos()
 
     def step(self, actions: dict[str, Any]):
         if not self.agents:
@@ -240,26 +257,67 @@ class MrcommParallelEnv(ParallelEnv):
                 f"argument 'actions' must hold one action for each agent {self.agents[0]} … {self.agents[-1]}; "
                 f"unknown: {unknown[:5]}, missing: {missing[:5]}"
             )
-        acts = self._check_action(self.agents, [actions[agent] for agent in self.agents])
-        rewards = self._step_world(acts)
-        self._state_version += 1
-        self.step_count += 1
-        truncated = self.step_count >= self.cfg["max_cycles"]
-        terminated = bool(self._terminated())
-        observations = self._observations()
-        infos = self._infos()
         agents = self.agents
+        rewards, terminated, truncated = self._advance([actions[agent] for agent in agents])
+        observations = self._observations(agents)
+        infos = self._infos(agents)
         if isinstance(rewards, (float, int, np.number)):
             reward_dict = dict.fromkeys(agents, float(rewards))
         else:
             reward_dict = dict(zip(agents, np.asarray(rewards, dtype=np.float64).tolist()))
         term_dict = dict.fromkeys(agents, terminated)
-        trunc_dict = dict.fromkeys(agents, truncated and not terminated)
-        if terminated or truncated:
-            self.agents = []
+        trunc_dict = dict.fromkeys(agents, truncated)
         if self.render_mode == "human":  # gymnasium's convention: human mode draws every step by itself
             self.render()
         return observations, reward_dict, term_dict, trunc_dict, infos
+
+    def step_arrays(self, actions) -> tuple[np.ndarray, np.ndarray, bool, bool, dict[str, np.ndarray]]:
+        """:meth:`step` as arrays, the same code without the per-agent dictionaries.
+
+        ``actions``: one action per agent in agent order (a sequence, or an array whose first axis is the
+        agent). Returns the observations ``(N, *obs_shape)``, the rewards ``(N,)`` float64, ``terminated``,
+        ``truncated`` (as :meth:`step` reports them for every agent: all agents end together) and the infos as
+        columns, key → ``(N,)`` float64. Bad actions raise the same ``ValueError`` as :meth:`step`.
+        """
+        if not self.agents:
+            self._require_reset("step_arrays")
+            raise RuntimeError("step_arrays() called on a finished episode; call reset_arrays() first")
+        if isinstance(actions, np.ndarray):
+            if actions.shape[:1] != (self.n_agents,):
+                raise ValueError(
+                    f"argument 'actions' must hold one action per agent ({self.n_agents}) in agent order, "
+                    f"got shape {actions.shape}"
+                )
+            # plain ints for a Discrete space: the action checker's fast path, as step() receives them
+            actions = actions.tolist() if isinstance(self._act_space, spaces.Discrete) else list(actions)
+        elif len(actions) != self.n_agents:
+            raise ValueError(
+                f"argument 'actions' must hold one action per agent ({self.n_agents}) in agent order, "
+                f"got {len(actions)}"
+            )
+        rewards, terminated, truncated = self._advance(list(actions))
+        if isinstance(rewards, (float, int, np.number)):
+            reward_array = np.full(self.n_agents, float(rewards))
+        else:
+            reward_array = np.array(rewards, dtype=np.float64)
+        observations = self._observe()
+        infos = self._info_columns_array()
+        if self.render_mode == "human":
+            self.render()
+        return observations, reward_array, terminated, truncated, infos
+
+    def _advance(self, actions: list) -> tuple[Any, bool, bool]:
+        """One step of the world on validated ``actions`` (agent order): the world's rewards, ``terminated``
+        and ``truncated`` (never both: termination wins). Ends the episode (``agents`` empty) when either."""
+        acts = self._check_action(self.agents, actions)
+        rewards = self._step_world(acts)
+        self._state_version += 1
+        self.step_count += 1
+        truncated = self.step_count >= self.cfg["max_cycles"]
+        terminated = bool(self._terminated())
+        if terminated or truncated:
+            self.agents = []
+        return rewards, terminated, truncated and not terminated
 
     def render(self):
         if self.render_mode is None:
@@ -296,20 +354,30 @@ class MrcommParallelEnv(ParallelEnv):
         except (KeyError, TypeError):
             raise ValueError(f"unknown agent {agent!r}; valid agents are robot_0 … robot_{self.n_agents - 1}") from None
 
-    def _observations(self) -> dict[str, np.ndarray]:
+    def _observations(self, agents: list[str] | None = None) -> dict[str, np.ndarray]:
         obs = self._observe()
-        return dict(zip(self.agents, obs))
+        return dict(zip(self.agents if agents is None else agents, obs))
 
-    def _infos(self) -> dict[str, dict[str, float]]:
+    def _info_columns(self) -> tuple[list[str], list[np.ndarray]]:
+        """The info keys and their float64 columns (N,), converted once per new ``_agent_infos()`` object."""
         columns = self._agent_infos()
         # the last columns are kept referenced, so an unchanged object (see _agent_infos) is the same one
-        if columns is not self.__dict__.get("_info_columns"):
+        if columns is not self.__dict__.get("_info_source"):
             keys = list(columns)
-            values = [np.asarray(columns[k], dtype=np.float64).tolist() for k in keys]
-            self._info_columns, self._info_rows = columns, (keys, list(zip(*values)))
-        keys, rows = self._info_rows
+            arrays = [np.asarray(columns[k], dtype=np.float64) for k in keys]
+            self._info_source, self._info_arrays, self._info_rows = columns, (keys, arrays), None
+        return self._info_arrays
+
+    def _info_columns_array(self) -> dict[str, np.ndarray]:
+        keys, arrays = self._info_columns()
+        return {key: column.copy() for key, column in zip(keys, arrays)}
+
+    def _infos(self, agents: list[str] | None = None) -> dict[str, dict[str, float]]:
+        keys, arrays = self._info_columns()
+        if self._info_rows is None:
+            self._info_rows = list(zip(*[column.tolist() for column in arrays]))
         # fresh dicts every step: wrappers (SB3's VecEnv, SuperSuit) add keys to the infos they receive
-        return {a: dict(zip(keys, row)) for a, row in zip(self.agents, rows)}
+        return {a: dict(zip(keys, row)) for a, row in zip(self.agents if agents is None else agents, self._info_rows)}
 
 
 def _is_int_action(action: Any) -> bool:

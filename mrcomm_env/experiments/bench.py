@@ -19,8 +19,9 @@ from tqdm.auto import tqdm
 
 from mrcomm_baselines import default_policy, make_policy
 from mrcomm_env.core import backend
+from mrcomm_env.core.memory import BUDGET_ARGUMENT, GIB
 from mrcomm_env.experiments.evaluation import run_episode
-from mrcomm_env.experiments.limits import limit_configs, measure_limit
+from mrcomm_env.experiments.limits import limit_configs, measure_batched, measure_limit
 from mrcomm_env.experiments.reproductions import module
 from mrcomm_env.experiments.sweep import Runner, Task, one_thread
 from mrcomm_env.registry import make
@@ -28,7 +29,7 @@ from mrcomm_env.registry import make
 
 def train_section(targets: list[str], params: dict, timesteps: int, progress: bool = True) -> dict[str, Any]:
     """PPO agent-steps/s through the agent-slot VecEnv on every target and on mpe2's ``simple_spread_v3``, with
-    the share of wall time spent in ``env.step`` (the goal: our envs train at least as fast as the reference)."""
+    the share of wall time spent stepping the envs (the goal: our envs train at least as fast as the reference)."""
 
     def reference():
         from mpe2 import simple_spread_v3  # extra "bench"
@@ -55,7 +56,8 @@ BENCH_PPO: dict[str, Any] = {"n_steps": 64, "n_epochs": 4, "policy_kwargs": {"ne
 
 
 def train_throughput(env_fns, timesteps: int, seed: int = 0) -> dict[str, float]:
-    """PPO agent-steps/s through ``AgentSlotVecEnv`` over ``env_fns`` and the share of wall time in ``env.step``."""
+    """PPO agent-steps/s through ``AgentSlotVecEnv`` over ``env_fns`` and the share of wall time in env stepping (the
+    VecEnv's ``step_wait``: the copies' steps and their slots' observations, rewards and infos)."""
     import torch  # extra "train"
     from stable_baselines3 import PPO  # extra "train"
     from stable_baselines3.common.logger import Logger  # extra "train"
@@ -65,17 +67,18 @@ def train_throughput(env_fns, timesteps: int, seed: int = 0) -> dict[str, float]
     torch.set_num_threads(1)
     venv = AgentSlotVecEnv(env_fns)
     in_step = [0.0]
-    for env in venv.envs:
-        step = env.step
+    step_wait = venv.step_wait
 
-        def timed(actions, _step=step):
-            start = time.perf_counter()
-            try:
-                return _step(actions)
-            finally:
-                in_step[0] += time.perf_counter() - start
+    def timed_step_wait():
+        # the env's side of a PPO step: every copy stepped (one batch for mrcomm envs, env.step for the reference)
+        # and its results laid out as SB3's slots
+        start = time.perf_counter()
+        try:
+            return step_wait()
+        finally:
+            in_step[0] += time.perf_counter() - start
 
-        env.step = timed
+    venv.step_wait = timed_step_wait
     # one minibatch per epoch: the gradient work per agent-step is then the same whatever the slot count
     batch = BENCH_PPO["n_steps"] * venv.num_envs
     model = PPO("MlpPolicy", venv, seed=seed, device="cpu", verbose=0, batch_size=batch, **BENCH_PPO)
@@ -97,7 +100,7 @@ def train_throughput(env_fns, timesteps: int, seed: int = 0) -> dict[str, float]
 def _train_line(result: dict) -> str:
     return (
         f"{result['agent_steps_per_s']:,.0f} PPO agent-steps/s ({result['slots']} slots), "
-        f"{100 * result['env_step_share']:.0f} % of wall time in env.step"
+        f"{100 * result['env_step_share']:.0f} % of wall time stepping the envs"
     )
 
 
@@ -112,6 +115,49 @@ def limits_section(targets: list[str], seconds: float) -> dict[str, Any]:
             print(
                 f"limit  {env_id} {name}: {result.get('steps_per_s', float('nan')):,.2f} steps/s, "
                 f"peak {result.get('peak_rss_mb', float('nan')):,.0f} MB"
+            )
+    return out
+
+
+#: the batch sizes ``mrcomm bench --batched`` steps (#24's goal: M = 1,024 at ≥ 10× the agent-steps/s of M = 1)
+BATCHED_COPIES = (1, 64, 1024)
+
+
+def batched_section(
+    targets: list[str], params: dict, copies: tuple[int, ...] = BATCHED_COPIES, seconds: float = 3.0, runs: int = 1
+) -> dict[str, Any]:
+    """Raw stepping of ``BatchedEnv`` under random actions at each batch size in ``copies``, every one in a fresh
+    process: agent-steps/s (median of ``runs``), the speed-up over the smallest batch and the peak memory.
+
+    A batch is refused at construction when its copies together need more than the memory budget by the env's own
+    estimate (each copy counted at one env's peak); to measure, the bench raises ``memory_budget_gib`` to that
+    estimate unless ``params`` sets it, and records both beside the measured peak."""
+
+    out: dict[str, Any] = {}
+    for env_id in targets:
+        env = make(env_id, **params)
+        estimate = env.memory_estimate(env.cfg)
+        env.close()
+        out[env_id] = {}
+        for m in copies:
+            config = dict(params)
+            config.setdefault(BUDGET_ARGUMENT, max(float(env.cfg[BUDGET_ARGUMENT]), m * estimate / GIB))
+            samples = [measure_batched(env_id, config, m, seconds=seconds) for _ in range(runs)]
+            result = dict(samples[len(samples) // 2])
+            result["agent_steps_per_s"] = statistics.median(r["agent_steps_per_s"] for r in samples)
+            result["env_steps_per_s"] = statistics.median(r["env_steps_per_s"] for r in samples)
+            result["peak_rss_mb"] = max(r["peak_rss_mb"] for r in samples)
+            result["batch_rss_mb"] = statistics.median(r["rss_after_mb"] - r["rss_before_mb"] for r in samples)
+            result["estimate_gib"] = m * estimate / GIB
+            result[BUDGET_ARGUMENT] = config[BUDGET_ARGUMENT]
+            result["runs"] = runs
+            base = out[env_id][str(copies[0])]["agent_steps_per_s"] if out[env_id] else result["agent_steps_per_s"]
+            result["speedup_over_smallest"] = result["agent_steps_per_s"] / base
+            out[env_id][str(m)] = result
+            print(
+                f"batch  {env_id} M={m}: {result['agent_steps_per_s']:,.0f} agent-steps/s "
+                f"({result['speedup_over_smallest']:.2f}× M={copies[0]}), the batch holds {result['batch_rss_mb']:,.0f} MB "
+                f"(estimate {result['estimate_gib']:.2f} GiB), process peak {result['peak_rss_mb']:,.0f} MB"
             )
     return out
 

@@ -262,6 +262,8 @@ def cmd_bench(args) -> int:
         results["train"] = bench.train_section(targets, params, args.train_timesteps)
     if args.limits:
         results["limits"] = bench.limits_section(targets, args.seconds)
+    if args.batched:
+        results["batched"] = bench.batched_section(targets, params, tuple(args.copies), args.seconds, runs)
     atomic_write_json(out, results, indent=2)
     print(f"wrote {out} (median of {runs} runs of {args.seconds:g} s each)")
     return 0
@@ -376,6 +378,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--train", action="store_true", help="also PPO agent-steps/s through the training VecEnv")
     p.add_argument("--train-timesteps", type=positive_int, default=20_000, help="PPO agent-steps per env (--train)")
     p.add_argument("--limits", action="store_true", help="also steps/s and peak memory at every documented maximum")
+    p.add_argument(
+        "--batched",
+        action="store_true",
+        help="also raw agent-steps/s and peak memory of M copies stepped as one batch (mrcomm_env.make_batched)",
+    )
+    p.add_argument(
+        "--copies",
+        type=positive_int,
+        nargs="+",
+        default=list(bench.BATCHED_COPIES),
+        metavar="M",
+        help="batch sizes for --batched (default: 1 64 1024)",
+    )
     p.add_argument(
         "--sweep",
         action="store_true",

@@ -81,15 +81,51 @@ def measure_limit(
         "seed": seed,
         "trace_memory": bool(trace_memory),
     }
-    env = {**os.environ, **(env_vars or {})}
+    return _in_child(job, timeout, {**os.environ, **(env_vars or {})}, f"{env_id} {config}")
+
+
+def _in_child(job: dict[str, Any], timeout: float | None, env: Any, what: str) -> dict[str, Any]:
+    """Run ``job`` in ``python -m`` this module and return the JSON line it prints."""
     proc = subprocess.run(
         [sys.executable, "-m", __name__, json.dumps(job)], capture_output=True, text=True, timeout=timeout, env=env
     )
     lines = proc.stdout.strip().splitlines()
     if proc.returncode != 0 or not lines:
         last = (proc.stderr.strip().splitlines() or ["no output"])[-1]
-        raise RuntimeError(f"{env_id} {config}: the measuring process failed ({proc.returncode}): {last}")
+        raise RuntimeError(f"{what}: the measuring process failed ({proc.returncode}): {last}")
     return json.loads(lines[-1])
+
+
+def measure_batched(
+    env_id: str,
+    config: dict[str, Any],
+    n_copies: int,
+    seconds: float = 3.0,
+    min_steps: int = 2,
+    seed: int = 0,
+    timeout: float | None = None,
+) -> dict[str, Any]:
+    """Step a :class:`~mrcomm_env.core.batched.BatchedEnv` of ``n_copies`` copies of ``env_id`` with ``config`` in
+    a fresh process under uniformly random actions, for ``seconds`` of wall time and at least ``min_steps`` batch
+    steps (copies reset on their own). Returns ``agent_steps_per_s`` and ``env_steps_per_s`` (every copy's agents
+    and steps, over the timed steps; drawing the actions, construction and the first reset excluded),
+    ``peak_rss_mb`` (the child's peak resident set, interpreter included), ``rss_before_mb`` and ``rss_after_mb``
+    (the resident set before the batch was built, with the env's modules imported, and after the last step: their
+    difference is what the batch holds), ``steps``, ``build_s``, ``reset_s``, ``finite`` and ``n_agents``.
+    """
+    if isinstance(n_copies, bool) or not isinstance(n_copies, int) or n_copies < 1:
+        raise ValueError(f"argument 'n_copies' must be an integer ≥ 1, got {n_copies!r}")
+    job = {
+        "kind": "batched",
+        "env_id": env_id,
+        "env_module": entry(env_id).env,
+        "config": config,
+        "n_copies": n_copies,
+        "seconds": seconds,
+        "min_steps": min_steps,
+        "seed": seed,
+    }
+    return _in_child(job, timeout, os.environ, f"{env_id} {config} × {n_copies} copies")
 
 
 def measure_limits(env_id: str, seconds: float = 10.0, **kwargs: Any) -> dict[str, dict[str, Any]]:
@@ -145,6 +181,57 @@ def _run(job: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def _run_batched(job: dict[str, Any]) -> dict[str, Any]:
+
+    from mrcomm_env.core.batched import BatchedEnv, sample_actions
+
+    env_cls = importlib.import_module(job["env_module"]).parallel_env  # importing is not the batch's memory
+    rss_before_mb = _current_rss_mb()
+    start = time.perf_counter()
+    batch = BatchedEnv(lambda: env_cls(**job["config"]), job["n_copies"])
+    built = time.perf_counter()
+    obs, infos = batch.reset(seed=job["seed"])
+    reset_done = time.perf_counter()
+    finite = bool(np.isfinite(obs).all()) and all(bool(np.isfinite(v).all()) for v in infos.values())
+    rng = np.random.default_rng(job["seed"])
+    leading = (batch.n_copies, batch.n_agents)
+    steps, timed = 0, 0.0
+    deadline = reset_done + job["seconds"]
+    while steps < job["min_steps"] or time.perf_counter() < deadline:
+        actions = sample_actions(batch.action_space, rng, leading)
+        t0 = time.perf_counter()
+        out = batch.step(actions)
+        timed += time.perf_counter() - t0
+        steps += 1
+        finite = finite and bool(np.isfinite(out.observations).all() and np.isfinite(out.rewards).all())
+        finite = finite and all(bool(np.isfinite(v).all()) for v in out.infos.values())
+    peak_kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
+    copies_steps = steps * batch.n_copies
+    return {
+        "env_id": job["env_id"],
+        "n_copies": batch.n_copies,
+        "n_agents": batch.n_agents,
+        "steps": steps,
+        "env_steps_per_s": copies_steps / timed if timed > 0 else math.inf,
+        "agent_steps_per_s": copies_steps * batch.n_agents / timed if timed > 0 else math.inf,
+        "peak_rss_mb": peak_kib / 1024.0,
+        "rss_before_mb": rss_before_mb,
+        "rss_after_mb": _current_rss_mb(),
+        "build_s": built - start,
+        "reset_s": reset_done - built,
+        "finite": finite,
+    }
+
+
+def _current_rss_mb() -> float:
+    """This process's resident set now (Linux ``/proc``; the peak where it cannot be read)."""
+    try:
+        with open("/proc/self/statm") as statm:
+            return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except (OSError, ValueError, IndexError):
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
 def _all_finite(np, observations, infos, rewards=()) -> bool:
     values = [np.asarray(o, dtype=float).ravel() for o in observations]
     values.append(np.asarray(list(rewards), dtype=float))
@@ -153,4 +240,5 @@ def _all_finite(np, observations, infos, rewards=()) -> bool:
 
 
 if __name__ == "__main__":
-    print(json.dumps(_run(json.loads(sys.argv[1]))))
+    _job = json.loads(sys.argv[1])
+    print(json.dumps(_run_batched(_job) if _job.get("kind") == "batched" else _run(_job)))

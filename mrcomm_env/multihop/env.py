@@ -36,7 +36,7 @@ import numpy as np
 from gymnasium import spaces
 from scipy.sparse.csgraph import shortest_path
 
-from mrcomm_env.core import BitLedger, MrcommParallelEnv, TDMASchedule, disk_links, grid_links
+from mrcomm_env.core import BitLedger, MrcommParallelEnv, TDMASchedule, backend, disk_links, grid_links
 from mrcomm_env.core import render as rendering
 from mrcomm_env.core.config import Choice, Int, Optional, Param, Real
 from mrcomm_env.multihop import coverage as cov
@@ -323,6 +323,8 @@ class MultiHopEnv(MrcommParallelEnv):
             self.waypoint = rng.uniform(0.0, self.side, size=(n, 2))
         else:  # coverage: take off from a corner region, spread out by the controller
             self.pos = rng.uniform(0.0, 0.25 * self.side, size=(n, 2))
+        # the compiled twin of the frame on a static topology, or the numpy reference (docs/architecture.md)
+        self._send_frame = None if self._moving or not backend.compiled() else _frame_kernels().send_frame
         self._links()
         self._hops()
         self.t = 0.0
@@ -352,6 +354,8 @@ class MultiHopEnv(MrcommParallelEnv):
         else:
             self.adj = disk_links(self.pos, self.cfg.comm_range)
         self._nbrs = [np.flatnonzero(row) for row in self.adj]
+        if self._send_frame is not None:  # the same neighbour lists as CSR rows for the compiled frame
+            self._nbr_ptr, self._nbr_idx = _frame_kernels().neighbour_lists(self.adj)
 
     def _hops(self) -> None:
         """Hop-distance buckets of the current topology (for the max-age-by-hop metrics)."""
@@ -385,7 +389,26 @@ class MultiHopEnv(MrcommParallelEnv):
         fk = None if self._all_known else self.first_known.reshape(-1)
         all_known = self._all_known
         moving = self._moving
-        for s in self.tdma.order.tolist():
+        if self._send_frame is not None:  # the whole frame in one compiled call: the same numbers as the loop below
+            clock = np.array([t])
+            self._send_frame(
+                stamps[None],
+                self.tdma.order[None],
+                rank[None],
+                count[None],
+                m,
+                clock,
+                self.slot_dur,
+                self._nbr_ptr,
+                self._nbr_idx,
+                self.first_known[None],
+                np.array([not all_known]),
+                last_sent[None],
+                sent_stamp[None],
+                sent_counts[None],
+            )
+            t = float(clock[0])
+        for s in [] if self._send_frame is not None else self.tdma.order.tolist():
             row = stamps[s]
             row[s] = t  # own state is always current (t_ii = t)
             cand = rank[s, : count[s]]
@@ -616,3 +639,10 @@ class MultiHopEnv(MrcommParallelEnv):
         ax.set_ylim(-0.05 * self.side - 0.5, 1.05 * self.side + 0.5)
         ax.set_aspect("equal")
         ax.set_title(f"{self.cfg.scene}: m={self.m}, frame {self.step_count}, t={self.t:.1f} s")
+
+
+def _frame_kernels():
+    """The compiled frame (numba is imported only when it runs)."""
+    from mrcomm_env.multihop import frame_numba
+
+    return frame_numba

@@ -1,0 +1,243 @@
+"""M copies of one environment stepped as arrays with a leading copy axis (``BatchedEnv``).
+
+A batch of M copies of an N-agent env takes actions ``(M, N, *action_shape)`` and returns observations
+``(M, N, *obs_shape)``, rewards ``(M, N)``, ``terminated`` and ``truncated`` ``(M,)`` (all agents of a copy
+end together in every mrcomm env) and the infos as columns, key → ``(M, N)`` float64. It is what the
+training VecEnv (``agents/vecenv.py``) and ``mrcomm bench --batched`` step.
+
+**Episodes.** A copy whose episode ends resets on its own in the same call, as SB3's VecEnvs do: the
+returned observations of that copy are the first of its next episode, while ``final_observations[i]`` holds
+the observation its last step returned, ``final_metrics[i]`` the metrics of the episode that ended and
+``reset_infos[i]`` the info columns of the new episode. ``truncated`` is never set together with
+``terminated`` (the time limit only counts when the episode did not end by itself), so
+``TimeLimit.truncated`` is ``truncated`` as it stands.
+
+**Seeds.** ``reset(seed=s)`` seeds copy i with ``s + i`` (SB3's convention; a sequence gives one seed per
+copy); an automatic reset continues the copy's own random stream. Copy i of a batch seeded s is therefore
+the single env seeded ``s + i``, episode after episode, byte for byte (``tests/test_batched.py``).
+
+**The same code.** Each copy runs the env's own ``reset_arrays``/``step_arrays``, which are its
+``reset``/``step`` without the per-agent dictionaries, so the PettingZoo env and the batch cannot drift
+apart. The copies are still M Python objects stepped in turn: an env whose world is written with a copy axis
+can replace :meth:`BatchedEnv._step_copies` without changing this interface (docs/scaling.md says which
+do; none yet).
+
+**Memory.** The batch refuses at construction, naming ``n_copies``, a batch whose copies together need
+more than the env's memory budget by its own estimate (``memory_estimate`` × M).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from numbers import Integral
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+
+from mrcomm_env.core.base import MrcommParallelEnv
+from mrcomm_env.core.memory import BUDGET_ARGUMENT, GIB
+
+
+@dataclass
+class BatchStep:
+    """What one :meth:`BatchedEnv.step` returns (arrays have a leading copy axis of length M)."""
+
+    #: ``(M, N, *obs_shape)``: what each agent acts on next (a copy that ended: its next episode's first)
+    observations: np.ndarray
+    #: ``(M, N)`` float64
+    rewards: np.ndarray
+    #: ``(M,)`` bool: the copy's episode ended by itself
+    terminated: np.ndarray
+    #: ``(M,)`` bool: the copy's episode hit ``max_cycles`` without ending by itself
+    truncated: np.ndarray
+    #: key → ``(M, N)`` float64: this step's infos (a copy that ended: its final step's)
+    infos: dict[str, np.ndarray]
+    #: copy index → ``(N, *obs_shape)``: the observation the final step of an episode that ended returned
+    final_observations: dict[int, np.ndarray] = field(default_factory=dict)
+    #: copy index → the ended episode's metrics (``env.metrics()`` before the automatic reset)
+    final_metrics: dict[int, dict[str, float]] = field(default_factory=dict)
+    #: copy index → key → ``(N,)``: the reset infos of the episode that began in place of the ended one
+    reset_infos: dict[int, dict[str, np.ndarray]] = field(default_factory=dict)
+
+    @property
+    def ended(self) -> np.ndarray:
+        """``(M,)`` bool: copies whose episode ended at this step (and were reset)."""
+        return self.terminated | self.truncated
+
+
+class BatchedEnv:
+    """M copies of one mrcomm environment as arrays with a leading copy axis (see the module docstring).
+
+    :param make_copy: returns a new env (a ``MrcommParallelEnv``) per call; every copy has the same arguments.
+    :param n_copies: M ≥ 1.
+    :raises ValueError: ``n_copies`` not a positive integer, a constructor that returns one instance twice or
+        an env of another kind, or copies that together need more memory than the budget.
+    """
+
+    def __init__(self, make_copy: Callable[[], MrcommParallelEnv], n_copies: int):
+        if isinstance(n_copies, bool) or not isinstance(n_copies, Integral) or n_copies < 1:
+            raise ValueError(f"argument 'n_copies' must be an integer ≥ 1, got {n_copies!r}")
+        first = make_copy()
+        if not isinstance(first, MrcommParallelEnv):
+            raise ValueError(
+                f"argument 'make_copy' must build an mrcomm environment (MrcommParallelEnv), got {type(first).__name__}"
+            )
+        _check_batch_memory(first, int(n_copies))
+        self._adopt([first] + [make_copy() for _ in range(int(n_copies) - 1)])
+
+    @classmethod
+    def of(cls, envs: Sequence[Any], argument: str = "envs") -> BatchedEnv:
+        """A batch of envs built elsewhere (the training VecEnv's copies), which must be :func:`copies_of_one_env`;
+        a refusal over the memory budget names ``argument``."""
+        if not copies_of_one_env(envs):
+            raise ValueError(
+                f"argument '{argument}' must hold copies of one mrcomm environment: the same class and arguments"
+            )
+        _check_batch_memory(envs[0], len(envs), argument)
+        batch = cls.__new__(cls)
+        batch._adopt(list(envs))
+        return batch
+
+    def _adopt(self, envs: list[MrcommParallelEnv]) -> None:
+        first = envs[0]
+        self.envs: list[MrcommParallelEnv] = envs
+        if len({id(env) for env in self.envs}) != len(self.envs):
+            raise ValueError("argument 'make_copy' must build a new environment per call; it returned one twice")
+        self.n_copies = len(self.envs)
+        self.n_agents = first.n_agents
+        self.possible_agents = list(first.possible_agents)
+        #: every agent's spaces (the same for all: parameter sharing)
+        self.observation_space: spaces.Space = first.observation_space(self.possible_agents[0])
+        self.action_space: spaces.Space = first.action_space(self.possible_agents[0])
+        self._action_shape = (self.n_copies, self.n_agents, *(self.action_space.shape or ()))
+        self._observations: np.ndarray | None = None
+
+    # ----------------------------------------------------------------- reset and step
+    def reset(
+        self, seed: int | Sequence[int | None] | None = None, options: dict | Sequence[dict | None] | None = None
+    ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Reset every copy: observations ``(M, N, *obs_shape)`` and info columns key → ``(M, N)``.
+
+        ``seed``: None (each copy continues its stream), s (copy i gets s + i) or one seed (or None) per copy.
+        ``options``: one dict for every copy or one per copy.
+        """
+        seeds = self._per_copy_seeds(seed)
+        per_copy_options = self._per_copy_options(options)
+        observations, infos = [], []
+        for env, copy_seed, copy_options in zip(self.envs, seeds, per_copy_options):
+            obs, info = env.reset_arrays(seed=copy_seed, options=copy_options)
+            observations.append(obs)
+            infos.append(info)
+        self._observations = np.stack(observations)
+        return self._observations.copy(), _stack_columns(infos)
+
+    def step(self, actions: np.ndarray) -> BatchStep:
+        """Step every copy with ``actions`` ``(M, N, *action_shape)``; copies that end are reset (see BatchStep)."""
+        if self._observations is None:
+            raise RuntimeError("step() called before reset(); call reset() first")
+        actions = np.asarray(actions)
+        if actions.shape != self._action_shape:
+            raise ValueError(
+                f"argument 'actions' must have shape (copies, agents, *action shape) = {self._action_shape}, "
+                f"got {actions.shape}"
+            )
+        return self._step_copies(actions)
+
+    def _step_copies(self, actions: np.ndarray) -> BatchStep:
+        m = self.n_copies
+        observations = self._observations
+        assert observations is not None
+        rewards = np.empty((m, self.n_agents), dtype=np.float64)
+        terminated = np.zeros(m, dtype=bool)
+        truncated = np.zeros(m, dtype=bool)
+        infos: list[dict[str, np.ndarray]] = []
+        result = BatchStep(observations, rewards, terminated, truncated, {})
+        for i, env in enumerate(self.envs):
+            obs, rewards[i], terminated[i], truncated[i], info = env.step_arrays(actions[i])
+            infos.append(info)
+            if terminated[i] or truncated[i]:
+                result.final_observations[i] = obs.copy()  # the env may reuse its buffer at reset
+                result.final_metrics[i] = env.metrics()
+                obs, result.reset_infos[i] = env.reset_arrays()
+            observations[i] = obs
+        result.observations = observations.copy()
+        result.infos = _stack_columns(infos)
+        return result
+
+    # ----------------------------------------------------------------- per-copy readings
+    def bits_sent(self) -> np.ndarray:
+        """``(M,)``: bits every robot of each copy has sent since the copy's last reset, summed."""
+        return np.array([env.bits_sent() for env in self.envs], dtype=np.float64)
+
+    def metrics(self) -> list[dict[str, float]]:
+        """Each copy's metrics of its current episode so far."""
+        return [env.metrics() for env in self.envs]
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
+
+    # ----------------------------------------------------------------- helpers
+    def _per_copy_seeds(self, seed: int | Sequence[int | None] | None) -> list[int | None]:
+        if seed is None:
+            return [None] * self.n_copies
+        if isinstance(seed, Integral) and not isinstance(seed, bool):
+            if seed < 0:
+                raise ValueError(f"argument 'seed' must be None, an integer ≥ 0 or one per copy, got {seed!r}")
+            return [int(seed) + i for i in range(self.n_copies)]
+        seeds = list(seed)  # type: ignore[arg-type]
+        if len(seeds) != self.n_copies:
+            raise ValueError(f"argument 'seed' must hold one seed per copy ({self.n_copies}), got {len(seeds)}")
+        return seeds
+
+    def _per_copy_options(self, options: dict | Sequence[dict | None] | None) -> list[dict | None]:
+        if options is None or isinstance(options, dict):
+            return [options] * self.n_copies
+        per_copy = list(options)
+        if len(per_copy) != self.n_copies:
+            raise ValueError(
+                f"argument 'options' must be a dict or one dict per copy ({self.n_copies}), got {len(per_copy)}"
+            )
+        return per_copy
+
+
+def sample_actions(space: spaces.Space, rng: np.random.Generator, leading: tuple[int, ...]) -> np.ndarray:
+    """Uniformly random actions of ``space`` with the leading shape ``leading`` (e.g. ``(M, N)``), drawn from
+    ``rng`` in one call: what the benchmarks and tests step a batch with."""
+    if isinstance(space, spaces.Discrete):
+        return rng.integers(int(space.start), int(space.start) + int(space.n), size=leading)
+    if isinstance(space, spaces.MultiBinary):
+        return rng.integers(0, 2, size=(*leading, *space.shape), dtype=np.int8)
+    if isinstance(space, spaces.MultiDiscrete):
+        return rng.integers(0, space.nvec, size=(*leading, *space.shape))
+    if isinstance(space, spaces.Box) and space.is_bounded():
+        return rng.uniform(space.low, space.high, size=(*leading, *space.shape)).astype(space.dtype)
+    raise ValueError(f"argument 'space' must be Discrete, MultiBinary, MultiDiscrete or a bounded Box, got {space}")
+
+
+def copies_of_one_env(envs: Sequence[Any]) -> bool:
+    """Whether ``envs`` are unwrapped mrcomm envs of one class with the same arguments (what a batch steps)."""
+    return (
+        len(envs) > 0
+        and isinstance(envs[0], MrcommParallelEnv)
+        and all(type(env) is type(envs[0]) and env.cfg == envs[0].cfg for env in envs)
+    )
+
+
+def _stack_columns(per_copy: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """Info columns of every copy (key → (N,)) as key → (M, N): every copy has the same keys."""
+    return {key: np.stack([columns[key] for columns in per_copy]) for key in per_copy[0]}
+
+
+def _check_batch_memory(env: MrcommParallelEnv, n_copies: int, argument: str = "n_copies") -> None:
+    """Refuse, naming ``argument``, ``n_copies`` copies that together need more than one env's memory budget."""
+    budget = float(env.cfg[BUDGET_ARGUMENT])
+    need = n_copies * float(env.memory_estimate(env.cfg))
+    if need > budget * GIB:
+        raise ValueError(
+            f"{env.ENV_ID}: argument '{argument}' ({n_copies} copies) needs an estimated {need / GIB:.3g} GiB "
+            f"({n_copies} × {need / n_copies / 2**20:.3g} MiB), over the memory budget of {budget:g} GiB; use fewer "
+            f"copies, or raise the budget on purpose with '{BUDGET_ARGUMENT}'"
+        )

@@ -1,0 +1,159 @@
+"""A batch of M copies (``mrcomm_env.make_batched``) is M single envs: copy i of a batch seeded s gives, episode
+after episode, byte for byte the observations, rewards, ends, infos, bits and metrics of the PettingZoo env seeded
+s + i driven with the same actions (its automatic resets continue the copy's own random stream, as a reset
+without a seed does)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import mrcomm_env
+from mrcomm_env.core.batched import BatchedEnv, sample_actions
+from mrcomm_env.registry import env_ids
+
+#: small configurations with short episodes, so that every copy ends (and resets) more than once in a test
+SMALL = {
+    "mrcomm/AsyncCL-v0": {"n_robots": 3, "max_cycles": 6},
+    "mrcomm/ChannelAssociation-v0": {"n_robots": 5, "max_cycles": 6},
+    "mrcomm/MapSync-v0": {"max_cycles": 6},
+    "mrcomm/MultiHop-v0": {"grid_side": 3, "max_cycles": 4},
+    "mrcomm/RendezvousMapping-v0": {"n_vehicles": 4, "n_landmarks": 40, "area": 1600.0, "max_cycles": 4},
+}
+#: one more case per action-space kind and per scene that ends by itself (termination, not only truncation)
+EXTRA_CASES = [
+    ("mrcomm/MultiHop-v0", {"grid_side": 3, "max_cycles": 4, "layout": "absolute"}),  # Box actions
+    ("mrcomm/ChannelAssociation-v0", {"scene": "neighborhood", "w": 3, "v": 2, "max_cycles": 12}),  # terminates
+]
+
+
+def test_every_env_has_a_small_batch_case():
+    assert set(SMALL) == set(env_ids())
+
+
+def _bytes(array) -> bytes:
+    return np.ascontiguousarray(array).tobytes()
+
+
+@pytest.mark.parametrize(("env_id", "kwargs"), [*SMALL.items(), *EXTRA_CASES], ids=lambda v: str(v))
+def test_copy_i_of_a_batch_seeded_s_is_the_single_env_seeded_s_plus_i(env_id, kwargs):
+    n_copies, seed = 3, 11
+    batch = mrcomm_env.make_batched(env_id, n_copies, **kwargs)
+    singles = [mrcomm_env.make(env_id, **kwargs) for _ in range(n_copies)]
+    observations, infos = batch.reset(seed=seed)
+    agents = singles[0].possible_agents
+    for i, env in enumerate(singles):
+        single_obs, single_infos = env.reset(seed=seed + i)
+        assert _bytes(observations[i]) == _bytes(np.stack([single_obs[a] for a in agents]))
+        assert {k: v[i].tolist() for k, v in infos.items()} == {
+            k: [single_infos[a][k] for a in agents] for k in single_infos[agents[0]]
+        }
+    rng = np.random.default_rng(0)
+    episodes_ended = np.zeros(n_copies, dtype=int)
+    copies_terminated = 0
+    horizon = 3 * kwargs["max_cycles"] + 2
+    for _ in range(horizon):
+        actions = sample_actions(batch.action_space, rng, (n_copies, batch.n_agents))
+        out = batch.step(actions)
+        copies_terminated += int(out.terminated.sum())
+        for i, env in enumerate(singles):
+            obs, rewards, terminations, truncations, step_infos = env.step(dict(zip(agents, actions[i])))
+            assert _bytes(out.rewards[i]) == _bytes(np.array([rewards[a] for a in agents]))
+            assert (bool(out.terminated[i]), bool(out.truncated[i])) == (
+                terminations[agents[0]],
+                truncations[agents[0]],
+            )
+            assert {k: v[i].tolist() for k, v in out.infos.items()} == {
+                k: [step_infos[a][k] for a in agents] for k in step_infos[agents[0]]
+            }
+            final = np.stack([obs[a] for a in agents])
+            if env.agents:  # the episode goes on
+                assert i not in out.final_observations
+                assert _bytes(out.observations[i]) == _bytes(final)
+                assert batch.bits_sent()[i] == env.bits_sent()
+                continue
+            episodes_ended[i] += 1
+            assert _bytes(out.final_observations[i]) == _bytes(final)
+            assert out.final_metrics[i] == env.metrics()
+            next_obs, next_infos = env.reset()  # no seed: the copy's own stream goes on
+            assert _bytes(out.observations[i]) == _bytes(np.stack([next_obs[a] for a in agents]))
+            assert {k: v.tolist() for k, v in out.reset_infos[i].items()} == {
+                k: [next_infos[a][k] for a in agents] for k in next_infos[agents[0]]
+            }
+            assert batch.bits_sent()[i] == env.bits_sent()  # the new episode's (RendezvousMapping sends at reset)
+    assert (episodes_ended >= 2).all(), episodes_ended  # the automatic resets were exercised
+    if kwargs.get("scene") == "neighborhood":  # 3 IDs are told apart in a few steps: the episodes terminate
+        assert copies_terminated > 0
+
+
+def test_a_batch_refuses_bad_arguments_naming_them():
+    with pytest.raises(ValueError, match="'n_copies' must be an integer ≥ 1"):
+        mrcomm_env.make_batched("MapSync-v0", 0)
+    with pytest.raises(ValueError, match="'n_copies' must be an integer ≥ 1"):
+        mrcomm_env.make_batched("MapSync-v0", 2.0)
+    with pytest.raises(ValueError, match="'make_copy' must build an mrcomm environment"):
+        BatchedEnv(dict, 2)
+    batch = mrcomm_env.make_batched("MapSync-v0", 2, max_cycles=3)
+    with pytest.raises(RuntimeError, match="before reset"):
+        batch.step(np.zeros((2, batch.n_agents), dtype=np.int64))
+    batch.reset(seed=0)
+    with pytest.raises(ValueError, match=r"'actions' must have shape \(copies, agents, \*action shape\) = \(2, 2\)"):
+        batch.step(np.zeros((2, batch.n_agents + 1), dtype=np.int64))
+    with pytest.raises(ValueError, match="'seed' must hold one seed per copy"):
+        batch.reset(seed=[1, 2, 3])
+    with pytest.raises(ValueError, match="'seed' must be None, an integer ≥ 0"):
+        batch.reset(seed=-1)
+    with pytest.raises(ValueError, match="action of robot_1 must be an integer"):
+        batch.step(np.array([[0, 0], [0, 99]]))
+
+
+def test_copies_that_together_exceed_the_memory_budget_are_refused_before_they_are_built(monkeypatch):
+    built = []
+    cls = mrcomm_env.registry.env_class("MapSync-v0")
+    estimate = cls.memory_estimate(mrcomm_env.make("MapSync-v0").cfg)
+    budget_gib = 0.5
+    fits = int(budget_gib * 2**30 // estimate)
+
+    def make_copy():
+        built.append(1)
+        return cls(memory_budget_gib=budget_gib)
+
+    BatchedEnv(make_copy, fits).close()  # exactly at the budget: accepted
+    built.clear()
+    with pytest.raises(
+        ValueError, match=rf"'n_copies' \({fits + 1} copies\) needs an estimated .* over the memory budget"
+    ):
+        BatchedEnv(make_copy, fits + 1)
+    assert len(built) == 1  # the first copy states the estimate; no other was built
+
+
+def test_step_arrays_is_step_without_dictionaries():
+    env = mrcomm_env.make("ChannelAssociation-v0", n_robots=4, max_cycles=5)
+    with pytest.raises(RuntimeError, match="before reset"):
+        env.step_arrays(np.zeros(4, dtype=np.int64))
+    env.reset_arrays(seed=0)
+    with pytest.raises(ValueError, match=r"'actions' must hold one action per agent \(4\) in agent order, got shape"):
+        env.step_arrays(np.zeros(3, dtype=np.int64))
+    with pytest.raises(ValueError, match=r"'actions' must hold one action per agent \(4\) in agent order, got 5"):
+        env.step_arrays([0] * 5)
+    for _ in range(5):
+        *_, terminated, truncated, _ = env.step_arrays(np.ones(4, dtype=np.int64))
+    assert truncated and not terminated and env.agents == []
+    with pytest.raises(RuntimeError, match="finished episode"):
+        env.step_arrays(np.ones(4, dtype=np.int64))
+
+
+@pytest.mark.parametrize("space_kind", ["discrete", "multibinary", "box"])
+def test_sample_actions_draws_valid_actions_of_every_kind(space_kind):
+    from gymnasium import spaces
+
+    space = {
+        "discrete": spaces.Discrete(3, start=2),
+        "multibinary": spaces.MultiBinary(5),
+        "box": spaces.Box(-1.0, 2.0, shape=(4,), dtype=np.float32),
+    }[space_kind]
+    actions = sample_actions(space, np.random.default_rng(1), (6, 7))
+    assert actions.shape[:2] == (6, 7)
+    assert all(space.contains(a if a.shape else int(a)) for a in actions.reshape(42, *space.shape))
+    with pytest.raises(ValueError, match="'space' must be"):
+        sample_actions(spaces.Box(-np.inf, np.inf, shape=(1,)), np.random.default_rng(1), (2,))
