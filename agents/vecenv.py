@@ -241,11 +241,12 @@ class AgentSlotVecEnv(VecEnv):
         rows = np.stack([out.infos[key] for key in keys], axis=-1).reshape(self.num_envs, len(keys)).tolist()
         truncated = np.repeat(out.truncated, n).tolist()
         infos: list[dict[str, Any]] = []
-        for slot, (row, slot_truncated) in enumerate(zip(rows, truncated)):
+        for row, slot_truncated in zip(rows, truncated):
             info = dict(zip(keys, row))
             info["TimeLimit.truncated"] = slot_truncated
             infos.append(info)
-            self._info_masks[slot] = _info_mask(info)
+        if ACTION_MASK_INFO_KEY in out.infos:  # (info columns are numbers: a mask there is one number per agent)
+            self._info_masks = [_info_mask(info) for info in infos]
         for copy_index, copy_rewards in enumerate(out.rewards.tolist()):
             total = self._copy_returns[copy_index]
             for reward in copy_rewards:  # in agent order, as the per-agent path adds them

@@ -107,18 +107,22 @@ def test_a_batch_refuses_bad_arguments_naming_them():
         batch.step(np.array([[0, 0], [0, 99]]))
 
 
-def test_copies_that_together_exceed_the_memory_budget_are_refused_before_they_are_built(monkeypatch):
+def test_copies_that_together_exceed_the_memory_budget_are_refused_before_they_are_built():
     built = []
     cls = mrcomm_env.registry.env_class("MapSync-v0")
-    estimate = cls.memory_estimate(mrcomm_env.make("MapSync-v0").cfg)
-    budget_gib = 0.5
-    fits = int(budget_gib * 2**30 // estimate)
+    budget_gib = 0.01
+    cfg = cls(memory_budget_gib=budget_gib).cfg
+    fits = max(m for m in range(1, 10_000) if cls.batch_memory_estimate(cfg, m) <= budget_gib * 2**30)
+    # one copy's estimate is the env's own; each further copy adds its state, not the shared working memory
+    per_copy = cls.batch_memory_estimate(cfg, 2) - cls.batch_memory_estimate(cfg, 1)
+    assert 0 < per_copy < cls.memory_estimate(cfg) - cls.MEMORY_SHARED + 2**17
+    assert cls.batch_memory_estimate(cfg, 1) == cls.memory_estimate(cfg)
 
     def make_copy():
         built.append(1)
         return cls(memory_budget_gib=budget_gib)
 
-    BatchedEnv(make_copy, fits).close()  # exactly at the budget: accepted
+    BatchedEnv(make_copy, fits).close()  # at the budget: accepted
     built.clear()
     with pytest.raises(
         ValueError, match=rf"'n_copies' \({fits + 1} copies\) needs an estimated .* over the memory budget"
@@ -157,3 +161,22 @@ def test_sample_actions_draws_valid_actions_of_every_kind(space_kind):
     assert all(space.contains(a if a.shape else int(a)) for a in actions.reshape(42, *space.shape))
     with pytest.raises(ValueError, match="'space' must be"):
         sample_actions(spaces.Box(-np.inf, np.inf, shape=(1,)), np.random.default_rng(1), (2,))
+
+
+@pytest.mark.parametrize(
+    ("env_id", "n_copies"),
+    [("MultiHop-v0", 128), ("RendezvousMapping-v0", 512)],  # the largest state per copy; the largest shared part
+)
+def test_a_batch_holds_about_what_its_memory_estimate_says(env_id, n_copies, monkeypatch):
+    """``batch_memory_estimate`` counts the shared working memory once and each copy's own state: within a factor
+    of 2 of what the batch holds (numpy backend: no compiled kernels in the measurement)."""
+    from mrcomm_env.experiments.limits import measure_batched
+
+    monkeypatch.setenv("MRCOMM_BACKEND", "numpy")
+    env = mrcomm_env.make(env_id)
+    estimate_mb = env.batch_memory_estimate(env.cfg, n_copies) / 2**20
+    result = measure_batched(env_id, {}, n_copies, seconds=0.0, min_steps=1, timeout=300)
+    held_mb = result["rss_after_mb"] - result["rss_before_mb"]
+    assert estimate_mb / 2 <= held_mb <= 2 * estimate_mb, (held_mb, estimate_mb)
+    # while counting every copy at one env's peak would have been far above it
+    assert n_copies * env.memory_estimate(env.cfg) / 2**20 > 2 * held_mb

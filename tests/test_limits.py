@@ -47,6 +47,21 @@ def test_documented_maximum_runs_in_bounded_memory(env_id, name):
     assert result["peak_rss_mb"] < MEMORY_BUDGET_MB, result
 
 
+def test_the_measured_peak_is_the_measuring_process_own_not_its_parents():
+    """Linux carries ``ru_maxrss`` over ``exec``: a child of a large process used to report the parent's size."""
+    from mrcomm_env.experiments.limits import measure_batched
+
+    held_mb = 1024
+    ballast = np.ones(held_mb * 2**20 // 8)  # resident in this (the parent) process while the children run
+    config = {"max_cycles": 2}
+    limit = measure_limit("MapSync-v0", config, seconds=0.0, min_steps=1, timeout=300)
+    batched = measure_batched("MapSync-v0", config, 2, seconds=0.0, min_steps=1, timeout=300)
+    assert float(ballast.sum()) == len(ballast)  # still held
+    # an env of 2 MiB and the interpreter with numpy, scipy and numba: a few hundred MB at most
+    assert 0 < limit["peak_rss_mb"] < held_mb / 2 and 0 < batched["peak_rss_mb"] < held_mb / 2
+    assert batched["rss_before_mb"] <= batched["peak_rss_mb"]
+
+
 @pytest.mark.parametrize("env_id", env_ids())
 def test_every_documented_size_limit_is_exercised(env_id):
     """Integer upper bounds (team sizes, histories, slot sizes) are what cost memory and time: each one must

@@ -315,6 +315,7 @@ class AsyncCLEnv(MrcommParallelEnv):
         "whitened measurement rows of the columns it still waits for. The N⁴ coefficient is the envelope of "
         "200-step episodes measured at link probabilities 0 to 0.5 (fewer links keep more columns waiting)"
     )
+    MEMORY_SHARED = 2.0 * 2**20  # the formula's constant term: working memory the copies of a batch share
     MEMORY_ARGS = ("n_robots", "max_history", "estimation")
     MEMORY_PROBES = {
         "delay_only_100": {"n_robots": 100, "estimation": False, "max_cycles": 3},
@@ -330,7 +331,7 @@ class AsyncCLEnv(MrcommParallelEnv):
     @classmethod
     def memory_estimate(cls, cfg) -> float:
         n = float(cfg.n_robots)
-        tables = 2.0 * 2**20 + 4100.0 * n * n + 16.0 * n * cfg.max_history
+        tables = cls.MEMORY_SHARED + 4100.0 * n * n + 16.0 * n * cfg.max_history
         return tables + (1400.0 * n**4 if cfg.estimation else 0.0)
 
     LIMIT_CONFIGS = {

@@ -155,6 +155,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         "`visual_range`, `mobile_fraction`, `speed`, `drop_time`; 80 B is the measured peak per entry when every "
         "robot emits at once), 8·`n_robots`³ for a small field's slot-per-robot filters, 8·`w`·`v` for a neighborhood"
     )
+    MEMORY_SHARED = 2.0 * 2**20  # the formula's constant term: working memory the copies of a batch share
     MEMORY_ARGS = ("n_robots", "separation", "wireless_range", "visual_range")
     MEMORY_PROBES = {
         "stationary_field_1000": {"n_robots": 1000, "mobile_fraction": 0.0, "max_cycles": 3},
@@ -164,7 +165,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
 
     @classmethod
     def memory_estimate(cls, cfg) -> float:
-        base = 2.0 * 2**20
+        base = cls.MEMORY_SHARED
         if cfg.scene == "neighborhood":
             return base + 8.0 * cfg.w * cfg.v
         if cfg.n_robots <= cls.DENSE_MAX_N:

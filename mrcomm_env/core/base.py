@@ -23,6 +23,10 @@ from mrcomm_env.core.config import Config, Param, validate_config
 from mrcomm_env.core.memory import BUDGET_ARGUMENT, MEMORY_BUDGET_PARAM, check_memory_budget
 from mrcomm_env.core.policy import LocalViews
 
+#: the Python objects of one more copy in a batch, beyond its arrays: at most 64 KiB for every default env (1,024
+#: copies of ChannelAssociation-v0 hold 29 MB, of which 14 MB are its filters' arrays; ``mrcomm bench --batched``)
+COPY_OVERHEAD_BYTES = 64.0 * 2**10
+
 #: the horizon argument was called ``max_steps`` before PettingZoo's name ``max_cycles`` was adopted
 DEPRECATED_HORIZON = "max_steps"
 
@@ -52,6 +56,9 @@ class MrcommParallelEnv(ParallelEnv):
     MEMORY_FORMULA: ClassVar[str] = ""
     #: the arguments the estimate grows with: the ones a refusal names
     MEMORY_ARGS: ClassVar[tuple[str, ...]] = ()
+    #: the constant part of :meth:`memory_estimate` (bytes): a step's working memory and the like, which the copies of
+    #: a batch, stepped in turn, need once (:meth:`batch_memory_estimate`)
+    MEMORY_SHARED: ClassVar[float] = 0.0
     #: three configurations of growing size at which ``tests/test_memory.py`` measures the peak against the
     #: estimate (each must need well above the interpreter's noise, tens of MB, and fit the default budget)
     MEMORY_PROBES: ClassVar[dict[str, dict[str, Any]]] = {}
@@ -107,6 +114,14 @@ class MrcommParallelEnv(ParallelEnv):
         and steps, the interpreter excluded (``MEMORY_FORMULA`` says it in words). Construction refuses arguments
         whose estimate is over ``memory_budget_gib``. Must not fail on any valid ``cfg`` (compute in floats)."""
         raise NotImplementedError(f"{cls.__name__} must state its peak memory (memory_estimate, MEMORY_FORMULA)")
+
+    @classmethod
+    def batch_memory_estimate(cls, cfg: Config, n_copies: int) -> float:
+        """Estimated peak memory in bytes of ``n_copies`` instances stepped in turn (a ``BatchedEnv``): one instance,
+        plus for every further copy its own state (the estimate without ``MEMORY_SHARED``) and the Python objects of
+        an instance (:data:`COPY_OVERHEAD_BYTES`, measured)."""
+        one = float(cls.memory_estimate(cfg))
+        return one + (n_copies - 1) * (max(one - cls.MEMORY_SHARED, 0.0) + COPY_OVERHEAD_BYTES)
 
     def _setup(self) -> None:
         raise NotImplementedError

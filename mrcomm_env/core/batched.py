@@ -23,7 +23,8 @@ can replace :meth:`BatchedEnv._step_copies` without changing this interface (doc
 do; none yet).
 
 **Memory.** The batch refuses at construction, naming ``n_copies``, a batch whose copies together need
-more than the env's memory budget by its own estimate (``memory_estimate`` × M).
+more than the env's memory budget by its own estimate (``batch_memory_estimate``: one env's peak, plus each
+further copy's own state; the working memory of a step is needed once, as the copies step in turn).
 """
 
 from __future__ import annotations
@@ -227,17 +228,19 @@ def copies_of_one_env(envs: Sequence[Any]) -> bool:
 
 
 def _stack_columns(per_copy: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    """Info columns of every copy (key → (N,)) as key → (M, N): every copy has the same keys."""
+    """Info columns of every copy (key → (N,), each a fresh array) as key → (M, N): every copy has the same keys."""
+    if len(per_copy) == 1:  # one copy: its fresh columns, viewed with a copy axis
+        return {key: column[None] for key, column in per_copy[0].items()}
     return {key: np.stack([columns[key] for columns in per_copy]) for key in per_copy[0]}
 
 
 def _check_batch_memory(env: MrcommParallelEnv, n_copies: int, argument: str = "n_copies") -> None:
-    """Refuse, naming ``argument``, ``n_copies`` copies that together need more than one env's memory budget."""
+    """Refuse, naming ``argument``, ``n_copies`` copies that together need more than one env's memory budget by the
+    env's :meth:`~MrcommParallelEnv.batch_memory_estimate`."""
     budget = float(env.cfg[BUDGET_ARGUMENT])
-    need = n_copies * float(env.memory_estimate(env.cfg))
+    need = float(env.batch_memory_estimate(env.cfg, n_copies))
     if need > budget * GIB:
         raise ValueError(
-            f"{env.ENV_ID}: argument '{argument}' ({n_copies} copies) needs an estimated {need / GIB:.3g} GiB "
-            f"({n_copies} × {need / n_copies / 2**20:.3g} MiB), over the memory budget of {budget:g} GiB; use fewer "
-            f"copies, or raise the budget on purpose with '{BUDGET_ARGUMENT}'"
+            f"{env.ENV_ID}: argument '{argument}' ({n_copies} copies) needs an estimated {need / GIB:.3g} GiB, over the "
+            f"memory budget of {budget:g} GiB; use fewer copies, or raise the budget on purpose with '{BUDGET_ARGUMENT}'"
         )

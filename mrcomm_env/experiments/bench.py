@@ -130,25 +130,25 @@ def batched_section(
     process: agent-steps/s (median of ``runs``), the speed-up over the smallest batch and the peak memory.
 
     A batch is refused at construction when its copies together need more than the memory budget by the env's own
-    estimate (each copy counted at one env's peak); to measure, the bench raises ``memory_budget_gib`` to that
+    estimate (``batch_memory_estimate``); to measure, the bench raises ``memory_budget_gib`` to that
     estimate unless ``params`` sets it, and records both beside the measured peak."""
 
     out: dict[str, Any] = {}
     for env_id in targets:
         env = make(env_id, **params)
-        estimate = env.memory_estimate(env.cfg)
         env.close()
         out[env_id] = {}
         for m in copies:
+            estimate = env.batch_memory_estimate(env.cfg, m)
             config = dict(params)
-            config.setdefault(BUDGET_ARGUMENT, max(float(env.cfg[BUDGET_ARGUMENT]), m * estimate / GIB))
+            config.setdefault(BUDGET_ARGUMENT, max(float(env.cfg[BUDGET_ARGUMENT]), estimate / GIB))
             samples = [measure_batched(env_id, config, m, seconds=seconds) for _ in range(runs)]
             result = dict(samples[len(samples) // 2])
             result["agent_steps_per_s"] = statistics.median(r["agent_steps_per_s"] for r in samples)
             result["env_steps_per_s"] = statistics.median(r["env_steps_per_s"] for r in samples)
             result["peak_rss_mb"] = max(r["peak_rss_mb"] for r in samples)
             result["batch_rss_mb"] = statistics.median(r["rss_after_mb"] - r["rss_before_mb"] for r in samples)
-            result["estimate_gib"] = m * estimate / GIB
+            result["estimate_gib"] = estimate / GIB
             result[BUDGET_ARGUMENT] = config[BUDGET_ARGUMENT]
             result["runs"] = runs
             base = out[env_id][str(copies[0])]["agent_steps_per_s"] if out[env_id] else result["agent_steps_per_s"]

@@ -205,6 +205,7 @@ class MapSyncEnv(WorldDynamics, SyncSessions, MrcommParallelEnv):
         "work, every robot's map and stamps), + 90·n² with `explicit_database` (Protocol 1's 100n strings of n "
         "bits). Nothing grows with `max_cycles`"
     )
+    MEMORY_SHARED = 2.0 * 2**20  # the formula's constant term: working memory the copies of a batch share
     MEMORY_ARGS = ("grid_size", "n_robots", "explicit_database")
     MEMORY_PROBES = {
         "map_181x181": {"grid_size": 181, "max_cycles": 3},
@@ -216,7 +217,7 @@ class MapSyncEnv(WorldDynamics, SyncSessions, MrcommParallelEnv):
     def memory_estimate(cls, cfg) -> float:
         cells = float(cfg.grid_size) ** 2
         database = 90.0 * cells * cells if cfg.explicit_database else 0.0
-        return 2.0 * 2**20 + 450.0 * cells + 16.0 * cfg.n_robots * cells + database
+        return cls.MEMORY_SHARED + 450.0 * cells + 16.0 * cfg.n_robots * cells + database
 
     LIMIT_CONFIGS = {
         "largest_team_and_map": {

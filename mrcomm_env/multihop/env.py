@@ -205,6 +205,7 @@ class MultiHopEnv(MrcommParallelEnv):
         "8 MiB + 180·n² for n robots (`n_robots`, or `grid_side`² in the grid scene): every robot's estimate "
         "table, its candidate observation and the pairwise distances and links are n × n"
     )
+    MEMORY_SHARED = 8.0 * 2**20  # the formula's constant term: working memory the copies of a batch share
     MEMORY_ARGS = ("n_robots", "grid_side")
     MEMORY_PROBES = {
         "field_384": {"scene": "field", "n_robots": 384, "max_cycles": 3},
@@ -219,7 +220,7 @@ class MultiHopEnv(MrcommParallelEnv):
             n = float(cfg.n_robots)
         else:
             n = float(cfg.grid_side**2) if cfg.scene == "grid" else (9.0 if cfg.scene == "coverage" else 20.0)
-        return 8 * 2**20 + 180.0 * n * n
+        return cls.MEMORY_SHARED + 180.0 * n * n
 
     #: configurations at the documented maxima (``tests/test_limits.py``, ``experiments/limits.py``)
     LIMIT_CONFIGS = {
@@ -345,6 +346,8 @@ class MultiHopEnv(MrcommParallelEnv):
         self._sum_age_hop = np.zeros(len(HOP_BUCKETS))
         self._reward_weights()
         self._ages = np.zeros((n, n))
+        # what the robots held when the candidates were last ranked (static scenes)
+        self._ranked_known: np.ndarray | None = None
         if self._relative:
             self._rank_candidates()
 
@@ -474,6 +477,12 @@ class MultiHopEnv(MrcommParallelEnv):
         """
         n = self.n_agents
         known = self.stamps > proto.UNKNOWN
+        if not self._moving:
+            # a static topology: the estimates are the true positions all episode (nobody moves), so the ranking
+            # changes only with what each robot holds, and not at all once everyone holds everything
+            if self._ranked_known is not None and np.array_equal(known, self._ranked_known):
+                return
+            self._ranked_known = known
         self._dist = self.estimated_distances()  # reused by this frame's observation
         key = np.where(known, self._dist / self.diag, 2.0 + self._phase)
         key[self._eye] = np.inf

@@ -180,6 +180,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         "(10 + 92·`n_vehicles`)·⌊`t_window`·`obs_rate`⌋ (the observation instants of a window and each "
         "vehicle's observation events in it)"
     )
+    MEMORY_SHARED = 18.0 * 2**20  # the formula's constant term: working memory the copies of a batch share
     MEMORY_ARGS = ("n_vehicles", "n_landmarks", "t_window", "obs_rate")
     MEMORY_PROBES = {
         "ten_vehicles_30k_instants": {"t_window": 300.0, "obs_rate": 100.0, "max_cycles": 3},
@@ -192,7 +193,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         # measured (tests/test_memory.py): ~140 B per vehicle × landmark, ~92 B per vehicle × observation instant
         instants = math.floor(cfg.t_window * cfg.obs_rate + 1e-9)
         n, landmarks = float(cfg.n_vehicles), float(cfg.n_landmarks)
-        return 18 * 2**20 + 140.0 * n * landmarks + (10.0 + 92.0 * n) * instants
+        return cls.MEMORY_SHARED + 140.0 * n * landmarks + (10.0 + 92.0 * n) * instants
 
     LIMIT_CONFIGS = {
         "largest_team_and_map": {
