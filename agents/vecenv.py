@@ -341,11 +341,27 @@ class AgentSlotVecEnv(VecEnv):
 
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
         """The attribute of each requested slot's env copy (slots of one copy share it)."""
+        self._sync_copies()
         return self._per_slot(indices, lambda copy_index: getattr(self.envs[copy_index], attr_name))
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
         """Set the attribute on the copies of the requested slots; it then holds for every slot of those copies."""
+        self._sync_copies()
         self._per_slot(indices, lambda copy_index: setattr(self.envs[copy_index], attr_name, value))
+        self._reload_copies()
+
+    def _sync_copies(self) -> None:
+        # a batch stepping its copies as one array world (BatchedEnv.world) writes their state into the env objects
+        # before anything reads them, and takes it back after anything may have changed them (SB3's VecEnv reads
+        # render_mode through get_attr before the batch exists)
+        batch = getattr(self, "batch", None)
+        if batch is not None:
+            batch.sync_copies()
+
+    def _reload_copies(self) -> None:
+        batch = getattr(self, "batch", None)
+        if batch is not None:
+            batch.reload_copies()
 
     def has_attr(self, attr_name: str) -> bool:
         """Whether every copy has ``attr_name``; ``action_masks`` also exists whenever masks can be formed."""
@@ -366,9 +382,12 @@ class AgentSlotVecEnv(VecEnv):
             slots = self._slot_indices(indices)
             copy_masks = self._per_slot(slots, self._copy_action_masks)
             return [masks[slot % self.n_agents].copy() for masks, slot in zip(copy_masks, slots)]
-        return self._per_slot(
+        self._sync_copies()
+        results = self._per_slot(
             indices, lambda copy_index: getattr(self.envs[copy_index], method_name)(*method_args, **method_kwargs)
         )
+        self._reload_copies()
+        return results
 
     def _copy_action_masks(self, copy_index: int) -> np.ndarray:
         """The ``(N, mask length)`` boolean masks of one copy's agents for their next action."""
@@ -376,6 +395,8 @@ class AgentSlotVecEnv(VecEnv):
         first_slot = copy_index * self.n_agents
         env_masks = getattr(env, ACTION_MASKS_METHOD, None)
         if callable(env_masks):
+            if self.batch is not None:
+                self.batch.sync_copies([copy_index])
             masks = np.array(env_masks(), dtype=bool)
             valid_shape = masks.ndim == 2 and masks.shape[0] == self.n_agents
             if self._mask_length is not None:
@@ -414,6 +435,7 @@ class AgentSlotVecEnv(VecEnv):
                 stacklevel=2,
             )
             return [None for _ in self.envs]
+        self._sync_copies()
         return [env.render() for env in self.envs]
 
     def close(self) -> None:

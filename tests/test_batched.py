@@ -37,8 +37,85 @@ def _bytes(array) -> bytes:
 
 @pytest.mark.parametrize(("env_id", "kwargs"), [*SMALL.items(), *EXTRA_CASES], ids=lambda v: str(v))
 def test_copy_i_of_a_batch_seeded_s_is_the_single_env_seeded_s_plus_i(env_id, kwargs):
-    n_copies, seed = 3, 11
-    batch = mrcomm_env.make_batched(env_id, n_copies, **kwargs)
+    batch = mrcomm_env.make_batched(env_id, 3, **kwargs)
+    _assert_copies_are_single_envs(batch, env_id, kwargs, horizon=3 * kwargs["max_cycles"] + 2)
+
+
+#: ChannelAssociation fields that its copy-axis world (field_batch.py) steps: every branch of a step (ranges short
+#: of the arena where positions must matter). Mobile and
+#: stationary, a robot faster than the arena (the unfolded bounce), robots bouncing in one copy while the other
+#: copies' robots fly on (a reflection rounds: it must touch only the copies that hit a wall), §5.2's extra edges with missed receptions
+#: (per-copy draws), premature drops (drop_time 2: conflicts), a crowded field, one robot alone with the
+#: emission cost. The episodes end by truncation, and stationary ones also by termination.
+COPY_AXIS_FIELDS = [
+    {"n_robots": 12, "max_cycles": 25},
+    {"n_robots": 9, "mobile_fraction": 0.0, "max_cycles": 30},
+    {
+        "n_robots": 6,
+        "mobile_fraction": 0.5,
+        "speed": 30.0,
+        "wireless_range": 5.0,
+        "visual_range": 5.0,
+        "max_cycles": 12,
+    },
+    {
+        "n_robots": 16,
+        "mobile_fraction": 0.5,
+        "speed": 3.0,
+        "separation": 2.0,
+        "wireless_range": 3.0,
+        "visual_range": 3.0,
+        "max_cycles": 15,
+    },
+    {"n_robots": 10, "mobile_fraction": 0.3, "visual_range": 6.0, "miss_probability": 0.2, "max_cycles": 15},
+    {"n_robots": 20, "mobile_fraction": 0.3, "separation": 1.5, "drop_time": 2, "max_cycles": 20},
+    {"n_robots": 2, "mobile_fraction": 1.0, "separation": 0.01, "speed": 5.0, "emission_cost": 0.3, "max_cycles": 8},
+]
+
+
+@pytest.mark.parametrize("kwargs", COPY_AXIS_FIELDS, ids=lambda v: str(v))
+def test_a_copy_axis_world_gives_each_copy_the_single_env_episodes(kwargs):
+    env_id = "mrcomm/ChannelAssociation-v0"
+    batch = mrcomm_env.make_batched(env_id, 4, **kwargs)
+    assert batch.world is not None  # these configurations are stepped as one array world
+    singles = _assert_copies_are_single_envs(batch, env_id, kwargs, horizon=3 * kwargs["max_cycles"] + 2)
+    # the copies read through their env objects (sync_copies) hold the single envs' state, to the last bit
+    batch.sync_copies()
+    for copy, single in zip(batch.envs, singles):
+        assert copy.bits_sent() == single.bits_sent() and copy.step_count == single.step_count
+        assert _bytes(copy.positions) == _bytes(single.positions)
+        assert _bytes(copy.filter.C) == _bytes(single.filter.C) and _bytes(copy.filter.vlabel) == _bytes(
+            single.filter.vlabel
+        )
+        if single.mobile:
+            assert _bytes(copy.vel) == _bytes(single.vel)
+
+
+def test_the_copy_axis_world_and_the_copies_in_turn_step_alike():
+    env_id, kwargs = "mrcomm/ChannelAssociation-v0", {"n_robots": 8, "mobile_fraction": 0.25, "max_cycles": 9}
+    make = lambda: mrcomm_env.make(env_id, **kwargs)  # noqa: E731
+    world, in_turn = BatchedEnv(make, 3), BatchedEnv(make, 3, copy_axis=False)
+    assert world.world is not None and in_turn.world is None
+    assert BatchedEnv(make, 1).world is None  # one copy steps its env object
+    first = [world.reset(seed=5), in_turn.reset(seed=5)]
+    assert _bytes(first[0][0]) == _bytes(first[1][0])
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        actions = sample_actions(world.action_space, rng, (3, world.n_agents))
+        a, b = world.step(actions), in_turn.step(actions)
+        assert _bytes(a.observations) == _bytes(b.observations) and _bytes(a.rewards) == _bytes(b.rewards)
+        assert a.final_metrics == b.final_metrics
+    assert world.metrics() == in_turn.metrics()
+    with pytest.raises(ValueError, match="action of robot_1 .*must be an integer in \\[0, 1\\]"):
+        world.step(np.array([[0, 2] + [0] * 6] * 3))
+    with pytest.raises(ValueError, match="action of robot_1 .*must be an integer"):
+        in_turn.step(np.array([[0, 2] + [0] * 6] * 3))  # the env objects refuse it alike
+    with pytest.raises(ValueError, match="'actions' must hold integers in \\[0, 1\\]"):
+        world.step(np.full((3, 8), 1.0))  # 1.0 is not an action of Discrete(2), as for the env
+
+
+def _assert_copies_are_single_envs(batch, env_id, kwargs, horizon):
+    n_copies, seed = batch.n_copies, 11
     singles = [mrcomm_env.make(env_id, **kwargs) for _ in range(n_copies)]
     observations, infos = batch.reset(seed=seed)
     agents = singles[0].possible_agents
@@ -51,7 +128,6 @@ def test_copy_i_of_a_batch_seeded_s_is_the_single_env_seeded_s_plus_i(env_id, kw
     rng = np.random.default_rng(0)
     episodes_ended = np.zeros(n_copies, dtype=int)
     copies_terminated = 0
-    horizon = 3 * kwargs["max_cycles"] + 2
     for _ in range(horizon):
         actions = sample_actions(batch.action_space, rng, (n_copies, batch.n_agents))
         out = batch.step(actions)
@@ -84,6 +160,7 @@ def test_copy_i_of_a_batch_seeded_s_is_the_single_env_seeded_s_plus_i(env_id, kw
     assert (episodes_ended >= 2).all(), episodes_ended  # the automatic resets were exercised
     if kwargs.get("scene") == "neighborhood":  # 3 IDs are told apart in a few steps: the episodes terminate
         assert copies_terminated > 0
+    return singles
 
 
 def test_a_batch_refuses_bad_arguments_naming_them():

@@ -106,6 +106,18 @@ def test_bench_writes_json_with_ratio(tmp_path):
     assert entry["ratio_to_reference"] == pytest.approx(entry["env_steps_per_s"] / data["reference"]["env_steps_per_s"])
 
 
+def test_bench_train_slots_sets_the_copies_of_the_reference_and_of_each_env(tmp_path):
+    pytest.importorskip("mpe2")
+    out = tmp_path / "bench.json"
+    argv = ["bench", "ChannelAssociation-v0", "--param", "max_cycles=8", "--train", "--train-slots", "24"]
+    assert main([*argv, "--train-timesteps", "64", "--runs", "1", "--seconds", "0.1", "--out", str(out)]) == 0
+    train = json.loads(out.read_text())["train"]
+    # 8 copies of the 3-agent reference, 2 copies of the 12-robot field (one batch: its copy-axis world)
+    assert train["reference"]["slots"] == 24
+    assert train["envs"]["mrcomm/ChannelAssociation-v0"]["slots"] == 24
+    assert main([*argv[:-1], "0", "--out", str(out)]) != 0  # a slot count must be positive
+
+
 @pytest.mark.xdist_group("processes")
 def test_bench_batched_steps_each_batch_size_in_its_own_process(tmp_path, capsys):
     pytest.importorskip("mpe2")

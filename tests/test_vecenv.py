@@ -550,6 +550,11 @@ def test_render_tiles_one_image_per_copy():
 
 BATCH_PATH_CASES = [
     ("ChannelAssociation-v0", channel_kwargs(3, horizon=6)),
+    # a mobile field: the copies step as one array world (BatchedEnv.world), read through sync_copies
+    (
+        "ChannelAssociation-v0",
+        {"n_robots": 10, "mobile_fraction": 0.3, "wireless_range": 6.0, "visual_range": 6.0, HORIZON_ARG: 6},
+    ),
     ("MultiHop-v0", multihop_kwargs(horizon=4)),
     ("MultiHop-v0", {"grid_side": 2, HORIZON_ARG: 4}),  # MultiBinary actions
     ("MapSync-v0", {HORIZON_ARG: 5}),
@@ -590,3 +595,5 @@ def test_mrcomm_copies_step_as_one_batch_with_the_same_transitions_as_the_per_ag
                     assert got[key] == want[key], key
         assert batched.reset_infos == per_agent.reset_infos
     assert batched.get_attr("step_count") == per_agent.get_attr("step_count")
+    assert batched.env_method("bits_sent") == per_agent.env_method("bits_sent")
+    np.testing.assert_equal(batched.env_method("metrics"), per_agent.env_method("metrics"))  # NaN: not yet defined

@@ -61,6 +61,7 @@ import math
 import numpy as np
 from gymnasium import spaces
 
+from mrcomm_env.channel_association.field_batch import SlotFieldBatch
 from mrcomm_env.channel_association.limits import check_field_footprint, documented_maxima, footprint_of
 from mrcomm_env.channel_association.scenes import (
     DenseFieldScene,
@@ -207,9 +208,18 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         ),
     ]
 
+    #: own past emissions in the observation (the copy-axis world reads it here)
+    EMISSION_HISTORY = HISTORY
     #: populations up to this size use slot-per-robot filters (bit sets, or the literal (N, N, N) 0/1
     #: matrix when ``miss_tolerance`` > 0); larger ones the k-d tree + edge list backend
     DENSE_MAX_N = 64
+
+    @classmethod
+    def copy_axis_world(cls, cfg):
+        """A field of at most ``DENSE_MAX_N`` robots on bit sets (``miss_tolerance`` 0) with the team reward steps
+        M copies as one batch of arrays (:mod:`.field_batch`); other configurations step their copies in turn."""
+        small_field = cfg.scene == "field" and cfg.n_robots <= cls.DENSE_MAX_N
+        return SlotFieldBatch if small_field and cfg.miss_tolerance == 0 and cfg.reward_mode == "team" else None
 
     # ------------------------------------------------------------------ setup
     def _setup(self) -> None:

@@ -534,7 +534,7 @@ class BitsetFilter(FilterBase):
                     add = add | (R & self.wt & ~assoc)
                 C |= np.where(newv, add[:, None], 0)
                 vt |= newv
-                self.vlabel[newv] = self.rng.integers(0, 2**31, size=int(newv.sum()))
+                self._label_new(newv)
                 self.new_ids = newv.sum(1) + np.bitwise_count(NW)
             else:
                 self.new_ids = np.bitwise_count(NW)
@@ -549,9 +549,18 @@ class BitsetFilter(FilterBase):
             empty = (deg == 0) & vact  # lit ⇒ tracked, so no vt term needed
             if np.count_nonzero(empty):  # detected contradiction: re-open when lit
                 C |= np.where(empty, (self.wt & R)[:, None], 0)
-                self.conflicts += int(empty.sum())
+                self._count_conflicts(empty)
                 deg = np.bitwise_count(C)
         self.deg = deg
+
+    # the two places where observers are not independent rows: one generator draws the labels, one counter
+    # sums the conflicts. A batch of copies (field_batch.py) overrides them per copy; the rows stay the same code.
+    def _label_new(self, newv: np.ndarray) -> None:
+        """The observer's own random labels of the visual IDs ``newv`` (B, V) it starts tracking."""
+        self.vlabel[newv] = self.rng.integers(0, 2**31, size=int(newv.sum()))
+
+    def _count_conflicts(self, empty: np.ndarray) -> None:
+        self.conflicts += int(empty.sum())
 
     def stats(self):
         # row sums as small unsigned mat-vec products (fast for the tiny arrays of the hot path):

@@ -9,7 +9,7 @@ only its paper's world; see ``docs/architecture.md``.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from numbers import Integral
 from typing import Any, ClassVar
 
@@ -122,6 +122,14 @@ class MrcommParallelEnv(ParallelEnv):
         an instance (:data:`COPY_OVERHEAD_BYTES`, measured)."""
         one = float(cls.memory_estimate(cfg))
         return one + (n_copies - 1) * (max(one - cls.MEMORY_SHARED, 0.0) + COPY_OVERHEAD_BYTES)
+
+    @classmethod
+    def copy_axis_world(cls, cfg: Config) -> Callable[[list[Any]], Any] | None:
+        """The class that steps M copies with these arguments as arrays with a leading copy axis, or None (a
+        :class:`~mrcomm_env.core.batched.BatchedEnv` then steps the copies in turn). It is built from the M reset
+        env copies and has ``adopt(i)`` (take copy i's freshly reset episode), ``store(i)`` (write copy i's state
+        back into its env), ``step(actions)`` (``step_arrays`` of every copy, without resets) and ``bits_sent()``."""
+        return None
 
     def _setup(self) -> None:
         raise NotImplementedError

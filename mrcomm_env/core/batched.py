@@ -16,11 +16,13 @@ the observation its last step returned, ``final_metrics[i]`` the metrics of the 
 copy); an automatic reset continues the copy's own random stream. Copy i of a batch seeded s is therefore
 the single env seeded ``s + i``, episode after episode, byte for byte (``tests/test_batched.py``).
 
-**The same code.** Each copy runs the env's own ``reset_arrays``/``step_arrays``, which are its
-``reset``/``step`` without the per-agent dictionaries, so the PettingZoo env and the batch cannot drift
-apart. The copies are still M Python objects stepped in turn: an env whose world is written with a copy axis
-can replace :meth:`BatchedEnv._step_copies` without changing this interface (docs/scaling.md says which
-do; none yet).
+**Two ways to step.** By default each copy runs the env's own ``reset_arrays``/``step_arrays``, which are
+its ``reset``/``step`` without the per-agent dictionaries: M Python objects stepped in turn. An env class
+whose world is also written with a copy axis says so with ``copy_axis_world(cfg)`` (ChannelAssociation's
+small fields, ``channel_association/field_batch.py``); the batch then steps all copies as arrays and uses
+the env objects only to reset a copy (its own ``reset_arrays``, from its own generator) and to read a copy's
+metrics (the world writes the copy's state back first: :meth:`BatchedEnv.sync_copies`). Both ways give the
+same numbers; the tests compare each copy with the single env over whole episodes.
 
 **Memory.** The batch refuses at construction, naming ``n_copies``, a batch whose copies together need
 more than the env's memory budget by its own estimate (``batch_memory_estimate``: one env's peak, plus each
@@ -73,11 +75,13 @@ class BatchedEnv:
 
     :param make_copy: returns a new env (a ``MrcommParallelEnv``) per call; every copy has the same arguments.
     :param n_copies: M ≥ 1.
+    :param copy_axis: step two or more copies as one array world when the env has one (``copy_axis_world``);
+        False steps the env objects in turn (what the benchmarks compare it with).
     :raises ValueError: ``n_copies`` not a positive integer, a constructor that returns one instance twice or
         an env of another kind, or copies that together need more memory than the budget.
     """
 
-    def __init__(self, make_copy: Callable[[], MrcommParallelEnv], n_copies: int):
+    def __init__(self, make_copy: Callable[[], MrcommParallelEnv], n_copies: int, copy_axis: bool = True):
         if isinstance(n_copies, bool) or not isinstance(n_copies, Integral) or n_copies < 1:
             raise ValueError(f"argument 'n_copies' must be an integer ≥ 1, got {n_copies!r}")
         first = make_copy()
@@ -86,10 +90,10 @@ class BatchedEnv:
                 f"argument 'make_copy' must build an mrcomm environment (MrcommParallelEnv), got {type(first).__name__}"
             )
         _check_batch_memory(first, int(n_copies))
-        self._adopt([first] + [make_copy() for _ in range(int(n_copies) - 1)])
+        self._adopt([first] + [make_copy() for _ in range(int(n_copies) - 1)], copy_axis)
 
     @classmethod
-    def of(cls, envs: Sequence[Any], argument: str = "envs") -> BatchedEnv:
+    def of(cls, envs: Sequence[Any], argument: str = "envs", copy_axis: bool = True) -> BatchedEnv:
         """A batch of envs built elsewhere (the training VecEnv's copies), which must be :func:`copies_of_one_env`;
         a refusal over the memory budget names ``argument``."""
         if not copies_of_one_env(envs):
@@ -98,10 +102,10 @@ class BatchedEnv:
             )
         _check_batch_memory(envs[0], len(envs), argument)
         batch = cls.__new__(cls)
-        batch._adopt(list(envs))
+        batch._adopt(list(envs), copy_axis)
         return batch
 
-    def _adopt(self, envs: list[MrcommParallelEnv]) -> None:
+    def _adopt(self, envs: list[MrcommParallelEnv], copy_axis: bool) -> None:
         first = envs[0]
         self.envs: list[MrcommParallelEnv] = envs
         if len({id(env) for env in self.envs}) != len(self.envs):
@@ -114,6 +118,11 @@ class BatchedEnv:
         self.action_space: spaces.Space = first.action_space(self.possible_agents[0])
         self._action_shape = (self.n_copies, self.n_agents, *(self.action_space.shape or ()))
         self._observations: np.ndarray | None = None
+        # one copy steps its env object: a world of one copy pays its array set-up for nothing (½ the speed)
+        use_world = copy_axis and self.n_copies > 1 and first.render_mode is None
+        world = type(first).copy_axis_world(first.cfg) if use_world else None
+        #: the copy-axis world stepping every copy at once, or None (the copies step in turn)
+        self.world: Any = world(self.envs) if world is not None else None
 
     # ----------------------------------------------------------------- reset and step
     def reset(
@@ -131,6 +140,9 @@ class BatchedEnv:
             obs, info = env.reset_arrays(seed=copy_seed, options=copy_options)
             observations.append(obs)
             infos.append(info)
+        if self.world is not None:
+            for i in range(self.n_copies):
+                self.world.adopt(i)
         self._observations = np.stack(observations)
         return self._observations.copy(), _stack_columns(infos)
 
@@ -147,6 +159,8 @@ class BatchedEnv:
         return self._step_copies(actions)
 
     def _step_copies(self, actions: np.ndarray) -> BatchStep:
+        if self.world is not None:
+            return self._step_world(actions)
         m = self.n_copies
         observations = self._observations
         assert observations is not None
@@ -167,13 +181,47 @@ class BatchedEnv:
         result.infos = _stack_columns(infos)
         return result
 
+    def _step_world(self, actions: np.ndarray) -> BatchStep:
+        world = self.world
+        observations, rewards, terminated, truncated, infos = world.step(actions)
+        result = BatchStep(observations, rewards, terminated, truncated, infos)
+        for i in np.flatnonzero(terminated | truncated).tolist():
+            world.store(i)  # the env holds the ended episode: its metrics are the env's own
+            env = self.envs[i]
+            result.final_observations[i] = observations[i].copy()
+            result.final_metrics[i] = env.metrics()
+            observations[i], result.reset_infos[i] = env.reset_arrays()
+            world.adopt(i)
+        self._observations = observations
+        result.observations = observations.copy()
+        return result
+
+    # ----------------------------------------------------------------- the env objects of a copy-axis world
+    def sync_copies(self, indices: Sequence[int] | None = None) -> None:
+        """Write the copy-axis world's state into the env objects (before reading them: attributes, rendering,
+        local views), of every copy or of the copies ``indices``. Without a world the env objects are the state,
+        and this does nothing."""
+        if self.world is not None and self._observations is not None:
+            for i in range(self.n_copies) if indices is None else indices:
+                self.world.store(i)
+
+    def reload_copies(self) -> None:
+        """Take the env objects' state back into the copy-axis world (after changing them from outside: an
+        ``env_method`` or ``set_attr`` of the training VecEnv). Without a world this does nothing."""
+        if self.world is not None and self._observations is not None:
+            for i in range(self.n_copies):
+                self.world.adopt(i)
+
     # ----------------------------------------------------------------- per-copy readings
     def bits_sent(self) -> np.ndarray:
         """``(M,)``: bits every robot of each copy has sent since the copy's last reset, summed."""
+        if self.world is not None and self._observations is not None:
+            return np.asarray(self.world.bits_sent(), dtype=np.float64)
         return np.array([env.bits_sent() for env in self.envs], dtype=np.float64)
 
     def metrics(self) -> list[dict[str, float]]:
         """Each copy's metrics of its current episode so far."""
+        self.sync_copies()
         return [env.metrics() for env in self.envs]
 
     def close(self) -> None:

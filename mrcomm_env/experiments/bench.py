@@ -26,17 +26,25 @@ from mrcomm_env.experiments.reproductions import module
 from mrcomm_env.experiments.sweep import Runner, Task, one_thread
 from mrcomm_env.registry import make
 
+#: agent slots of ``mrcomm bench --train`` by default: 4 copies of the 3-agent reference, one copy of most of ours
+TRAIN_SLOTS = 12
 
-def train_section(targets: list[str], params: dict, timesteps: int, progress: bool = True) -> dict[str, Any]:
+
+def train_section(
+    targets: list[str], params: dict, timesteps: int, progress: bool = True, slots: int = TRAIN_SLOTS
+) -> dict[str, Any]:
     """PPO agent-steps/s through the agent-slot VecEnv on every target and on mpe2's ``simple_spread_v3``, with
-    the share of wall time spent stepping the envs (the goal: our envs train at least as fast as the reference)."""
+    the share of wall time spent stepping the envs (the goal: our envs train at least as fast as the reference).
+    ``slots``: about how many agent slots each VecEnv has (the reference: ``slots / 3`` copies of its 3 agents;
+    each env: as many copies as come closest); more slots means more copies per batch."""
 
     def reference():
         from mpe2 import simple_spread_v3  # extra "bench"
 
         return simple_spread_v3.parallel_env(N=3, continuous_actions=False)
 
-    out = {"timesteps": timesteps, "reference": train_throughput([reference] * 4, timesteps)}
+    reference_copies = max(1, round(slots / 3))
+    out = {"timesteps": timesteps, "reference": train_throughput([reference] * reference_copies, timesteps)}
     print(f"train  reference simple_spread_v3: {_train_line(out['reference'])}")
     slots = out["reference"]["slots"]
     out["envs"] = {}

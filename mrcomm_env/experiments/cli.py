@@ -259,7 +259,7 @@ def cmd_bench(args) -> int:
 
     results["extras"] = bench.extras_section(targets)
     if args.train:
-        results["train"] = bench.train_section(targets, params, args.train_timesteps)
+        results["train"] = bench.train_section(targets, params, args.train_timesteps, slots=args.train_slots)
     if args.limits:
         results["limits"] = bench.limits_section(targets, args.seconds)
     if args.batched:
@@ -377,6 +377,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--train", action="store_true", help="also PPO agent-steps/s through the training VecEnv")
     p.add_argument("--train-timesteps", type=positive_int, default=20_000, help="PPO agent-steps per env (--train)")
+    p.add_argument(
+        "--train-slots",
+        type=positive_int,
+        default=bench.TRAIN_SLOTS,
+        help=f"about this many agent slots per VecEnv (--train; default {bench.TRAIN_SLOTS}: 4 copies of the "
+        "reference); more slots step more copies per batch",
+    )
     p.add_argument("--limits", action="store_true", help="also steps/s and peak memory at every documented maximum")
     p.add_argument(
         "--batched",
