@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from mrcomm_env.channel_association.filters import BitsetFilter
-from mrcomm_env.channel_association.scenes import DenseFieldScene
+from mrcomm_env.channel_association.scenes import DenseFieldScene, move_and_bounce
 
 
 class CopyBitsetFilter(BitsetFilter):
@@ -227,28 +227,9 @@ class SlotFieldBatch:
             )
 
     def _move(self) -> None:
-        """``move_and_bounce`` of every copy's mobile robots: the reflection is applied to a copy (all its
-        coordinates, as the env does) only when one of its robots left the arena."""
-        p, vel, size, fast = self.pos[:, self.n_stat :], self.vel, self.size, self.fast
-        any_fast = bool(fast.any())
-        if any_fast:
-            side = np.broadcast_to(size, p.shape)[fast]
-            v0 = vel[fast]
-            u = np.mod(p[fast] + np.mod(v0, 2.0 * side), 2.0 * side)
-        p += vel
-        out = p < 0.0
-        out |= p > size
-        hit = out.any(axis=(1, 2))
-        if hit.any():
-            q = p[hit]
-            np.abs(q, out=q)
-            np.subtract(size, np.abs(size - q), out=q)
-            p[hit] = q
-            vel[out] *= -1.0
-        if any_fast:
-            back = u > side
-            p[fast] = np.where(back, 2.0 * side - u, u)
-            vel[fast] = np.where(back, -v0, v0)
+        """``DenseFieldScene._move`` of every copy (``move_and_bounce`` takes the copy axis)."""
+        fast = self.fast if self.fast.any() else None
+        move_and_bounce(self.pos[:, self.n_stat :], self.vel, self.size, fast)
 
     def _update_ranges(self) -> None:
         """``DenseFieldScene._update_ranges(n_stat)`` of every copy: the mobile robots' rows and columns."""

@@ -47,10 +47,12 @@ def layout_field(rng: np.random.Generator, n: int, separation: float, mobile_fra
 
 
 def move_and_bounce(p: np.ndarray, vel: np.ndarray, size: np.ndarray, fast: np.ndarray | None = None) -> None:
-    """Advance positions ``p`` (M, 2) by ``vel`` in place, bouncing off the walls of [0, size] (§5.4).
+    """Advance positions ``p`` (K, 2) by ``vel`` in place, bouncing off the walls of [0, size] (§5.4).
 
     ``fast`` marks the coordinates whose speed exceeds the arena (see :func:`fast_coordinates`): a step
     then crosses the arena more than once, and adding the velocity first would round the position away.
+    With a leading copy axis, ``p`` and ``vel`` (M, K, 2) (``field_batch.py``), each copy moves as it would
+    alone: the reflection, which rounds, touches the coordinates of the copies in which a robot left the arena.
     """
     if fast is not None:
         side = np.broadcast_to(size, p.shape)[fast]
@@ -61,8 +63,13 @@ def move_and_bounce(p: np.ndarray, vel: np.ndarray, size: np.ndarray, fast: np.n
     out = p < 0.0
     out |= p > size
     if np.count_nonzero(out):  # one reflection at either wall
-        np.abs(p, out=p)
-        np.subtract(size, np.abs(size - p), out=p)
+        if p.ndim == 2:
+            np.abs(p, out=p)
+            np.subtract(size, np.abs(size - p), out=p)
+        else:
+            hit = out.any(axis=(1, 2))
+            q = np.abs(p[hit])
+            p[hit] = np.subtract(size, np.abs(size - q), out=q)
         vel[out] *= -1.0
     if fast is not None:
         back = u > side  # the second half of the period runs backwards
