@@ -555,6 +555,8 @@ BATCH_PATH_CASES = [
         "ChannelAssociation-v0",
         {"n_robots": 10, "mobile_fraction": 0.3, "wireless_range": 6.0, "visual_range": 6.0, HORIZON_ARG: 6},
     ),
+    # a neighbourhood: episodes end every few steps and the world begins the next ones itself (reset_copies)
+    ("ChannelAssociation-v0", {"scene": "neighborhood", "w": 3, "v": 2, HORIZON_ARG: 12}),
     ("MultiHop-v0", multihop_kwargs(horizon=4)),
     ("MultiHop-v0", {"grid_side": 2, HORIZON_ARG: 4}),  # MultiBinary actions
     ("MapSync-v0", {HORIZON_ARG: 5}),

@@ -61,7 +61,8 @@ import math
 import numpy as np
 from gymnasium import spaces
 
-from mrcomm_env.channel_association.field_batch import SlotFieldBatch
+from mrcomm_env.channel_association.copy_axis import NeighborhoodBatch, SlotFieldBatch
+from mrcomm_env.channel_association.filters import BITSET_MAX_W
 from mrcomm_env.channel_association.limits import check_field_footprint, documented_maxima, footprint_of
 from mrcomm_env.channel_association.scenes import (
     DenseFieldScene,
@@ -216,10 +217,14 @@ class ChannelAssociationEnv(MrcommParallelEnv):
 
     @classmethod
     def copy_axis_world(cls, cfg):
-        """A field of at most ``DENSE_MAX_N`` robots on bit sets (``miss_tolerance`` 0) with the team reward steps
-        M copies as one batch of arrays (:mod:`.field_batch`); other configurations step their copies in turn."""
-        small_field = cfg.scene == "field" and cfg.n_robots <= cls.DENSE_MAX_N
-        return SlotFieldBatch if small_field and cfg.miss_tolerance == 0 and cfg.reward_mode == "team" else None
+        """Scenes on bit sets (``miss_tolerance`` 0, at most 64 wireless IDs per observer) with the team reward step
+        M copies as one batch of arrays (:mod:`.copy_axis`): a neighbourhood, or a field of at most ``DENSE_MAX_N``
+        robots. Other configurations step their copies in turn."""
+        if cfg.miss_tolerance != 0 or cfg.reward_mode != "team":
+            return None
+        if cfg.scene == "neighborhood":
+            return NeighborhoodBatch if cfg.w <= BITSET_MAX_W else None
+        return SlotFieldBatch if cfg.n_robots <= cls.DENSE_MAX_N else None
 
     # ------------------------------------------------------------------ setup
     def _setup(self) -> None:

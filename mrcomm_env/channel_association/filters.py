@@ -447,7 +447,9 @@ _ZERO = np.uint64(0)
 _U64 = np.dtype(np.uint64)
 
 
-_POW2 = _ONE << np.arange(64, dtype=np.uint64)
+#: the most wireless slots a bit set holds (one ``uint64`` per visual ID)
+BITSET_MAX_W = 64
+_POW2 = _ONE << np.arange(BITSET_MAX_W, dtype=np.uint64)
 
 
 def pack_rows(mask: np.ndarray) -> np.ndarray:
@@ -465,8 +467,8 @@ class BitsetFilter(FilterBase):
     """
 
     def __init__(self, batch: int, n_w: int, n_v: int, drop_time: int = 20, extra_edges: bool = False):
-        if n_w > 64:
-            raise ValueError(f"BitsetFilter holds at most 64 wireless slots, got {n_w}")
+        if n_w > BITSET_MAX_W:
+            raise ValueError(f"BitsetFilter holds at most {BITSET_MAX_W} wireless slots, got {n_w}")
         super().__init__(drop_time, 0, extra_edges)
         self.shape = (batch, n_w, n_v)
         self._bits = np.arange(n_w, dtype=np.uint64)
@@ -554,7 +556,7 @@ class BitsetFilter(FilterBase):
         self.deg = deg
 
     # the two places where observers are not independent rows: one generator draws the labels, one counter
-    # sums the conflicts. A batch of copies (field_batch.py) overrides them per copy; the rows stay the same code.
+    # sums the conflicts. A batch of copies (copy_axis.py) overrides them per copy; the rows stay the same code.
     def _label_new(self, newv: np.ndarray) -> None:
         """The observer's own random labels of the visual IDs ``newv`` (B, V) it starts tracking."""
         self.vlabel[newv] = self.rng.integers(0, 2**31, size=int(newv.sum()))

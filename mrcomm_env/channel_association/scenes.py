@@ -22,7 +22,13 @@ from itertools import chain
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mrcomm_env.channel_association.filters import AssociationFilter, BitsetFilter, DenseFilter, SparseFilter
+from mrcomm_env.channel_association.filters import (
+    BITSET_MAX_W,
+    AssociationFilter,
+    BitsetFilter,
+    DenseFilter,
+    SparseFilter,
+)
 from mrcomm_env.core.comm import disk_pairs
 
 
@@ -51,7 +57,7 @@ def move_and_bounce(p: np.ndarray, vel: np.ndarray, size: np.ndarray, fast: np.n
 
     ``fast`` marks the coordinates whose speed exceeds the arena (see :func:`fast_coordinates`): a step
     then crosses the arena more than once, and adding the velocity first would round the position away.
-    With a leading copy axis, ``p`` and ``vel`` (M, K, 2) (``field_batch.py``), each copy moves as it would
+    With a leading copy axis, ``p`` and ``vel`` (M, K, 2) (``copy_axis.py``), each copy moves as it would
     alone: the reflection, which rounds, touches the coordinates of the copies in which a robot left the arena.
     """
     if fast is not None:
@@ -85,7 +91,7 @@ def fast_coordinates(vel: np.ndarray, size: np.ndarray) -> np.ndarray | None:
 
 def make_slot_filter(batch: int, n_w: int, n_v: int, drop_time: int, tolerance: int, extra_edges: bool):
     """A slot-per-robot filter: bit sets when they can hold the i-state (W ≤ 64, no disagreement counts)."""
-    if tolerance == 0 and n_w <= 64:
+    if tolerance == 0 and n_w <= BITSET_MAX_W:
         return BitsetFilter(batch, n_w, n_v, drop_time, extra_edges)
     return DenseFilter(batch, n_w, n_v, drop_time, tolerance, extra_edges)
 
@@ -181,10 +187,14 @@ class NeighborhoodScene(Scene):
         self.rng = rng
         # the observer's own labelling: visual slot s is robot vis_robot[s] (a random subset, random order)
         self.vis_robot = 1 + rng.permutation(c.w)[: c.v]
-        self.positions = _ring_positions(c.w, self.vis_robot)  # for rendering only
         self.filter = make_slot_filter(1, c.w, c.v, c.drop_time, c.miss_tolerance, False)
         self.filter.rng = rng
         self.filter.init_known(np.ones((1, c.w), bool), np.ones((1, c.v), bool))
+
+    @property
+    def positions(self) -> np.ndarray:
+        """Where the robots are drawn (rendering only): computed when read, from the visual labelling."""
+        return ring_positions(self.cfg.w, self.vis_robot)
 
     def step(self, emit: np.ndarray, n_emit: int) -> None:
         recv = emit[None, 1:]
@@ -403,7 +413,7 @@ def _uniform_hash(keys: np.ndarray, salt) -> np.ndarray:
     return (z >> np.uint64(11)).astype(np.float64) * (1.0 / 2**53)
 
 
-def _ring_positions(w: int, vis_robot: np.ndarray) -> np.ndarray:
+def ring_positions(w: int, vis_robot: np.ndarray) -> np.ndarray:
     """Observer at the origin, visible neighbours inside the unit circle, the rest outside (render)."""
     ang = np.linspace(0.0, 2.0 * np.pi, w, endpoint=False)
     rad = np.where(np.isin(np.arange(1, w + 1), vis_robot), 0.7, 1.4)

@@ -19,10 +19,13 @@ the single env seeded ``s + i``, episode after episode, byte for byte (``tests/t
 **Two ways to step.** By default each copy runs the env's own ``reset_arrays``/``step_arrays``, which are
 its ``reset``/``step`` without the per-agent dictionaries: M Python objects stepped in turn. An env class
 whose world is also written with a copy axis says so with ``copy_axis_world(cfg)`` (ChannelAssociation's
-small fields, ``channel_association/field_batch.py``); the batch then steps all copies as arrays and uses
+scenes on bit sets, ``channel_association/copy_axis.py``); the batch then steps all copies as arrays and uses
 the env objects only to reset a copy (its own ``reset_arrays``, from its own generator) and to read a copy's
-metrics (the world writes the copy's state back first: :meth:`BatchedEnv.sync_copies`). Both ways give the
-same numbers; the tests compare each copy with the single env over whole episodes.
+metrics (the world writes the copy's state back first: :meth:`BatchedEnv.sync_copies`); a world with
+``reset_copies(copies)`` begins ended copies' next episodes itself, with the env's draws, and one with
+``final_metrics(copies)`` computes the env's metrics of ended episodes on its rows (a neighbourhood, whose
+episodes end every few steps). Both ways give the same numbers; the tests compare each copy with the single env
+over whole episodes.
 
 **Memory.** The batch refuses at construction, naming ``n_copies``, a batch whose copies together need
 more than the env's memory budget by its own estimate (``batch_memory_estimate``: one env's peak, plus each
@@ -185,13 +188,25 @@ class BatchedEnv:
         world = self.world
         observations, rewards, terminated, truncated, infos = world.step(actions)
         result = BatchStep(observations, rewards, terminated, truncated, infos)
-        for i in np.flatnonzero(terminated | truncated).tolist():
-            world.store(i)  # the env holds the ended episode: its metrics are the env's own
-            env = self.envs[i]
+        ended = np.flatnonzero(terminated | truncated).tolist()
+        for i in ended:
             result.final_observations[i] = observations[i].copy()
-            result.final_metrics[i] = env.metrics()
-            observations[i], result.reset_infos[i] = env.reset_arrays()
-            world.adopt(i)
+        final_metrics = getattr(world, "final_metrics", None)
+        if ended and final_metrics is not None:  # the env's metrics, computed on the world's rows
+            result.final_metrics.update(zip(ended, final_metrics(ended)))
+        else:
+            for i in ended:
+                world.store(i)  # the env holds the ended episode: its metrics are the env's own
+                result.final_metrics[i] = self.envs[i].metrics()
+        reset_copies = getattr(world, "reset_copies", None)
+        if ended and reset_copies is not None:  # the world begins the next episodes itself, as the envs would
+            fresh, reset_infos = reset_copies(ended)
+            observations[ended] = fresh[ended]
+            result.reset_infos.update(zip(ended, reset_infos))
+        else:
+            for i in ended:
+                observations[i], result.reset_infos[i] = self.envs[i].reset_arrays()
+                world.adopt(i)
         self._observations = observations
         result.observations = observations.copy()
         return result
