@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from mrcomm_env.channel_association.filters import BitsetFilter
+from mrcomm_env.channel_association.observation import push_emission, write_istate
 from mrcomm_env.channel_association.scenes import DenseFieldScene, NeighborhoodScene, move_and_bounce
 
 
@@ -72,7 +73,6 @@ class CopyAxisWorld:
         self.filter.rngs = [env.np_random for env in envs]
         m = self.m
         # the env's constants of observation and reward (the same in every copy)
-        self.history = first.EMISSION_HISTORY
         self.msg_bits = first._msg_bits_f
         self.id_bits, self.n_static, self.clock = first._id_bits, first._n_static, first._clock
         self.phase_col, self.clock_codes = first._phase_col, first._clock_codes
@@ -171,9 +171,7 @@ class CopyAxisWorld:
         n = self.n
         emit = actions.astype(bool)
         self.emit = emit
-        dyn = self.obs[:, :, self.n_static :]
-        dyn[:, :, 2 : 1 + self.history] = dyn[:, :, 1 : self.history]  # own emission history, newest first
-        dyn[:, :, 1] = emit
+        push_emission(self.obs[..., self.n_static :], emit)
         n_emit = np.count_nonzero(emit, axis=1)
         np.multiply(emit, self.msg_bits, out=self.step_bits)  # BitLedger.record
         self.total_bits += self.step_bits
@@ -216,11 +214,7 @@ class CopyAxisWorld:
         matched, nv, ne, unres, new = self.stats = self._robot_stats()
         self.frac = matched / np.maximum(nv, 1)
         self.team_score = self._team_score(self.frac)
-        j, dyn = 1 + self.history, self.obs[:, :, self.n_static :]
-        dyn[:, :, j] = self.frac
-        dyn[:, :, j + 1] = (np.maximum(ne, nv) - nv) / np.maximum(ne, 1)
-        dyn[:, :, j + 2] = self.squash8[unres]
-        dyn[:, :, j + 3] = self.squash4[new]
+        write_istate(self.obs[..., self.n_static :], self.frac, nv, ne, unres, new, self.squash8, self.squash4)
 
     def _observe(self) -> None:
         """``ChannelAssociationEnv._observe`` of every copy, in place."""

@@ -64,6 +64,7 @@ from gymnasium import spaces
 from mrcomm_env.channel_association.copy_axis import NeighborhoodBatch, SlotFieldBatch
 from mrcomm_env.channel_association.filters import BITSET_MAX_W
 from mrcomm_env.channel_association.limits import check_field_footprint, documented_maxima, footprint_of
+from mrcomm_env.channel_association.observation import HISTORY, push_emission, write_istate
 from mrcomm_env.channel_association.scenes import (
     DenseFieldScene,
     NeighborhoodScene,
@@ -78,7 +79,6 @@ from mrcomm_env.core.config import Choice, Int, Param, Real
 
 __all__ = ["ChannelAssociationEnv", "layout_field"]
 
-HISTORY = 4  # own past emissions in the observation
 #: smallest spacing and ranges, in robot diameters: a thousandth of a robot is below any meaningful
 #: geometry, and far smaller lengths break the k-d tree (squared distances under 1e-308 become 0)
 MIN_LENGTH = 1e-3
@@ -209,8 +209,6 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         ),
     ]
 
-    #: own past emissions in the observation (the copy-axis world reads it here)
-    EMISSION_HISTORY = HISTORY
     #: populations up to this size use slot-per-robot filters (bit sets, or the literal (N, N, N) 0/1
     #: matrix when ``miss_tolerance`` > 0); larger ones the k-d tree + edge list backend
     DENSE_MAX_N = 64
@@ -340,9 +338,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         n = self.n_agents
         emit = np.array(actions, dtype=bool)
         self._emit = emit
-        dyn = self._obs[:, self._n_static :]  # dynamic part of the observation (a view)
-        dyn[:, 2 : 1 + HISTORY] = dyn[:, 1:HISTORY]  # shift own emission history, newest first
-        dyn[:, 1] = emit
+        push_emission(self._obs[:, self._n_static :], emit)
         n_emit = int(np.count_nonzero(emit))
         self.ledger.record(emit * self._msg_bits_f, n_emit)
         self.scene.step(emit, n_emit)
@@ -373,11 +369,7 @@ class ChannelAssociationEnv(MrcommParallelEnv):
         self._frac = matched / np.maximum(nv, 1)
         self._team_score = self.scene.team_score(self._frac)
         self._stats = (matched, nv, ne, unres, new)
-        j, dyn = 1 + HISTORY, self._obs[:, self._n_static :]  # i-state statistics for the observation
-        dyn[:, j] = self._frac
-        dyn[:, j + 1] = (np.maximum(ne, nv) - nv) / np.maximum(ne, 1)  # unsigned-safe (ne − nv)⁺ / ne
-        dyn[:, j + 2] = self._squash8[unres]  # u / (u + 8), tabulated
-        dyn[:, j + 3] = self._squash4[new]  # n / (n + 4), tabulated
+        write_istate(self._obs[:, self._n_static :], self._frac, nv, ne, unres, new, self._squash8, self._squash4)
 
     def _observe(self) -> np.ndarray:
         obs = self._obs

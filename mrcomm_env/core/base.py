@@ -128,7 +128,9 @@ class MrcommParallelEnv(ParallelEnv):
         """The class that steps M copies with these arguments as arrays with a leading copy axis, or None (a
         :class:`~mrcomm_env.core.batched.BatchedEnv` then steps the copies in turn). It is built from the M reset
         env copies and has ``adopt(i)`` (take copy i's freshly reset episode), ``store(i)`` (write copy i's state
-        back into its env), ``step(actions)`` (``step_arrays`` of every copy, without resets) and ``bits_sent()``."""
+        back into its env), ``step(actions)`` (``step_arrays`` of every copy, without resets) and ``bits_sent()``;
+        optionally ``reset_copies(copies)`` and ``final_metrics(copies)``, to begin ended copies' next episodes and
+        compute the ended ones' metrics without the env objects."""
         return None
 
     def _setup(self) -> None:
