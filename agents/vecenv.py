@@ -94,7 +94,7 @@ class AgentSlotVecEnv(VecEnv):
         # PettingZoo env (wrapped, foreign, with agents that come and go) through its own step()
         self.batch: BatchedEnv | None = None
         if copies_of_one_env(self.envs):
-            self.batch = BatchedEnv.of(self.envs, argument="env_fns")
+            self.batch = BatchedEnv.of(self.envs, argument="env_fns", copy=False)  # copied into the slots
 
     def _shared_spaces(self) -> tuple[spaces.Box, spaces.Space]:
         first_env, first_agent = self.envs[0], self.agent_names[0]

@@ -120,6 +120,79 @@ def test_the_copy_axis_world_and_the_copies_in_turn_step_alike():
         world.step(np.full((3, 8), 1.0))  # 1.0 is not an action of Discrete(2), as for the env
 
 
+#: static MultiHop scenes with the relative layout and the team reward: the copy-axis world of multihop/copy_axis.py
+MULTIHOP_COPY_AXIS_CASES = [
+    {"grid_side": 4, "slot_size": 3, "max_cycles": 20},
+    {"grid_side": 5, "n_robots": 22, "slot_size": 2, "lam": 0.5, "max_cycles": 25},  # a partial last row; bit cost
+    {"scene": "field", "n_robots": 12, "comm_range": 35.0, "max_cycles": 15},  # each copy its own links and buckets
+    # robots out of everyone's range: estimates never known, first arrivals tracked all episode; flooding (m = n)
+    {"scene": "field", "n_robots": 9, "comm_range": 8.0, "arena_size": 60.0, "slot_size": 9, "max_cycles": 12},
+    {"grid_side": 2, "slot_size": 1, "max_cycles": 5},
+]
+
+
+@pytest.mark.parametrize("kwargs", MULTIHOP_COPY_AXIS_CASES, ids=lambda v: str(v))
+def test_a_multihop_copy_axis_world_gives_each_copy_the_single_env_episodes(kwargs):
+    env_id = "mrcomm/MultiHop-v0"
+    batch = mrcomm_env.make_batched(env_id, 3, **kwargs)
+    assert batch.world is not None  # compiled backend (extra "fast"), static scene, relative layout, team reward
+    singles = _assert_copies_are_single_envs(batch, env_id, kwargs, horizon=2 * kwargs["max_cycles"] + 3)
+    batch.sync_copies()
+    for copy, single in zip(batch.envs, singles):
+        assert copy.step_count == single.step_count and copy.t == single.t and copy.agents == single.agents
+        for name in ("stamps", "first_known", "sent_stamp", "last_sent", "_ages", "_candidates", "_ranked_known"):
+            assert _bytes(getattr(copy, name)) == _bytes(getattr(single, name)), name
+        mine, theirs = copy.metrics(), single.metrics()
+        assert mine.keys() == theirs.keys()
+        assert all(mine[k] == theirs[k] or (np.isnan(mine[k]) and np.isnan(theirs[k])) for k in mine), (mine, theirs)
+
+
+def test_the_multihop_world_sums_as_numpy_sums():
+    """The world's ages are summed in scratch rows by ``numpy_sum``, which must be numpy's own pairwise sum to the
+    last bit (a plain running sum differs from the eighth value on); values of nine orders of magnitude."""
+    from mrcomm_env.multihop.frame_numba import numpy_sum
+
+    rng = np.random.default_rng(7)
+    for size in [*range(0, 300), 8191, 8192, 8193, 9900, 65536, 1023 * 1024]:
+        values = rng.random(size + 5) * 10.0 ** rng.uniform(-3, 6, size + 5)
+        assert numpy_sum(values, 3, size) == values[3 : 3 + size].sum(), size
+
+
+def test_the_multihop_world_refuses_what_the_env_refuses_and_steps_as_the_copies_in_turn():
+    kwargs = {"grid_side": 3, "slot_size": 2, "max_cycles": 6}
+    make = lambda: mrcomm_env.make("MultiHop-v0", **kwargs)  # noqa: E731
+    world, in_turn = BatchedEnv(make, 2), BatchedEnv(make, 2, copy_axis=False)
+    assert world.world is not None and in_turn.world is None
+    assert _bytes(world.reset(seed=2)[0]) == _bytes(in_turn.reset(seed=2)[0])
+    rng = np.random.default_rng(4)
+    for _ in range(8):  # float 0s and 1s are MultiBinary actions too (SB3 sends float32)
+        actions = rng.integers(0, 2, size=(2, 9, 8)).astype(np.float32)
+        a, b = world.step(actions), in_turn.step(actions)
+        assert _bytes(a.observations) == _bytes(b.observations) and _bytes(a.rewards) == _bytes(b.rewards)
+    bad = np.zeros((2, 9, 8))
+    bad[1, 4, 2] = 0.5
+    with pytest.raises(ValueError, match=r"action of robot_4 \(copy 1\) must be an array of 0s and 1s of shape \(8,\)"):
+        world.step(bad)
+    with pytest.raises(ValueError, match="action of robot_4 must be an array of 0s and 1s"):
+        in_turn.step(bad)  # the env objects refuse it alike
+    with pytest.raises(ValueError, match="'actions' must hold 0s and 1s"):
+        world.step(np.full((2, 9, 8), "1"))
+
+
+def test_copy_false_returns_the_batch_buffer_and_the_same_numbers():
+    make = lambda: mrcomm_env.make("MultiHop-v0", grid_side=3, slot_size=2, max_cycles=4)  # noqa: E731
+    copying, buffered = BatchedEnv(make, 2), BatchedEnv(make, 2, copy=False)
+    first = copying.reset(seed=1)[0], buffered.reset(seed=1)[0]
+    assert _bytes(first[0]) == _bytes(first[1])
+    actions = np.ones((2, 9, 8), dtype=np.int8)
+    kept = copying.step(actions).observations
+    held = copying.step(actions).observations
+    assert not np.shares_memory(kept, held)  # copy=True: every step a new array, which the next step leaves alone
+    one, two = buffered.step(actions).observations, buffered.step(actions).observations
+    assert np.shares_memory(one, two)  # copy=False: the batch's own buffer, rewritten by the next step
+    assert _bytes(two) == _bytes(held)
+
+
 def _assert_copies_are_single_envs(batch, env_id, kwargs, horizon):
     n_copies, seed = batch.n_copies, 11
     singles = [mrcomm_env.make(env_id, **kwargs) for _ in range(n_copies)]
@@ -247,15 +320,19 @@ def test_sample_actions_draws_valid_actions_of_every_kind(space_kind):
 
 
 @pytest.mark.parametrize(
-    ("env_id", "n_copies"),
-    [("MultiHop-v0", 128), ("RendezvousMapping-v0", 512)],  # the largest state per copy; the largest shared part
+    ("env_id", "n_copies", "backend_name"),
+    [("MultiHop-v0", 128, "numpy"), ("MultiHop-v0", 128, "auto"), ("RendezvousMapping-v0", 512, "numpy")],
 )
-def test_a_batch_holds_about_what_its_memory_estimate_says(env_id, n_copies, monkeypatch):
+def test_a_batch_holds_about_what_its_memory_estimate_says(env_id, n_copies, backend_name, monkeypatch):
     """``batch_memory_estimate`` counts the shared working memory once and each copy's own state: within a factor
-    of 2 of what the batch holds (numpy backend: no compiled kernels in the measurement)."""
+    of 2 of what the batch holds. The largest state per copy (MultiHop) in turn and as a copy-axis world (compiled
+    backend, numba counted), and the largest shared part (RendezvousMapping)."""
+    from mrcomm_env.core import backend
     from mrcomm_env.experiments.limits import measure_batched
 
-    monkeypatch.setenv("MRCOMM_BACKEND", "numpy")
+    monkeypatch.setenv("MRCOMM_BACKEND", backend_name)  # the child process that measures chooses by it
+    # this process chose its backend once (functools.cache); the estimate here must use the child's choice
+    monkeypatch.setattr(backend, "compiled", backend.compiled.__wrapped__)
     env = mrcomm_env.make(env_id)
     estimate_mb = env.batch_memory_estimate(env.cfg, n_copies) / 2**20
     result = measure_batched(env_id, {}, n_copies, seconds=0.0, min_steps=1, timeout=300)

@@ -188,7 +188,8 @@ def _run_batched(job: dict[str, Any]) -> dict[str, Any]:
     env_cls = importlib.import_module(job["env_module"]).parallel_env  # importing is not the batch's memory
     rss_before_mb = _current_rss_mb()
     start = time.perf_counter()
-    batch = BatchedEnv(lambda: env_cls(**job["config"]), job["n_copies"])
+    # the batch's own observation buffer, not a copy per step: how the training VecEnv steps it (copy=False)
+    batch = BatchedEnv(lambda: env_cls(**job["config"]), job["n_copies"], copy=False)
     built = time.perf_counter()
     obs, infos = batch.reset(seed=job["seed"])
     reset_done = time.perf_counter()

@@ -216,11 +216,40 @@ class MultiHopEnv(MrcommParallelEnv):
     @classmethod
     def memory_estimate(cls, cfg) -> float:
         # measured (tests/test_memory.py): about 180 bytes per robot pair, whatever the scene and slot size
-        if cfg.n_robots is not None:
-            n = float(cfg.n_robots)
-        else:
-            n = float(cfg.grid_side**2) if cfg.scene == "grid" else (9.0 if cfg.scene == "coverage" else 20.0)
+        n = cls._robot_count(cfg)
         return cls.MEMORY_SHARED + 180.0 * n * n
+
+    #: bytes per robot pair of each further copy in a copy-axis world (:mod:`.copy_axis`): its (n, n) arrays of the
+    #: frame, the ranking and the observation, beside its env object's (measured: ``tests/test_batched.py``)
+    WORLD_BYTES_PER_PAIR = 160.0
+
+    @classmethod
+    def copy_axis_world(cls, cfg):
+        """A static topology (the grid, or a field with ``speed`` 0) with the ``relative`` layout and the team reward,
+        on the compiled backend, steps M copies as one batch of arrays (:mod:`.copy_axis`); other configurations
+        (moving robots, the coverage controller, v0's layout, the neighbourhood reward) step their copies in turn."""
+        static = cfg.scene == "grid" or (cfg.scene == "field" and cfg.speed == 0)
+        if not static or cfg.layout != "relative" or cfg.reward_mode != "team" or not backend.compiled():
+            return None
+        from mrcomm_env.multihop.copy_axis import StaticFrameBatch  # numba is imported with it
+
+        return StaticFrameBatch
+
+    @classmethod
+    def batch_memory_estimate(cls, cfg, n_copies: int) -> float:
+        """The copies' env objects (:meth:`MrcommParallelEnv.batch_memory_estimate`), plus, when two or more copies
+        step as a copy-axis world, each copy's rows of the world."""
+        objects = super().batch_memory_estimate(cfg, n_copies)
+        if n_copies < 2 or cls.copy_axis_world(cfg) is None:
+            return objects
+        n = cls._robot_count(cfg)
+        return objects + n_copies * cls.WORLD_BYTES_PER_PAIR * n * n
+
+    @staticmethod
+    def _robot_count(cfg) -> float:
+        if cfg.n_robots is not None:
+            return float(cfg.n_robots)
+        return float(cfg.grid_side**2) if cfg.scene == "grid" else (9.0 if cfg.scene == "coverage" else 20.0)
 
     #: configurations at the documented maxima (``tests/test_limits.py``, ``experiments/limits.py``)
     LIMIT_CONFIGS = {
@@ -280,6 +309,7 @@ class MultiHopEnv(MrcommParallelEnv):
         self.m = m
         self.slot_dur = theory.slot_duration(self.m, c.bits_per_estimate, c.baud)
         self.frame_dur = n * self.slot_dur
+        self._age_unit = AGE_SCALE_FRAMES * self.frame_dur  # the reward's unit of age
         self._moving = (c.scene == "field" and c.speed > 0) or c.scene == "coverage"
         if c.scene == "grid":
             cols = c.grid_side
@@ -535,7 +565,7 @@ class MultiHopEnv(MrcommParallelEnv):
                 self._sum_age_hop[k] += float(sel.mean())
         if self._relative:
             self._rank_candidates()
-        age_unit = AGE_SCALE_FRAMES * self.frame_dur
+        age_unit = self._age_unit
         bit_unit = self.m * self.cfg.bits_per_estimate
         if self.cfg.reward_mode == "team":
             return -wage / age_unit - self.cfg.lam * float(self._step_bits.sum()) / self._capacity

@@ -77,3 +77,239 @@ def neighbour_lists(adjacency: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ptr = np.zeros(adjacency.shape[0] + 1, dtype=np.int64)
     np.cumsum(np.bincount(rows, minlength=adjacency.shape[0]), out=ptr[1:])
     return ptr[None, :], cols.astype(np.int64)[None, :]
+
+
+@numba.njit(cache=True)
+def selected_ranks(candidates, selected, rank, count):
+    """The ``relative`` layout's frame lists of every copy (``MultiHopEnv._priorities`` then
+    ``protocol.priority_ranking``): each robot's own index, then its selected candidates in candidate order.
+    The selected ranks' priorities fall strictly with the rank, so that order is the descending one.
+
+    ``candidates`` (M, n, n − 1) robot index per rank; ``selected`` (M, n, n − 1) bool; writes ``rank`` (M, n, n)
+    (the first ``count`` (M, n) entries of each row are valid, as :func:`send_frame` reads them)."""
+    n_copies, n, n_cand = candidates.shape
+    for c in range(n_copies):
+        for i in range(n):
+            rank[c, i, 0] = i
+            q = 1
+            for k in range(n_cand):
+                # without a branch: random select bits mispredicted every other one (3x slower); the write lands at
+                # q <= k + 1 < n and is overwritten by the next selected candidate when this one is not selected
+                rank[c, i, q] = candidates[c, i, k]
+                q += selected[c, i, k]
+            count[c, i] = q
+
+
+@numba.njit(cache=True)
+def _block_sum(values, start, size):
+    """numpy's pairwise sum of a run of at most 128 values (one leaf of :func:`numpy_sum`)."""
+    if size < 8:
+        total = 0.0
+        for i in range(size):
+            total += values[start + i]
+        return total
+    r0, r1, r2, r3 = values[start], values[start + 1], values[start + 2], values[start + 3]
+    r4, r5, r6, r7 = values[start + 4], values[start + 5], values[start + 6], values[start + 7]
+    i = 8
+    whole = size - size % 8
+    while i < whole:
+        at = start + i
+        r0 += values[at]
+        r1 += values[at + 1]
+        r2 += values[at + 2]
+        r3 += values[at + 3]
+        r4 += values[at + 4]
+        r5 += values[at + 5]
+        r6 += values[at + 6]
+        r7 += values[at + 7]
+        i += 8
+    total = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < size:
+        total += values[start + i]
+        i += 1
+    return total
+
+
+@numba.njit(cache=True)
+def numpy_sum(values, start, size):
+    """``values[start:start + size].sum()`` as numpy sums a contiguous float64 run, bit for bit: numpy's pairwise
+    summation (``pairwise_sum`` in numpy's ``loops_utils.h.src``: runs under 8 added in turn, up to 128 in eight
+    interleaved partial sums, longer ones split in two at a multiple of 8 and the halves' sums added). The
+    copy-axis world sums a copy's ages in scratch rows that stay in cache instead of writing (M, n, n) arrays for
+    numpy to sum; ``tests/test_batched.py`` compares it with ``ndarray.sum`` up to a million values.
+
+    The halving is walked with an explicit stack: numba's on-disk cache of a self-recursive function crashed the
+    process that loaded it (a segmentation fault on the second run)."""
+    if size <= 128:
+        return _block_sum(values, start, size)
+    depth = 64  # a run of 2**63 values halves fewer than 64 times
+    starts = np.empty(depth, dtype=np.int64)
+    sizes = np.empty(depth, dtype=np.int64)
+    left_sums = np.empty(depth)
+    stage = np.zeros(depth, dtype=np.int8)  # 0: not split yet, 1: left half running, 2: right half running
+    top = 0
+    starts[0], sizes[0], stage[0] = start, size, 0
+    while True:
+        if sizes[top] > 128:
+            half = sizes[top] // 2
+            half -= half % 8
+            stage[top] = 1
+            top += 1
+            starts[top], sizes[top], stage[top] = starts[top - 1], half, 0
+            continue
+        total = _block_sum(values, starts[top], sizes[top])
+        while True:  # hand the finished run's sum to the runs it is half of
+            if top == 0:
+                return total
+            top -= 1
+            if stage[top] == 1:  # the left half is done: keep its sum, run the right half
+                left_sums[top] = total
+                stage[top] = 2
+                half = sizes[top] // 2
+                half -= half % 8
+                top += 1
+                starts[top], sizes[top], stage[top] = starts[top - 1] + half, sizes[top - 1] - half, 0
+                break
+            total = left_sums[top] + total  # both halves are done: left + right, as numpy adds them
+
+
+@numba.njit(cache=True)
+def close_frames(stamps, t, first_known, tracking, weights, weight_sum, hop_flat, hop_bounds, totals, mean_age, wage):
+    """The end of a frame of every copy (``MultiHopEnv._step_world`` after the slots, then ``_frame_end``): own
+    stamps set to ``t``, ``tracking`` (M,) cleared once every first arrival is known, and the frame's ages folded
+    into the time averages. ``totals`` (M, 3 + 2·4) holds per copy the frames, the summed mean age, the summed
+    weighted mean age of eq. (1), the largest age per hop bucket and the summed mean age per hop bucket; writes
+    ``mean_age`` (M, n), each robot's mean age of the others (the info), and ``wage`` (M,), this frame's weighted
+    mean age. ``hop_flat`` (H, K) and ``hop_bounds`` (H, 5): flat pair indices of the hop buckets one after the
+    other, for every copy (H = M) or for all at once (H = 1: the grid's links are the same in every copy).
+
+    The ages are the env's ``t − stamp`` (unknown: ``t``); every sum and mean is numpy's over the same values in
+    the same order (:func:`numpy_sum`), so every number is the env's, bit for bit."""
+    n_copies, n, _ = stamps.shape
+    n_buckets = hop_bounds.shape[1] - 1
+    ages = np.empty(n * n)
+    weighted = np.empty(n * n)
+    off = np.empty(n * (n - 1))
+    picked = np.empty(hop_flat.shape[1])
+    for c in range(n_copies):
+        now = t[c]
+        for i in range(n):
+            stamps[c, i, i] = now  # own state is current
+        if tracking[c]:
+            complete = True
+            for i in range(n):
+                for j in range(n):
+                    if not np.isfinite(first_known[c, i, j]):
+                        complete = False
+                        break
+                if not complete:
+                    break
+            tracking[c] = not complete
+        q = 0
+        for i in range(n):
+            for j in range(n):
+                s = stamps[c, i, j]
+                age = now - s if s > -np.inf else now
+                ages[i * n + j] = age
+                weighted[i * n + j] = weights[c, i, j] * age
+                if i != j:
+                    off[q] = age
+                    q += 1
+        totals[c, 0] += 1.0
+        totals[c, 1] += numpy_sum(off, 0, off.size) / off.size
+        wage[c] = numpy_sum(weighted, 0, n * n) / weight_sum[c]
+        totals[c, 2] += wage[c]
+        h = c if hop_flat.shape[0] > 1 else 0
+        for k in range(n_buckets):
+            lo, hi = hop_bounds[h, k], hop_bounds[h, k + 1]
+            if hi > lo:
+                largest = -np.inf
+                for e in range(lo, hi):
+                    picked[e - lo] = ages[hop_flat[h, e]]
+                    largest = max(largest, picked[e - lo])
+                totals[c, 3 + k] = max(totals[c, 3 + k], largest)
+                totals[c, 3 + n_buckets + k] += numpy_sum(picked, 0, hi - lo) / (hi - lo)
+        for i in range(n):
+            # the diagonal age is 0 (own stamp = t): the env's (ages · off) row sum is this row's sum
+            mean_age[c, i] = numpy_sum(ages, i * n, n) / (n - 1)
+
+
+@numba.njit(cache=True)
+def observe_candidates(stamps, sent_stamp, t, dist, phase, candidates, slot, m, frame_dur, diag, out, known_fraction):
+    """The ``relative`` observation of every copy (``MultiHopEnv._observe``), into ``out`` (M, n, 5(n − 1) + 3)
+    float32: per candidate rank held, distance over the diagonal, age ``a/(a + T_frame)``, freshness gained since
+    last sent ``g/(g + T_frame)`` and slot position after mine; then my slot ``s_i/n``, ``m/n`` and the fraction of
+    the others I hold. The same float64 operations as the env's, rounded to float32 once. ``known_fraction``
+    (M, n) float64: that last fraction unrounded, the info of the same name."""
+    n_copies, n, n_cand = candidates.shape
+    tail = 5 * n_cand
+    for c in range(n_copies):
+        now = t[c]
+        for i in range(n):
+            held = 0
+            for j in range(n):
+                if j != i and stamps[c, i, j] > -np.inf:
+                    held += 1
+            for k in range(n_cand):
+                j = candidates[c, i, k]
+                s = stamps[c, i, j]
+                base = 5 * k
+                if s > -np.inf:
+                    age = now - s
+                    gain = max(s - sent_stamp[c, i, j], 0.0)
+                    out[c, i, base] = 1.0
+                    out[c, i, base + 1] = min(dist[c, i, j] / diag, 1.0)
+                    out[c, i, base + 2] = age / (age + frame_dur)
+                    out[c, i, base + 3] = gain / (gain + frame_dur)
+                else:
+                    out[c, i, base] = 0.0
+                    out[c, i, base + 1] = 1.0
+                    out[c, i, base + 2] = 1.0
+                    out[c, i, base + 3] = 0.0
+                out[c, i, base + 4] = phase[c, i, j]
+            out[c, i, tail] = slot[c, i] / n
+            out[c, i, tail + 1] = m / n
+            known_fraction[c, i] = held / (n - 1)
+            out[c, i, tail + 2] = known_fraction[c, i]
+
+
+@numba.njit(cache=True)
+def rerank_candidates(stamps, ranked_known, near_order, slot_order, candidates):
+    """``MultiHopEnv._rank_candidates`` of every copy of a static scene whose held estimates changed since its last
+    ranking (the rest would be ranked the same); returns how many copies were re-ranked.
+
+    The env sorts each row by the key ``d̂/diag`` (held) or ``2 + slot phase`` (not held), own entry last, with a
+    stable sort. On a static scene both keys are fixed for the episode, and a held key (at most 1: every distance
+    is within the arena's diagonal) always sorts before a missing one (at least 2), so the sorted row is the held
+    robots in the order of ``near_order`` (M, n, n), each row's stable argsort of ``d̂/diag``, followed by the
+    missing ones in the order of ``slot_order``, the stable argsort of the phases: a merge of two fixed orders,
+    equal index for index to the env's sort. Writes ``candidates`` (M, n, n − 1) and ``ranked_known`` (M, n, n)."""
+    n_copies, n, _ = stamps.shape
+    reranked = 0
+    for c in range(n_copies):
+        same = True
+        for i in range(n):
+            for j in range(n):
+                if (stamps[c, i, j] > -np.inf) != ranked_known[c, i, j]:
+                    same = False
+                    break
+            if not same:
+                break
+        if same:
+            continue
+        reranked += 1
+        for i in range(n):
+            for j in range(n):
+                ranked_known[c, i, j] = stamps[c, i, j] > -np.inf
+            q = 0
+            for k in range(n):
+                j = near_order[c, i, k]
+                if j != i and ranked_known[c, i, j]:
+                    candidates[c, i, q] = j
+                    q += 1
+            for k in range(n):
+                j = slot_order[c, i, k]
+                if j != i and not ranked_known[c, i, j]:
+                    candidates[c, i, q] = j
+                    q += 1
+    return reranked

@@ -1,0 +1,255 @@
+"""M copies of a static MultiHop scene stepped as arrays with a leading copy axis (the copy-axis world).
+
+What :class:`~mrcomm_env.core.batched.BatchedEnv` steps instead of M env objects when
+:meth:`MultiHopEnv.copy_axis_world` allows it: a static topology (the grid, or a field with ``speed`` 0) with the
+``relative`` layout and the team reward, on the compiled backend. The env itself runs such a frame in one compiled
+call (``frame_numba.send_frame``, which already takes a copy axis); here everything around it does too: the
+frame's candidate lists (:func:`~.frame_numba.selected_ranks`), the ages, the eq. (1)-weighted age and the
+per-hop statistics of the frame's end, the candidates' ranking and the observation
+(:func:`~.frame_numba.observe_candidates`). Every number is the env's, bit for bit: elementwise work is the env's
+float64 operations in the same order, and every sum is numpy's own, taken over the same elements in the same order
+per copy (a row reduction of an ``(M, K)`` array sums each row as numpy sums that row alone), which
+``tests/test_batched.py`` checks over whole episodes of every copy.
+
+Each copy keeps its env object: its own ``reset_arrays`` lays out the episode from its own generator (slot order,
+positions), :meth:`StaticFrameBatch.adopt` copies that start into the copy's rows and :meth:`StaticFrameBatch.store`
+writes the rows back, for the metrics of an ended episode and for anything read from the env. A static scene draws
+nothing during an episode, so nothing else needs the env objects.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mrcomm_env.multihop import frame_numba
+from mrcomm_env.multihop.protocol import UNKNOWN
+
+#: the hop-distance buckets of the metrics (1, 2, 3, 4 or more)
+N_HOP_BUCKETS = 4
+
+
+class StaticFrameBatch:
+    """M copies of one static MultiHop configuration as arrays (see the module docstring).
+
+    :param envs: the M ``MultiHopEnv`` copies (same arguments, ``copy_axis_world`` allows them), each reset before
+        :meth:`adopt` reads it. The world reads the env's constants from the first copy and imports nothing of the
+        env module (which builds it).
+    """
+
+    def __init__(self, envs: list):
+        first = envs[0]
+        c, n = first.cfg, first.n_agents
+        m = len(envs)
+        self.envs, self.n_copies, self.n = envs, m, n
+        self.slot_size, self.slot_dur, self.frame_dur = first.m, first.slot_dur, first.frame_dur
+        self.diag, self.bits = first.diag, c.bits_per_estimate
+        self.lam, self.capacity, self.age_unit = c.lam, first._capacity, first._age_unit
+        self.max_cycles = c.max_cycles
+        self.n_cand = n - 1
+        # the hop buckets' flat pair indices, one after the other, and their bounds: a grid's links are the same in
+        # every copy (one row for all), a static field's are each copy's own
+        rows = 1 if c.scene == "grid" else m
+        self.hop_flat = np.zeros((rows, n * (n - 1)), dtype=np.int32)
+        self.hop_bounds = np.zeros((rows, N_HOP_BUCKETS + 1), dtype=np.int64)
+        # the copies' state: the env's arrays of the same names with a copy axis
+        pair = (m, n, n)
+        self.stamps = np.empty(pair)
+        self.first_known = np.empty(pair)
+        self.sent_stamp = np.empty(pair)
+        self.last_sent = np.zeros(pair, dtype=bool)
+        self.t = np.zeros(m)
+        self.tracking = np.zeros(m, dtype=bool)  # not yet ``_all_known``: first arrivals are still recorded
+        self.order = np.zeros((m, n), dtype=np.int64)
+        self.slot = np.zeros((m, n), dtype=np.int64)
+        self.phase = np.empty(pair)
+        self.dist = np.empty(pair)
+        self.weights = np.empty(pair)
+        self.weight_sum = np.zeros(m)
+        self.nbr_ptr = np.zeros((m, n + 1), dtype=np.int64)
+        self.nbr_idx = np.zeros((m, 0), dtype=np.int64)
+        # robot indices (n ≤ 1024) as int16: a quarter of the env's int64 to stream through every frame
+        self.candidates = np.zeros((m, n, self.n_cand), dtype=np.int16)
+        self.ranked_known = np.zeros(pair, dtype=bool)
+        self.near_order = np.zeros(pair, dtype=np.int16)  # each row's robots by the ranking key d̂/diag
+        self.slot_order = np.zeros(pair, dtype=np.int16)  # … and by their slot phase after the row's robot
+        # the env's time averages: frames, summed mean age, summed weighted mean age, then per hop bucket the
+        # largest age and the summed mean age (frame_numba.close_frames)
+        self.totals = np.zeros((m, 3 + 2 * N_HOP_BUCKETS))
+        self.step_bits = np.zeros((m, n))
+        self.total_bits = np.zeros((m, n))
+        self.messages = np.zeros(m, dtype=np.int64)
+        self.step_count = np.zeros(m, dtype=np.int64)
+        # working arrays of a step
+        self.rank = np.zeros(pair, dtype=np.int16)
+        self.count = np.zeros((m, n), dtype=np.int64)
+        self.sent = np.zeros((m, n))
+        self.mean_age = np.zeros((m, n))
+        self.known_fraction = np.zeros((m, n))
+        self.wage = np.zeros(m)
+        self.obs = np.zeros((m, n, first._obs_space.shape[0]), dtype=np.float32)
+
+    # ------------------------------------------------------------------ copies in and out
+    def adopt(self, i: int) -> None:
+        """Copy ``i``'s env has just been reset (or changed from outside): take its state into the copy's rows."""
+        env = self.envs[i]
+        self.stamps[i] = env.stamps
+        self.first_known[i] = env.first_known
+        self.sent_stamp[i] = env.sent_stamp
+        self.last_sent[i] = env.last_sent
+        self.t[i] = env.t
+        self.tracking[i] = not env._all_known
+        self.order[i] = env.tdma.order
+        self.slot[i] = env.tdma.slot_of
+        self.phase[i] = env._phase
+        self.dist[i] = env._dist
+        self.weights[i] = env._w
+        self.weight_sum[i] = env._wsum
+        if self.hop_flat.shape[0] > 1 or i == 0:
+            row = min(i, self.hop_flat.shape[0] - 1)
+            buckets = [np.flatnonzero(mask.ravel()) for mask in env._hop_masks]
+            np.cumsum([idx.size for idx in buckets], out=self.hop_bounds[row, 1:])
+            self.hop_flat[row, : self.hop_bounds[row, -1]] = np.concatenate(buckets)
+        ptr, idx = env._nbr_ptr[0], env._nbr_idx[0]
+        if idx.size > self.nbr_idx.shape[1]:  # a field's copies have their own links: room for the most
+            grown = np.zeros((self.n_copies, idx.size), dtype=np.int64)
+            grown[:, : self.nbr_idx.shape[1]] = self.nbr_idx
+            self.nbr_idx = grown
+        self.nbr_ptr[i] = ptr
+        self.nbr_idx[i, : idx.size] = idx
+        self.candidates[i] = env._candidates
+        self.ranked_known[i] = env._ranked_known
+        # the two fixed orders whose merge is the ranking (frame_numba.rerank_candidates)
+        self.near_order[i] = np.argsort(env._dist / env.diag, axis=1, kind="stable")
+        self.slot_order[i] = np.argsort(2.0 + env._phase, axis=1, kind="stable")
+        self.totals[i, :3] = env._frames, env._sum_age, env._sum_wage
+        self.totals[i, 3 : 3 + N_HOP_BUCKETS] = env._max_age
+        self.totals[i, 3 + N_HOP_BUCKETS :] = env._sum_age_hop
+        self.step_bits[i] = env._step_bits
+        self.total_bits[i] = env.ledger.total_bits
+        self.messages[i] = env.ledger.messages
+        self.step_count[i] = env.step_count
+
+    def store(self, i: int) -> None:
+        """Write copy ``i``'s rows into its env, which then holds the copy's episode as if it had stepped it."""
+        env, n = self.envs[i], self.n
+        env.stamps = self.stamps[i].copy()
+        env.first_known = self.first_known[i].copy()
+        env.sent_stamp = self.sent_stamp[i].copy()
+        env.last_sent = self.last_sent[i].copy()
+        env.t = float(self.t[i])
+        env._all_known = not self.tracking[i]
+        env._candidates = self.candidates[i].astype(np.int64)
+        env._cand_flat = (env._candidates + np.arange(n)[:, None] * n).ravel()
+        env._ranked_known = self.ranked_known[i].copy()
+        env._dist = self.dist[i].copy()
+        # the last frame's ages (the world keeps none): what _frame_end computed from these stamps and this clock
+        t = env.t
+        env._ages = np.where(env.stamps > UNKNOWN, t - env.stamps, t) if self.totals[i, 0] else np.zeros((n, n))
+        env._frames = int(self.totals[i, 0])
+        env._sum_age, env._sum_wage = float(self.totals[i, 1]), float(self.totals[i, 2])
+        env._max_age = self.totals[i, 3 : 3 + N_HOP_BUCKETS].copy()
+        env._sum_age_hop = self.totals[i, 3 + N_HOP_BUCKETS :].copy()
+        env._step_bits = self.step_bits[i].copy()
+        env.ledger.step_bits[:] = self.step_bits[i]
+        env.ledger.total_bits[:] = self.total_bits[i]
+        env.ledger.messages = int(self.messages[i])
+        env.step_count = int(self.step_count[i])
+        env._state_version += 1
+        if self.step_count[i] >= self.max_cycles:
+            env.agents = []
+
+    def bits_sent(self) -> np.ndarray:
+        """``(M,)``: each copy's bits since its reset (``env.bits_sent()``)."""
+        return self.total_bits.sum(1)
+
+    # ------------------------------------------------------------------ one frame of every copy
+    def step(self, actions: np.ndarray):
+        """``actions`` ``(M, N, N − 1)`` select bits → observations ``(M, N, D)``, rewards ``(M, N)``, terminated
+        ``(M,)``, truncated ``(M,)`` and the info columns; copies that end are not reset here. The observations
+        are the world's own buffer, rewritten whole at the next step (``BatchedEnv`` returns a copy)."""
+        selected = self._selected(actions)
+        m, n = self.n_copies, self.n
+        frame_numba.selected_ranks(self.candidates, selected, self.rank, self.count)
+        # MultiHopEnv._step_world: the whole frame of every copy in one compiled call
+        frame_numba.send_frame(
+            self.stamps,
+            self.order,
+            self.rank,
+            self.count,
+            self.slot_size,
+            self.t,
+            self.slot_dur,
+            self.nbr_ptr,
+            self.nbr_idx,
+            self.first_known,
+            self.tracking,
+            self.last_sent,
+            self.sent_stamp,
+            self.sent,
+        )
+        np.multiply(self.sent, self.bits, out=self.step_bits)  # BitLedger.record
+        self.total_bits += self.step_bits
+        self.messages += n
+        reward = self._frame_end()
+        self.step_count += 1
+        truncated = self.step_count >= self.max_cycles
+        frame_numba.observe_candidates(
+            self.stamps,
+            self.sent_stamp,
+            self.t,
+            self.dist,
+            self.phase,
+            self.candidates,
+            self.slot,
+            self.slot_size,
+            self.frame_dur,
+            self.diag,
+            self.obs,
+            self.known_fraction,
+        )
+        infos = {
+            "bits_sent": self.step_bits.copy(),
+            "mean_age": self.mean_age.copy(),
+            "known_fraction": self.known_fraction.copy(),
+            "slot": self.slot.astype(np.float64),
+        }
+        rewards = np.repeat(reward[:, None], n, axis=1)
+        return self.obs, rewards, np.zeros(m, dtype=bool), truncated, infos
+
+    def _selected(self, actions: np.ndarray) -> np.ndarray:
+        """The select bits as bool, refusing what the env's MultiBinary check refuses (any real 0s and 1s pass)."""
+        if actions.dtype.kind not in "iubf":
+            raise ValueError(f"argument 'actions' must hold 0s and 1s (MultiBinary), got dtype {actions.dtype}")
+        ok = (actions == 0) | (actions == 1)
+        if not ok.all():
+            copy, robot = np.argwhere(~ok.all(axis=2))[0].tolist()
+            raise ValueError(
+                f"action of robot_{robot} (copy {copy}) must be an array of 0s and 1s of shape ({self.n_cand},), "
+                f"got {actions[copy, robot]!r}"
+            )
+        return actions != 0
+
+    def _frame_end(self) -> np.ndarray:
+        """``MultiHopEnv._frame_end`` of every copy (team reward): the time averages and per-hop ages
+        (``frame_numba.close_frames``, which also ends the frame's slots), the candidates re-ranked where what a
+        copy's robots hold changed, and the reward (M,)."""
+        frame_numba.close_frames(
+            self.stamps,
+            self.t,
+            self.first_known,
+            self.tracking,
+            self.weights,
+            self.weight_sum,
+            self.hop_flat,
+            self.hop_bounds,
+            self.totals,
+            self.mean_age,
+            self.wage,
+        )
+        self._rank_candidates()
+        return -self.wage / self.age_unit - self.lam * self.step_bits.sum(axis=1) / self.capacity
+
+    def _rank_candidates(self) -> None:
+        """``MultiHopEnv._rank_candidates`` of a static scene, for the copies whose held estimates changed since
+        their last ranking (``frame_numba.rerank_candidates``: a merge of two fixed orders, not a sort)."""
+        frame_numba.rerank_candidates(self.stamps, self.ranked_known, self.near_order, self.slot_order, self.candidates)
