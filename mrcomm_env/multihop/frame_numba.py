@@ -205,16 +205,17 @@ def close_frames(stamps, t, first_known, tracking, weights, weight_sum, hop_flat
                 if not complete:
                     break
             tracking[c] = not complete
-        q = 0
         for i in range(n):
-            for j in range(n):
+            row = i * n
+            for j in range(n):  # no branch but a select: the loop vectorises
                 s = stamps[c, i, j]
                 age = now - s if s > -np.inf else now
-                ages[i * n + j] = age
-                weighted[i * n + j] = weights[c, i, j] * age
-                if i != j:
-                    off[q] = age
-                    q += 1
+                ages[row + j] = age
+                weighted[row + j] = weights[c, i, j] * age
+            # the off-diagonal ages in row-major order: the row without its own entry
+            start = i * (n - 1)
+            off[start : start + i] = ages[row : row + i]
+            off[start + i : start + n - 1] = ages[row + i + 1 : row + n]
         totals[c, 0] += 1.0
         totals[c, 1] += numpy_sum(off, 0, off.size) / off.size
         wage[c] = numpy_sum(weighted, 0, n * n) / weight_sum[c]
@@ -246,15 +247,13 @@ def observe_candidates(stamps, sent_stamp, t, dist, phase, candidates, slot, m, 
     for c in range(n_copies):
         now = t[c]
         for i in range(n):
-            held = 0
-            for j in range(n):
-                if j != i and stamps[c, i, j] > -np.inf:
-                    held += 1
+            held = 0  # the candidates are the others: those held are the others held
             for k in range(n_cand):
                 j = candidates[c, i, k]
                 s = stamps[c, i, j]
                 base = 5 * k
                 if s > -np.inf:
+                    held += 1
                     age = now - s
                     gain = max(s - sent_stamp[c, i, j], 0.0)
                     out[c, i, base] = 1.0
