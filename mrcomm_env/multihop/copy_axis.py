@@ -157,6 +157,9 @@ class StaticFrameBatch:
         env._state_version += 1
         if self.step_count[i] >= self.max_cycles:
             env.agents = []
+        env._world_obs = env._world_infos = None  # observe and report from the state just written
+        if env.__dict__.get("_one_copy") is not None:  # the env's own world of one copy (stepped alone before)
+            env._bind_one_copy()
 
     def bits_sent(self) -> np.ndarray:
         """``(M,)``: each copy's bits since its reset (``env.bits_sent()``)."""

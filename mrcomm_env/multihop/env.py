@@ -380,6 +380,13 @@ class MultiHopEnv(MrcommParallelEnv):
         self._ranked_known: np.ndarray | None = None
         if self._relative:
             self._rank_candidates()
+        # a static relative-layout team scene on the compiled backend steps as a copy-axis world of this one copy
+        # (copy_axis.py, the code a batch of M copies runs), built at the first step; the code below is the reference
+        self._world_eligible = type(self).copy_axis_world(c) is not None
+        self._world_obs: np.ndarray | None = None  # the observation and infos of the world's last frame
+        self._world_infos: dict | None = None
+        if self.__dict__.get("_one_copy") is not None:
+            self._bind_one_copy()
 
     def _links(self) -> None:
         if self.cfg.scene == "grid":
@@ -411,6 +418,8 @@ class MultiHopEnv(MrcommParallelEnv):
 
     # ----------------------------------------------------------------- dynamics
     def _step_world(self, actions: list) -> float:
+        if self._world_eligible:
+            return self._step_one_copy(actions)
         n, m, b = self.n_agents, self.m, self.cfg.bits_per_estimate
         stamps, est, t = self.stamps, self.est, self.t
         # a robot's priorities are fixed for the frame; its candidate list is ranked once, filtered to the
@@ -476,6 +485,50 @@ class MultiHopEnv(MrcommParallelEnv):
         self._step_bits = sent_counts * b
         self.ledger.record(self._step_bits, messages=n)
         return self._frame_end()
+
+    # ----------------------------------------------------------------- the world of one copy
+    def _bind_one_copy(self) -> None:
+        """Take this episode's state into the one-copy world, whose rows then are this env's arrays (views): what
+        the world steps, every reader of the env sees."""
+        world = self._one_copy
+        world.adopt(0)
+        self.stamps, self.first_known = world.stamps[0], world.first_known[0]
+        self.sent_stamp, self.last_sent = world.sent_stamp[0], world.last_sent[0]
+        self._ranked_known, self._candidates = world.ranked_known[0], world.candidates[0]
+
+    def _step_one_copy(self, actions) -> float:
+        """One frame as the copy-axis world of this one copy (the same numbers as the reference below, bit for bit:
+        ``tests/test_multihop.py`` compares whole episodes of both)."""
+        if self.__dict__.get("_one_copy") is None:
+            from mrcomm_env.multihop.copy_axis import StaticFrameBatch  # numba is imported with it
+
+            self._one_copy = StaticFrameBatch([self])
+            self._bind_one_copy()
+        world = self._one_copy
+        obs, rewards, _, _, infos = world.step(np.asarray(actions)[None])
+        self.t, self._all_known = float(world.t[0]), not world.tracking[0]
+        totals = world.totals[0]
+        self._frames, self._sum_age, self._sum_wage = int(totals[0]), float(totals[1]), float(totals[2])
+        self._max_age = totals[3 : 3 + len(HOP_BUCKETS)].copy()
+        self._sum_age_hop = totals[3 + len(HOP_BUCKETS) :].copy()
+        self._step_bits = world.step_bits[0].copy()
+        self.ledger.record(self._step_bits, messages=self.n_agents)
+        self._world_obs = obs[0]
+        self._world_infos = {key: column[0] for key, column in infos.items()}
+        self._ages = None  # not kept by the world: ages() computes them
+        return float(rewards[0, 0])
+
+    def ages(self) -> np.ndarray:
+        """(n, n) age (s) of every robot's estimate of every robot at the last frame end (unknown: the time since
+        the start; 0 before the first frame)."""
+        if self._ages is not None:
+            return self._ages
+        return np.where(self.stamps > proto.UNKNOWN, self.t - self.stamps, self.t)
+
+    def __getstate__(self):
+        state = super().__getstate__()
+        state["_one_copy"] = None  # the env's arrays are views of its rows: a copy rebuilds it at its next step
+        return state
 
     def observation_layout(self) -> dict[str, int] | None:
         if not self._relative:
@@ -588,10 +641,14 @@ class MultiHopEnv(MrcommParallelEnv):
             "sent_stamp": self.sent_stamp,
             "slot": self.tdma.slot_of,
             "slot_size": np.full(self.n_agents, self.m),
-            "candidates": self._candidates if self._relative else np.zeros((self.n_agents, 0), dtype=np.int64),
+            "candidates": self._candidates.astype(np.int64, copy=False)
+            if self._relative
+            else np.zeros((self.n_agents, 0), dtype=np.int64),
         }
 
     def _observe(self) -> np.ndarray:
+        if self._world_obs is not None:
+            return self._world_obs.copy()  # the world's buffer: rewritten at its next frame
         n = self.n_agents
         known = self.stamps > proto.UNKNOWN
         age = np.where(known, self.t - self.stamps, 0.0)
@@ -616,6 +673,8 @@ class MultiHopEnv(MrcommParallelEnv):
         return out
 
     def _agent_infos(self) -> dict:
+        if self._world_infos is not None:
+            return self._world_infos
         n = self.n_agents
         off = ~self._eye
         return {
@@ -668,7 +727,7 @@ class MultiHopEnv(MrcommParallelEnv):
         # a slot's broadcast crosses every link of its sender: the bits over a link are both ends' broadcasts
         sent = self.ledger.step_bits
         rendering.draw_link_bits(ax, p, np.column_stack([ii, jj]), sent[ii] + sent[jj])
-        age = (self._ages * ~self._eye).sum(axis=1) / max(self.n_agents - 1, 1)
+        age = (self.ages() * ~self._eye).sum(axis=1) / max(self.n_agents - 1, 1)
         # one colour scale for the whole episode (it used to follow each frame's own range): from one frame to
         # the horizon, on a log axis, since ages span both ends of it over a cold start
         norm = LogNorm(vmin=self.frame_dur, vmax=self.frame_dur * max(self.cfg.max_cycles, 2), clip=True)

@@ -361,7 +361,7 @@ def staleness_run(slot_size: int, policy: str, warm: int, sample: int) -> dict:
 
     def record(step, *_):
         if step >= warm:
-            ages.append(env._ages[0].copy())  # robot 0: a corner, the most remote receiver
+            ages.append(env.ages()[0].copy())  # robot 0: a corner, the most remote receiver
 
     run_episode(env, make_policy(ENV_ID, policy), 5, on_step=record)
     ages = np.array(ages)
