@@ -375,7 +375,7 @@ class MultiHopEnv(MrcommParallelEnv):
         self._max_age = np.zeros(len(HOP_BUCKETS))
         self._sum_age_hop = np.zeros(len(HOP_BUCKETS))
         self._reward_weights()
-        self._ages = np.zeros((n, n))
+        self._ages: np.ndarray | None = np.zeros((n, n))
         # what the robots held when the candidates were last ranked (static scenes)
         self._ranked_known: np.ndarray | None = None
         if self._relative:
