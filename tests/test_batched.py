@@ -10,6 +10,7 @@ import pytest
 
 import mrcomm_env
 from mrcomm_env.core.batched import BatchedEnv, sample_actions
+from mrcomm_env.multihop.env import MultiHopEnv
 from mrcomm_env.registry import env_ids
 
 #: small configurations with short episodes, so that every copy ends (and resets) more than once in a test
@@ -131,12 +132,23 @@ MULTIHOP_COPY_AXIS_CASES = [
 ]
 
 
+class ReferenceMultiHop(MultiHopEnv):
+    """MultiHop stepped by its reference code (``_step_world``'s numpy frame end, ranking and observation), not as
+    the copy-axis world of one copy, which the single env otherwise runs too."""
+
+    @classmethod
+    def copy_axis_world(cls, cfg):
+        return None
+
+
 @pytest.mark.parametrize("kwargs", MULTIHOP_COPY_AXIS_CASES, ids=lambda v: str(v))
 def test_a_multihop_copy_axis_world_gives_each_copy_the_single_env_episodes(kwargs):
     env_id = "mrcomm/MultiHop-v0"
     batch = mrcomm_env.make_batched(env_id, 3, **kwargs)
     assert batch.world is not None  # compiled backend (extra "fast"), static scene, relative layout, team reward
-    singles = _assert_copies_are_single_envs(batch, env_id, kwargs, horizon=2 * kwargs["max_cycles"] + 3)
+    horizon = 2 * kwargs["max_cycles"] + 3
+    singles = _assert_copies_are_single_envs(batch, env_id, kwargs, horizon, lambda: ReferenceMultiHop(**kwargs))
+    assert not singles[0]._world_eligible  # the reference, not the world of one copy
     batch.sync_copies()
     for copy, single in zip(batch.envs, singles):
         assert copy.step_count == single.step_count and copy.t == single.t and copy.agents == single.agents
@@ -195,9 +207,10 @@ def test_copy_false_returns_the_batch_buffer_and_the_same_numbers():
     assert _bytes(two) == _bytes(held)
 
 
-def _assert_copies_are_single_envs(batch, env_id, kwargs, horizon):
+def _assert_copies_are_single_envs(batch, env_id, kwargs, horizon, make_single=None):
     n_copies, seed = batch.n_copies, 11
-    singles = [mrcomm_env.make(env_id, **kwargs) for _ in range(n_copies)]
+    make_single = make_single or (lambda: mrcomm_env.make(env_id, **kwargs))
+    singles = [make_single() for _ in range(n_copies)]
     observations, infos = batch.reset(seed=seed)
     agents = singles[0].possible_agents
     for i, env in enumerate(singles):
