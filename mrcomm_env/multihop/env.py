@@ -38,6 +38,7 @@ from scipy.sparse.csgraph import shortest_path
 
 from mrcomm_env.core import BitLedger, MrcommParallelEnv, TDMASchedule, backend, disk_links, grid_links
 from mrcomm_env.core import render as rendering
+from mrcomm_env.core.base import COPY_OVERHEAD_BYTES
 from mrcomm_env.core.config import Choice, Int, Optional, Param, Real
 from mrcomm_env.multihop import coverage as cov
 from mrcomm_env.multihop import protocol as proto
@@ -203,7 +204,9 @@ class MultiHopEnv(MrcommParallelEnv):
     }
     MEMORY_FORMULA = (
         "8 MiB + 180·n² for n robots (`n_robots`, or `grid_side`² in the grid scene): every robot's estimate "
-        "table, its candidate observation and the pairwise distances and links are n × n"
+        "table, its candidate observation and the pairwise distances and links are n × n; a static scene with the "
+        "`relative` layout and the team reward on the compiled backend adds 24 MiB + 48·n² (it steps as the "
+        "copy-axis world of one copy: numba's kernels, and the world's rows beside the env's arrays)"
     )
     MEMORY_SHARED = 8.0 * 2**20  # the formula's constant term: working memory the copies of a batch share
     MEMORY_ARGS = ("n_robots", "grid_side")
@@ -217,11 +220,19 @@ class MultiHopEnv(MrcommParallelEnv):
     def memory_estimate(cls, cfg) -> float:
         # measured (tests/test_memory.py): about 180 bytes per robot pair, whatever the scene and slot size
         n = cls._robot_count(cfg)
-        return cls.MEMORY_SHARED + 180.0 * n * n
+        one = cls.MEMORY_SHARED + 180.0 * n * n
+        if cls.copy_axis_world(cfg) is not None:  # the single env steps as the world of its one copy
+            one += cls.WORLD_SHARED + cls.WORLD_ONE_COPY_PER_PAIR * n * n
+        return one
 
     #: bytes per robot pair of each further copy in a copy-axis world (:mod:`.copy_axis`): its (n, n) arrays of the
     #: frame, the ranking and the observation, beside its env object's (measured: ``tests/test_batched.py``)
     WORLD_BYTES_PER_PAIR = 160.0
+    #: what stepping as the world of one copy adds to a single env: numba's kernels (once per process) and the
+    #: world's rows that are not views of the env's arrays; tracemalloc measured 32, 40 and 51 MB more than the
+    #: numpy reference at n = 384, 768 and 1,024 (``tests/test_memory.py``)
+    WORLD_SHARED = 24.0 * 2**20
+    WORLD_ONE_COPY_PER_PAIR = 48.0
 
     @classmethod
     def copy_axis_world(cls, cfg):
@@ -239,11 +250,12 @@ class MultiHopEnv(MrcommParallelEnv):
     def batch_memory_estimate(cls, cfg, n_copies: int) -> float:
         """The copies' env objects (:meth:`MrcommParallelEnv.batch_memory_estimate`), plus, when two or more copies
         step as a copy-axis world, each copy's rows of the world."""
-        objects = super().batch_memory_estimate(cfg, n_copies)
         if n_copies < 2 or cls.copy_axis_world(cfg) is None:
-            return objects
+            return super().batch_memory_estimate(cfg, n_copies)
+        # the env objects of a batch never step, so none builds a world of its own: each is the reference's state
         n = cls._robot_count(cfg)
-        return objects + n_copies * cls.WORLD_BYTES_PER_PAIR * n * n
+        objects = cls.MEMORY_SHARED + n_copies * (180.0 * n * n + COPY_OVERHEAD_BYTES)
+        return objects + cls.WORLD_SHARED + n_copies * cls.WORLD_BYTES_PER_PAIR * n * n
 
     @staticmethod
     def _robot_count(cfg) -> float:
