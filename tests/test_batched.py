@@ -161,6 +161,32 @@ def test_a_multihop_copy_axis_world_gives_each_copy_the_single_env_episodes(kwar
         assert all(mine[k] == theirs[k] or (np.isnan(mine[k]) and np.isnan(theirs[k])) for k in mine), (mine, theirs)
 
 
+def test_a_multihop_env_stepping_as_a_world_of_one_copy_takes_in_state_changed_from_outside():
+    """The env's attributes are its state, whichever code steps it: an array replaced between steps and a moved
+    clock are stepped on exactly as the reference steps them."""
+    kwargs = {"grid_side": 4, "slot_size": 3, "max_cycles": 30}
+    world, reference = MultiHopEnv(**kwargs), ReferenceMultiHop(**kwargs)
+    agents = world.possible_agents
+    trace = []
+    for env in (world, reference):
+        env.reset(seed=3)
+        rng = np.random.default_rng(5)
+        steps = []
+        for k in range(20):
+            if k == 8:  # robot 1 forgets robot 2 (a new array)
+                stamps = env.stamps.copy()
+                stamps[1, 2] = -np.inf
+                env.stamps = stamps
+            if k == 12:  # the clock moves on by half a frame (a number, no array replaced)
+                env.t += 0.5 * env.frame_dur
+            obs, rewards, _, _, infos = env.step({a: rng.integers(0, 2, 15) for a in agents})
+            steps.append((np.stack([obs[a] for a in agents]).tobytes(), rewards, infos))
+        trace.append((steps, repr(env.metrics()), env.ages().tobytes()))
+    assert world._world_eligible and not reference._world_eligible
+    assert trace[0] == trace[1]
+    assert world.stamps[1, 2] > -np.inf  # robot 1 heard of robot 2 again after forgetting it
+
+
 def test_the_multihop_world_sums_as_numpy_sums():
     """The world's ages are summed in scratch rows by ``numpy_sum``, which must be numpy's own pairwise sum to the
     last bit (a plain running sum differs from the eighth value on); values of nine orders of magnitude."""

@@ -96,8 +96,7 @@ class StaticFrameBatch:
         self.first_known[i] = env.first_known
         self.sent_stamp[i] = env.sent_stamp
         self.last_sent[i] = env.last_sent
-        self.t[i] = env.t
-        self.tracking[i] = not env._all_known
+        self.adopt_counters(i)
         self.order[i] = env.tdma.order
         self.slot[i] = env.tdma.slot_of
         self.phase[i] = env._phase
@@ -121,6 +120,13 @@ class StaticFrameBatch:
         # the two fixed orders whose merge is the ranking (frame_numba.rerank_candidates)
         self.near_order[i] = np.argsort(env._dist / env.diag, axis=1, kind="stable")
         self.slot_order[i] = np.argsort(2.0 + env._phase, axis=1, kind="stable")
+
+    def adopt_counters(self, i: int) -> None:
+        """Take copy ``i``'s clock, first-arrival flag, time averages, bits and step count from its env (what
+        :meth:`adopt` takes besides the arrays; the env's world of one copy takes them before every frame)."""
+        env = self.envs[i]
+        self.t[i] = env.t
+        self.tracking[i] = not env._all_known
         self.totals[i, :3] = env._frames, env._sum_age, env._sum_wage
         self.totals[i, 3 : 3 + N_HOP_BUCKETS] = env._max_age
         self.totals[i, 3 + N_HOP_BUCKETS :] = env._sum_age_hop
@@ -157,9 +163,9 @@ class StaticFrameBatch:
         env._state_version += 1
         if self.step_count[i] >= self.max_cycles:
             env.agents = []
-        env._world_obs = env._world_infos = None  # observe and report from the state just written
-        if env.__dict__.get("_one_copy") is not None:  # the env's own world of one copy (stepped alone before)
-            env._bind_one_copy()
+        # observe and report from the state just written (an env that steps alone later takes it into its own world
+        # of one copy: its arrays are no longer that world's rows)
+        env._world_obs = env._world_infos = None
 
     def bits_sent(self) -> np.ndarray:
         """``(M,)``: each copy's bits since its reset (``env.bits_sent()``)."""

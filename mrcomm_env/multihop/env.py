@@ -499,14 +499,18 @@ class MultiHopEnv(MrcommParallelEnv):
         return self._frame_end()
 
     # ----------------------------------------------------------------- the world of one copy
+    #: the env's arrays that are rows of its world of one copy (views), as :meth:`_bind_one_copy` binds them
+    _WORLD_VIEWS = ("stamps", "first_known", "sent_stamp", "last_sent", "_ranked_known", "_candidates")
+
     def _bind_one_copy(self) -> None:
         """Take this episode's state into the one-copy world, whose rows then are this env's arrays (views): what
         the world steps, every reader of the env sees."""
         world = self._one_copy
         world.adopt(0)
-        self.stamps, self.first_known = world.stamps[0], world.first_known[0]
-        self.sent_stamp, self.last_sent = world.sent_stamp[0], world.last_sent[0]
-        self._ranked_known, self._candidates = world.ranked_known[0], world.candidates[0]
+        views = (world.stamps, world.first_known, world.sent_stamp, world.last_sent, world.ranked_known)
+        self._world_views = tuple(rows[0] for rows in (*views, world.candidates))
+        for name, view in zip(self._WORLD_VIEWS, self._world_views, strict=True):
+            setattr(self, name, view)
 
     def _step_one_copy(self, actions) -> float:
         """One frame as the copy-axis world of this one copy (the same numbers as the reference below, bit for bit:
@@ -516,6 +520,10 @@ class MultiHopEnv(MrcommParallelEnv):
 
             self._one_copy = StaticFrameBatch([self])
             self._bind_one_copy()
+        elif any(getattr(self, name) is not view for name, view in zip(self._WORLD_VIEWS, self._world_views)):
+            self._bind_one_copy()  # an array replaced from outside (a batch writing a copy back, a user): take it in
+        else:
+            self._one_copy.adopt_counters(0)  # the clock, time averages and bits as the env holds them now
         world = self._one_copy
         obs, rewards, _, _, infos = world.step(np.asarray(actions)[None])
         self.t, self._all_known = float(world.t[0]), not world.tracking[0]
