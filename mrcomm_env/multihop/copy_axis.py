@@ -7,9 +7,11 @@ call (``frame_numba.send_frame``, which already takes a copy axis); here everyth
 frame's candidate lists (:func:`~.frame_numba.selected_ranks`), the ages, the eq. (1)-weighted age and the
 per-hop statistics of the frame's end, the candidates' ranking and the observation
 (:func:`~.frame_numba.observe_candidates`). Every number is the env's, bit for bit: elementwise work is the env's
-float64 operations in the same order, and every sum is numpy's own, taken over the same elements in the same order
-per copy (a row reduction of an ``(M, K)`` array sums each row as numpy sums that row alone), which
-``tests/test_batched.py`` checks over whole episodes of every copy.
+float64 operations in the same order, and every sum is numpy's pairwise sum over the same elements in the same
+order, either :func:`~.frame_numba.numpy_sum` on a copy's scratch row or numpy's own row reduction of a C-ordered
+``(M, K)`` array (which sums each row as numpy sums that row alone). ``tests/test_batched.py`` compares every copy
+with the env's reference code over whole episodes. A single env of such a scene steps as this world of one copy
+(``MultiHopEnv._step_one_copy``): the batch's code at M = 1.
 
 Each copy keeps its env object: its own ``reset_arrays`` lays out the episode from its own generator (slot order,
 positions), :meth:`StaticFrameBatch.adopt` copies that start into the copy's rows and :meth:`StaticFrameBatch.store`
@@ -175,7 +177,7 @@ class StaticFrameBatch:
     def step(self, actions: np.ndarray):
         """``actions`` ``(M, N, N − 1)`` select bits → observations ``(M, N, D)``, rewards ``(M, N)``, terminated
         ``(M,)``, truncated ``(M,)`` and the info columns; copies that end are not reset here. The observations
-        are the world's own buffer, rewritten whole at the next step (``BatchedEnv`` returns a copy)."""
+        are the world's own buffer, rewritten whole at the next step (``BatchedEnv`` copies it unless ``copy=False``)."""
         selected = self._selected(actions)
         m, n = self.n_copies, self.n
         frame_numba.selected_ranks(self.candidates, selected, self.rank, self.count)
