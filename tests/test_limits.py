@@ -62,6 +62,14 @@ def test_the_measured_peak_is_the_measuring_process_own_not_its_parents():
     assert batched["rss_before_mb"] <= batched["peak_rss_mb"]
 
 
+def test_a_measured_batch_says_whether_it_stepped_as_one_copy_axis_world():
+    from mrcomm_env.experiments.limits import measure_batched
+
+    config = {"grid_side": 3, "max_cycles": 3}
+    assert measure_batched("MultiHop-v0", config, 2, seconds=0.0, min_steps=1, timeout=300)["copy_axis_world"]
+    assert not measure_batched("MultiHop-v0", config, 1, seconds=0.0, min_steps=1, timeout=300)["copy_axis_world"]
+
+
 @pytest.mark.parametrize("env_id", env_ids())
 def test_every_documented_size_limit_is_exercised(env_id):
     """Integer upper bounds (team sizes, histories, slot sizes) are what cost memory and time: each one must

@@ -162,8 +162,10 @@ def batched_section(
             base = out[env_id][str(copies[0])]["agent_steps_per_s"] if out[env_id] else result["agent_steps_per_s"]
             result["speedup_over_smallest"] = result["agent_steps_per_s"] / base
             out[env_id][str(m)] = result
+            path = "one copy-axis world" if result["copy_axis_world"] else "copies in turn"
             print(
-                f"batch  {env_id} M={m}: {result['agent_steps_per_s']:,.0f} agent-steps/s "
+                f"batch  {env_id} M={m} ({path}, {result['steps']} steps timed): "
+                f"{result['agent_steps_per_s']:,.0f} agent-steps/s "
                 f"({result['speedup_over_smallest']:.2f}× M={copies[0]}), the batch holds {result['batch_rss_mb']:,.0f} MB "
                 f"(estimate {result['estimate_gib']:.2f} GiB), process peak {result['peak_rss_mb']:,.0f} MB"
             )

@@ -212,6 +212,8 @@ def _run_batched(job: dict[str, Any]) -> dict[str, Any]:
         "env_id": job["env_id"],
         "n_copies": batch.n_copies,
         "n_agents": batch.n_agents,
+        # the copies stepped as one copy-axis world (BatchedEnv.world), or each env object in turn
+        "copy_axis_world": batch.world is not None,
         "steps": steps,
         "env_steps_per_s": copies_steps / timed if timed > 0 else math.inf,
         "agent_steps_per_s": copies_steps * batch.n_agents / timed if timed > 0 else math.inf,
