@@ -24,7 +24,6 @@ from __future__ import annotations
 import numpy as np
 
 from mrcomm_env.multihop import frame_numba
-from mrcomm_env.multihop.protocol import UNKNOWN
 
 #: the hop-distance buckets of the metrics (1, 2, 3, 4 or more)
 N_HOP_BUCKETS = 4
@@ -150,9 +149,7 @@ class StaticFrameBatch:
         env._cand_flat = (env._candidates + np.arange(n)[:, None] * n).ravel()
         env._ranked_known = self.ranked_known[i].copy()
         env._dist = self.dist[i].copy()
-        # the last frame's ages (the world keeps none): what _frame_end computed from these stamps and this clock
-        t = env.t
-        env._ages = np.where(env.stamps > UNKNOWN, t - env.stamps, t) if self.totals[i, 0] else np.zeros((n, n))
+        env._ages = None  # the world keeps no ages: env.ages() computes them from these stamps and this clock
         env._frames = int(self.totals[i, 0])
         env._sum_age, env._sum_wage = float(self.totals[i, 1]), float(self.totals[i, 2])
         env._max_age = self.totals[i, 3 : 3 + N_HOP_BUCKETS].copy()

@@ -699,7 +699,7 @@ class MultiHopEnv(MrcommParallelEnv):
         off = ~self._eye
         return {
             "bits_sent": self._step_bits,
-            "mean_age": (self._ages * off).sum(axis=1) / (n - 1),
+            "mean_age": (self.ages() * off).sum(axis=1) / (n - 1),
             "known_fraction": ((self.stamps > proto.UNKNOWN) & off).sum(axis=1) / (n - 1),
             "slot": self.tdma.slot_of,
         }
