@@ -503,3 +503,90 @@ def test_a_split_team_reconnects_within_the_phases_to_cross_the_area():
                     assert np.ptp(env.local_views().team("rendezvous_point"), axis=0).max() == 0.0
                 split_for = split_for if env.n_groups > 1 else 0
     assert splits >= 5, "these settings must split the team for the test to mean anything"
+
+
+# ------------------------------------------------------------------------------------------------ compiled plan
+def _use_plan_backend(monkeypatch, compiled: bool) -> None:
+    """The compiled partition pass or the numpy reference (``protocol.recommend`` asks at every call)."""
+    import types
+
+    monkeypatch.setattr(protocol, "backend", types.SimpleNamespace(compiled=lambda: compiled))
+
+
+def _tied_layout(rng, L: int) -> np.ndarray:
+    """Landmark estimates with the ties the pass must settle as the reference does: an exact grid (equal
+    separations: complete clusters, regular graphs whose Perron vector ties every member, equidistant outliers)
+    or a random field."""
+    if rng.random() < 0.5:
+        side = math.ceil(math.sqrt(L))
+        grid = np.stack(np.meshgrid(np.arange(side), np.arange(side)), -1).reshape(-1, 2)[:L]
+        return grid * float(rng.choice([5.0, 10.0]))
+    return rng.uniform(0, 100, size=(L, 2))
+
+
+def test_compiled_partition_pass_plans_what_the_reference_plans(monkeypatch):
+    pytest.importorskip("numba")
+    rng = np.random.default_rng(11)
+    passes = ties = 0
+    for _ in range(400):
+        n = int(rng.integers(1, 13))
+        L = int(rng.integers(n, 90))
+        lm = _tied_layout(rng, L)
+        U = rng.random((n, L))
+        if rng.random() < 0.4:  # exhausted landmarks are worth exactly 0: ties in U too
+            U[:, rng.random(L) < 0.7] = 0.0
+        d = float(rng.choice([0.0, 5.0, 10.0, 10.5, 15.0, 30.0, math.inf]))
+        plans = []
+        for compiled in (False, True):
+            _use_plan_backend(monkeypatch, compiled)
+            plans.append(protocol.recommend(U, lm, d, record=True))
+        want, got = plans
+        assert np.array_equal(want.assignment, got.assignment) and np.array_equal(want.in_main, got.in_main)
+        assert (want.central, want.connected) == (got.central, got.connected)
+        assert len(want.steps) == len(got.steps)
+        for a, b in zip(want.steps, got.steps):
+            assert np.array_equal(a.working, b.working) and np.array_equal(a.cluster_of, b.cluster_of)
+            assert (a.main, a.central, a.outlier) == (b.main, b.central, b.outlier)
+            passes += 1
+            ties += len(a.cluster_of[a.cluster_of == a.main]) > 1
+    assert passes > 1000 and ties > 100  # many passes, and many main clusters that needed l_c settled
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"d_comms": 10.0},  # the default: the team splits and regroups
+        {"d_comms": math.inf, "n_vehicles": 6},  # one complete plan per phase
+        {"d_comms": 0.0, "n_vehicles": 5},  # co-located only
+        {"d_comms": 15.0, "sigma": 0.0, "n_vehicles": 12},  # an exact grid: ties everywhere
+        {"d_comms": 20.0, "clumping": 0.9, "n_vehicles": 8},
+    ],
+)
+@pytest.mark.parametrize("policy", ["paper_protocol", "random"])
+def test_whole_episodes_are_identical_with_the_compiled_plan(monkeypatch, kwargs, policy):
+    pytest.importorskip("numba")
+    from mrcomm_baselines import make_policy
+
+    def episode(compiled):
+        _use_plan_backend(monkeypatch, compiled)
+        env = RendezvousMappingEnv(n_landmarks=80, area=3600.0, max_cycles=25, **kwargs)
+        pol = make_policy("RendezvousMapping-v0", policy)
+        views = env.local_views()
+        obs, infos = env.reset(seed=29)
+        pol.reset(views, 29)
+        trace = [(obs, infos)]
+        while env.agents:
+            obs, rewards, _, _, infos = env.step(pol.act(obs, views))
+            trace.append((obs, rewards, infos, env.assignment.copy(), env.central.copy(), env.pos.copy()))
+        return trace, repr(env.metrics())
+
+    def same(a, b) -> bool:  # bit for bit: arrays by their bytes, dicts (per agent) key by key
+        if isinstance(a, dict):
+            return a.keys() == b.keys() and all(same(a[key], b[key]) for key in a)
+        return np.asarray(a).dtype == np.asarray(b).dtype and np.asarray(a).tobytes() == np.asarray(b).tobytes()
+
+    reference, compiled = episode(False), episode(True)
+    assert len(reference[0]) == len(compiled[0]) > 1
+    for want, got in zip(reference[0], compiled[0]):
+        assert all(same(a, b) for a, b in zip(want, got, strict=True))
+    assert reference[1] == compiled[1]

@@ -15,19 +15,23 @@ Action module of §V.
   ``scipy.sparse.csgraph``, and :func:`fine_dm_blocks` builds the decomposition directly for the test.
 * :func:`central_landmark` — eigenvector centrality [16] of the best cluster's adjacency.
 * :func:`recommend` — eq. (5)–(8): cluster value J, μ_max, l_c, outlier l_o and the half-plane cut,
-  repeated until the assigned landmarks are connected or fewer working landmarks than vehicles remain.
+  repeated until the assigned landmarks are connected or fewer working landmarks than vehicles remain. On the
+  compiled backend (``core.backend``) each pass's clustering, eq. (6), centrality ties and eq. (7) run as one
+  numba call (:mod:`.plan_numba`), with the same results.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cache
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components, maximum_bipartite_matching
 
+from mrcomm_env.core import backend
 from mrcomm_env.rendezvous.world import dense_components
 
 #: ε of §IV-A: the observation time (s) credited to a landmark that cannot be reached within the window,
@@ -74,7 +78,8 @@ def assign(U: np.ndarray, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     n = U.shape[0]
     sub = U[:, columns]
     if sub.shape[1] > n * n:
-        best = np.unique(np.argpartition(-sub, n - 1, axis=1)[:, :n])
+        # the sorted union, as np.unique gives it, in two calls (np.unique costs ~8 µs on these few ids)
+        best = np.flatnonzero(np.bincount(np.argpartition(-sub, n - 1, axis=1)[:, :n].ravel()))
         rows, cols = linear_sum_assignment(sub[:, best], maximize=True)
         return rows, columns[best[cols]]
     rows, cols = linear_sum_assignment(sub, maximize=True)
@@ -179,34 +184,56 @@ def recommend(U: np.ndarray, landmark_pos: np.ndarray, d_comms: float, record: b
     if n == 1 and not record:  # one vehicle: its best landmark is a connected cluster of one (shortcut)
         best = int(np.argmax(U[0]))
         return Recommendation(np.array([best]), np.array([True]), best, True, steps)
+    kernels = _plan_kernels() if backend.compiled() else None
     while True:
         rows, lp = assign(U, working)
-        adj = adjacency(landmark_pos[lp], d_comms)
-        k, labels = clusters(adj)
+        if kernels is None:
+            adj = adjacency(landmark_pos[lp], d_comms)
+            k, labels = clusters(adj)
+            if k == 1:
+                main = 0
+            else:
+                J = np.bincount(labels, weights=U[rows, lp], minlength=k)  # eq. (6)
+                main = int(np.argmax(J))
+            members = np.flatnonzero(labels == main)
+            central = -1
+        else:  # the same pass compiled; it settles l_c unless the main cluster's eigenvector must decide
+            k, labels, main, members, central, adj = kernels.cluster_pass(U, landmark_pos, rows, lp, float(d_comms))
+        if central < 0:
+            central = central_landmark(adj[np.ix_(members, members)], landmark_pos[lp[members]])
+        lc = int(lp[members[central]])
         if k == 1:
-            main = 0
+            lo = -1
+        elif kernels is None:
+            outside = lp[labels != main]
+            d2 = ((landmark_pos[outside] - landmark_pos[lc]) ** 2).sum(-1)
+            lo = int(outside[int(np.argmax(d2))])  # eq. (7)
         else:
-            J = np.bincount(labels, weights=U[rows, lp], minlength=k)  # eq. (6)
-            main = int(np.argmax(J))
-        members = np.flatnonzero(labels == main)
-        lc = int(lp[members[central_landmark(adj[np.ix_(members, members)], landmark_pos[lp[members]])]])
-        assignment = np.full(n, -1, dtype=np.int64)
-        assignment[rows] = lp
-        cluster_of = np.full(n, -1, dtype=np.int64)
-        cluster_of[rows] = labels
-        if k == 1:
-            if record:
-                steps.append(PartitionStep(working, assignment, cluster_of, main, lc, -1))
-            return Recommendation(assignment, assignment >= 0, lc, True, steps)
-        outside = lp[labels != main]
-        d2 = ((landmark_pos[outside] - landmark_pos[lc]) ** 2).sum(-1)
-        lo = int(outside[int(np.argmax(d2))])  # eq. (7)
+            lo = int(kernels.outlier(landmark_pos, lp, labels, main, lc))
         if record:
-            steps.append(PartitionStep(working, assignment, cluster_of, main, lc, lo))
+            steps.append(PartitionStep(working, _per_vehicle(n, rows, lp), _per_vehicle(n, rows, labels), main, lc, lo))
+        if k == 1:
+            assignment = _per_vehicle(n, rows, lp)
+            return Recommendation(assignment, assignment >= 0, lc, True, steps)
         axis = landmark_pos[lo] - landmark_pos[lc]
         keep = (landmark_pos[lo] - landmark_pos[working]) @ axis > 0.0  # eq. (8)
         if keep.sum() < n:
             in_main = np.zeros(n, dtype=bool)
             in_main[rows] = labels == main
-            return Recommendation(assignment, in_main, lc, False, steps)
+            return Recommendation(_per_vehicle(n, rows, lp), in_main, lc, False, steps)
         working = working[keep]
+
+
+def _per_vehicle(n: int, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """(n,) int64: ``values`` at the matched vehicle ``rows``, −1 at the vehicles Munkres left unassigned."""
+    out = np.full(n, -1, dtype=np.int64)
+    out[rows] = values
+    return out
+
+
+@cache
+def _plan_kernels():
+    """The compiled pass (imported on first use: numba compiles or loads its cache then)."""
+    from mrcomm_env.rendezvous import plan_numba
+
+    return plan_numba
