@@ -447,6 +447,23 @@ def test_compiled_inner_products_equal_the_numpy_reference(n, cached):
     assert all(np.array_equal(c, r) for c, r in zip(compiled, reference))
 
 
+@pytest.mark.parametrize("domain", [0, 1])
+def test_compiled_stream_words_equal_the_numpy_generator(domain):
+    """Aligned and unaligned starts, runs shorter and longer than a block, indices up to 2^32 − 1, 64-bit seeds."""
+    kernels = pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    from mrcomm_env.mapsync.philox import seed_key, stream_words
+
+    rng = np.random.default_rng(31 + domain)
+    for _ in range(300):
+        rows, n_words = int(rng.integers(1, 12)), int(rng.integers(1, 40))
+        key = seed_key(int(rng.integers(0, 2**63)))
+        index = rng.integers(0, 2**32, rows).astype(np.uint64)
+        first_word = rng.integers(0, 5000, rows) if rng.random() < 0.7 else np.zeros(rows, np.int64)
+        want = stream_words(key, index, first_word, n_words, domain)
+        got = kernels.stream_words(key[0], key[1], index, first_word, n_words, domain)
+        assert got.dtype == want.dtype == np.uint32 and np.array_equal(got, want)
+
+
 def _use_backend(monkeypatch, compiled: bool) -> None:
     """Pick the compiled twins or the numpy reference for the protocols and the env (decided at reset)."""
     import types

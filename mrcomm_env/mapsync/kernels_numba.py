@@ -1,4 +1,5 @@
-"""Compiled twin (numba) of :func:`protocol.segment_inner_products`, Protocol 1's inner loop.
+"""Compiled twin (numba) of :func:`protocol.segment_inner_products`, Protocol 1's inner loop, and of
+:func:`philox.stream_words` (the sketch's parity strings, ``protocol.parity_strings``).
 
 The numpy reference spends its time in a few dozen small array operations per call (one call per round of
 Algorithm 1); this twin computes the same parities in one call: for every segment and index, the words of
@@ -49,6 +50,32 @@ def _philox_lane(block, index, domain, k0, k1, lane):
     if lane == 2:
         return c2
     return c3
+
+
+@numba.njit(cache=True)
+def stream_words(k0, k1, index, first_word, n_words, domain):
+    """:func:`philox.stream_words`: words ``first_word[s] … first_word[s] + n_words − 1`` of stream ``index[s]``,
+    ``(S, n_words)`` uint32, one Philox4x32-10 block per four words as the reference computes them."""
+    out = np.empty((len(index), n_words), dtype=np.uint32)
+    for s in range(len(index)):
+        w = 0
+        while w < n_words:
+            word = first_word[s] + w
+            c0, c1, c2, c3 = np.uint64(word >> 2), np.uint64(index[s]), np.uint64(domain), np.uint64(0)
+            a, b = np.uint64(k0), np.uint64(k1)
+            for _ in range(10):
+                p0 = _M0 * c0
+                p1 = _M1 * c2
+                c0, c1, c2, c3 = (p1 >> _SHIFT) ^ c1 ^ a, p1 & _LOW, (p0 >> _SHIFT) ^ c3 ^ b, p0 & _LOW
+                a = (a + _W0) & _LOW
+                b = (b + _W1) & _LOW
+            lanes = (c0, c1, c2, c3)
+            for lane in range(word & 3, 4):  # the rest of this block's words
+                if w == n_words:
+                    break
+                out[s, w] = np.uint32(lanes[lane])
+                w += 1
+    return out
 
 
 @numba.njit(cache=True)

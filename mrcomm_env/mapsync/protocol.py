@@ -356,7 +356,13 @@ def parity_strings(seed: int, nonce: int, n: int, count: int) -> np.ndarray:
     """``count`` public-coin random n-bit strings for one session (``(count, words)`` uint32)."""
     n_words = (n + 31) // 32
     index = np.array([(nonce * count + j) % (1 << 32) for j in range(count)], dtype=np.uint64)
-    words = stream_words(seed_key(seed), index, np.zeros(count, np.int64), n_words, DOMAIN_PARITY)
+    if backend.compiled():  # the same words from the compiled generator (~10× faster at these sizes)
+        from mrcomm_env.mapsync import kernels_numba
+
+        k0, k1 = seed_key(seed)
+        words = kernels_numba.stream_words(k0, k1, index, np.zeros(count, np.int64), n_words, DOMAIN_PARITY)
+    else:
+        words = stream_words(seed_key(seed), index, np.zeros(count, np.int64), n_words, DOMAIN_PARITY)
     if n % 32:
         words[:, -1] &= np.uint32((1 << (n % 32)) - 1)
     return words
