@@ -304,6 +304,12 @@ class MrcommParallelEnv(ParallelEnv):
         ``truncated`` (as :meth:`step` reports them for every agent: all agents end together) and the infos as
         columns, key → ``(N,)`` float64. Bad actions raise the same ``ValueError`` as :meth:`step`.
         """
+        observations, reward_array, terminated, truncated = self._step_arrays_without_infos(actions)
+        return observations, reward_array, terminated, truncated, self._info_columns_array()
+
+    def _step_arrays_without_infos(self, actions) -> tuple[np.ndarray, np.ndarray, bool, bool]:
+        """:meth:`step_arrays` but the infos, which the caller reads with ``_info_columns()`` (a batch copies
+        them straight into its own columns)."""
         if not self.agents:
             self._require_reset("step_arrays")
             raise RuntimeError("step_arrays() called on a finished episode; call reset_arrays() first")
@@ -326,10 +332,9 @@ class MrcommParallelEnv(ParallelEnv):
         else:
             reward_array = np.array(rewards, dtype=np.float64)
         observations = self._observe()
-        infos = self._info_columns_array()
         if self.render_mode == "human":
             self.render()
-        return observations, reward_array, terminated, truncated, infos
+        return observations, reward_array, terminated, truncated
 
     def _advance(self, actions: list) -> tuple[Any, bool, bool]:
         """One step of the world on validated ``actions`` (agent order): the world's rewards, ``terminated``

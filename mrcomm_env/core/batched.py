@@ -177,18 +177,23 @@ class BatchedEnv:
         rewards = np.empty((m, self.n_agents), dtype=np.float64)
         terminated = np.zeros(m, dtype=bool)
         truncated = np.zeros(m, dtype=bool)
-        infos: list[dict[str, np.ndarray]] = []
-        result = BatchStep(observations, rewards, terminated, truncated, {})
+        infos: dict[str, np.ndarray] = {}
+        result = BatchStep(observations, rewards, terminated, truncated, infos)
         for i, env in enumerate(self.envs):
-            obs, rewards[i], terminated[i], truncated[i], info = env.step_arrays(actions[i])
-            infos.append(info)
+            obs, rewards[i], terminated[i], truncated[i] = env._step_arrays_without_infos(actions[i])
+            # step_arrays's info columns, copied straight into the batch's (M, N) columns (every copy has the
+            # same keys): no per-copy copies to stack afterwards
+            keys, columns = env._info_columns()
+            if not infos:
+                infos.update((key, np.empty((m, self.n_agents))) for key in keys)
+            for key, column in zip(keys, columns):
+                infos[key][i] = column
             if terminated[i] or truncated[i]:
                 result.final_observations[i] = obs.copy()  # the env may reuse its buffer at reset
                 result.final_metrics[i] = env.metrics()
                 obs, result.reset_infos[i] = env.reset_arrays()
             observations[i] = obs
         result.observations = self._returned(observations)
-        result.infos = _stack_columns(infos)
         return result
 
     def _step_world(self, actions: np.ndarray) -> BatchStep:
