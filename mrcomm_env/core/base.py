@@ -308,7 +308,7 @@ class MrcommParallelEnv(ParallelEnv):
         return observations, reward_array, terminated, truncated, self._info_columns_array()
 
     def _step_arrays_without_infos(self, actions) -> tuple[np.ndarray, np.ndarray, bool, bool]:
-        """:meth:`step_arrays` but the infos, which the caller reads with ``_info_columns()`` (a batch copies
+        """:meth:`step_arrays` without the infos, which the caller reads with ``_info_columns()`` (a batch copies
         them straight into its own columns)."""
         if not self.agents:
             self._require_reset("step_arrays")

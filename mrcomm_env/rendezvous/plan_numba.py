@@ -8,8 +8,8 @@ phase. This twin does the clustering, eq. (6), the centrality ties and eq. (7) i
 the column pre-selection that feeds it (numpy's ``argpartition`` picks among ties its own way), the
 eigenvector of a cluster that is not complete (numba's ``eigh`` is scipy's LAPACK, not numpy's) and the eq. (8)
 product (numpy's ``@`` is a BLAS call whose rounding differs from two products and a sum) stay with the
-reference code, so that every number is the reference's (``tests/test_rendezvous.py`` compares whole seeded
-episodes on both backends).
+reference code, so that every number is the reference's (``tests/test_rendezvous_mapping.py`` compares whole
+seeded episodes and single passes on both backends).
 
 Used when ``core.backend.compiled()`` (docs/architecture.md).
 """
@@ -27,10 +27,11 @@ def cluster_pass(U, landmark_pos, rows, lp, d_comms):
     ``rows``/``lp`` are the matched vehicle rows and landmark ids. ``labels`` numbers the connected components of
     the assigned landmarks' adjacency (separation < d_comms, with the diagonal; ``protocol.adjacency``) in order
     of their lowest member, as ``protocol.clusters``; ``main`` is the cluster of largest eq. (6) value J (first on
-    ties, ``np.argmax``), ``members`` its positions in ``lp`` in order. ``central`` indexes the main cluster's members (in order) of l_c when the Perron vector
-    ties every member (a single landmark, or a complete cluster: the reference's eigenvector is uniform to
-    round-off, ≪ its 1e-9 tie tolerance), resolved as ``protocol.central_landmark`` resolves ties: nearest the
-    centroid, then lowest index. Otherwise ``central`` is −1 and the caller takes the eigenvector.
+    ties, ``np.argmax``), ``members`` its positions in ``lp``, in order. ``central`` is l_c's index in ``members``
+    when the Perron vector ties every member (a single landmark, or a complete cluster: the reference's
+    eigenvector is then uniform to round-off, ≪ its 1e-9 tie tolerance), chosen as ``protocol.central_landmark``
+    breaks ties: nearest the centroid, then lowest index. Otherwise ``central`` is −1 and the caller takes the
+    eigenvector.
     """
     adj = _adjacency(landmark_pos, lp, d_comms)
     k, labels = _components(adj)
