@@ -388,14 +388,19 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         np.add.at(self.world_count, lm, 1)
         z = self.landmarks[lm] + self.np_random.normal(0.0, c.obs_sigma, size=(len(lm), 2))
         R_inv = np.eye(2) * self.r_info
-        for w in np.unique(v).tolist():
-            mine = v == w
-            ids, inverse, counts = np.unique(lm[mine], return_inverse=True, return_counts=True)
-            dy = np.zeros((len(ids), 2))
-            np.add.at(dy, inverse, z[mine] * self.r_info)
-            packet = filters.Packet(ids, counts[:, None, None] * R_inv, dy, counts)
-            self.maps.add_own(w, packet)
-            self.step_obs[w] = int(mine.sum())
+        # every observing vehicle's packet, its landmarks in increasing order, from one grouping of the (vehicle,
+        # landmark) pairs; np.add.at sums each pair's observations in time order, as a per-vehicle sum would
+        L = c.n_landmarks
+        pairs, inverse, counts = np.unique(v * L + lm, return_inverse=True, return_counts=True)
+        dy = np.zeros((len(pairs), 2))
+        np.add.at(dy, inverse, z * self.r_info)
+        owner, ids = np.divmod(pairs, L)
+        bounds = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1], True]).tolist()
+        for start, end in zip(bounds[:-1], bounds[1:]):  # vehicles in increasing order: the order packets are kept
+            span = slice(start, end)
+            packet = filters.Packet(ids[span], counts[span, None, None] * R_inv, dy[span], counts[span])
+            self.maps.add_own(int(owner[start]), packet)
+        self.step_obs[:] = np.bincount(v, minlength=self.n_agents)
 
     def _decision_phase(self) -> None:
         """Fuse over each group's Dijkstra tree, share positions and utilities, update the fused map, plan."""
