@@ -24,9 +24,9 @@ from __future__ import annotations
 import numpy as np
 
 from mrcomm_env.multihop import frame_numba
+from mrcomm_env.multihop.protocol import HOP_BUCKETS
 
-#: the hop-distance buckets of the metrics (1, 2, 3, 4 or more)
-N_HOP_BUCKETS = 4
+N_HOP_BUCKETS = len(HOP_BUCKETS)
 
 
 class StaticFrameBatch:

@@ -55,7 +55,7 @@ MAX_COVERAGE_ROBOTS = 25
 MAX_ALPHA = 1000.0
 CONTROL_PERIOD, MAX_CONTROL_STEPS = 0.25, 16  # coverage controller: seconds per Euler step, steps per slot at most
 MAX_SPEED = 1000.0  # m/s: faster than any robot; keeps speed × slot time finite for the slowest channel
-HOP_BUCKETS = ("1", "2", "3", "4plus")
+HOP_BUCKETS = proto.HOP_BUCKETS
 
 
 class MultiHopEnv(MrcommParallelEnv):

@@ -29,6 +29,9 @@ MIN_DIST = 1e-3
 LOG_MIN_DIST = float(np.log(MIN_DIST))
 #: largest scaled log-importance (≈ 1e150): own and co-located estimates never overflow a sum or an age product
 LOG_WEIGHT_CAP = 345.0
+#: the hop-distance buckets of the per-hop age metrics (1, 2, 3, 4 or more hops); the env and its copy-axis world
+#: both size their statistics by it
+HOP_BUCKETS = ("1", "2", "3", "4plus")
 
 
 def importance(dist: np.ndarray, known: np.ndarray, alpha: float) -> np.ndarray:
