@@ -1,15 +1,18 @@
 """Compiled twin (numba) of one pass of the recommendation phase's partition loop (§IV-C/D, ``protocol.recommend``).
 
 A pass assigns vehicles to landmarks (Munkres), clusters the assigned landmarks, picks the main cluster μ_max
-(eq. 6) and its central landmark l_c, and, while the assignment is not connected, the outlier l_o (eq. 7) whose
-half-plane cut (eq. 8) shrinks the working set. The numpy reference spends ~90 µs of interpreter round trips
-per pass on 2–10 landmarks, and a 10-vehicle team at d_comms = 10 m makes about a dozen passes per decision
-phase. This twin does the clustering, eq. (6), the centrality ties and eq. (7) in one call. Munkres (scipy),
-the column pre-selection that feeds it (numpy's ``argpartition`` picks among ties its own way), the
-eigenvector of a cluster that is not complete (numba's ``eigh`` is scipy's LAPACK, not numpy's) and the eq. (8)
-product (numpy's ``@`` is a BLAS call whose rounding differs from two products and a sum) stay with the
-reference code, so that every number is the reference's (``tests/test_rendezvous_mapping.py`` compares whole
-seeded episodes and single passes on both backends).
+(eq. 6) and its central landmark l_c (eigenvector centrality [16]), and, while the assignment is not connected,
+the outlier l_o (eq. 7) whose half-plane cut (eq. 8) shrinks the working set. The numpy reference spends
+~90 µs of interpreter round trips per pass on 2–10 landmarks, and a 10-vehicle team at d_comms = 10 m makes
+about a dozen passes per decision phase. This twin does the clustering, eq. (6), l_c and eq. (7) in one call.
+
+Munkres (scipy), the column pre-selection that feeds it (numpy's ``argpartition`` picks among ties its own way)
+and the eq. (8) product (numpy's ``@`` is a BLAS call whose rounding differs from two products and a sum) stay
+with the reference code. l_c's eigenvector is numba's ``eigh`` (LAPACK's ``syevd`` through scipy, numpy's
+``eigh`` runs the same routine through its own build): it gave the reference's eigenvector bit for bit on
+20,000 random and grid clusters here, and l_c depends on it only through a 1e-9 relative tie tolerance, so
+two builds could disagree only on entries within round-off of that tolerance. ``tests/test_rendezvous_mapping.py``
+compares single passes and whole seeded episodes on both backends.
 
 Used when ``core.backend.compiled()`` (docs/architecture.md).
 """
@@ -22,22 +25,19 @@ import numpy as np
 
 @numba.njit(cache=True)
 def cluster_pass(U, landmark_pos, rows, lp, d_comms):
-    """Clusters and l_c of one assignment: ``(k, labels, main, members, central, adj)``.
+    """Clusters and l_c of one assignment: ``(k, labels, main, members, central)``.
 
     ``rows``/``lp`` are the matched vehicle rows and landmark ids. ``labels`` numbers the connected components of
     the assigned landmarks' adjacency (separation < d_comms, with the diagonal; ``protocol.adjacency``) in order
     of their lowest member, as ``protocol.clusters``; ``main`` is the cluster of largest eq. (6) value J (first on
-    ties, ``np.argmax``), ``members`` its positions in ``lp``, in order. ``central`` is l_c's index in ``members``
-    when the Perron vector ties every member (a single landmark, or a complete cluster: the reference's
-    eigenvector is then uniform to round-off, ≪ its 1e-9 tie tolerance), chosen as ``protocol.central_landmark``
-    breaks ties: nearest the centroid, then lowest index. Otherwise ``central`` is −1 and the caller takes the
-    eigenvector.
+    ties, ``np.argmax``), ``members`` its positions in ``lp``, in order, and ``central`` l_c's index in ``members``
+    (``protocol.central_landmark``).
     """
     adj = _adjacency(landmark_pos, lp, d_comms)
     k, labels = _components(adj)
     main = _main_cluster(U, rows, lp, labels, k)
     members = np.flatnonzero(labels == main)
-    return k, labels, main, members, _tied_central(adj, landmark_pos, lp, members), adj
+    return k, labels, main, members, _central(adj, landmark_pos, lp, members)
 
 
 @numba.njit(cache=True)
@@ -99,17 +99,41 @@ def _main_cluster(U, rows, lp, labels, k):
 
 
 @numba.njit(cache=True)
-def _tied_central(adj, landmark_pos, lp, members):
-    """l_c's index in ``members`` when every member ties (see :func:`cluster_pass`), else −1."""
+def _central(adj, landmark_pos, lp, members):
+    """``protocol.central_landmark`` of the main cluster: l_c's index in ``members``.
+
+    The largest entries of the Perron eigenvector of the cluster's adjacency (zero diagonal) within the
+    reference's relative tolerance 1e-9 tie; ties go to the member nearest the centroid of the whole cluster (the
+    mean sums rows in order, as ndarray.mean(0) does for these sizes), then to the lowest index. A single
+    landmark, or a complete cluster (whose Perron vector is uniform to round-off, ≪ the tolerance), ties every
+    member without an eigenvector."""
     size = len(members)
     if size == 1:
         return 0
+    complete = True
     for a in range(size):
         for b in range(size):
             if not adj[members[a], members[b]]:
-                return -1
-    # complete: the nearest to the centroid wins, the first on ties (the mean sums rows in order, as
-    # ndarray.mean(0) does for these sizes)
+                complete = False
+    tied = np.ones(size, dtype=np.bool_)
+    if not complete:
+        sub = np.zeros((size, size))
+        for a in range(size):
+            for b in range(size):
+                if a != b and adj[members[a], members[b]]:
+                    sub[a, b] = 1.0
+        _, vecs = np.linalg.eigh(sub)
+        lead = np.abs(vecs[:, size - 1])
+        floor = lead.max() * (1.0 - 1e-9)
+        first, count = -1, 0
+        for a in range(size):
+            tied[a] = lead[a] >= floor
+            if tied[a]:
+                count += 1
+                if first < 0:
+                    first = a
+        if count == 1:
+            return first
     cx = landmark_pos[lp[members[0]], 0]
     cy = landmark_pos[lp[members[0]], 1]
     for a in range(1, size):
@@ -117,14 +141,15 @@ def _tied_central(adj, landmark_pos, lp, members):
         cy += landmark_pos[lp[members[a]], 1]
     cx /= size
     cy /= size
-    best = 0
+    best = -1
     best_d = np.inf
     for a in range(size):
-        dx = landmark_pos[lp[members[a]], 0] - cx
-        dy = landmark_pos[lp[members[a]], 1] - cy
-        d = dx * dx + dy * dy
-        if d < best_d:
-            best, best_d = a, d
+        if tied[a]:
+            dx = landmark_pos[lp[members[a]], 0] - cx
+            dy = landmark_pos[lp[members[a]], 1] - cy
+            d = dx * dx + dy * dy
+            if best < 0 or d < best_d:
+                best, best_d = a, d
     return best
 
 

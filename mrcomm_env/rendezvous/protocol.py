@@ -16,8 +16,8 @@ Action module of §V.
 * :func:`central_landmark` — eigenvector centrality [16] of the best cluster's adjacency.
 * :func:`recommend` — eq. (5)–(8): cluster value J, μ_max, l_c, outlier l_o and the half-plane cut,
   repeated until the assigned landmarks are connected or fewer working landmarks than vehicles remain. On the
-  compiled backend (``core.backend``) each pass's clustering, eq. (6), centrality ties and eq. (7) run as one
-  numba call (:mod:`.plan_numba`), with the same results.
+  compiled backend (``core.backend``) each pass's clustering, eq. (6), l_c and eq. (7) run as one numba call
+  (:mod:`.plan_numba`), with the same results.
 """
 
 from __future__ import annotations
@@ -196,11 +196,9 @@ def recommend(U: np.ndarray, landmark_pos: np.ndarray, d_comms: float, record: b
                 J = np.bincount(labels, weights=U[rows, lp], minlength=k)  # eq. (6)
                 main = int(np.argmax(J))
             members = np.flatnonzero(labels == main)
-            central = -1
-        else:  # the same pass compiled; it settles l_c unless the main cluster's eigenvector must decide
-            k, labels, main, members, central, adj = kernels.cluster_pass(U, landmark_pos, rows, lp, float(d_comms))
-        if central < 0:
             central = central_landmark(adj[np.ix_(members, members)], landmark_pos[lp[members]])
+        else:  # the same pass compiled
+            k, labels, main, members, central = kernels.cluster_pass(U, landmark_pos, rows, lp, float(d_comms))
         lc = int(lp[members[central]])
         if k == 1:
             lo = -1
