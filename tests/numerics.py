@@ -173,3 +173,11 @@ class ConditionLog:
 
     def conds(self, steps: int) -> np.ndarray:
         return np.array([self.kappa.get(t, 1.0) for t in range(steps)])
+
+
+def bit_identical(a, b) -> bool:
+    """The exact twins' comparison: arrays (and numbers) by dtype and bytes, dicts (per agent) key by key."""
+    if isinstance(a, dict):
+        return isinstance(b, dict) and a.keys() == b.keys() and all(bit_identical(a[key], b[key]) for key in a)
+    a, b = np.asarray(a), np.asarray(b)
+    return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()

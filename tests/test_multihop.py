@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from numerics import assert_close_conditioned, tolerance
+from numerics import assert_close_conditioned, bit_identical, tolerance
 
 from mrcomm_baselines.multihop import POLICIES
 from mrcomm_env.multihop import protocol as proto
@@ -505,13 +505,8 @@ def test_whole_episodes_are_identical_with_the_compiled_frame(monkeypatch, kwarg
             trace.append((obs, rewards, infos, env.t, *(a.copy() for a in arrays)))
         return trace, repr(env.metrics()), env.ledger.total_bits.tolist()
 
-    def same(a, b) -> bool:  # bit for bit: arrays by their bytes, dicts (per agent) key by key
-        if isinstance(a, dict):
-            return a.keys() == b.keys() and all(same(a[key], b[key]) for key in a)
-        return np.asarray(a).dtype == np.asarray(b).dtype and np.asarray(a).tobytes() == np.asarray(b).tobytes()
-
     reference, compiled = episode(False), episode(True)
     assert len(reference[0]) == len(compiled[0]) > 1
     for want, got in zip(reference[0], compiled[0]):
-        assert all(same(a, b) for a, b in zip(want, got, strict=True))
+        assert all(bit_identical(a, b) for a, b in zip(want, got, strict=True))
     assert reference[1:] == compiled[1:]

@@ -10,6 +10,7 @@ import pytest
 from filterpy.kalman import InformationFilter
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from numerics import bit_identical
 from scipy.optimize import linear_sum_assignment
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
@@ -583,13 +584,8 @@ def test_whole_episodes_are_identical_with_the_compiled_plan(monkeypatch, kwargs
             trace.append((obs, rewards, infos, env.assignment.copy(), env.central.copy(), env.pos.copy()))
         return trace, repr(env.metrics())
 
-    def same(a, b) -> bool:  # bit for bit: arrays by their bytes, dicts (per agent) key by key
-        if isinstance(a, dict):
-            return a.keys() == b.keys() and all(same(a[key], b[key]) for key in a)
-        return np.asarray(a).dtype == np.asarray(b).dtype and np.asarray(a).tobytes() == np.asarray(b).tobytes()
-
     reference, compiled = episode(False), episode(True)
     assert len(reference[0]) == len(compiled[0]) > 1
     for want, got in zip(reference[0], compiled[0]):
-        assert all(same(a, b) for a, b in zip(want, got, strict=True))
+        assert all(bit_identical(a, b) for a, b in zip(want, got, strict=True))
     assert reference[1] == compiled[1]

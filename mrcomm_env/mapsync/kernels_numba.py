@@ -32,9 +32,9 @@ def _popcount32(v):
     return ((v * np.uint64(0x01010101)) & _LOW) >> np.uint64(24)
 
 
-@numba.njit(cache=True)
-def _philox_lane(block, index, domain, k0, k1, lane):
-    """Word ``lane`` of Philox4x32-10 at counter (block, index, domain, 0), key (k0, k1)."""
+@numba.njit(cache=True, inline="always")
+def _philox_block(block, index, domain, k0, k1):
+    """The four words of Philox4x32-10 at counter (block, index, domain, 0), key (k0, k1)."""
     c0, c1, c2, c3 = np.uint64(block), np.uint64(index), np.uint64(domain), np.uint64(0)
     a, b = np.uint64(k0), np.uint64(k1)
     for _ in range(10):
@@ -43,6 +43,13 @@ def _philox_lane(block, index, domain, k0, k1, lane):
         c0, c1, c2, c3 = (p1 >> _SHIFT) ^ c1 ^ a, p1 & _LOW, (p0 >> _SHIFT) ^ c3 ^ b, p0 & _LOW
         a = (a + _W0) & _LOW
         b = (b + _W1) & _LOW
+    return c0, c1, c2, c3
+
+
+@numba.njit(cache=True)
+def _philox_lane(block, index, domain, k0, k1, lane):
+    """Word ``lane`` of Philox4x32-10 at counter (block, index, domain, 0), key (k0, k1)."""
+    c0, c1, c2, c3 = _philox_block(block, index, domain, k0, k1)
     if lane == 0:
         return c0
     if lane == 1:
@@ -61,15 +68,7 @@ def stream_words(k0, k1, index, first_word, n_words, domain):
         w = 0
         while w < n_words:
             word = first_word[s] + w
-            c0, c1, c2, c3 = np.uint64(word >> 2), np.uint64(index[s]), np.uint64(domain), np.uint64(0)
-            a, b = np.uint64(k0), np.uint64(k1)
-            for _ in range(10):
-                p0 = _M0 * c0
-                p1 = _M1 * c2
-                c0, c1, c2, c3 = (p1 >> _SHIFT) ^ c1 ^ a, p1 & _LOW, (p0 >> _SHIFT) ^ c3 ^ b, p0 & _LOW
-                a = (a + _W0) & _LOW
-                b = (b + _W1) & _LOW
-            lanes = (c0, c1, c2, c3)
+            lanes = _philox_block(word >> 2, index[s], domain, k0, k1)
             for lane in range(word & 3, 4):  # the rest of this block's words
                 if w == n_words:
                     break
