@@ -4,7 +4,8 @@ A pass assigns vehicles to landmarks (Munkres), clusters the assigned landmarks,
 (eq. 6) and its central landmark l_c (eigenvector centrality [16]), and, while the assignment is not connected,
 the outlier l_o (eq. 7) whose half-plane cut (eq. 8) shrinks the working set. The numpy reference spends
 ~90 µs of interpreter round trips per pass on 2–10 landmarks, and a 10-vehicle team at d_comms = 10 m makes
-about a dozen passes per decision phase. This twin does the clustering, eq. (6), l_c and eq. (7) in one call.
+about a dozen passes per decision phase. This twin does the clustering, eq. (6), l_c, eq. (7) and eq. (8)'s
+offsets in one call.
 
 Munkres (scipy), the column pre-selection that feeds it (numpy's ``argpartition`` picks among ties its own way)
 and the eq. (8) product (numpy's ``@`` is a BLAS call whose rounding differs from two products and a sum) stay
@@ -24,20 +25,33 @@ import numpy as np
 
 
 @numba.njit(cache=True)
-def cluster_pass(U, landmark_pos, rows, lp, d_comms):
-    """Clusters and l_c of one assignment: ``(k, labels, main, members, central)``.
+def partition_pass(U, landmark_pos, rows, lp, d_comms, working):
+    """One pass after Munkres: ``(k, labels, main, lc, lo, axis, offsets)``.
 
-    ``rows``/``lp`` are the matched vehicle rows and landmark ids. ``labels`` numbers the connected components of
-    the assigned landmarks' adjacency (separation < d_comms, with the diagonal; ``protocol.adjacency``) in order
-    of their lowest member, as ``protocol.clusters``; ``main`` is the cluster of largest eq. (6) value J (first on
-    ties, ``np.argmax``), ``members`` its positions in ``lp``, in order, and ``central`` l_c's index in ``members``
-    (``protocol.central_landmark``).
+    ``rows``/``lp`` are the matched vehicle rows and landmark ids, ``working`` the pass's working landmarks.
+    ``labels`` numbers the connected components of the assigned landmarks' adjacency (separation < d_comms, with
+    the diagonal; ``protocol.adjacency``) in order of their lowest member, as ``protocol.clusters``; ``main`` is
+    the cluster of largest eq. (6) value J (first on ties, ``np.argmax``); ``lc`` is its central landmark
+    (``protocol.central_landmark``). When the assignment is not connected (k > 1), ``lo`` is the outlier of eq. (7)
+    and ``axis`` = x_lo − x_lc and ``offsets`` = x_lo − x_l for every working l are the two factors of eq. (8),
+    whose product the caller takes with numpy's ``@`` as the reference does; otherwise ``lo`` is −1.
     """
     adj = _adjacency(landmark_pos, lp, d_comms)
     k, labels = _components(adj)
     main = _main_cluster(U, rows, lp, labels, k)
     members = np.flatnonzero(labels == main)
-    return k, labels, main, members, _central(adj, landmark_pos, lp, members)
+    lc = lp[members[_central(adj, landmark_pos, lp, members)]]
+    axis = np.empty(2)
+    offsets = np.empty((len(working), 2))
+    if k == 1:
+        return k, labels, main, lc, -1, axis, offsets
+    lo = _outlier(landmark_pos, lp, labels, main, lc)
+    axis[0] = landmark_pos[lo, 0] - landmark_pos[lc, 0]
+    axis[1] = landmark_pos[lo, 1] - landmark_pos[lc, 1]
+    for w in range(len(working)):
+        offsets[w, 0] = landmark_pos[lo, 0] - landmark_pos[working[w], 0]
+        offsets[w, 1] = landmark_pos[lo, 1] - landmark_pos[working[w], 1]
+    return k, labels, main, lc, lo, axis, offsets
 
 
 @numba.njit(cache=True)
@@ -154,7 +168,7 @@ def _central(adj, landmark_pos, lp, members):
 
 
 @numba.njit(cache=True)
-def outlier(landmark_pos, lp, labels, main, lc):
+def _outlier(landmark_pos, lp, labels, main, lc):
     """Eq. (7): the assigned landmark outside μ_max farthest from l_c (first on ties, as ``np.argmax``)."""
     lo = -1
     best = 0.0

@@ -16,8 +16,8 @@ Action module of §V.
 * :func:`central_landmark` — eigenvector centrality [16] of the best cluster's adjacency.
 * :func:`recommend` — eq. (5)–(8): cluster value J, μ_max, l_c, outlier l_o and the half-plane cut,
   repeated until the assigned landmarks are connected or fewer working landmarks than vehicles remain. On the
-  compiled backend (``core.backend``) each pass's clustering, eq. (6), l_c and eq. (7) run as one numba call
-  (:mod:`.plan_numba`), with the same results.
+  compiled backend (``core.backend``) each pass's clustering, eq. (6), l_c, eq. (7) and the offsets of eq. (8)
+  run as one numba call (:mod:`.plan_numba`), with the same results.
 """
 
 from __future__ import annotations
@@ -196,25 +196,25 @@ def recommend(U: np.ndarray, landmark_pos: np.ndarray, d_comms: float, record: b
                 J = np.bincount(labels, weights=U[rows, lp], minlength=k)  # eq. (6)
                 main = int(np.argmax(J))
             members = np.flatnonzero(labels == main)
-            central = central_landmark(adj[np.ix_(members, members)], landmark_pos[lp[members]])
-        else:  # the same pass compiled
-            k, labels, main, members, central = kernels.cluster_pass(U, landmark_pos, rows, lp, float(d_comms))
-        lc = int(lp[members[central]])
-        if k == 1:
-            lo = -1
-        elif kernels is None:
-            outside = lp[labels != main]
-            d2 = ((landmark_pos[outside] - landmark_pos[lc]) ** 2).sum(-1)
-            lo = int(outside[int(np.argmax(d2))])  # eq. (7)
-        else:
-            lo = int(kernels.outlier(landmark_pos, lp, labels, main, lc))
+            lc = int(lp[members[central_landmark(adj[np.ix_(members, members)], landmark_pos[lp[members]])]])
+            if k == 1:
+                lo = -1
+            else:
+                outside = lp[labels != main]
+                d2 = ((landmark_pos[outside] - landmark_pos[lc]) ** 2).sum(-1)
+                lo = int(outside[int(np.argmax(d2))])  # eq. (7)
+                axis = landmark_pos[lo] - landmark_pos[lc]
+                offsets = landmark_pos[lo] - landmark_pos[working]
+        else:  # the same pass compiled, up to eq. (8)'s product
+            k, labels, main, lc, lo, axis, offsets = kernels.partition_pass(
+                U, landmark_pos, rows, lp, float(d_comms), working
+            )
         if record:
             steps.append(PartitionStep(working, _per_vehicle(n, rows, lp), _per_vehicle(n, rows, labels), main, lc, lo))
         if k == 1:
             assignment = _per_vehicle(n, rows, lp)
             return Recommendation(assignment, assignment >= 0, lc, True, steps)
-        axis = landmark_pos[lo] - landmark_pos[lc]
-        keep = (landmark_pos[lo] - landmark_pos[working]) @ axis > 0.0  # eq. (8)
+        keep = offsets @ axis > 0.0  # eq. (8)
         if keep.sum() < n:
             in_main = np.zeros(n, dtype=bool)
             in_main[rows] = labels == main
