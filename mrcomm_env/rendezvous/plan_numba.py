@@ -42,9 +42,9 @@ def partition_pass(U, landmark_pos, rows, lp, d_comms, working):
     members = np.flatnonzero(labels == main)
     lc = lp[members[_central(adj, landmark_pos, lp, members)]]
     axis = np.empty(2)
+    if k == 1:  # connected: no cut
+        return k, labels, main, lc, -1, axis, np.empty((0, 2))
     offsets = np.empty((len(working), 2))
-    if k == 1:
-        return k, labels, main, lc, -1, axis, offsets
     lo = _outlier(landmark_pos, lp, labels, main, lc)
     axis[0] = landmark_pos[lo, 0] - landmark_pos[lc, 0]
     axis[1] = landmark_pos[lo, 1] - landmark_pos[lc, 1]
