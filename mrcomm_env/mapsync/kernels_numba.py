@@ -13,6 +13,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from mrcomm_env.core.backend import configure_numba_cache
+
+configure_numba_cache()  # before the @njit(cache=True) below: never cache into the package
+
 _M0 = np.uint64(0xD2511F53)
 _M1 = np.uint64(0xCD9E8D57)
 _W0 = np.uint64(0x9E3779B9)

@@ -23,6 +23,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from mrcomm_env.core.backend import configure_numba_cache
+
+configure_numba_cache()  # before the @njit(cache=True) below: never cache into the package
+
 
 @numba.njit(cache=True)
 def partition_pass(U, landmark_pos, rows, lp, d_comms, working):
