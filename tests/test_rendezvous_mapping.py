@@ -508,10 +508,13 @@ def test_a_split_team_reconnects_within_the_phases_to_cross_the_area():
 
 # ------------------------------------------------------------------------------------------------ compiled plan
 def _use_plan_backend(monkeypatch, compiled: bool) -> None:
-    """The compiled partition pass or the numpy reference (``protocol.recommend`` asks at every call)."""
+    """The compiled partition pass and spanning forest, or the numpy/scipy reference (``protocol.recommend`` and
+    ``world.spanning_forest`` ask at every call)."""
     import types
 
-    monkeypatch.setattr(protocol, "backend", types.SimpleNamespace(compiled=lambda: compiled))
+    choice = types.SimpleNamespace(compiled=lambda: compiled)
+    monkeypatch.setattr(protocol, "backend", choice)
+    monkeypatch.setattr(world, "backend", choice)
 
 
 def _tied_layout(rng, L: int) -> np.ndarray:
@@ -556,6 +559,38 @@ def test_compiled_partition_pass_plans_what_the_reference_plans(monkeypatch):
     assert passes > 1000 and ties > 100 and eigenvectors > 100
 
 
+def test_compiled_spanning_forest_is_scipys_dijkstra_forest_or_says_it_is_ambiguous(monkeypatch):
+    pytest.importorskip("numba")
+    from mrcomm_env.rendezvous import forest_numba
+
+    rng = np.random.default_rng(5)
+    exact = ambiguous = deep = 0
+    for trial in range(3000):
+        n = int(rng.integers(2, 31))
+        if trial % 3 == 0:  # a random team
+            pos = rng.uniform(0.0, 60.0, size=(n, 2))
+        elif trial % 3 == 1:  # vehicles on an exact grid: many shortest paths of equal length
+            pos = rng.integers(0, 5, size=(n, 2)) * 10.0
+        else:  # half the team co-located (a rendezvous), the rest at random
+            pos = rng.uniform(0.0, 60.0, size=(n, 2))
+            pos[rng.random(n) < 0.5] = pos[0]
+        links = world.vehicle_links(pos, float(rng.choice([0.0, 10.0, 15.0, 20.0, 30.0, math.inf])))
+        _use_plan_backend(monkeypatch, False)
+        labels, parent = world.spanning_forest(pos, links)  # scipy's Dijkstra
+        got_labels, got_parent, tied = forest_numba.spanning_forest(pos, links, world.LINK_LENGTH_FLOOR)
+        _use_plan_backend(monkeypatch, True)
+        assert bit_identical(world.spanning_forest(pos, links), (labels, parent))  # the dispatch, either branch
+        if tied:
+            ambiguous += 1
+            continue
+        exact += 1
+        assert bit_identical((got_labels, got_parent), (labels, parent))
+        # a tree that is not a star: Dijkstra chose among longer paths, not only the root's links
+        deep += bool(((parent >= 0) & (parent[np.maximum(parent, 0)] >= 0)).any())
+    # both branches taken many times, and many of the exact trees were more than one hop deep
+    assert exact > 1000 and ambiguous > 100 and deep > 500
+
+
 @pytest.mark.parametrize(
     "kwargs",
     [
@@ -567,7 +602,7 @@ def test_compiled_partition_pass_plans_what_the_reference_plans(monkeypatch):
     ],
 )
 @pytest.mark.parametrize("policy", ["paper_protocol", "random"])
-def test_whole_episodes_are_identical_with_the_compiled_plan(monkeypatch, kwargs, policy):
+def test_whole_episodes_are_identical_with_the_compiled_plan_and_forest(monkeypatch, kwargs, policy):
     pytest.importorskip("numba")
     from mrcomm_baselines import make_policy
 
