@@ -559,6 +559,43 @@ def test_compiled_partition_pass_plans_what_the_reference_plans(monkeypatch):
     assert passes > 1000 and ties > 100 and eigenvectors > 100
 
 
+def test_compiled_munkres_is_scipys_linear_sum_assignment_including_its_ties():
+    pytest.importorskip("numba")
+    from mrcomm_env.rendezvous import plan_numba
+
+    rng = np.random.default_rng(3)
+    for trial in range(3000):
+        rows = int(rng.integers(1, 13))
+        cost = rng.random((rows, int(rng.integers(rows, 40))))
+        if trial % 3 == 1:  # few distinct values: many optimal matchings, settled by scipy's tie rules
+            cost = np.floor(cost * 3.0)
+        elif trial % 3 == 2:  # exhausted landmarks: whole columns worth exactly 0
+            cost[:, rng.random(cost.shape[1]) < 0.6] = 0.0
+        matched_rows, matched_columns = linear_sum_assignment(cost, maximize=True)
+        assert np.array_equal(matched_rows, np.arange(rows))
+        assert np.array_equal(plan_numba.lsap_max(cost), matched_columns)
+
+
+def test_compiled_eq8_sign_is_numpys_or_says_rounding_could_change_it():
+    pytest.importorskip("numba")
+    from mrcomm_env.rendezvous import plan_numba
+
+    rng = np.random.default_rng(8)
+    answered = unsure = 0
+    for trial in range(20000):
+        axis = rng.uniform(-50.0, 50.0, size=2)
+        offset = rng.uniform(-50.0, 50.0, size=2)
+        if trial % 2:  # nearly perpendicular: x·y within rounding of 0
+            offset = np.array([-axis[1], axis[0]]) * rng.uniform(0.1, 3.0) + rng.normal(0.0, 1e-14, size=2)
+        sign = plan_numba._sign_of_dot(offset[0], offset[1], axis[0], axis[1])
+        if sign == 2:
+            unsure += 1
+            continue
+        answered += 1
+        assert sign == int(np.sign(offset[None, :] @ axis)[0]), (offset, axis)
+    assert answered > 10000 and unsure > 1000
+
+
 def test_compiled_spanning_forest_is_scipys_dijkstra_forest_or_says_it_is_ambiguous(monkeypatch):
     pytest.importorskip("numba")
     from mrcomm_env.rendezvous import forest_numba
@@ -589,6 +626,52 @@ def test_compiled_spanning_forest_is_scipys_dijkstra_forest_or_says_it_is_ambigu
         deep += bool(((parent >= 0) & (parent[np.maximum(parent, 0)] >= 0)).any())
     # both branches taken many times, and many of the exact trees were more than one hop deep
     assert exact > 1000 and ambiguous > 100 and deep > 500
+
+
+def test_compiled_recommendation_loop_plans_what_the_reference_plans_from_any_pass(monkeypatch):
+    """The whole loop compiled (numpy choosing a row's tied best columns when asked) gives the reference's plan,
+    and so does resuming it from the working set of any of the reference's passes."""
+    pytest.importorskip("numba")
+    from mrcomm_env.rendezvous import plan_numba
+
+    def compiled_from(U, lm, d, working):
+        columns = working[:0]
+        while True:
+            status, working, assignment, in_main, central, connected = plan_numba.recommend_loop(
+                U, lm, d, working, columns
+            )
+            statuses[status] += 1
+            if status == plan_numba.PLANNED:
+                return assignment, in_main, central, connected
+            if status == plan_numba.AMBIGUOUS:
+                return None
+            columns = protocol.candidate_columns(U, working)
+
+    rng = np.random.default_rng(13)
+    statuses = {plan_numba.PLANNED: 0, plan_numba.NEED_COLUMNS: 0, plan_numba.AMBIGUOUS: 0}
+    resumed = 0
+    for _ in range(300):
+        n = int(rng.integers(2, 13))
+        L = int(rng.integers(n, 200))
+        lm = _tied_layout(rng, L)
+        U = rng.random((n, L))
+        if rng.random() < 0.5:  # exhausted landmarks are worth exactly 0: a row's n best tie at 0
+            U[:, rng.random(L) < 0.8] = 0.0
+        d = float(rng.choice([0.0, 5.0, 10.0, 10.5, 15.0, 30.0, math.inf]))
+        _use_plan_backend(monkeypatch, False)
+        want = protocol.recommend(U, lm, d, record=True)
+        _use_plan_backend(monkeypatch, True)
+        got = protocol.recommend(U, lm, d)
+        expected = (want.assignment, want.in_main, want.central, want.connected)
+        assert bit_identical(got.assignment, want.assignment) and bit_identical(got.in_main, want.in_main)
+        assert (type(got.central), got.central, got.connected) == (int, want.central, want.connected)
+        for step in want.steps:
+            plan = compiled_from(U, lm, d, step.working)
+            if plan is not None:
+                resumed += 1
+                assert all(bit_identical(a, b) for a, b in zip(plan, expected, strict=True))
+    # plans finished in the loop, and many that needed numpy's choice among tied columns on the way
+    assert resumed > 500 and statuses[plan_numba.PLANNED] > 500 and statuses[plan_numba.NEED_COLUMNS] > 100
 
 
 @pytest.mark.parametrize(

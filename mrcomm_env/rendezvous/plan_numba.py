@@ -184,3 +184,192 @@ def _outlier(landmark_pos, lp, labels, main, lc):
             if lo < 0 or d > best:
                 lo, best = lp[i], d
     return lo
+
+
+#: outcomes of :func:`recommend_loop`: the plan; the working set whose candidate columns the caller must choose
+#: with numpy (ties among a row's best); the working set from which the caller must run the reference's passes
+PLANNED, NEED_COLUMNS, AMBIGUOUS = 0, 1, 2
+
+#: |x·y| of eq. (8) above this many ulps of |x₀y₀| + |x₁y₁| has the same sign however the product is rounded
+_SIGN_ULPS = 4.0 * np.finfo(np.float64).eps
+
+
+@numba.njit(cache=True)
+def recommend_loop(U, landmark_pos, d_comms, working, columns):
+    """The passes of ``protocol.recommend`` (not recorded) for a group of n ≥ 2 vehicles, from the working set
+    ``working``: ``(status, working, assignment, in_main, central, connected)``.
+
+    Three steps of the reference choose among ties in ways of their own, and this loop stops where one of them
+    could matter, returning the working set of the pass it stopped at:
+
+    * the candidate columns Munkres runs on (``protocol.candidate_columns``): when a row's n best working columns
+      are not unique, numpy's ``argpartition`` picks among the tied ones its own way (and by CPU: numpy dispatches
+      it to SIMD sorts). NEED_COLUMNS: the caller chooses them with numpy and calls again with ``columns``, which
+      the first pass then uses (an empty ``columns``: choose them here);
+    * Munkres: never, :func:`lsap_max` is scipy's algorithm step for step;
+    * eq. (8), when a product x·y is so close to 0 that numpy's BLAS ``@`` and two products and a sum could round
+      it to different signs, or fewer working landmarks than vehicles (scipy transposes that problem). AMBIGUOUS:
+      the caller runs the reference's passes from ``working``.
+
+    Every pass depends only on its working set, so a caller that resumes from the returned one plans exactly what
+    the reference plans."""
+    n = U.shape[0]
+    assignment = np.full(n, -1, dtype=np.int64)
+    in_main = np.zeros(n, dtype=np.bool_)
+    rows = np.arange(n)
+    while True:
+        if len(working) < n:
+            return AMBIGUOUS, working, assignment, in_main, -1, False
+        if len(columns) == 0:
+            ok, columns = _candidate_columns(U, working, n)
+            if not ok:
+                return NEED_COLUMNS, working, assignment, in_main, -1, False
+        lp = _munkres(U, columns, n)
+        columns = columns[:0]  # later passes choose their own
+        k, labels, main, lc, lo, axis, offsets = partition_pass(U, landmark_pos, rows, lp, d_comms, working)
+        if k == 1:
+            return PLANNED, working, lp, np.ones(n, dtype=np.bool_), lc, True
+        keep = np.empty(len(working), dtype=np.bool_)
+        kept = 0
+        for w in range(len(working)):
+            sign = _sign_of_dot(offsets[w, 0], offsets[w, 1], axis[0], axis[1])
+            if sign == 2:
+                return AMBIGUOUS, working, assignment, in_main, -1, False
+            keep[w] = sign > 0
+            kept += keep[w]
+        if kept < n:
+            for i in range(n):
+                in_main[i] = labels[i] == main
+            return PLANNED, working, lp, in_main, lc, False
+        working = working[keep]
+
+
+@numba.njit(cache=True)
+def _sign_of_dot(x0, x1, y0, y1):
+    """Sign (−1, 0, 1) of x₀y₀ + x₁y₁ as any rounding of the two products and their sum gives it (BLAS with or
+    without a fused multiply-add), or 2 when the roundings could disagree. Both products exact (Dekker's
+    two-product error is 0): every rounding is the rounded exact sum. Otherwise the sign is sure when the sum
+    exceeds the rounding errors' bound, ≈ 2 ulps of |x₀y₀| + |x₁y₁|."""
+    p0 = x0 * y0
+    p1 = x1 * y1
+    s = p0 + p1
+    if _product_error(x0, y0, p0) != 0.0 or _product_error(x1, y1, p1) != 0.0:
+        if abs(s) <= _SIGN_ULPS * (abs(p0) + abs(p1)):
+            return 2
+    return 1 if s > 0.0 else (-1 if s < 0.0 else 0)
+
+
+@numba.njit(cache=True)
+def _product_error(a, b, p):
+    """a·b − p exactly, for p = fl(a·b) (Dekker's two-product with Veltkamp's split; no overflow at these sizes)."""
+    split = 134217729.0  # 2^27 + 1
+    t = split * a
+    a_hi = t - (t - a)
+    a_lo = a - a_hi
+    t = split * b
+    b_hi = t - (t - b)
+    b_lo = b - b_hi
+    return ((a_hi * b_hi - p) + a_hi * b_lo + a_lo * b_hi) + a_lo * b_lo
+
+
+@numba.njit(cache=True)
+def _candidate_columns(U, working, n):
+    """``protocol.candidate_columns`` when every row's n best working columns are unique: ``(True, columns)``;
+    ``(False, …)`` when a row's n-th best value is tied with another column's."""
+    W = len(working)
+    if W <= n * n:
+        return True, working
+    chosen = np.zeros(W, dtype=np.bool_)
+    values = np.empty(W)
+    for r in range(n):
+        for w in range(W):
+            values[w] = U[r, working[w]]
+        nth = np.partition(values, W - n)[W - n]  # the row's n-th largest value
+        at_least = 0
+        for w in range(W):
+            if values[w] >= nth:
+                at_least += 1
+                chosen[w] = True
+        if at_least != n:
+            return False, working
+    return True, working[np.flatnonzero(chosen)]
+
+
+@numba.njit(cache=True)
+def _munkres(U, columns, n):
+    """``protocol.assign``'s matching on the candidate ``columns`` (at least n): the landmark of each vehicle."""
+    sub = np.empty((n, len(columns)))
+    for r in range(n):
+        for c in range(len(columns)):
+            sub[r, c] = U[r, columns[c]]
+    return columns[lsap_max(sub)]
+
+
+@numba.njit(cache=True)
+def lsap_max(C):
+    """``scipy.optimize.linear_sum_assignment(C, maximize=True)`` for C (nr, nc) with nr ≤ nc and finite entries:
+    the column of each row. scipy 1.17's ``rectangular_lsap.cpp`` (Crouse's shortest augmenting path) step for
+    step, with the same floating-point operations in the same order, so that ties resolve as scipy resolves them."""
+    nr, nc = C.shape
+    cost = -C  # maximisation: scipy negates the matrix
+    u = np.zeros(nr)
+    v = np.zeros(nc)
+    shortest = np.empty(nc)
+    path = np.full(nc, -1, dtype=np.int64)
+    col4row = np.full(nr, -1, dtype=np.int64)
+    row4col = np.full(nc, -1, dtype=np.int64)
+    SR = np.zeros(nr, dtype=np.bool_)
+    SC = np.zeros(nc, dtype=np.bool_)
+    remaining = np.empty(nc, dtype=np.int64)
+    for current in range(nr):
+        # augmenting_path(): the shortest augmenting path from row `current`
+        min_val = 0.0
+        n_remaining = nc
+        for it in range(nc):
+            remaining[it] = nc - it - 1  # reversed: a constant matrix gives the identity (scipy #11602)
+        SR[:] = False
+        SC[:] = False
+        shortest[:] = np.inf
+        sink = -1
+        i = current
+        while sink == -1:
+            index = -1
+            lowest = np.inf
+            SR[i] = True
+            for it in range(n_remaining):
+                j = remaining[it]
+                r = min_val + cost[i, j] - u[i] - v[j]
+                if r < shortest[j]:
+                    path[j] = i
+                    shortest[j] = r
+                if shortest[j] < lowest or (shortest[j] == lowest and row4col[j] == -1):
+                    lowest = shortest[j]
+                    index = it
+            min_val = lowest
+            j = remaining[index]
+            if row4col[j] == -1:
+                sink = j
+            else:
+                i = row4col[j]
+            SC[j] = True
+            n_remaining -= 1
+            remaining[index] = remaining[n_remaining]
+        # update the dual variables
+        u[current] += min_val
+        for i in range(nr):
+            if SR[i] and i != current:
+                u[i] += min_val - shortest[col4row[i]]
+        for j in range(nc):
+            if SC[j]:
+                v[j] -= min_val - shortest[j]
+        # augment the previous solution
+        j = sink
+        while True:
+            i = path[j]
+            row4col[j] = i
+            previous = col4row[i]
+            col4row[i] = j
+            j = previous
+            if i == current:
+                break
+    return col4row

@@ -16,8 +16,10 @@ Action module of §V.
 * :func:`central_landmark` — eigenvector centrality [16] of the best cluster's adjacency.
 * :func:`recommend` — eq. (5)–(8): cluster value J, μ_max, l_c, outlier l_o and the half-plane cut,
   repeated until the assigned landmarks are connected or fewer working landmarks than vehicles remain. On the
-  compiled backend (``core.backend``) each pass's clustering, eq. (6), l_c, eq. (7) and the offsets of eq. (8)
-  run as one numba call (:mod:`.plan_numba`), with the same results.
+  compiled backend (``core.backend``) the whole loop runs as one numba call (:mod:`.plan_numba`,
+  ``recommend_loop``: Munkres as scipy computes it), with the same results; where numpy's or scipy's choice among
+  ties could matter it hands over to the passes below, whose clustering, eq. (6), l_c, eq. (7) and the offsets
+  of eq. (8) are still one numba call each.
 """
 
 from __future__ import annotations
@@ -75,15 +77,19 @@ def assign(U: np.ndarray, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Only the union of every row's n best columns can be matched (a row matched outside its own n best leaves
     one of them free for a swap that is no worse), so Munkres runs on at most n² columns.
     """
+    candidates = candidate_columns(U, columns)
+    rows, cols = linear_sum_assignment(U[:, candidates], maximize=True)
+    return rows, candidates[cols]
+
+
+def candidate_columns(U: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """The columns Munkres needs to see among ``columns``: all of them up to n², else the sorted union of every
+    row's n best (numpy's ``argpartition`` chooses among a row's tied n-th best)."""
     n = U.shape[0]
-    sub = U[:, columns]
-    if sub.shape[1] > n * n:
-        # the sorted union, as np.unique gives it, in two calls (np.unique costs ~8 µs on these few ids)
-        best = np.flatnonzero(np.bincount(np.argpartition(-sub, n - 1, axis=1)[:, :n].ravel()))
-        rows, cols = linear_sum_assignment(sub[:, best], maximize=True)
-        return rows, columns[best[cols]]
-    rows, cols = linear_sum_assignment(sub, maximize=True)
-    return rows, columns[cols]
+    if len(columns) <= n * n:
+        return columns
+    # the sorted union, as np.unique gives it, in two calls (np.unique costs ~8 µs on these few ids)
+    return columns[np.flatnonzero(np.bincount(np.argpartition(-U[:, columns], n - 1, axis=1)[:, :n].ravel()))]
 
 
 def adjacency(pos: np.ndarray, d_comms: float) -> np.ndarray:
@@ -185,6 +191,17 @@ def recommend(U: np.ndarray, landmark_pos: np.ndarray, d_comms: float, record: b
         best = int(np.argmax(U[0]))
         return Recommendation(np.array([best]), np.array([True]), best, True, steps)
     kernels = _plan_kernels() if backend.compiled() else None
+    if kernels is not None and not record:  # the passes compiled, numpy choosing among ties where it would
+        columns = working[:0]
+        while True:
+            status, working, assignment, in_main, central, connected = kernels.recommend_loop(
+                U, landmark_pos, float(d_comms), working, columns
+            )
+            if status == kernels.PLANNED:
+                return Recommendation(assignment, in_main, int(central), bool(connected), steps)
+            if status == kernels.AMBIGUOUS:  # the passes below go on from this working set
+                break
+            columns = candidate_columns(U, working)
     while True:
         rows, lp = assign(U, working)
         if kernels is None:
