@@ -635,17 +635,17 @@ def test_compiled_recommendation_loop_plans_what_the_reference_plans_from_any_pa
     from mrcomm_env.rendezvous import plan_numba
 
     def compiled_from(U, lm, d, working):
-        columns = working[:0]
+        best = np.empty((0, 0), dtype=np.int64)
         while True:
             status, working, assignment, in_main, central, connected = plan_numba.recommend_loop(
-                U, lm, d, working, columns
+                U, lm, d, working, best
             )
             statuses[status] += 1
             if status == plan_numba.PLANNED:
                 return assignment, in_main, central, connected
             if status == plan_numba.AMBIGUOUS:
                 return None
-            columns = protocol.candidate_columns(U, working)
+            best = protocol.best_positions(-U, working)
 
     rng = np.random.default_rng(13)
     statuses = {plan_numba.PLANNED: 0, plan_numba.NEED_COLUMNS: 0, plan_numba.AMBIGUOUS: 0}

@@ -328,7 +328,8 @@ class RendezvousMappingEnv(MrcommParallelEnv):
                 here, t, final = target, end, landmark
             new_pos[v] = here
             new_at[v] = final
-        self.rendezvous_windows += int(np.isin(self.action_kind, (DETOUR_RENDEZVOUS, RENDEZVOUS)).sum())
+        kind = self.action_kind
+        self.rendezvous_windows += int(np.count_nonzero((kind == DETOUR_RENDEZVOUS) | (kind == RENDEZVOUS)))
         self._observe_landmarks(events_t, events_v, events_l)
         self.pos, self.at_landmark = new_pos, new_at
         before = self.fused_gain

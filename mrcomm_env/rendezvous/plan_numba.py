@@ -195,7 +195,7 @@ _SIGN_ULPS = 4.0 * np.finfo(np.float64).eps
 
 
 @numba.njit(cache=True)
-def recommend_loop(U, landmark_pos, d_comms, working, columns):
+def recommend_loop(U, landmark_pos, d_comms, working, best):
     """The passes of ``protocol.recommend`` (not recorded) for a group of n ≥ 2 vehicles, from the working set
     ``working``: ``(status, working, assignment, in_main, central, connected)``.
 
@@ -204,8 +204,9 @@ def recommend_loop(U, landmark_pos, d_comms, working, columns):
 
     * the candidate columns Munkres runs on (``protocol.candidate_columns``): when a row's n best working columns
       are not unique, numpy's ``argpartition`` picks among the tied ones its own way (and by CPU: numpy dispatches
-      it to SIMD sorts). NEED_COLUMNS: the caller chooses them with numpy and calls again with ``columns``, which
-      the first pass then uses (an empty ``columns``: choose them here);
+      it to SIMD sorts). NEED_COLUMNS: the caller runs that ``argpartition`` (``protocol.best_positions``) and
+      calls again with its (n, n) positions in ``working`` as ``best``, which the first pass then uses (an empty
+      ``best``: choose here);
     * Munkres: never, :func:`lsap_max` is scipy's algorithm step for step;
     * eq. (8), when a product x·y is so close to 0 that numpy's BLAS ``@`` and two products and a sum could round
       it to different signs, or fewer working landmarks than vehicles (scipy transposes that problem). AMBIGUOUS:
@@ -220,12 +221,17 @@ def recommend_loop(U, landmark_pos, d_comms, working, columns):
     while True:
         if len(working) < n:
             return AMBIGUOUS, working, assignment, in_main, -1, False
-        if len(columns) == 0:
+        if best.size == 0:
             ok, columns = _candidate_columns(U, working, n)
             if not ok:
                 return NEED_COLUMNS, working, assignment, in_main, -1, False
+        else:  # the sorted union of the caller's choice, as np.flatnonzero(np.bincount(best.ravel())) gives it
+            chosen = np.zeros(len(working), dtype=np.bool_)
+            for position in best.ravel():
+                chosen[position] = True
+            columns = working[np.flatnonzero(chosen)]
+            best = best[:0]  # later passes choose their own
         lp = _munkres(U, columns, n)
-        columns = columns[:0]  # later passes choose their own
         k, labels, main, lc, lo, axis, offsets = partition_pass(U, landmark_pos, rows, lp, d_comms, working)
         if k == 1:
             return PLANNED, working, lp, np.ones(n, dtype=np.bool_), lc, True

@@ -89,7 +89,14 @@ def candidate_columns(U: np.ndarray, columns: np.ndarray) -> np.ndarray:
     if len(columns) <= n * n:
         return columns
     # the sorted union, as np.unique gives it, in two calls (np.unique costs ~8 µs on these few ids)
-    return columns[np.flatnonzero(np.bincount(np.argpartition(-U[:, columns], n - 1, axis=1)[:, :n].ravel()))]
+    return columns[np.flatnonzero(np.bincount(best_positions(-U, columns).ravel()))]
+
+
+def best_positions(negated_U: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """(n, n): the positions in ``columns`` of every row's n best, from −U (a row's tied n-th best: numpy's
+    ``argpartition`` chooses; −U gathered at ``columns`` holds the same bytes as the gathered U negated)."""
+    n = negated_U.shape[0]
+    return np.argpartition(negated_U[:, columns], n - 1, axis=1)[:, :n]
 
 
 def adjacency(pos: np.ndarray, d_comms: float) -> np.ndarray:
@@ -192,16 +199,16 @@ def recommend(U: np.ndarray, landmark_pos: np.ndarray, d_comms: float, record: b
         return Recommendation(np.array([best]), np.array([True]), best, True, steps)
     kernels = _plan_kernels() if backend.compiled() else None
     if kernels is not None and not record:  # the passes compiled, numpy choosing among ties where it would
-        columns = working[:0]
+        negated_U, positions = -U, _NO_POSITIONS
         while True:
             status, working, assignment, in_main, central, connected = kernels.recommend_loop(
-                U, landmark_pos, float(d_comms), working, columns
+                U, landmark_pos, float(d_comms), working, positions
             )
             if status == kernels.PLANNED:
                 return Recommendation(assignment, in_main, int(central), bool(connected), steps)
             if status == kernels.AMBIGUOUS:  # the passes below go on from this working set
                 break
-            columns = candidate_columns(U, working)
+            positions = best_positions(negated_U, working)
     while True:
         rows, lp = assign(U, working)
         if kernels is None:
@@ -244,6 +251,9 @@ def _per_vehicle(n: int, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
     out = np.full(n, -1, dtype=np.int64)
     out[rows] = values
     return out
+
+
+_NO_POSITIONS = np.empty((0, 0), dtype=np.int64)  # recommend_loop's `best` when it chooses the columns itself
 
 
 @cache
