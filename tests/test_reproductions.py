@@ -220,3 +220,23 @@ def test_reproduce_killed_by_sigint_leaves_no_report(tmp_path):
     for path in out.rglob("*"):
         if path.is_file():
             assert_well_formed(path)
+
+
+def test_multihop_fig5_rows_are_nearest_first_with_ties_by_robot_id():
+    """A grid has many robots at one distance: their rows must not come in an order the CPU's sort picks."""
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from mrcomm_env.experiments.reproductions import multihop
+
+    rng = np.random.default_rng(0)
+    dist = np.r_[0.0, rng.choice([1.0, 2.0, 3.0, 5.0, 8.0], size=63)]  # robot 0 is the corner robot itself
+    result = {"distance": dist, "mean_age": rng.random(64), "max_age": rng.random(64), "unknown": 0}
+    fig, ax = plt.subplots()
+    try:
+        rows, _ = multihop._fig5_table(ax, [result] * len(multihop.FIG5_CONFIGS))
+    finally:
+        plt.close(fig)
+    for config in multihop.FIG5_CONFIGS:
+        ordered = [(row["distance"], row["robot"]) for row in rows if row["scheme"] == config[2]]
+        assert len(ordered) == 63 and ordered == sorted(ordered)

@@ -404,7 +404,8 @@ def _fig5_table(ax, results: list[dict]) -> tuple[list[dict], list[str]]:
     ]
     for (_, _, label), res in zip(FIG5_CONFIGS, results, strict=True):
         dist, mean_age, max_age = (np.asarray(res[key]) for key in ("distance", "mean_age", "max_age"))
-        o = np.argsort(dist)[1:]
+        # nearest first, ties (a grid has many) by robot id: numpy's default argsort orders ties by CPU (SIMD sorts)
+        o = np.argsort(dist, kind="stable")[1:]
         ax.plot(dist[o], mean_age[o], ".", ms=5, label=label)
         for j in o:
             rows.append(
