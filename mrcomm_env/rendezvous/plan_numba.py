@@ -286,14 +286,21 @@ def _candidate_columns(U, working, n):
     if W <= n * n:
         return True, working
     chosen = np.zeros(W, dtype=np.bool_)
-    values = np.empty(W)
+    top = np.empty(n)  # the row's n largest values so far, in decreasing order (np.partition: 5 s to compile)
     for r in range(n):
+        top[:] = -np.inf
         for w in range(W):
-            values[w] = U[r, working[w]]
-        nth = np.partition(values, W - n)[W - n]  # the row's n-th largest value
+            x = U[r, working[w]]
+            if x > top[n - 1]:
+                i = n - 1
+                while i > 0 and top[i - 1] < x:
+                    top[i] = top[i - 1]
+                    i -= 1
+                top[i] = x
+        nth = top[n - 1]  # the row's n-th largest value
         at_least = 0
         for w in range(W):
-            if values[w] >= nth:
+            if U[r, working[w]] >= nth:
                 at_least += 1
                 chosen[w] = True
         if at_least != n:

@@ -96,7 +96,7 @@ def best_positions(negated_U: np.ndarray, columns: np.ndarray) -> np.ndarray:
     """(n, n): the positions in ``columns`` of every row's n best, from −U (a row's tied n-th best: numpy's
     ``argpartition`` chooses; −U gathered at ``columns`` holds the same bytes as the gathered U negated)."""
     n = negated_U.shape[0]
-    return np.argpartition(negated_U[:, columns], n - 1, axis=1)[:, :n]
+    return np.ascontiguousarray(np.argpartition(negated_U[:, columns], n - 1, axis=1)[:, :n])
 
 
 def adjacency(pos: np.ndarray, d_comms: float) -> np.ndarray:
@@ -198,6 +198,8 @@ def recommend(U: np.ndarray, landmark_pos: np.ndarray, d_comms: float, record: b
         best = int(np.argmax(U[0]))
         return Recommendation(np.array([best]), np.array([True]), best, True, steps)
     kernels = _plan_kernels() if backend.compiled() else None
+    if kernels is not None:  # one compiled signature: a read-only or strided view would compile the kernels again
+        U, landmark_pos = _plain(U), _plain(landmark_pos)
     if kernels is not None and not record:  # the passes compiled, numpy choosing among ties where it would
         negated_U, positions = -U, _NO_POSITIONS
         while True:
@@ -251,6 +253,13 @@ def _per_vehicle(n: int, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
     out = np.full(n, -1, dtype=np.int64)
     out[rows] = values
     return out
+
+
+def _plain(array: np.ndarray) -> np.ndarray:
+    """``array`` as a writable C-contiguous float64 array (a copy only when it is not one)."""
+    if array.dtype == np.float64 and array.flags.c_contiguous and array.flags.writeable:
+        return array
+    return np.array(array, dtype=np.float64, order="C")
 
 
 _NO_POSITIONS = np.empty((0, 0), dtype=np.int64)  # recommend_loop's `best` when it chooses the columns itself
