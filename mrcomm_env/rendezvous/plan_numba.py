@@ -1,19 +1,21 @@
-"""Compiled twin (numba) of one pass of the recommendation phase's partition loop (§IV-C/D, ``protocol.recommend``).
+"""Compiled twins (numba) of the recommendation phase's partition loop (§IV-C/D, ``protocol.recommend``).
 
 A pass assigns vehicles to landmarks (Munkres), clusters the assigned landmarks, picks the main cluster μ_max
 (eq. 6) and its central landmark l_c (eigenvector centrality [16]), and, while the assignment is not connected,
 the outlier l_o (eq. 7) whose half-plane cut (eq. 8) shrinks the working set. The numpy reference spends
 ~90 µs of interpreter round trips per pass on 2–10 landmarks, and a 10-vehicle team at d_comms = 10 m makes
-about a dozen passes per decision phase. This twin does the clustering, eq. (6), l_c, eq. (7) and eq. (8)'s
-offsets in one call.
+about a dozen passes per decision phase.
 
-Munkres (scipy), the column pre-selection that feeds it (numpy's ``argpartition`` picks among ties its own way)
-and the eq. (8) product (numpy's ``@`` is a BLAS call whose rounding differs from two products and a sum) stay
-with the reference code. l_c's eigenvector is numba's ``eigh`` (LAPACK's ``syevd`` through scipy, numpy's
-``eigh`` runs the same routine through its own build): it gave the reference's eigenvector bit for bit on
-20,000 random and grid clusters here, and l_c depends on it only through a 1e-9 relative tie tolerance, so
-two builds could disagree only on entries within round-off of that tolerance. ``tests/test_rendezvous_mapping.py``
-compares single passes and whole seeded episodes on both backends.
+:func:`recommend_loop` runs the whole loop, Munkres included (:func:`lsap_max`, scipy's algorithm step for step).
+It hands back to the caller wherever the reference's own choice could matter: a row's tied best columns, which
+numpy's ``argpartition`` picks its own way, and an eq. (8) product within rounding of 0, whose sign numpy's ``@``
+(a BLAS call, rounding otherwise than two products and a sum) might round differently; the reference's passes
+then go on, each with :func:`partition_pass` (the clustering, eq. (6), l_c, eq. (7) and eq. (8)'s offsets in one
+call). l_c's eigenvector is numba's ``eigh`` (LAPACK's ``syevd`` through scipy, numpy's ``eigh`` runs the same
+routine through its own build): it gave the reference's eigenvector bit for bit on 20,000 random and grid
+clusters here, and l_c depends on it only through a 1e-9 relative tie tolerance, so two builds could disagree only
+on entries within round-off of that tolerance. ``tests/test_rendezvous_mapping.py`` compares Munkres, the eq. (8)
+signs, single passes, whole plans (also resumed from any pass) and whole seeded episodes on both backends.
 
 Used when ``core.backend.compiled()`` (docs/architecture.md).
 """
