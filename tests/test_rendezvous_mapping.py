@@ -528,18 +528,24 @@ def _tied_layout(rng, L: int) -> np.ndarray:
     return rng.uniform(0, 100, size=(L, 2))
 
 
+def _random_plan(rng, min_vehicles: int, max_landmarks: int, tie_probability: float, exhausted_share: float):
+    """``(U, landmark estimates, d_comms)`` of a random plan: 1–12 vehicles, tied layouts, and with probability
+    ``tie_probability`` a share of exhausted landmarks, worth exactly 0 (ties in U: a row's n best tie at 0)."""
+    n = int(rng.integers(min_vehicles, 13))
+    L = int(rng.integers(n, max_landmarks))
+    lm = _tied_layout(rng, L)
+    U = rng.random((n, L))
+    if rng.random() < tie_probability:
+        U[:, rng.random(L) < exhausted_share] = 0.0
+    return U, lm, float(rng.choice([0.0, 5.0, 10.0, 10.5, 15.0, 30.0, math.inf]))
+
+
 def test_compiled_partition_pass_plans_what_the_reference_plans(monkeypatch):
     pytest.importorskip("numba")
     rng = np.random.default_rng(11)
     passes = ties = eigenvectors = 0
     for _ in range(400):
-        n = int(rng.integers(1, 13))
-        L = int(rng.integers(n, 90))
-        lm = _tied_layout(rng, L)
-        U = rng.random((n, L))
-        if rng.random() < 0.4:  # exhausted landmarks are worth exactly 0: ties in U too
-            U[:, rng.random(L) < 0.7] = 0.0
-        d = float(rng.choice([0.0, 5.0, 10.0, 10.5, 15.0, 30.0, math.inf]))
+        U, lm, d = _random_plan(rng, min_vehicles=1, max_landmarks=90, tie_probability=0.4, exhausted_share=0.7)
         plans = []
         for compiled in (False, True):
             _use_plan_backend(monkeypatch, compiled)
@@ -654,14 +660,8 @@ def test_compiled_recommendation_loop_plans_what_the_reference_plans_from_any_pa
     chose_itself = 0
     statuses = {plan_numba.PLANNED: 0, plan_numba.NEED_COLUMNS: 0, plan_numba.AMBIGUOUS: 0}
     resumed = 0
-    for _ in range(300):
-        n = int(rng.integers(2, 13))
-        L = int(rng.integers(n, 200))
-        lm = _tied_layout(rng, L)
-        U = rng.random((n, L))
-        if rng.random() < 0.5:  # exhausted landmarks are worth exactly 0: a row's n best tie at 0
-            U[:, rng.random(L) < 0.8] = 0.0
-        d = float(rng.choice([0.0, 5.0, 10.0, 10.5, 15.0, 30.0, math.inf]))
+    for _ in range(300):  # more landmarks than a row's n best: the loop's own pre-selection, or numpy's on ties
+        U, lm, d = _random_plan(rng, min_vehicles=2, max_landmarks=200, tie_probability=0.5, exhausted_share=0.8)
         _use_plan_backend(monkeypatch, False)
         want = protocol.recommend(U, lm, d, record=True)
         _use_plan_backend(monkeypatch, True)
