@@ -680,6 +680,39 @@ def test_compiled_recommendation_loop_plans_what_the_reference_plans_from_any_pa
     assert chose_itself > 100
 
 
+def test_recommend_resumes_the_reference_passes_where_the_compiled_loop_hands_over(monkeypatch):
+    """The compiled loop stops when an eq. (8) sign could round either way (rare in random plans, so forced here):
+    ``protocol.recommend`` then runs the reference's passes from the working set it stopped at, and plans what the
+    reference plans."""
+    pytest.importorskip("numba")
+    from mrcomm_env.rendezvous import plan_numba
+
+    rng = np.random.default_rng(17)
+    resumed = 0
+    for _ in range(200):
+        U, lm, d = _random_plan(rng, min_vehicles=2, max_landmarks=120, tie_probability=0.5, exhausted_share=0.8)
+        _use_plan_backend(monkeypatch, False)
+        want = protocol.recommend(U, lm, d, record=True)
+        if len(want.steps) < 2:
+            continue
+        stop_at = want.steps[int(rng.integers(1, len(want.steps)))].working
+        handed_over = []
+
+        def hand_over(U, landmark_pos, d_comms, working, best, stop_at=stop_at, handed_over=handed_over):
+            handed_over.append(True)
+            return plan_numba.AMBIGUOUS, stop_at.copy(), np.full(len(U), -1), np.zeros(len(U), bool), -1, False
+
+        monkeypatch.setattr(plan_numba, "recommend_loop", hand_over)
+        _use_plan_backend(monkeypatch, True)
+        got = protocol.recommend(U, lm, d)
+        monkeypatch.undo()
+        assert handed_over
+        assert bit_identical(got.assignment, want.assignment) and bit_identical(got.in_main, want.in_main)
+        assert (got.central, got.connected) == (want.central, want.connected)
+        resumed += 1
+    assert resumed > 50
+
+
 @pytest.mark.parametrize(
     "kwargs",
     [
