@@ -213,6 +213,11 @@ def test_sketch_of_equal_maps_costs_only_the_check():
     result = proto.sketch(x, x.copy(), seed=1, nonce=0)
     # v = ⌊2 log2 4096⌋ − 12 − 2 = 10 parity bits, cell 0 and the stop bit
     assert result.found.size == 0 and result.bits == 10 + 1 + 1
+    # cell 0 is sent as it is (the field has no element 0): a difference there alone costs the same
+    y = x.copy()
+    y[0] = ~y[0]
+    result = proto.sketch(x, y, seed=1, nonce=0)
+    assert result.found.tolist() == [0] and (result.alice_bits, result.bob_bits) == (10 + 1, 1)
 
 
 def test_return_code_length():
@@ -496,6 +501,42 @@ def test_compiled_bisection_equals_the_reference(monkeypatch, n, res, k, d, cach
     for name in ("alice_bits", "bob_bits", "rounds", "candidates", "detected", "extra"):
         assert getattr(twin, name) == getattr(reference, name), name
     assert twin_state == state  # the generator ends where the reference leaves it
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_protocol1_and_algorithm1_on_equal_maps_return_and_draw_what_the_full_run_does(monkeypatch, compiled):
+    """Equal maps are answered without computing inner products (they are known to agree); the results and the
+    generator's state afterwards must be those of the full computation, Alice's picks included."""
+    if compiled:
+        pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    _use_backend(monkeypatch, compiled)
+    rng = np.random.default_rng(5)
+    # res ≥ n: the whole map is one EQUALLINEAR segment, sent without a Protocol 1 test or a pick
+    for n, res, k in [
+        (2, 1, 1),
+        (2, 2, 3),
+        (16, 16, 2),
+        (16, 15, 2),
+        (45, 3, 2),
+        (256, 1, 10),
+        (1000, 4, 5),
+        (1024, 2000, 7),
+    ]:
+        x = rng.random(n) < 0.3
+        strings = SharedStrings(n, 9)
+        seed = int(rng.integers(2**32))
+        shortcut, full = np.random.default_rng(seed), np.random.default_rng(seed)
+        verdict = proto.equality(x, x.copy(), strings, k, shortcut)
+        equal, counter = proto.protocol1_batch(proto.pack(x), proto.pack(x), strings, k, 0, n - 1, full)
+        assert (verdict.equal, verdict.counter) == (bool(equal[0]), int(counter[0]))
+        assert verdict.alice_bits == theory.protocol1_bits(n, k) and verdict.bob_bits == 1
+        assert shortcut.bit_generator.state == full.bit_generator.state
+        got = proto.bisection(x, x.copy(), strings, k, res, shortcut)
+        want = proto._bisection_run(x, x.copy(), strings, k, res, full, "fixed")
+        assert np.array_equal(got.found, want.found) and got.found.dtype == want.found.dtype
+        for name in ("protocol", "alice_bits", "bob_bits", "rounds", "candidates", "detected", "extra"):
+            assert getattr(got, name) == getattr(want, name), (n, res, name)
+        assert shortcut.bit_generator.state == full.bit_generator.state
 
 
 @pytest.mark.parametrize("n", [4, 64, 300])

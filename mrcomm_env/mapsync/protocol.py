@@ -163,6 +163,11 @@ class EqualityResult:
     bob_bits: int  #: the verdict sent back (1)
 
 
+def _alice_picks(strings: SharedStrings, segments: int, k: int, rng: np.random.Generator) -> np.ndarray:
+    """Protocol 1's step 3a for ``segments`` tests at once: Alice's k picks of i among the 100n strings each."""
+    return rng.integers(0, strings.size, size=(segments, k))
+
+
 def protocol1_batch(
     x_words, y_words, strings: SharedStrings, k: int, lo, hi, rng: np.random.Generator, step4: str = "fixed"
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -171,7 +176,7 @@ def protocol1_batch(
         raise ValueError(f"argument 'step4' must be one of {', '.join(STEP4_RULES)}; got {step4!r}")
     lo = np.atleast_1d(np.asarray(lo, dtype=np.int64))
     hi = np.atleast_1d(np.asarray(hi, dtype=np.int64))
-    index = rng.integers(0, strings.size, size=(lo.size, k))  # step 3a: Alice's random picks
+    index = _alice_picks(strings, lo.size, k, rng)  # step 3a
     b, b_bob = segment_inner_products([x_words, y_words], strings, index, lo, hi)  # steps 3b (Alice), 3d (Bob)
     counter = (b != b_bob).sum(axis=1)  # step 3e
     # step 4: "greater than zero" means different; as printed ("≥ 0") it can never answer "same"
@@ -186,6 +191,11 @@ def equality(
     n = check_n(len(x))
     if k < 1:
         raise ValueError(f"argument 'k' must be an integer ≥ 1, got {k!r}")
+    if step4 == "fixed" and np.array_equal(x, y):
+        # equal maps have equal inner products with every r_i: Bob's counter is 0 whatever Alice picks (step 3e),
+        # so only her picks are drawn (step 3a), which keeps the generator where the full run leaves it
+        _alice_picks(strings, 1, k, rng)
+        return EqualityResult(True, 0, theory.protocol1_bits(n, k), 1)
     equal, counter = protocol1_batch(pack(x), pack(y), strings, k, 0, n - 1, rng, step4)
     return EqualityResult(bool(equal[0]), int(counter[0]), theory.protocol1_bits(n, k), 1)
 
@@ -231,6 +241,14 @@ def bisection(
         raise ValueError(f"argument 'res' must be an integer ≥ 1, got {res!r}")
     x = np.asarray(x, dtype=bool)
     y = np.asarray(y, dtype=bool)
+    if step4 == "fixed" and np.array_equal(x, y):
+        return _bisection_of_equal_maps(n, strings, k, res, rng)
+    return _bisection_run(x, y, strings, k, res, rng, step4)
+
+
+def _bisection_run(x, y, strings: SharedStrings, k: int, res: int, rng: np.random.Generator, step4: str):
+    """:func:`bisection` on checked inputs, computed in full: the compiled twin, or the reference rounds."""
+    n = x.size
     if step4 == "fixed" and backend.compiled():
         compiled = _bisection_compiled(x, y, strings, k, res, rng)
         if compiled is not None:
@@ -289,6 +307,39 @@ def bisection(
         compared,
         bool(detected),
         {"protocol1_calls": tests, "false_equal_tests": missed_tests, "messages": messages},
+    )
+
+
+def _bisection_of_equal_maps(n: int, strings: SharedStrings, k: int, res: int, rng: np.random.Generator):
+    """:func:`bisection` of two equal maps with step 4 fixed, without computing what is known to come out.
+
+    The first round is the whole map. If it is no longer than ``res`` Alice sends it (lines 2–6) and Bob finds
+    nothing; otherwise Protocol 1 on it says "same" (equal maps agree on every inner product, and step 4 fixed
+    errs one way only), Bob sends that verdict and no segment is left to open (line 7). Either way one round, and
+    the generator advances by the k picks of that one test, as in the full run.
+    """
+    if n <= res:
+        return Reconciliation(
+            "bisection",
+            np.empty(0, dtype=np.int64),
+            n,
+            0,
+            1,
+            n,
+            False,
+            {"protocol1_calls": 0, "false_equal_tests": 0, "messages": [("alice", n)]},
+        )
+    _alice_picks(strings, 1, k, rng)
+    p1_bits = theory.protocol1_bits(n, k)
+    return Reconciliation(
+        "bisection",
+        np.empty(0, dtype=np.int64),
+        p1_bits,
+        1,
+        1,
+        0,
+        False,
+        {"protocol1_calls": 1, "false_equal_tests": 0, "messages": [("alice", p1_bits), ("bob", 1)]},
     )
 
 
@@ -389,13 +440,17 @@ def sketch(
         raise ValueError(f"argument 'verify_bits' must be an integer ≥ 1, got {verify_bits!r}")
     x = np.asarray(x, dtype=bool)
     y = np.asarray(y, dtype=bool)
+    alice = verify_bits + 1  # the parities and cell 0
+    bob = 0
+    base = np.array([0]) if x[0] != y[0] else np.empty(0, dtype=np.int64)
+    if np.array_equal(x[1:], y[1:]):
+        # Bob's first candidate, his map with Alice's cell 0, *is* her map: it passes her parities whatever the
+        # strings, so they need not be generated (they are the seed's and the nonce's: nothing random is drawn)
+        return Reconciliation("sketch", base, alice, 1, 1, n, base.size > 0, {"syndromes": 0, "fallback": False})
     m = pinsketch.field_bits(n)
     gf = pinsketch.field(m)
     rho = parity_strings(seed, nonce, n, verify_bits)
     alice_parity = parities(pack(x), rho)
-    alice = verify_bits + 1  # the parities and cell 0
-    bob = 0
-    base = np.array([0]) if x[0] != y[0] else np.empty(0, dtype=np.int64)
 
     def accepted(candidate: np.ndarray) -> bool:
         guess = y.copy()
