@@ -282,6 +282,9 @@ class MapSyncEnv(WorldDynamics, SyncSessions, MrcommParallelEnv):
         self._obs_space = spaces.Box(0.0, 1.0, shape=(4 * (N - 1) + 5,), dtype=np.float32)
         self._act_space = spaces.Discrete(len(ACTIONS))
         self._peer_order = np.array([[(i + o) % N for o in range(1, N)] for i in range(N)], dtype=np.int64)
+        self._peer_lists = self._peer_order.tolist()
+        # the protocols' arguments, read once per sync
+        self._k, self._res, self._cap = c.k, c.res, c.bits_per_step
         self._eye = np.eye(N, dtype=bool)
         self._pairs = np.triu_indices(N, 1)
         self._row_offsets = np.arange(N)[:, None] * self.n  # row i of the flattened (N, n) maps starts at i·n
@@ -365,10 +368,7 @@ class MapSyncEnv(WorldDynamics, SyncSessions, MrcommParallelEnv):
         self._recent_max = 0.0  # recent_bits.max(), kept as a float
         self._charged = False  # any bits charged in the current step (ledger.step_bits nonzero)
         self.robot_syncs = np.zeros(N, dtype=np.int64)
-        # info columns that change only on rare events, refreshed by those events
-        self._no_bits = np.zeros(N)
-        self._busy_column = np.zeros(N)
-        self._syncs_column = self.robot_syncs.copy()
+        self._no_bits = np.zeros(N)  # the infos' bits column of a step without bits
         self._steps = 0
         self._sum_disagreement = 0.0
         self._sum_error = 0.0
@@ -522,8 +522,9 @@ class MapSyncEnv(WorldDynamics, SyncSessions, MrcommParallelEnv):
             "disagreement": self._disagreement_column,
             "error_vs_truth": self._errors,
             "coverage": self.known / self.n,
-            "busy": self._busy_column,
-            "syncs": self._syncs_column,
+            # both change only when _events does (a sync opens or closes), which makes these infos anew
+            "busy": (self.session_of >= 0).astype(np.float64),
+            "syncs": self.robot_syncs.copy(),
         }
         return self._infos_cache
 

@@ -46,7 +46,6 @@ class Session:
 class SyncSessions:
     """Opening, carrying and closing sync sessions, and merging maps at their end."""
 
-    _busy_column: Any
     _charged: Any
     _corrected: Any
     _counts: Any
@@ -55,13 +54,16 @@ class SyncSessions:
     _last_sync_peers: Any
     _latency_sum: Any
     _latency_count: Any
+    _cap: Any
+    _k: Any
     _lww: Any
     _next_session: Any
+    _res: Any
     _peer_flat: Any
+    _peer_lists: Any
     _peer_order: Any
     _stale: Any
     _stamp_bits: Any
-    _syncs_column: Any
     _to_correct: Any
     cfg: Any
     detections: Any
@@ -82,11 +84,12 @@ class SyncSessions:
 
     # ----------------------------------------------------------------- syncs
     def _choose_peer(self, i: int) -> int:
-        free = self.session_of < 0
+        """The linked, free peer that robot i synced with least recently (the first in peer order on ties)."""
+        session_of, linked, last_sync = self.session_of, self.linked[i], self.last_sync[i]
         best, best_age = -1, -(2**62)
-        for j in self._peer_order[i].tolist():
-            if free[j] and self.linked[i, j] and -self.last_sync[i, j] > best_age:
-                best, best_age = j, int(-self.last_sync[i, j])
+        for j in self._peer_lists[i]:
+            if session_of[j] < 0 and linked[j] and -last_sync[j] > best_age:
+                best, best_age = j, int(-last_sync[j])
         return best
 
     def _start_sessions(self, actions: list, t: int) -> None:
@@ -105,13 +108,14 @@ class SyncSessions:
         self._next_session += 1
         outcome: Any  # EqualityResult (equality) or Reconciliation (the others)
         snapshot: dict[str, Any]
+        differ = int(np.count_nonzero(x != y))  # cells that differ at the start (the metrics' denominators)
         if name == "equality":
-            outcome = proto.equality(x, y, self.strings, self.cfg.k, self.np_random)
+            outcome = proto.equality(x, y, self.strings, self._k, self.np_random)
             messages = [(a, outcome.alice_bits), (b, outcome.bob_bits)]
-            snapshot = {"differ": bool((x != y).any())}
+            snapshot = {"differ": differ > 0}
         else:
             if name == "bisection":
-                outcome = proto.bisection(x, y, self.strings, self.cfg.k, self.cfg.res, self.np_random)
+                outcome = proto.bisection(x, y, self.strings, self._k, self._res, self.np_random)
                 messages = [(a if who == "alice" else b, bits) for who, bits in outcome.extra["messages"]]
             elif name == "full":
                 outcome = proto.full(x, y)
@@ -123,7 +127,7 @@ class SyncSessions:
             messages.append((b, proto.return_bits(outcome.candidates, found.size)))
             if self._lww and found.size:
                 messages += [(b, found.size * self._stamp_bits), (a, found.size * self._stamp_bits)]
-            snapshot = {"found": found, "differ": int(np.count_nonzero(x != y)), "right": 0}
+            snapshot = {"found": found, "differ": differ, "right": 0}
             if found.size:  # what each sent about the found cells (nothing to merge otherwise, see _merge)
                 snapshot["x"], snapshot["y"] = x[found], y[found]  # fancy indexing copies
                 snapshot["sa"], snapshot["sb"] = self.stamps[a][found], self.stamps[b][found]
@@ -132,12 +136,11 @@ class SyncSessions:
         session = Session(a, b, name, t, messages, outcome, snapshot, 0, sum(bits for _, bits in messages))
         self.sessions[nonce] = session
         self.session_of[a] = self.session_of[b] = nonce
-        self._busy_column = (self.session_of >= 0).astype(np.float64)
-        self._events += 1
+        self._events += 1  # the infos' busy column is made from session_of when they are next read
         self._stale |= _STALE_SESSIONS
 
     def _progress_sessions(self, t: int) -> None:
-        cap = self.cfg.bits_per_step
+        cap = self._cap
         for key in list(self.sessions):
             s = self.sessions[key]
             if not self.linked[s.alice, s.bob]:
@@ -152,21 +155,31 @@ class SyncSessions:
 
     def _deliver(self, s: Session, budget: int) -> None:
         """Charge the next ``budget`` bits of the transcript to their senders, in order."""
-        done = 0
         charged: dict[int, list[int]] = {}  # sender → [bits, messages]: one ledger entry per sender
-        for who, bits in s.messages:
-            if budget <= 0:
-                break
-            if done + bits <= s.sent:
+        if s.sent == 0 and budget >= s.total:  # the whole transcript at once (always, without a bit budget)
+            for who, bits in s.messages:
+                entry = charged.get(who)
+                if entry is None:
+                    charged[who] = [bits, 1]
+                else:
+                    entry[0] += bits
+                    entry[1] += 1
+            s.sent = s.total
+        else:
+            done = 0
+            for who, bits in s.messages:
+                if budget <= 0:
+                    break
+                if done + bits <= s.sent:
+                    done += bits
+                    continue
+                part = min(bits - max(0, s.sent - done), budget)
+                entry = charged.setdefault(who, [0, 0])
+                entry[0] += part
+                entry[1] += 1
+                s.sent += part
+                budget -= part
                 done += bits
-                continue
-            part = min(bits - max(0, s.sent - done), budget)
-            entry = charged.setdefault(who, [0, 0])
-            entry[0] += part
-            entry[1] += 1
-            s.sent += part
-            budget -= part
-            done += bits
         for who, (bits, messages) in charged.items():  # whole bits: the float sums are exact in any grouping
             self.ledger.add(who, bits, messages=messages)
             self._charged = True
@@ -174,7 +187,6 @@ class SyncSessions:
     def _close(self, key: int) -> None:
         s = self.sessions.pop(key)
         self.session_of[s.alice] = self.session_of[s.bob] = -1
-        self._busy_column = (self.session_of >= 0).astype(np.float64)
         self._events += 1
         self._stale |= _STALE_SESSIONS | _STALE_NEW | _STALE_KNOWN
 
@@ -183,7 +195,6 @@ class SyncSessions:
         self._counts["syncs"] += 1
         self.robot_syncs[a] += 1  # a ≠ b
         self.robot_syncs[b] += 1
-        self._syncs_column = self.robot_syncs.copy()
         self._latency_sum += t - s.start_step + 1
         self._latency_count += 1
         synced = True
@@ -196,9 +207,8 @@ class SyncSessions:
             self._to_correct += s.snapshot["differ"]
             self._corrected += s.snapshot["right"]
         if synced:
-            for i, j in ((a, b), (b, a)):
-                self.last_sync[i, j] = t + 1
-                self.new_cells[i, j] = 0
+            self.last_sync[a, b] = self.last_sync[b, a] = t + 1
+            self.new_cells[a, b] = self.new_cells[b, a] = 0
             self._last_sync_peers = self.last_sync.take(self._peer_flat)
 
     def _verdict(self, s: Session, equal: bool) -> bool:
