@@ -508,13 +508,16 @@ def test_a_split_team_reconnects_within_the_phases_to_cross_the_area():
 
 # ------------------------------------------------------------------------------------------------ compiled plan
 def _use_plan_backend(monkeypatch, compiled: bool) -> None:
-    """The compiled partition pass and spanning forest, or the numpy/scipy reference (``protocol.recommend`` and
-    ``world.spanning_forest`` ask at every call)."""
+    """The compiled partition pass, spanning forest and observation, or the numpy/scipy reference
+    (``protocol.recommend``, ``world.spanning_forest`` and the env's ``_observe`` ask at every call)."""
     import types
+
+    from mrcomm_env.rendezvous import env as env_module
 
     choice = types.SimpleNamespace(compiled=lambda: compiled)
     monkeypatch.setattr(protocol, "backend", choice)
     monkeypatch.setattr(world, "backend", choice)
+    monkeypatch.setattr(env_module, "backend", choice)
 
 
 def _tied_layout(rng, L: int) -> np.ndarray:
@@ -711,6 +714,38 @@ def test_recommend_resumes_the_reference_passes_where_the_compiled_loop_hands_ov
         assert (got.central, got.connected) == (want.central, want.connected)
         resumed += 1
     assert resumed > 50
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {},  # the default
+        {"n_vehicles": 1, "n_landmarks": 3},  # nobody else to list, more candidate slots than landmarks
+        {"n_vehicles": 3, "k_candidates": 8, "d_comms": 0.0},  # more slots than other vehicles; split at once
+        {"n_vehicles": 12, "k_candidates": 1, "sigma": 0.0, "d_comms": 15.0},  # an exact grid: tied distances
+        {"speed": 0.01, "t_window": 2.0, "area": 1e6},  # nothing within reach: every candidate far away
+    ],
+)
+def test_compiled_observation_is_the_reference_at_every_step(monkeypatch, kwargs):
+    """The same state observed by both backends, byte for byte, over whole episodes of random actions."""
+    pytest.importorskip("numba")
+    env = RendezvousMappingEnv(max_cycles=30, **kwargs)
+    env.reset(seed=8)
+    rng = np.random.default_rng(3)
+    observed = 0
+    while True:
+        both = []
+        for compiled in (False, True):
+            _use_plan_backend(monkeypatch, compiled)
+            both.append(env._observe())
+        reference, twin = both
+        assert twin.dtype == reference.dtype == np.float32 and twin.shape == reference.shape
+        assert twin.tobytes() == reference.tobytes(), np.argwhere(twin != reference)[:5]
+        observed += 1
+        if not env.agents:
+            break
+        env.step({a: int(rng.integers(env.K + 2)) for a in env.agents})
+    assert observed > 5
 
 
 @pytest.mark.parametrize(

@@ -48,7 +48,7 @@ import math
 import numpy as np
 from gymnasium import spaces
 
-from mrcomm_env.core import BitLedger, MrcommParallelEnv
+from mrcomm_env.core import BitLedger, MrcommParallelEnv, backend
 from mrcomm_env.core import render as rendering
 from mrcomm_env.core.config import Int, Param, Real
 from mrcomm_env.rendezvous import filters, protocol, theory, world
@@ -539,6 +539,30 @@ class RendezvousMappingEnv(MrcommParallelEnv):
     def _observe(self) -> np.ndarray:
         n, K, c = self.n_agents, self.K, self.cfg
         side, T, u = self.side, c.t_window, c.speed
+        if backend.compiled():  # the same formulas in one call (observe_numba)
+            return _observe_kernel()(
+                self.pos,
+                side,
+                min(self.phases / c.max_cycles, 1.0),
+                self.group,
+                self.n_groups == 1,
+                self.own_info_fraction(),
+                self.candidates,
+                self.candidate_utility,
+                self.u_max,
+                self._estimates,
+                self.in_main,
+                self.assignment,
+                self.rendezvous_point,
+                self.plan_connected,
+                self.known_pos,
+                self.known_phase,
+                self.phases,
+                u,
+                T,
+                self.d_max,
+            )
+        # the numpy reference
         rows = np.arange(n)
 
         def rel(d):  # relative offsets to [0, 1], 0.5 = here
@@ -664,6 +688,13 @@ class RendezvousMappingEnv(MrcommParallelEnv):
             f"phase {self.phases}: fused {100 * self.info_fraction():.0f} % of the information, "
             f"{self.n_groups} group(s)"
         )
+
+
+def _observe_kernel():
+    """The compiled observation (``observe_numba``), imported on first use: numba is optional."""
+    from mrcomm_env.rendezvous import observe_numba
+
+    return observe_numba.observe
 
 
 def candidate_lists(utility: np.ndarray, assignment: np.ndarray, K: int) -> tuple[np.ndarray, np.ndarray]:
