@@ -751,6 +751,89 @@ def test_compiled_observation_is_the_reference_at_every_step(monkeypatch, kwargs
 @pytest.mark.parametrize(
     "kwargs",
     [
+        {},  # the default
+        # crowded: a dozen vehicles on a dozen landmarks reach the floor within a window, on tied instants
+        {"n_vehicles": 12, "n_landmarks": 12, "area": 400.0, "obs_rate": 4.0, "obs_per_landmark": 7},
+        {"speed": 0.3},  # most targets out of reach (d_max = 4.5 m): travel towards them
+        {"sigma": 0.0, "d_comms": 15.0, "n_vehicles": 8},  # an exact grid: tied distances and detours
+        # a high floor at a high rate: hundreds of kept observations in a window
+        {"obs_per_landmark": 1000, "obs_rate": 50.0, "n_landmarks": 20, "n_vehicles": 6, "area": 900.0},
+    ],
+)
+def test_compiled_window_is_the_reference_at_every_step(monkeypatch, kwargs):
+    """The same window by both backends: positions, landmarks stayed at, action kinds and feasibility, and the
+    kept observations in order (random actions, infeasible ones included)."""
+    pytest.importorskip("numba")
+    from mrcomm_env.rendezvous import env as env_module
+    from mrcomm_env.rendezvous import window_numba
+
+    assert (window_numba.GO, window_numba.DETOUR_RENDEZVOUS, window_numba.RENDEZVOUS, window_numba.HOLD) == (
+        env_module.GO,
+        env_module.DETOUR_RENDEZVOUS,
+        env_module.RENDEZVOUS,
+        env_module.HOLD,
+    )
+    env = RendezvousMappingEnv(max_cycles=25, **kwargs)
+    env.reset(seed=5)
+    rng = np.random.default_rng(2)
+    kinds, kept = set(), 0
+    while env.agents:
+        actions = [int(rng.integers(env.K + 2)) for _ in env.agents]
+        kind_before, ok_before = env.action_kind.copy(), env.action_ok.copy()
+        want = env._window(actions)
+        want_kind, want_ok = env.action_kind.copy(), env.action_ok.copy()
+        env.action_kind[:], env.action_ok[:] = kind_before, ok_before
+        got = window_numba.window(
+            np.asarray(actions, dtype=np.int64), env.mask, env.candidates, env.assignment, env.central,
+            env.rendezvous_point, env.at_landmark, env.pos, env._estimates, env.ticks, env.cfg.t_window,
+            env.cfg.speed, env.world_count, env.cfg.obs_per_landmark, env.action_kind, env.action_ok,
+        )  # fmt: skip
+        for a, b in zip(want, got, strict=True):
+            assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+        assert np.array_equal(env.action_kind, want_kind) and np.array_equal(env.action_ok, want_ok)
+        kinds.update(want_kind.tolist())
+        kept += len(want[2])
+        env.step(dict(zip(env.agents, actions)))
+    assert kept > 0 and len(kinds) >= 3
+
+
+def test_compiled_packets_of_a_window_are_the_references(monkeypatch):
+    """Random kept observations (repeated pairs, vehicles out of order, a vehicle with none) become the same
+    packets, maps and counts on both backends, to the last bit."""
+    pytest.importorskip("numba")
+    import copy
+
+    rng = np.random.default_rng(11)
+    env = RendezvousMappingEnv(n_vehicles=7, n_landmarks=30, obs_per_landmark=50)
+    env.reset(seed=1)
+    for trial in range(200):
+        m = int(rng.integers(1, 40))
+        v = rng.integers(0, 6, m)  # vehicle 6 never observes
+        lm = rng.integers(0, 30 if trial % 2 else 3, m)  # half the trials: three landmarks, many repeats
+        runs = []
+        for compiled in (False, True):
+            _use_plan_backend(monkeypatch, compiled)
+            twin = copy.deepcopy(env)
+            twin._apply_observations(v, lm)
+            runs.append(twin)
+        want, got = runs
+        for name in ("Y", "y", "count", "known"):
+            assert getattr(want.maps, name).tobytes() == getattr(got.maps, name).tobytes(), name
+        assert np.array_equal(want.step_obs, got.step_obs) and np.array_equal(want.world_count, got.world_count)
+        assert want.maps.packet_bits == got.maps.packet_bits
+        for ours, theirs in zip(want.maps.packets, got.maps.packets, strict=True):
+            assert len(ours) == len(theirs)
+            for a, b in zip(ours, theirs):
+                for field in ("landmarks", "dY", "dy", "count"):
+                    x, y = getattr(a, field), getattr(b, field)
+                    assert x.dtype == y.dtype and x.tobytes() == y.tobytes(), field
+        env = got  # go on from there: packets accumulate
+    assert sum(len(p) for p in env.maps.packets) > 200
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
         {"d_comms": 10.0},  # the default: the team splits and regroups
         {"d_comms": math.inf, "n_vehicles": 6},  # one complete plan per phase
         {"d_comms": 0.0, "n_vehicles": 5},  # co-located only

@@ -302,6 +302,44 @@ class RendezvousMappingEnv(MrcommParallelEnv):
 
     # ----------------------------------------------------------------- dynamics
     def _step_world(self, actions: list) -> float:
+        if backend.compiled():  # the same window in one call (window_numba)
+            new_pos, new_at, vehicles, observed = _window_kernel()(
+                np.asarray(actions, dtype=np.int64),
+                self.mask,
+                self.candidates,
+                self.assignment,
+                self.central,
+                self.rendezvous_point,
+                self.at_landmark,
+                self.pos,
+                self._estimates,
+                self.ticks,
+                self.cfg.t_window,
+                self.cfg.speed,
+                self.world_count,
+                self.cfg.obs_per_landmark,
+                self.action_kind,
+                self.action_ok,
+            )
+        else:
+            new_pos, new_at, vehicles, observed = self._window(actions)
+        kind = self.action_kind
+        self.rendezvous_windows += int(np.count_nonzero((kind == DETOUR_RENDEZVOUS) | (kind == RENDEZVOUS)))
+        self._apply_observations(vehicles, observed)
+        self.pos, self.at_landmark = new_pos, new_at
+        before = self.fused_gain
+        self.phases += 1
+        self._decision_phase()
+        self.connected_phases += int(self.n_groups == 1)
+        frac = self.info_fraction()
+        if math.isnan(self.half_phase) and frac >= 0.5:
+            self.half_phase = float(self.phases)
+        return (self.fused_gain - before) / self.reward_scale
+
+    def _window(self, actions: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The numpy reference of the window: every vehicle's route, and the observations its landmarks still
+        yield (``_useful_events``). Returns the new positions, landmarks stayed at, and the kept observations'
+        vehicles and landmarks in time order. Sets ``action_kind`` and ``action_ok``."""
         n, c = self.n_agents, self.cfg
         T, u = c.t_window, c.speed
         est = self._estimates
@@ -328,18 +366,8 @@ class RendezvousMappingEnv(MrcommParallelEnv):
                 here, t, final = target, end, landmark
             new_pos[v] = here
             new_at[v] = final
-        kind = self.action_kind
-        self.rendezvous_windows += int(np.count_nonzero((kind == DETOUR_RENDEZVOUS) | (kind == RENDEZVOUS)))
-        self._observe_landmarks(events_t, events_v, events_l)
-        self.pos, self.at_landmark = new_pos, new_at
-        before = self.fused_gain
-        self.phases += 1
-        self._decision_phase()
-        self.connected_phases += int(self.n_groups == 1)
-        frac = self.info_fraction()
-        if math.isnan(self.half_phase) and frac >= 0.5:
-            self.half_phase = float(self.phases)
-        return (self.fused_gain - before) / self.reward_scale
+        vehicles, observed = self._useful_events(events_t, events_v, events_l)
+        return new_pos, new_at, vehicles, observed
 
     def _route(self, v: int, a: int, est: np.ndarray) -> list:
         """The legs (target position, landmark observed there or −1, departure time or None) of action a."""
@@ -363,18 +391,18 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         lm = int(self.at_landmark[v])
         return [(self.pos[v], lm, None)] if lm >= 0 else []
 
-    def _observe_landmarks(self, events_t, events_v, events_l) -> None:
-        """Apply the window's observations in time order (ties: vehicle id); each landmark yields at most
-        ``obs_per_landmark`` independent observations in total (the sensor floor)."""
-        c = self.cfg
-        self.step_obs[:] = 0
+    def _useful_events(self, events_t, events_v, events_l) -> tuple[np.ndarray, np.ndarray]:
+        """The window's observations in time order (ties: vehicle id, then the vehicle's leg) that their
+        landmarks still yield: each landmark yields at most ``obs_per_landmark`` independent observations in
+        total (the sensor floor). Returns their vehicles and landmarks."""
+        none = np.empty(0, dtype=np.int64)
         if not events_t:
-            return
+            return none, none
         t = np.concatenate(events_t)
         v = np.concatenate(events_v).astype(np.int64)
         lm = np.concatenate(events_l).astype(np.int64)
         if len(t) == 0:
-            return
+            return none, none
         order = np.lexsort((v, t))
         v, lm = v[order], lm[order]
         by_lm = np.argsort(lm, kind="stable")
@@ -382,16 +410,31 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         start = np.searchsorted(sorted_lm, sorted_lm, side="left")
         rank = np.empty(len(lm), dtype=np.int64)
         rank[by_lm] = np.arange(len(lm)) - start  # earlier observations of the same landmark this window
-        useful = self.world_count[lm] + rank < c.obs_per_landmark
-        v, lm = v[useful], lm[useful]
+        useful = self.world_count[lm] + rank < self.cfg.obs_per_landmark
+        return v[useful], lm[useful]
+
+    def _apply_observations(self, v: np.ndarray, lm: np.ndarray) -> None:
+        """The kept observations (vehicles ``v`` of landmarks ``lm``, in time order), drawn and added to the
+        observing vehicles' own maps."""
+        c = self.cfg
+        self.step_obs[:] = 0
         if len(lm) == 0:
             return
         np.add.at(self.world_count, lm, 1)
         z = self.landmarks[lm] + self.np_random.normal(0.0, c.obs_sigma, size=(len(lm), 2))
         R_inv = np.eye(2) * self.r_info
+        L = c.n_landmarks
+        if backend.compiled():  # the same packets from one call (window_numba.group_observations)
+            owners, bounds, ids, counts, dy, per_vehicle = _group_kernel()(v, lm, z * self.r_info, L, self.n_agents)
+            dY = counts[:, None, None] * R_inv
+            for owner, start, end in zip(owners.tolist(), bounds[:-1].tolist(), bounds[1:].tolist()):
+                self.maps.add_own(
+                    owner, filters.Packet(ids[start:end], dY[start:end], dy[start:end], counts[start:end])
+                )
+            self.step_obs[:] = per_vehicle
+            return
         # every observing vehicle's packet, its landmarks in increasing order, from one grouping of the (vehicle,
         # landmark) pairs; np.add.at sums each pair's observations in time order, as a per-vehicle sum would
-        L = c.n_landmarks
         pairs, inverse, counts = np.unique(v * L + lm, return_inverse=True, return_counts=True)
         dy = np.zeros((len(pairs), 2))
         np.add.at(dy, inverse, z * self.r_info)
@@ -688,6 +731,20 @@ class RendezvousMappingEnv(MrcommParallelEnv):
             f"phase {self.phases}: fused {100 * self.info_fraction():.0f} % of the information, "
             f"{self.n_groups} group(s)"
         )
+
+
+def _window_kernel():
+    """The compiled window (``window_numba``), imported on first use: numba is optional."""
+    from mrcomm_env.rendezvous import window_numba
+
+    return window_numba.window
+
+
+def _group_kernel():
+    """The compiled grouping of a window's observations into packets (``window_numba.group_observations``)."""
+    from mrcomm_env.rendezvous import window_numba
+
+    return window_numba.group_observations
 
 
 def _observe_kernel():
