@@ -508,8 +508,8 @@ def test_a_split_team_reconnects_within_the_phases_to_cross_the_area():
 
 # ------------------------------------------------------------------------------------------------ compiled plan
 def _use_plan_backend(monkeypatch, compiled: bool) -> None:
-    """The compiled partition pass, spanning forest and observation, or the numpy/scipy reference
-    (``protocol.recommend``, ``world.spanning_forest`` and the env's ``_observe`` ask at every call)."""
+    """The compiled partition pass, spanning forest, observation, window and fusion, or the numpy/scipy reference
+    (``protocol.recommend``, ``world.spanning_forest``, the env and ``filters`` ask at every call)."""
     import types
 
     from mrcomm_env.rendezvous import env as env_module
@@ -518,6 +518,7 @@ def _use_plan_backend(monkeypatch, compiled: bool) -> None:
     monkeypatch.setattr(protocol, "backend", choice)
     monkeypatch.setattr(world, "backend", choice)
     monkeypatch.setattr(env_module, "backend", choice)
+    monkeypatch.setattr(filters, "backend", choice)
 
 
 def _tied_layout(rng, L: int) -> np.ndarray:
@@ -795,6 +796,36 @@ def test_compiled_window_is_the_reference_at_every_step(monkeypatch, kwargs):
         kept += len(want[2])
         env.step(dict(zip(env.agents, actions)))
     assert kept > 0 and len(kinds) >= 3
+
+
+def test_compiled_fusion_adds_packets_and_takes_means_as_numpy_does(monkeypatch):
+    """Lists of packets with repeated landmarks (np.add.at's order matters), added into one map on both backends,
+    and the means of the maps: bit for bit."""
+    pytest.importorskip("numba")
+    rng = np.random.default_rng(4)
+    L = 12
+    for trial in range(300):
+        packets = []
+        for _ in range(int(rng.integers(1, 5))):
+            m = int(rng.integers(1, 6))
+            count = rng.integers(1, 4, m)
+            packets.append(
+                filters.Packet(
+                    rng.integers(0, L if trial % 2 else 3, m),
+                    count[:, None, None] * np.eye(2) * rng.uniform(0.1, 1e4),
+                    rng.normal(0.0, 10.0 ** rng.integers(-3, 6), (m, 2)),
+                    count,
+                )
+            )
+        start = (np.eye(2) * rng.uniform(1e-4, 1e6, (L, 1, 1)), rng.normal(0.0, 100.0, (L, 2)))
+        maps = []
+        for compiled in (False, True):
+            _use_plan_backend(monkeypatch, compiled)
+            Y, y, count = start[0].copy(), start[1].copy(), np.zeros(L, dtype=np.int64)
+            filters._add_packets(Y, y, count, packets)
+            maps.append((Y, y, count, filters.mean_of(Y[None], y[None])))
+        for want, got in zip(*maps):
+            assert want.dtype == got.dtype and want.tobytes() == got.tobytes()
 
 
 def test_compiled_packets_of_a_window_are_the_references(monkeypatch):

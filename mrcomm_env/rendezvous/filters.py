@@ -30,8 +30,11 @@ The **fused global map** is the information every vehicle of the team holds, pri
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
+
+from mrcomm_env.core import backend
 
 #: bits of one float sent over the air
 FLOAT_BITS = 32
@@ -46,6 +49,8 @@ def logdet2(Y: np.ndarray) -> np.ndarray:
 
 def mean_of(Y: np.ndarray, y: np.ndarray) -> np.ndarray:
     """μ = Y⁻¹ y for stacks of 2×2 information matrices (closed-form inverse)."""
+    if backend.compiled() and Y.dtype == y.dtype == np.float64 and Y.flags.c_contiguous and y.flags.c_contiguous:
+        return _fusion_kernels().mean_of(Y.reshape(-1, 2, 2), y.reshape(-1, 2)).reshape(y.shape)
     a, b, c, d = Y[..., 0, 0], Y[..., 0, 1], Y[..., 1, 0], Y[..., 1, 1]
     det = a * d - b * c
     return np.stack([(d * y[..., 0] - b * y[..., 1]) / det, (a * y[..., 1] - c * y[..., 0]) / det], axis=-1)
@@ -104,12 +109,8 @@ class TeamMaps:
         self.known[v, v] += 1
 
     def _apply(self, w: int, packets: list[Packet]) -> None:
-        if not packets:
-            return
-        idx = np.concatenate([p.landmarks for p in packets])
-        np.add.at(self.Y[w], idx, np.concatenate([p.dY for p in packets]))
-        np.add.at(self.y[w], idx, np.concatenate([p.dy for p in packets]))
-        np.add.at(self.count[w], idx, np.concatenate([p.count for p in packets]))
+        if packets:
+            _add_packets(self.Y[w], self.y[w], self.count[w], packets)
 
     # ------------------------------------------------------------------ fusion
     def missing_bits(self, have: np.ndarray, want: np.ndarray) -> int:
@@ -151,10 +152,7 @@ class TeamMaps:
         self.common_known = floor
         if not new:
             return False
-        idx = np.concatenate([p.landmarks for p in new])
-        np.add.at(self.common_Y, idx, np.concatenate([p.dY for p in new]))
-        np.add.at(self.common_y, idx, np.concatenate([p.dy for p in new]))
-        np.add.at(self.common_count, idx, np.concatenate([p.count for p in new]))
+        _add_packets(self.common_Y, self.common_y, self.common_count, new)
         return True
 
     # ------------------------------------------------------------------ bookkeeping views
@@ -174,6 +172,39 @@ class TeamMaps:
     def centralized(self) -> tuple[np.ndarray, np.ndarray]:
         """Prior plus every packet ever gathered once: the centralised information sum."""
         return self.information_of(np.array([len(p) for p in self.packets]))
+
+
+def _add_packets(Y: np.ndarray, y: np.ndarray, count: np.ndarray, packets: list[Packet]) -> None:
+    """Add ``packets`` (in order) into one map ``Y`` (L, 2, 2), ``y`` (L, 2), ``count`` (L,), in place."""
+    if len(packets) == 1:
+        p = packets[0]
+        idx, dY, dy, dcount = p.landmarks, p.dY, p.dy, p.count
+    else:
+        idx = np.concatenate([p.landmarks for p in packets])
+        dY = np.concatenate([p.dY for p in packets])
+        dy = np.concatenate([p.dy for p in packets])
+        dcount = np.concatenate([p.count for p in packets])
+    if backend.compiled():  # the same additions in the same order, in one call (fusion_numba)
+        _fusion_kernels().add_packets(
+            Y, y, count, _plain(idx, np.int64), _plain(dY, np.float64), _plain(dy, np.float64), _plain(dcount, np.int64)
+        )
+        return
+    np.add.at(Y, idx, dY)
+    np.add.at(y, idx, dy)
+    np.add.at(count, idx, dcount)
+
+
+def _plain(array, dtype) -> np.ndarray:
+    """``array`` as a C-contiguous array of ``dtype`` (a copy only when it is not one): one compiled signature."""
+    return np.ascontiguousarray(array, dtype=dtype)
+
+
+@cache
+def _fusion_kernels():
+    """The compiled fusion (``fusion_numba``), imported on first use: numba is optional."""
+    from mrcomm_env.rendezvous import fusion_numba
+
+    return fusion_numba
 
 
 def subtree_sides(members: np.ndarray, parent: np.ndarray) -> dict[int, np.ndarray]:

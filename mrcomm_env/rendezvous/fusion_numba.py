@@ -1,0 +1,49 @@
+"""Compiled twins (numba) of the information maps' two hot operations (``filters.py``): adding packets to a map
+(``np.add.at`` of their ``dY``, ``dy`` and counts) and the landmark means μ = Y⁻¹ y of every map.
+
+On the 2–10 packets and 10 × 200 maps of a decision phase, numpy's per-call overhead is most of their cost: a
+vehicle's own packet, each fusion and the common map each take three ``np.add.at`` calls. The twins do the same
+additions in the same order (``np.add.at`` adds its rows one after another, in index order; the 2 × 2 blocks
+entry by entry) and the same closed-form inverse, operation for operation, so every map and mean is the
+reference's bit for bit (``tests/test_rendezvous_mapping.py`` compares them, and whole seeded episodes).
+
+Used when ``core.backend.compiled()`` (docs/architecture.md).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from mrcomm_env.core.backend import configure_numba_cache
+
+configure_numba_cache()  # before the @njit(cache=True) below: never cache into the package
+
+
+@numba.njit(cache=True)
+def add_packets(Y, y, count, landmarks, dY, dy, dcount):
+    """``np.add.at`` of ``dY``, ``dy`` and ``dcount`` at ``landmarks`` into ``Y`` (L, 2, 2), ``y`` (L, 2) and
+    ``count`` (L,), in that order (repeated landmarks add up in the order given)."""
+    for i in range(landmarks.size):
+        lm = landmarks[i]
+        Y[lm, 0, 0] += dY[i, 0, 0]
+        Y[lm, 0, 1] += dY[i, 0, 1]
+        Y[lm, 1, 0] += dY[i, 1, 0]
+        Y[lm, 1, 1] += dY[i, 1, 1]
+    for i in range(landmarks.size):
+        y[landmarks[i], 0] += dy[i, 0]
+        y[landmarks[i], 1] += dy[i, 1]
+    for i in range(landmarks.size):
+        count[landmarks[i]] += dcount[i]
+
+
+@numba.njit(cache=True)
+def mean_of(Y, y):
+    """``filters.mean_of`` of ``Y`` (..., 2, 2) and ``y`` (..., 2) given as (K, 2, 2) and (K, 2)."""
+    out = np.empty(y.shape)
+    for k in range(y.shape[0]):
+        a, b, c, d = Y[k, 0, 0], Y[k, 0, 1], Y[k, 1, 0], Y[k, 1, 1]
+        det = a * d - b * c
+        out[k, 0] = (d * y[k, 0] - b * y[k, 1]) / det
+        out[k, 1] = (a * y[k, 1] - c * y[k, 0]) / det
+    return out
