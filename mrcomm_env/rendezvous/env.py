@@ -460,12 +460,13 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         own = np.arange(n)
         self.known_pos[own, own] = self.pos  # a vehicle always knows where it is
         self.known_phase[own, own] = self.phases
-        for g in range(self.n_groups):
-            members = np.flatnonzero(self.labels == g)
-            if len(members) == 1:  # alone: nothing to send
-                continue
-            sent = maps.fuse_group(members, self.parent)
+        # the groups of two or more, in label order, each's members in increasing order (alone: nothing to send)
+        by_label = np.argsort(self.labels, kind="stable")
+        bounds = np.concatenate([[0], np.cumsum(np.bincount(self.labels, minlength=self.n_groups))]).tolist()
+        self._teams = [by_label[lo:hi] for lo, hi in zip(bounds[:-1], bounds[1:]) if hi - lo > 1]
+        for members in self._teams:
             sides = filters.subtree_sides(members, self.parent)
+            sent = maps.fuse_group(members, self.parent, sides)
             messages += 2 * len(sides)
             for a, side in sides.items():
                 b = int(self.parent[a])
@@ -507,8 +508,19 @@ class RendezvousMappingEnv(MrcommParallelEnv):
             c.obs_rate,
             c.obs_per_landmark,
         )
-        for g in range(self.n_groups):
-            members = np.flatnonzero(self.labels == g)
+        teams = self._teams
+        if n > 1:  # a vehicle alone plans its best landmark (recommend's group of one) and regroups as agreed
+            alone = np.ones(n, dtype=bool)
+            for members in teams:
+                alone[members] = False
+            alone = np.flatnonzero(alone)
+            self.assignment[alone] = np.argmax(self.utility[alone], axis=1)
+            self.in_main[alone] = self.plan_connected[alone] = True
+            self.central[alone] = self.regroup[alone]
+            self.rendezvous_point[alone] = self.regroup_point[alone]
+        else:
+            teams = [np.zeros(1, dtype=np.int64)]
+        for members in teams:
             rec = protocol.recommend(self.utility[members], self._estimates[int(members[0])], c.d_comms)
             self.assignment[members] = rec.assignment
             self.in_main[members] = rec.in_main

@@ -119,8 +119,11 @@ class TeamMaps:
             sum(self.packet_bits[u][want[u]] - self.packet_bits[u][have[u]] for u in range(self.n) if want[u] > have[u])
         )
 
-    def fuse_group(self, members: np.ndarray, parent: np.ndarray) -> dict[tuple[int, int], int]:
-        """Fuse one connected group over its tree (``parent[i]``: i's tree parent, −1 at the root).
+    def fuse_group(
+        self, members: np.ndarray, parent: np.ndarray, sides: dict[int, np.ndarray] | None = None
+    ) -> dict[tuple[int, int], int]:
+        """Fuse one connected group over its tree (``parent[i]``: i's tree parent, −1 at the root; ``sides``:
+        its ``subtree_sides``, when the caller has them).
 
         Returns the map-update bits sent on each directed tree edge ``(sender, receiver)``. Afterwards every
         member holds the union of the members' packets.
@@ -128,7 +131,8 @@ class TeamMaps:
         members = np.asarray(members)
         sent: dict[tuple[int, int], int] = {}
         if len(members) > 1:
-            sides = subtree_sides(members, parent)
+            if sides is None:
+                sides = subtree_sides(members, parent)
             in_group = np.zeros(self.n, dtype=bool)
             in_group[members] = True
             for a, side_a in sides.items():
