@@ -315,3 +315,48 @@ def test_observation_is_agent_relative():
         np.testing.assert_array_equal(blocks[:, 0], env.adj[i, others].astype(np.float32))
         behind = env.tables.t - env.tables.latest[i, others]
         np.testing.assert_allclose(blocks[:, 1], behind / (behind + 10.0), rtol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {},  # the default: five robots estimating
+        {"n_robots": 2, "max_history": 3},  # one other robot; columns leave memory
+        {"n_robots": 9, "link_model": "disk", "comm_radius": 3.0, "packet_loss": 0.3},  # sparse, lossy
+        {"n_robots": 12, "estimation": False},  # the delay-only bookkeeping: no trace, no errors
+    ],
+)
+def test_compiled_observation_and_errors_are_the_numpy_codes_bit_for_bit(monkeypatch, kwargs):
+    """The same state observed, and its errors measured, by both backends: byte for byte, every step."""
+    pytest.importorskip("numba")
+    import types
+
+    from mrcomm_env.asynccl import env as env_module
+
+    env = parallel_env(max_cycles=40, **kwargs)
+    env.reset(seed=6)
+    rng = np.random.default_rng(8)
+    accumulators = ("_mean_pos", "_sum_pos", "_sum_ori", "_n_err") if env.cfg["estimation"] else ()
+    steps = 0
+    while env.agents:
+        env.step({a: int(rng.integers(env.action_space(a).n)) for a in env.agents})
+        runs = []
+        for compiled in (False, True):
+            monkeypatch.setattr(env_module, "backend", types.SimpleNamespace(compiled=lambda flag=compiled: flag))
+            kept = [getattr(env, name) for name in accumulators]
+            if env.cfg["estimation"]:
+                env._errors()
+            runs.append([env._observe(), env._err_pos, env._err_ori] + [getattr(env, name) for name in accumulators])
+            for name, value in zip(accumulators, kept):
+                setattr(env, name, value)
+        if env.cfg["estimation"]:  # the own-pose traces in float64, before the observation's log scale
+            from mrcomm_env.asynccl import env_numba
+
+            n = env.n_agents
+            runs[0].append(np.add.reduce(env.est.P.reshape(n, -1)[env._own_rows, env._own_flat], axis=1))
+            runs[1].append(env_numba.own_pose_traces(env.est.P))
+        for want, got in zip(*runs):
+            assert np.asarray(want).dtype == np.asarray(got).dtype
+            assert np.asarray(want).tobytes() == np.asarray(got).tobytes()
+        steps += 1
+    assert steps > 10

@@ -92,6 +92,7 @@ from mrcomm_env.core import (
     BitLedger,
     MrcommParallelEnv,
     apply_packet_loss,
+    backend,
     bernoulli_links,
     combined_links,
     disk_links,
@@ -119,6 +120,13 @@ _SCHEME2_Q = re.compile(r"scheme2_q([0-9]+)")  # ASCII digits only (str.isdigit 
 MAX_ROBOTS = 200
 MAX_ROBOTS_ESTIMATING = 30
 _sum = np.add.reduce  # = ndarray.sum without its two Python frames per call (tiny arrays: half the cost)
+
+
+def _kernels():
+    """The compiled observation and errors (``env_numba``), imported on first use: numba is optional."""
+    from mrcomm_env.asynccl import env_numba
+
+    return env_numba
 
 
 def mode_code(name: str) -> int:
@@ -528,6 +536,13 @@ class AsyncCLEnv(MrcommParallelEnv):
 
     def _errors(self) -> None:
         n = self.n_agents
+        if backend.compiled():  # the same sums in the same order, in one call (env_numba.errors)
+            self._err_pos, self._err_ori, mean_pos, mean_ori = _kernels().errors(self.est.X, self.world.x)
+            self._mean_pos = mean_pos
+            self._sum_pos += mean_pos
+            self._sum_ori += mean_ori
+            self._n_err += 1
+            return
         E = self.est.X.reshape(n, n, 3) - self.world.x
         th = E[:, :, 2]  # heading errors wrapped into (-π, π] in place (``wrap``)
         th += np.pi
@@ -558,6 +573,18 @@ class AsyncCLEnv(MrcommParallelEnv):
         t = tab.t
         k = OTHER_FEATURES * (n - 1)
         out = np.empty((n, k + OWN_FEATURES), dtype=np.float32)
+        if backend.compiled():  # every column but the trace's log scale in one call (env_numba.observe)
+            kernels = _kernels()
+            clock = min(t / self.cfg["max_cycles"], 1.0)
+            kernels.observe(
+                out, self.adj, tab.latest, tab.known, tab.c, t, clock, self.neighbours, self._ema, AGE_SCALE, BITS_SCALE
+            )
+            if self.cfg["estimation"]:
+                trace = kernels.own_pose_traces(self.est.P)
+                out[:, k + 2] = np.clip((np.log10(np.maximum(trace, 1e-12)) + 6.0) / 8.0, 0.0, 1.0)
+            else:
+                out[:, k + 2] = 0.0
+            return out
         blocks = out[:, :k].reshape(n, n - 1, OTHER_FEATURES)
         flat = self._others_flat
         behind = (t - tab.latest).reshape(-1)[flat]  # steps my copy of each other row lags
