@@ -35,6 +35,25 @@ def _travel(dist, speed, window):
 
 
 @numba.njit(cache=True)
+def _stable_order(values, count):
+    """The indices of the ``count`` smallest ``values`` in ascending order, ties by index (the first ``count`` of
+    ``np.argsort(values, kind="stable")``), by insertion: the vehicles of a team are few."""
+    order = np.empty(count, dtype=np.int64)
+    size = 0
+    for i in range(values.size):
+        if size == count and not values[i] < values[order[size - 1]]:
+            continue  # not below the last kept one: a tie goes to the lower index, already kept
+        j = size if size < count else count - 1
+        while j > 0 and values[i] < values[order[j - 1]]:
+            order[j] = order[j - 1]
+            j -= 1
+        order[j] = i
+        if size < count:
+            size += 1
+    return order
+
+
+@numba.njit(cache=True)
 def observe(
     pos,
     side,
@@ -108,10 +127,10 @@ def observe(
             for w in range(n):
                 dist[w] = np.hypot(known_pos[v, w, 0] - x, known_pos[v, w, 1] - y)
             dist[v] = np.inf
-            order = np.argsort(dist, kind="mergesort")
+            nearest = _stable_order(dist, min(K, n - 1))
             base += 5
-            for k in range(min(K, n - 1)):
-                w = order[k]
+            for k in range(nearest.size):
+                w = nearest[k]
                 age = phases - known_phase[v, w]
                 slot = base + 5 * k
                 row[slot] = _rel(known_pos[v, w, 0] - x, side)

@@ -5,9 +5,10 @@ The reference walks each vehicle's legs in Python (``_route``), lists every obse
 sorts all of them by time (ties: vehicle id, then leg) and keeps, per landmark, those within the sensor floor.
 This twin computes the legs with the reference's formulas, in the same floating-point operations and order, and
 never lists the instants: a leg observes a contiguous run of the window's sorted instants (the reference's
-two-sided tolerance test is a range of a sorted array), so per landmark it merges its legs' runs in the
-reference's order and stops once the floor is reached. What it returns, the kept (vehicle, landmark) pairs in the
-reference's order, is what the reference keeps; the noise of each observation is drawn by the caller, in that
+two-sided tolerance test is a range of a sorted array), so it merges the legs' runs in the reference's order and
+drops a leg once its landmark has reached the floor. What it returns, the kept (vehicle, landmark) pairs in the
+reference's order, is what the reference keeps, and it never visits an observation it does not keep (no sort: its
+kernels compile in a fraction of the time numba's sorts take); the noise of each observation is drawn by the caller, in that
 order, as the reference draws it. ``tests/test_rendezvous_mapping.py`` compares whole seeded episodes on both
 backends, and this window alone on crowded, tied and out-of-reach windows.
 
@@ -76,12 +77,8 @@ def window(
         n_legs, new_pos[v, 0], new_pos[v, 1], new_at[v] = _travel(
             v, count, pos, targets, landmarks, leaves, ticks, window_s, speed, legs, n_legs
         )
-    tick, key, observed = _first_observations(legs[:n_legs], world_count, floor)
-    # all kept observations in time order, ties by vehicle, then by the vehicle's leg (the reference's lexsort
-    # is stable, and it lists a vehicle's legs in route order)
-    order = np.argsort(key, kind="mergesort")
-    order = order[np.argsort(tick[order], kind="mergesort")]
-    return new_pos, new_at, key[order] // 2, observed[order]
+    vehicles, observed = _kept_observations(legs[:n_legs], world_count, floor)
+    return new_pos, new_at, vehicles, observed
 
 
 @numba.njit(cache=True)
@@ -136,59 +133,74 @@ def _travel(v, count, pos, targets, landmarks, leaves, ticks, T, u, legs, n_legs
         end = T if math.isnan(leaves[k]) else leaves[k]
         # the instants with arrive − 1e-9 ≤ tick ≤ end + 1e-9: a run of the sorted ticks
         legs[n_legs, 0], legs[n_legs, 1], legs[n_legs, 2] = v, k, landmarks[k]
-        legs[n_legs, 3] = np.searchsorted(ticks, arrive - 1e-9, side="left")
-        legs[n_legs, 4] = np.searchsorted(ticks, end + 1e-9, side="right")
+        legs[n_legs, 3] = _first_at_least(ticks, arrive - 1e-9)
+        legs[n_legs, 4] = _first_above(ticks, end + 1e-9)
         n_legs += 1
         hx, hy, t, final = tx, ty, end, landmarks[k]
     return n_legs, hx, hy, final
 
 
 @numba.njit(cache=True)
-def _first_observations(legs, world_count, floor):
-    """Per landmark, its legs' observations in time order (ties: vehicle, then leg) up to the floor:
-    ``(tick index, 2·vehicle + leg, landmark)`` of each kept one, landmark by landmark.
+def _first_at_least(sorted_values, x):
+    """The first index i with ``sorted_values[i] >= x`` (``np.searchsorted(..., side="left")``)."""
+    lo, hi = 0, sorted_values.size
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if sorted_values[mid] < x:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
 
-    A landmark's legs are of different vehicles (a detour's two landmarks differ) and, sorted stably by
-    landmark, stay in vehicle order: the first of the earliest is the lowest vehicle.
+
+@numba.njit(cache=True)
+def _first_above(sorted_values, x):
+    """The first index i with ``sorted_values[i] > x`` (``np.searchsorted(..., side="right")``)."""
+    lo, hi = 0, sorted_values.size
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if sorted_values[mid] <= x:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@numba.njit(cache=True)
+def _kept_observations(legs, world_count, floor):
+    """The observations of all ``legs`` in time order (ties: vehicle, then the vehicle's leg, the order legs are
+    listed in), each kept while its landmark is below the floor: ``(vehicles, landmarks)`` of the kept ones.
+
+    A merge of the legs' runs of instants that drops a leg once its landmark is exhausted, so that it visits the
+    kept observations only (a landmark's rank in this order is the reference's rank: ``_useful_events``).
     """
-    by_landmark = np.argsort(legs[:, 2], kind="mergesort")
-    # the landmarks' groups of legs: group q is by_landmark[starts[q]:starts[q + 1]]
-    starts = np.empty(by_landmark.size + 1, dtype=np.int64)
-    n_groups = 0
-    for i in range(by_landmark.size):
-        if i == 0 or legs[by_landmark[i], 2] != legs[by_landmark[i - 1], 2]:
-            starts[n_groups] = i
-            n_groups += 1
-    starts[n_groups] = by_landmark.size
-    bound = 0  # at most what is kept: per landmark, what its floor still allows, or its legs' runs if fewer
-    for q in range(n_groups):
-        group = by_landmark[starts[q] : starts[q + 1]]
-        runs = 0
-        for j in group:
-            runs += max(legs[j, 4] - legs[j, 3], 0)
-        bound += min(max(floor - world_count[legs[group[0], 2]], 0), runs)
-    tick = np.empty(bound, dtype=np.int64)
-    key = np.empty(bound, dtype=np.int64)
+    n_legs = legs.shape[0]
+    at = legs[:, 3].copy()
+    left = np.full(world_count.size, -1, dtype=np.int64)  # observations each landmark of a leg still yields
+    bound, runs = 0, 0  # at most what is kept: the landmarks' allowance, or every leg's run if fewer
+    for j in range(n_legs):
+        lm = legs[j, 2]
+        if left[lm] < 0:
+            left[lm] = max(floor - world_count[lm], 0)
+            bound += left[lm]
+        runs += max(legs[j, 4] - legs[j, 3], 0)
+    bound = min(bound, runs)
+    vehicles = np.empty(bound, dtype=np.int64)
     observed = np.empty(bound, dtype=np.int64)
     total = 0
-    for q in range(n_groups):
-        group = by_landmark[starts[q] : starts[q + 1]]
-        lm = legs[group[0], 2]
-        at = legs[group, 3].copy()
-        need = floor - world_count[lm]
-        while need > 0:
-            best = -1
-            for g in range(group.size):  # the earliest instant; on a tie the first leg, the lowest vehicle
-                if at[g] < legs[group[g], 4] and (best < 0 or at[g] < at[best]):
-                    best = g
-            if best < 0:
-                break
-            j = group[best]
-            tick[total], key[total], observed[total] = at[best], 2 * legs[j, 0] + legs[j, 1], lm
-            total += 1
-            at[best] += 1
-            need -= 1
-    return tick[:total], key[:total], observed[:total]
+    while True:
+        best = -1
+        for j in range(n_legs):  # the earliest instant; on a tie the first listed leg
+            if at[j] < legs[j, 4] and left[legs[j, 2]] > 0 and (best < 0 or at[j] < at[best]):
+                best = j
+        if best < 0:
+            break
+        lm = legs[best, 2]
+        vehicles[total], observed[total] = legs[best, 0], lm
+        total += 1
+        left[lm] -= 1
+        at[best] += 1
+    return vehicles[:total], observed[:total]
 
 
 @numba.njit(cache=True)
@@ -202,7 +214,8 @@ def group_observations(vehicles, landmarks, contributions, n_landmarks, n_vehicl
     """
     m = vehicles.size
     keys = vehicles * n_landmarks + landmarks
-    order = np.argsort(keys, kind="mergesort")  # stable: a pair's observations stay in the order given
+    # stable: a pair's observations stay in the order given (by landmark, then by vehicle: a radix sort)
+    order = _stable_counting_order(vehicles, n_vehicles, _stable_counting_order(landmarks, n_landmarks, np.arange(m)))
     ids = np.empty(m, dtype=np.int64)
     counts = np.zeros(m, dtype=np.int64)
     dy = np.zeros((m, 2))
@@ -228,3 +241,18 @@ def group_observations(vehicles, landmarks, contributions, n_landmarks, n_vehicl
         per_vehicle[vehicles[e]] += 1
     bounds[owners] = pairs
     return owner_ids[:owners], bounds[: owners + 1], ids[:pairs], counts[:pairs], dy[:pairs], per_vehicle
+
+
+@numba.njit(cache=True)
+def _stable_counting_order(values, size, order):
+    """``order`` re-sorted stably by ``values[order]`` (integers in 0 … size − 1): a counting sort."""
+    starts = np.zeros(size + 1, dtype=np.int64)
+    for i in order:
+        starts[values[i] + 1] += 1
+    for v in range(size):
+        starts[v + 1] += starts[v]
+    out = np.empty(order.size, dtype=np.int64)
+    for i in order:
+        out[starts[values[i]]] = i
+        starts[values[i]] += 1
+    return out
