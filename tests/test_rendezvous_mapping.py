@@ -828,6 +828,17 @@ def test_compiled_fusion_adds_packets_and_takes_means_as_numpy_does(monkeypatch)
             assert want.dtype == got.dtype and want.tobytes() == got.tobytes()
 
 
+@pytest.mark.parametrize("compiled", [False, True])
+def test_a_packet_outside_the_map_raises_on_both_backends(monkeypatch, compiled):
+    if compiled:
+        pytest.importorskip("numba")
+    _use_plan_backend(monkeypatch, compiled)
+    Y, y, count = np.ones((4, 2, 2)), np.ones((4, 2)), np.zeros(4, dtype=np.int64)
+    packet = filters.Packet(np.array([1, 4]), np.ones((2, 2, 2)), np.ones((2, 2)), np.ones(2, dtype=np.int64))
+    with pytest.raises(IndexError):
+        filters._add_packets(Y, y, count, [packet])
+
+
 def test_compiled_packets_of_a_window_are_the_references(monkeypatch):
     """Random kept observations (repeated pairs, vehicles out of order, a vehicle with none) become the same
     packets, maps and counts on both backends, to the last bit."""

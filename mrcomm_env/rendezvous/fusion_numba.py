@@ -23,7 +23,11 @@ configure_numba_cache()  # before the @njit(cache=True) below: never cache into 
 @numba.njit(cache=True)
 def add_packets(Y, y, count, landmarks, dY, dy, dcount):
     """``np.add.at`` of ``dY``, ``dy`` and ``dcount`` at ``landmarks`` into ``Y`` (L, 2, 2), ``y`` (L, 2) and
-    ``count`` (L,), in that order (repeated landmarks add up in the order given)."""
+    ``count`` (L,), in that order (repeated landmarks add up in the order given). A landmark outside 0 … L − 1
+    raises ``IndexError`` before anything is added (numba does not check indices)."""
+    for i in range(landmarks.size):
+        if landmarks[i] < 0 or landmarks[i] >= Y.shape[0]:
+            raise IndexError("a packet's landmark index is out of range")
     for i in range(landmarks.size):
         lm = landmarks[i]
         Y[lm, 0, 0] += dY[i, 0, 0]
