@@ -115,9 +115,8 @@ class TeamMaps:
     # ------------------------------------------------------------------ fusion
     def missing_bits(self, have: np.ndarray, want: np.ndarray) -> int:
         """Bits of the packets in ``want`` (a version vector) beyond ``have``."""
-        return int(
-            sum(self.packet_bits[u][want[u]] - self.packet_bits[u][have[u]] for u in range(self.n) if want[u] > have[u])
-        )
+        bits = self.packet_bits
+        return int(sum(bits[u][w] - bits[u][h] for u, (h, w) in enumerate(zip(have.tolist(), want.tolist())) if w > h))
 
     def fuse_group(
         self, members: np.ndarray, parent: np.ndarray, sides: dict[int, np.ndarray] | None = None
@@ -143,8 +142,10 @@ class TeamMaps:
                 sent[(a, b)] = self.missing_bits(union_b, union_a)
                 sent[(b, a)] = self.missing_bits(union_a, union_b)
         union = self.known[members].max(0)
+        upto = union.tolist()
         for w in members.tolist():
-            lack = [p for u in range(self.n) for p in self.packets[u][self.known[w, u] : union[u]]]
+            held = self.known[w].tolist()
+            lack = [p for u, packets in enumerate(self.packets) for p in packets[held[u] : upto[u]]]
             self._apply(w, lack)
             self.known[w] = union
         return sent
@@ -152,7 +153,8 @@ class TeamMaps:
     def update_common(self) -> bool:
         """Fold into the common map the packets every vehicle now holds; True when it grew."""
         floor = self.known.min(0)
-        new = [p for u in range(self.n) for p in self.packets[u][self.common_known[u] : floor[u]]]
+        start, upto = self.common_known.tolist(), floor.tolist()
+        new = [p for u, packets in enumerate(self.packets) for p in packets[start[u] : upto[u]]]
         self.common_known = floor
         if not new:
             return False
