@@ -156,30 +156,23 @@ class SyncSessions:
     def _deliver(self, s: Session, budget: int) -> None:
         """Charge the next ``budget`` bits of the transcript to their senders, in order."""
         charged: dict[int, list[int]] = {}  # sender → [bits, messages]: one ledger entry per sender
-        if s.sent == 0 and budget >= s.total:  # the whole transcript at once (always, without a bit budget)
-            for who, bits in s.messages:
-                entry = charged.get(who)
-                if entry is None:
-                    charged[who] = [bits, 1]
-                else:
-                    entry[0] += bits
-                    entry[1] += 1
-            s.sent = s.total
-        else:
-            done = 0
-            for who, bits in s.messages:
-                if budget <= 0:
-                    break
-                if done + bits <= s.sent:
-                    done += bits
-                    continue
-                part = min(bits - max(0, s.sent - done), budget)
-                entry = charged.setdefault(who, [0, 0])
+        skip, left = s.sent, budget  # bits of the transcript already delivered; bits this step may carry
+        for who, bits in s.messages:
+            if left <= 0:
+                break
+            if skip >= bits:  # delivered at an earlier step
+                skip -= bits
+                continue
+            part = bits - skip if bits - skip < left else left
+            skip = 0
+            entry = charged.get(who)
+            if entry is None:
+                charged[who] = [part, 1]
+            else:
                 entry[0] += part
                 entry[1] += 1
-                s.sent += part
-                budget -= part
-                done += bits
+            left -= part
+        s.sent += budget - left
         for who, (bits, messages) in charged.items():  # whole bits: the float sums are exact in any grouping
             self.ledger.add(who, bits, messages=messages)
             self._charged = True
