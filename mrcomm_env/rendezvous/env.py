@@ -44,6 +44,8 @@ linked only when co-located, i.e. after a rendezvous at the same landmark.
 from __future__ import annotations
 
 import math
+from functools import cache
+from types import SimpleNamespace
 
 import numpy as np
 from gymnasium import spaces
@@ -303,7 +305,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
     # ----------------------------------------------------------------- dynamics
     def _step_world(self, actions: list) -> float:
         if backend.compiled():  # the same window in one call (window_numba)
-            new_pos, new_at, vehicles, observed = _window_kernel()(
+            new_pos, new_at, vehicles, observed = _kernels().window(
                 np.asarray(actions, dtype=np.int64),
                 self.mask,
                 self.candidates,
@@ -425,7 +427,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         R_inv = np.eye(2) * self.r_info
         L = c.n_landmarks
         if backend.compiled():  # the same packets from one call (window_numba.group_observations)
-            owners, bounds, ids, counts, dy, per_vehicle = _group_kernel()(v, lm, z * self.r_info, L, self.n_agents)
+            owners, bounds, ids, counts, dy, per_vehicle = _kernels().packets(v, lm, z * self.r_info, L, self.n_agents)
             dY = counts[:, None, None] * R_inv
             for owner, start, end in zip(owners.tolist(), bounds[:-1].tolist(), bounds[1:].tolist()):
                 self.maps.add_own(
@@ -595,7 +597,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         n, K, c = self.n_agents, self.K, self.cfg
         side, T, u = self.side, c.t_window, c.speed
         if backend.compiled():  # the same formulas in one call (observe_numba)
-            return _observe_kernel()(
+            return _kernels().observe(
                 self.pos,
                 side,
                 min(self.phases / c.max_cycles, 1.0),
@@ -745,25 +747,15 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         )
 
 
-def _window_kernel():
-    """The compiled window (``window_numba``), imported on first use: numba is optional."""
-    from mrcomm_env.rendezvous import window_numba
+@cache
+def _kernels() -> SimpleNamespace:
+    """The compiled window, packets and observation (``window_numba``, ``observe_numba``), imported on first use:
+    numba is optional."""
+    from mrcomm_env.rendezvous import observe_numba, window_numba
 
-    return window_numba.window
-
-
-def _group_kernel():
-    """The compiled grouping of a window's observations into packets (``window_numba.group_observations``)."""
-    from mrcomm_env.rendezvous import window_numba
-
-    return window_numba.group_observations
-
-
-def _observe_kernel():
-    """The compiled observation (``observe_numba``), imported on first use: numba is optional."""
-    from mrcomm_env.rendezvous import observe_numba
-
-    return observe_numba.observe
+    return SimpleNamespace(
+        window=window_numba.window, packets=window_numba.group_observations, observe=observe_numba.observe
+    )
 
 
 def candidate_lists(utility: np.ndarray, assignment: np.ndarray, K: int) -> tuple[np.ndarray, np.ndarray]:
