@@ -233,4 +233,6 @@ def backend(name: str | None = None) -> types.SimpleNamespace:
         inv=module.inv,
         update=module.update,
         column=module.column,
+        # the restart loop of ``Estimators._step_recent`` in one call (compiled only: numpy runs the loop)
+        restart_chains=getattr(module, "restart_chains", None),
     )

@@ -14,6 +14,9 @@ because at these sizes (3N = 15) the cost of numpy is its per-call overhead, not
 * the inverse of the (symmetric positive definite) information matrix goes through its Cholesky factor,
   P = L⁻ᵀ L⁻¹, which is about four times cheaper than the LU inverse and exactly symmetric. A matrix that
   is not numerically positive definite falls back to the LU inverse.
+
+``restart_chains`` has no numpy twin: it is ``Estimators._restart_chains``'s loop (the numpy backend runs the loop)
+in one call, the same kernel calls filter by filter (``tests/test_asynccl_fastpath.py`` compares the bytes).
 """
 
 from __future__ import annotations
@@ -253,4 +256,103 @@ def column(Xs, Ps, ud, geo, z, inv_sd, inv_sth, hold, prior):
     """``ekf.column``: propagate, linearise, invert and update in one compiled call."""
     return _column(
         _c(Xs), _c(Ps), _c(ud), geo.a, geo.b, _c(z), inv_sd, inv_sth, _c(hold), _c(np.asarray(prior, dtype=np.int64))
+    )
+
+
+@njit(cache=True)
+def _restart_chains(
+    Lr,
+    c_r,
+    t,
+    k0,
+    ud_ring,
+    W,
+    sources_known,
+    a_cat,
+    b_cat,
+    z_cat,
+    off,
+    slot_of_col,
+    lin_X,
+    lin_Y,
+    lin_A,
+    lin_off,
+    inv_sd,
+    inv_sth,
+):
+    G, n = Lr.shape
+    n3 = 3 * n
+    X_out = np.empty((G, n3))
+    P_out = np.empty((G, n3, n3))
+    prior = np.zeros(1, dtype=np.int64)  # one filter, its own prior
+    for g in range(G):
+        k = c_r[g] + 1
+        j = k - k0
+        s = slot_of_col[j]
+        lo, hi = off[j], off[j + 1]
+        a, b = a_cat[lo:hi].copy(), b_cat[lo:hi].copy()
+        hold = np.empty((1, 2 * (hi - lo)), dtype=np.bool_)
+        for r in range(2 * (hi - lo)):  # a filter holds a row iff it holds its observer's packet (``obs_of_row``)
+            hold[0, r] = Lr[g, a[r >> 1]] >= k
+        Xp = lin_X[s : s + 1].copy()
+        Yp = lin_Y[s : s + 1].copy()
+        A = lin_A[lin_off[s] : lin_off[s + 1]].copy().reshape((1, lin_off[s + 1] - lin_off[s], n3 + 1))
+        X, P = _update(Xp, Yp, A, hold, prior, a, b)  # column c+1: the central chain's prior, the rows it holds
+        for k in range(c_r[g] + 2, t):  # columns c+2 … t-1: its own prior, its last available odometry of k-1
+            j = k - k0
+            lo, hi = off[j], off[j + 1]
+            a, b, z = a_cat[lo:hi].copy(), b_cat[lo:hi].copy(), z_cat[lo:hi].copy()
+            ud = np.empty((1, n, 4))
+            for i in range(n):
+                src = min(Lr[g, i], k - 1)
+                slot = src % W if sources_known or src >= 0 else W  # the standstill slot: no odometry yet
+                for q in range(4):
+                    ud[0, i, q] = ud_ring[slot, i, q]
+            hold = np.empty((1, 2 * (hi - lo)), dtype=np.bool_)
+            for r in range(2 * (hi - lo)):
+                hold[0, r] = Lr[g, a[r >> 1]] >= k
+            _, _, _, X, P = _column(X, P, ud, a, b, z, inv_sd, inv_sth, hold, prior)
+        X_out[g] = X[0]
+        P_out[g] = P[0]
+    return X_out, P_out
+
+
+def restart_chains(Lr, c_r, t, ud_ring, W, sources_known, geometries, zs, lins, inv_sd, inv_sth):
+    """Columns c+1 … t-1 of filters restarting from the central estimates x̂_{c|c} (``Estimators._step_recent``'s
+    restart loop) in one compiled call: (X, P) at column t-1, one row per filter.
+
+    ``Lr`` (G, N) holds each filter's holdings, ``c_r`` its checkpoint c ≤ t-2; ``geometries`` and ``zs`` are the
+    ``ekf.Geometry`` and measurements of columns k0 = min(c)+1 … t-1, ``lins`` maps each first column c+1 to the
+    central chain's kept prior there (X, Y = P⁻¹, whitened rows A). Each filter runs the very calls of the loop,
+    ``update`` on its first column and ``column`` on each later one, with the same inputs: a filter's result never
+    depends on the others of a batched call, so running them one by one gives the loop's numbers."""
+    c_r = np.asarray(c_r, dtype=np.int64)
+    k0 = int(c_r.min()) + 1
+    off = np.zeros(len(geometries) + 1, dtype=np.int64)
+    np.cumsum([geo.m for geo in geometries], out=off[1:])
+    slot_of_col = np.full(len(geometries), -1, dtype=np.int64)
+    firsts = sorted(lins)
+    slot_of_col[np.asarray(firsts, dtype=np.int64) - k0] = np.arange(len(firsts))
+    priors = [lins[k] for k in firsts]
+    lin_off = np.zeros(len(firsts) + 1, dtype=np.int64)
+    np.cumsum([len(A) for _, _, A in priors], out=lin_off[1:])
+    return _restart_chains(
+        _c(Lr),
+        c_r,
+        int(t),
+        k0,
+        ud_ring,
+        int(W),
+        bool(sources_known),
+        np.concatenate([geo.a for geo in geometries]),
+        np.concatenate([geo.b for geo in geometries]),
+        _c(np.concatenate(zs)),
+        off,
+        slot_of_col,
+        np.array([X for X, _, _ in priors]),
+        np.array([Y for _, Y, _ in priors]),
+        np.concatenate([A for _, _, A in priors]),
+        lin_off,
+        float(inv_sd),
+        float(inv_sth),
     )

@@ -21,7 +21,8 @@ holds. Which packets a filter holds is read from the robot's information table.
   unless memory ran out), ``_step_recent`` runs the step as a fixed sequence of batched calls: the central
   prior of column t is shared by every robot with c = t-1, a restart from an older x̂_{c|c} starts from the
   central chain's kept prior of column c+1 (``lin``: its state, information and whitened measurement rows),
-  and each update is one Gram product over the rows a filter holds. ``_step_general`` (through
+  and each update is one Gram product over the rows a filter holds (on the compiled backend the restarting
+  filters' columns are one call, ``ekf_numba.restart_chains``). ``_step_general`` (through
   ``_advance``) handles every other case; both run the same column steps.
 * **Bounded memory.** When the shared packet ring drops a column that some robot never completed, that
   robot adopts its causal estimate of the column as its new checkpoint (no longer centralized-exact).
@@ -279,40 +280,8 @@ class Estimators:
         ar = self._ar
         cX, cP = self.central[t - 1]
         Xs, Ps = [cX[None]], [cP[None]]
-        if rows_r:  # columns c+1 … t-1 of the restarting groups, oldest first
-            running, Xc, Pc = [], None, None
-            for k in range(min(c_r) + 1, t):
-                parts = []
-                if running:  # their prior of column k: last available odometry of step k-1
-                    Lr = Lx[[1 + g for g in running]]
-                    pk = self.packets[k]
-                    geo = self._geometry(pk)
-                    parts.append(
-                        self.k.column(
-                            Xc,
-                            Pc,
-                            self.ud_ring[self._slots(np.minimum(Lr, k - 1)), ar],
-                            geo,
-                            pk.z,
-                            self._inv_sd,
-                            self._inv_sth,
-                            Lr[:, geo.obs_of_row] >= k,
-                            np.arange(len(running)),
-                        )[3:]
-                    )
-                start = [g for g, ci in enumerate(c_r) if ci + 1 == k]
-                if start:  # first column: the central prior of column k with the rows they hold
-                    Ls = Lx[1 : 1 + nr] if len(start) == nr else Lx[[1 + g for g in start]]
-                    geo = self._geometry(self.packets[k])
-                    parts.append(self.k.update(*lin[(k, ("C", k - 1), b"")], Ls[:, geo.obs_of_row] >= k, geo=geo))
-                    running = running + start
-                if len(parts) == 1:
-                    Xc, Pc = parts[0]
-                elif parts:
-                    Xc, Pc = np.concatenate([parts[0][0], parts[1][0]]), np.concatenate([parts[0][1], parts[1][1]])
-            if running != sorted(running):  # back in the order of rows_r
-                pos = np.argsort(running)
-                Xc, Pc = Xc[pos], Pc[pos]
+        if rows_r:  # columns c+1 … t-1 of the restarting groups
+            Xc, Pc = self._restart_chains(t, Lx[1 : 1 + nr], c_r)
             Xs.append(Xc)
             Ps.append(Pc)
         if rows_e:
@@ -331,6 +300,64 @@ class Estimators:
         Xp, Yp, JA, Xn, Pn = self.k.column(Xp, Pp, ud, geo, pk.z, self._inv_sd, self._inv_sth, hold, pr)
         lin[(t, ("C", t - 1), b"")] = (Xp[0], Yp[0], JA[0])
         return Xn, Pn, res_of
+
+    def _restart_chains(self, t, Lr, c_r):
+        """Columns c+1 … t-1 of the groups restarting from x̂_{c|c} (c ≤ t-2) with holdings ``Lr``: their (X, P) at
+        column t-1, in the order of ``c_r``. Column c+1 updates the central chain's kept prior of c+1 (``lin``) with
+        the rows a group holds; later columns propagate with its last available odometry (§IV). Compiled: one call
+        (``ekf_numba.restart_chains``) that runs each group through the kernel calls of the loop below, which batches
+        the groups of a column into one call; a filter's numbers do not depend on its batch, so both give the same."""
+        lin = self.lin
+        if getattr(self.k, "restart_chains", None) is not None:  # a kernel namespace may lack it (tests wrap them)
+            columns = range(min(c_r) + 1, t)
+            return self.k.restart_chains(
+                Lr,
+                c_r,
+                t,
+                self.ud_ring,
+                self.W,
+                self._sources_known,
+                [self._geometry(self.packets[k]) for k in columns],
+                [self.packets[k].z for k in columns],
+                {c + 1: lin[(c + 1, ("C", c), b"")] for c in set(c_r)},
+                self._inv_sd,
+                self._inv_sth,
+            )
+        ar, nr = self._ar, len(c_r)
+        running, Xc, Pc = [], None, None  # the groups whose chain has begun, in the order they began
+        for k in range(min(c_r) + 1, t):
+            parts = []
+            if running:  # their prior of column k: last available odometry of step k-1
+                Lk = Lr[running]
+                pk = self.packets[k]
+                geo = self._geometry(pk)
+                parts.append(
+                    self.k.column(
+                        Xc,
+                        Pc,
+                        self.ud_ring[self._slots(np.minimum(Lk, k - 1)), ar],
+                        geo,
+                        pk.z,
+                        self._inv_sd,
+                        self._inv_sth,
+                        Lk[:, geo.obs_of_row] >= k,
+                        np.arange(len(running)),
+                    )[3:]
+                )
+            start = [g for g, ci in enumerate(c_r) if ci + 1 == k]
+            if start:  # first column: the central prior of column k with the rows they hold
+                Ls = Lr if len(start) == nr else Lr[start]
+                geo = self._geometry(self.packets[k])
+                parts.append(self.k.update(*lin[(k, ("C", k - 1), b"")], Ls[:, geo.obs_of_row] >= k, geo=geo))
+                running = running + start
+            if len(parts) == 1:
+                Xc, Pc = parts[0]
+            elif parts:
+                Xc, Pc = np.concatenate([parts[0][0], parts[1][0]]), np.concatenate([parts[0][1], parts[1][1]])
+        if running != sorted(running):  # back in the order of c_r
+            pos = np.argsort(running)
+            Xc, Pc = Xc[pos], Pc[pos]
+        return Xc, Pc
 
     def step(self, t: int, c: np.ndarray, latest: np.ndarray) -> None:
         """Central column t and the causal estimates x̂_{t|t} of every robot after the exchange of step t."""
