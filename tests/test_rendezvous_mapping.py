@@ -828,6 +828,38 @@ def test_compiled_fusion_adds_packets_and_takes_means_as_numpy_does(monkeypatch)
             assert want.dtype == got.dtype and want.tobytes() == got.tobytes()
 
 
+def test_compiled_utility_is_numpys_bit_for_bit(monkeypatch):
+    """Eq. (1)–(4) of one map per vehicle on both backends: the same bytes, with landmarks out of reach (ε), exhausted
+    or over-observed (worth 0), exactly at the window's edge, at distance 0, and under a nearly singular Y."""
+    pytest.importorskip("numba")
+    rng = np.random.default_rng(9)
+    edges = reaches = exhausted = 0
+    for trial in range(200):
+        n, L = int(rng.integers(1, 11)), int(rng.integers(1, 60))
+        speed, t_window, info, rate = (float(x) for x in rng.uniform(0.2, 3.0, 4))
+        budget = int(rng.integers(1, 12))
+        vehicles = rng.uniform(0, 40, (n, 2))
+        landmarks = rng.uniform(0, 40, (n, L, 2))
+        landmarks[:, : L // 4] = vehicles[:, None, :]  # distance 0
+        if trial % 3 == 0:  # a landmark exactly one window's travel away: t_obs = 0 takes ε
+            landmarks[:, -1] = vehicles + np.array([speed * t_window, 0.0])
+        scale = 10.0 ** rng.integers(-6, 7, (n, L, 1, 1))
+        Y = np.array([random_spd(rng, 0.1) for _ in range(n * L)]).reshape(n, L, 2, 2) * scale
+        Y[:, 0, 0, 1] = Y[:, 0, 1, 0] = np.sqrt(Y[:, 0, 0, 0] * Y[:, 0, 1, 1]) * (1 - 1e-12)  # |Y| ≈ 0
+        count = rng.integers(0, budget + 3, (n, L))
+        got = []
+        for compiled in (False, True):
+            _use_plan_backend(monkeypatch, compiled)
+            args = (Y, count, vehicles, landmarks, speed, t_window, info, rate, budget)
+            got.append(protocol.utility_matrix(*args))
+        assert got[0].dtype == got[1].dtype and got[0].tobytes() == got[1].tobytes()
+        travel = np.linalg.norm(vehicles[:, None, :] - landmarks, axis=-1) / speed
+        edges += int((t_window - travel == 0.0).sum())
+        reaches += int((travel < t_window).sum())
+        exhausted += int((count >= budget).sum())
+    assert edges > 10 and reaches > 1000 and exhausted > 1000
+
+
 @pytest.mark.parametrize("compiled", [False, True])
 def test_a_packet_outside_the_map_raises_on_both_backends(monkeypatch, compiled):
     if compiled:

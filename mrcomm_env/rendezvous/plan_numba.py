@@ -388,3 +388,29 @@ def lsap_max(C):
             if i == current:
                 break
     return col4row
+
+
+@numba.njit(cache=True)
+def utility_argument(
+    Y, count, vehicle_pos, landmark_pos, speed, t_window, info_per_obs, obs_rate, budget, eps_obs_time
+):
+    """``protocol.utility_matrix`` of one map per vehicle up to its last step: the (n, L) argument of eq. (1)'s
+    log1p, |Y + gI|/|Y| − 1 = (g tr Y + g²)/|Y|, with numpy's operations one element at a time in numpy's order
+    (so the same roundings; numpy's ``log1p`` itself stays numpy's, which may use SIMD code of its own)."""
+    n, L = count.shape
+    out = np.empty((n, L))
+    for v in range(n):
+        px, py = vehicle_pos[v, 0], vehicle_pos[v, 1]
+        for m in range(L):
+            ox = px - landmark_pos[v, m, 0]
+            oy = py - landmark_pos[v, m, 1]
+            d = np.sqrt(ox * ox + oy * oy)
+            t_obs = t_window - d / speed  # eq. (4)
+            if not t_obs > 0.0:  # np.where(t_obs > 0, t_obs, ε): NaN too takes ε
+                t_obs = eps_obs_time
+            remaining = float(max(budget - count[v, m], 0))
+            x = t_obs * obs_rate
+            g = (x if x != x or x < remaining else remaining) * info_per_obs  # np.minimum (NaN propagates)
+            a, b, dd = Y[v, m, 0, 0], Y[v, m, 0, 1], Y[v, m, 1, 1]
+            out[v, m] = (g * (a + dd) + g * g) / (a * dd - b * b)
+    return out

@@ -61,6 +61,21 @@ def utility_matrix(
     ``budget`` independent observations: the gain counts at most the ``budget − count`` the map believes
     remain (a landmark believed exhausted is worth 0).
     """
+    per_vehicle = Y.ndim == 4 and count.ndim == 2 and landmark_pos.ndim == 3
+    if per_vehicle and len(vehicle_pos) == len(count) and backend.compiled():  # one call, up to numpy's log1p
+        argument = _plan_kernels().utility_argument(
+            _plain(Y),
+            np.ascontiguousarray(count, dtype=np.int64),
+            _plain(vehicle_pos),
+            _plain(landmark_pos),
+            float(speed),
+            float(t_window),
+            float(info_per_obs),
+            float(obs_rate),
+            int(budget),
+            EPS_OBS_TIME,
+        )
+        return 0.5 * np.log1p(argument)
     offset = vehicle_pos[:, None, :] - (landmark_pos if landmark_pos.ndim == 3 else landmark_pos[None, :, :])
     d = np.sqrt(offset[..., 0] ** 2 + offset[..., 1] ** 2)
     t_obs = t_window - d / speed  # eq. (4) inside t_obs = t_window − t_travel
