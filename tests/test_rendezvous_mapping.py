@@ -828,6 +828,32 @@ def test_compiled_fusion_adds_packets_and_takes_means_as_numpy_does(monkeypatch)
             assert want.dtype == got.dtype and want.tobytes() == got.tobytes()
 
 
+def test_compiled_candidate_ranking_is_numpys_bit_for_bit(monkeypatch):
+    """``candidate_lists`` on both backends (numpy's argpartition chooses the set on both): the same bytes, with tied
+    and zero utilities, recommendations worth something or nothing or absent, NaN, and K below, at and above L."""
+    pytest.importorskip("numba")
+    from mrcomm_env.rendezvous.env import candidate_lists
+
+    rng = np.random.default_rng(12)
+    ties = nans = 0
+    for trial in range(400):
+        n, L, K = int(rng.integers(1, 11)), int(rng.integers(1, 40)), int(rng.integers(1, 12))
+        utility = np.round(rng.random((n, L)), int(rng.integers(0, 3)))  # rounded: many exact ties
+        utility[:, rng.random(L) < 0.3] = 0.0  # believed exhausted
+        if trial % 7 == 0:
+            utility[rng.random((n, L)) < 0.05] = np.nan
+        assignment = rng.integers(-1, L, n)
+        got = []
+        for compiled in (False, True):
+            _use_plan_backend(monkeypatch, compiled)
+            got.append(candidate_lists(utility, assignment, K))
+        for want, have in zip(*got):
+            assert want.dtype == have.dtype and want.tobytes() == have.tobytes()
+        ties += int(sum(len(np.unique(row)) < L for row in utility))
+        nans += int(np.isnan(utility).any())
+    assert ties > 200 and nans > 20
+
+
 def test_compiled_utility_is_numpys_bit_for_bit(monkeypatch):
     """Eq. (1)–(4) of one map per vehicle on both backends: the same bytes, with landmarks out of reach (ε), exhausted
     or over-observed (worth 0), exactly at the window's edge, at distance 0, and under a nearly singular Y."""

@@ -749,12 +749,16 @@ class RendezvousMappingEnv(MrcommParallelEnv):
 
 @cache
 def _kernels() -> SimpleNamespace:
-    """The compiled window, packets and observation (``window_numba``, ``observe_numba``), imported on first use:
-    numba is optional."""
-    from mrcomm_env.rendezvous import observe_numba, window_numba
+    """The compiled window, packets, observation and candidate ranking (``window_numba``, ``observe_numba``,
+    ``plan_numba``), imported on first use: numba is optional."""
+    from mrcomm_env.rendezvous import observe_numba, plan_numba, window_numba
 
     return SimpleNamespace(
-        window=window_numba.window, packets=window_numba.group_observations, observe=observe_numba.observe
+        window=window_numba.window,
+        packets=window_numba.group_observations,
+        observe=observe_numba.observe,
+        negated_work=plan_numba.negated_work,
+        candidates=plan_numba.ranked_candidates,
     )
 
 
@@ -764,6 +768,13 @@ def candidate_lists(utility: np.ndarray, assignment: np.ndarray, K: int) -> tupl
     slots are −1."""
     n, L = utility.shape
     k = min(K, L)
+    if backend.compiled():  # numpy's argpartition chooses the set (its tie choices); the rest in two calls
+        kernels = _kernels()
+        utility = np.ascontiguousarray(utility, dtype=np.float64)
+        assignment = np.ascontiguousarray(assignment, dtype=np.int64)
+        negated = kernels.negated_work(utility, assignment)
+        top = np.argpartition(negated, k - 1, axis=1)[:, :k] if k < L else np.tile(np.arange(L), (n, 1))
+        return kernels.candidates(utility, negated, np.ascontiguousarray(top, dtype=np.int64), K)
     work = utility.copy()
     rows = np.arange(n)
     has_rec = (assignment >= 0) & (utility[rows, np.maximum(assignment, 0)] > 0)

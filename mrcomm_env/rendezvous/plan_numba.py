@@ -414,3 +414,52 @@ def utility_argument(
             a, b, dd = Y[v, m, 0, 0], Y[v, m, 0, 1], Y[v, m, 1, 1]
             out[v, m] = (g * (a + dd) + g * g) / (a * dd - b * b)
     return out
+
+
+@numba.njit(cache=True, inline="always")
+def _ranks_before(key_a, id_a, key_b, id_b):
+    """``np.lexsort((ids, keys))``'s order: key, then id; a NaN key after every number (numpy sorts NaN last)."""
+    if key_a != key_a:
+        return key_b != key_b and id_a < id_b
+    if key_b != key_b:
+        return True
+    return key_a < key_b or (key_a == key_b and id_a < id_b)
+
+
+@numba.njit(cache=True)
+def negated_work(utility, assignment):
+    """``env.candidate_lists``'s −work: −utility, with −∞ at each row's recommendation when it is worth something."""
+    n, L = utility.shape
+    negated = np.empty((n, L))
+    for r in range(n):
+        for m in range(L):
+            negated[r, m] = -utility[r, m]
+        a = assignment[r]
+        if a >= 0 and utility[r, a] > 0:  # the recommendation ranks first
+            negated[r, a] = -np.inf
+    return negated
+
+
+@numba.njit(cache=True)
+def ranked_candidates(utility, negated, top, K):
+    """``env.candidate_lists`` after its ``argpartition``: each row's chosen ``top`` landmarks ranked by (−work, id)
+    as its ``lexsort``, then the ones worth something (utility > 0) first, the rest −1 (utility 0)."""
+    n, k = top.shape
+    cand = np.full((n, K), -1, dtype=np.int64)
+    cand_u = np.zeros((n, K))
+    order = np.empty(k, dtype=np.int64)
+    for r in range(n):
+        for j in range(k):  # insertion sort: stable, and k is a handful
+            lm = top[r, j]
+            key = negated[r, lm]
+            i = j
+            while i > 0 and _ranks_before(key, lm, negated[r, order[i - 1]], order[i - 1]):
+                order[i] = order[i - 1]
+                i -= 1
+            order[i] = lm
+        for j in range(k):
+            real = utility[r, order[j]]
+            if real > 0:
+                cand[r, j] = order[j]
+                cand_u[r, j] = real
+    return cand, cand_u
