@@ -480,6 +480,45 @@ def _use_backend(monkeypatch, compiled: bool) -> None:
     monkeypatch.setattr(env_module, "backend", fake)
 
 
+def test_compiled_sketch_is_the_reference_step_for_step(monkeypatch):
+    """The sketch on both backends (``kernels_numba.sketch``): the same cells, bits, rounds and record, over maps with
+    no, few and more differences than the syndromes can decode (Alice falls back to her map), cell 0 differing or
+    not, map sizes off and on word boundaries, and one or two parity bits, so that wrong guesses pass them."""
+    pytest.importorskip("numba")
+    rng = np.random.default_rng(21)
+    outcomes: dict[str, int] = {}
+    for trial in range(600):
+        n = int(rng.choice([2, 3, 17, 32, 33, 64, 100, 256, 1000, 1024, 2000]))
+        x = rng.random(n) < 0.3
+        y = x.copy()
+        d = int(rng.choice([0, 1, 2, 3, 5, 9, 40]))
+        y[rng.choice(n, size=min(d, n), replace=False)] ^= True
+        if trial % 5 == 0:
+            y[0] = not x[0]
+        verify_bits = None if trial % 3 else int(rng.integers(1, 3))
+        strict = bool(trial % 2)
+        seed = int(rng.integers(2**63))
+        results = []
+        for compiled in (False, True):
+            _use_backend(monkeypatch, compiled)
+            results.append(proto.sketch(x, y, seed, trial, verify_bits=verify_bits, strict_feedback=strict))
+        want, got = results
+        assert want.found.dtype == got.found.dtype and want.found.tobytes() == got.found.tobytes()
+        assert (want.alice_bits, want.bob_bits, want.rounds, want.candidates, want.detected) == (
+            got.alice_bits,
+            got.bob_bits,
+            got.rounds,
+            got.candidates,
+            got.detected,
+        )
+        assert want.extra == got.extra
+        kind = "fallback" if want.extra["fallback"] else ("decoded" if want.extra["syndromes"] else "check")
+        key = f"{kind}, {'exact' if np.array_equal(np.flatnonzero(x != y), want.found) else 'wrong'}"
+        outcomes[key] = outcomes.get(key, 0) + 1
+    assert outcomes.get("decoded, exact", 0) > 100 and outcomes.get("fallback, exact", 0) > 20
+    assert outcomes.get("decoded, wrong", 0) + outcomes.get("check, wrong", 0) > 5  # wrong guesses passed
+
+
 @pytest.mark.parametrize(
     ("n", "res", "k", "d"),
     [(2, 1, 1, 1), (16, 1, 3, 16), (45, 3, 2, 7), (77, 1, 1, 0), (256, 1, 10, 3), (1000, 4, 5, 40), (1024, 1, 7, 1)],

@@ -1,5 +1,6 @@
-"""Compiled twin (numba) of :func:`protocol.segment_inner_products`, Protocol 1's inner loop, and of
-:func:`philox.stream_words` (the sketch's parity strings, ``protocol.parity_strings``).
+"""Compiled twin (numba) of :func:`protocol.segment_inner_products`, Protocol 1's inner loop, of
+:func:`philox.stream_words` (the sketch's parity strings, ``protocol.parity_strings``), of Algorithm 1
+(:func:`bisection`) and of the streaming PinSketch (:func:`sketch`, integer arithmetic only).
 
 The numpy reference spends its time in a few dozen small array operations per call (one call per round of
 Algorithm 1); this twin computes the same parities in one call: for every segment and index, the words of
@@ -316,3 +317,171 @@ def observe(out, t, clock, last_sync, new_cells, linked, last_test, session_of, 
         out[i, own + 2] = 1.0 if session_of[i] >= 0 else 0.0
         out[i, own + 3] = progress[i]
         out[i, own + 4] = clock
+
+
+@numba.njit(cache=True, inline="always")
+def _gf_mul(a, b, exp, log):
+    """a·b in GF(2^m) (``pinsketch.GF2m.mul``): 0 with a 0 factor, else exp[log a + log b]."""
+    if a == 0 or b == 0:
+        return 0
+    return exp[log[a] + log[b]]
+
+
+@numba.njit(cache=True)
+def _parities_agree(diff, rho, n_words):
+    """Whether a guess whose XOR with Alice's map is ``diff`` (packed) has her parities with every string of ``rho``:
+    parity(x·r) = parity(g·r) ⟺ parity((x ⊕ g)·r) = 0."""
+    for j in range(rho.shape[0]):
+        acc = np.uint64(0)
+        for w in range(n_words):
+            acc += _popcount32(np.uint64(diff[w]) & np.uint64(rho[j, w]))
+        if acc & np.uint64(1):
+            return False
+    return True
+
+
+@numba.njit(cache=True)
+def sketch(x, y, k0, k1, nonce, verify_bits, domain, exp, log, m, strict_feedback):
+    """``protocol.sketch`` after its equal-maps check (``x[1:] ≠ y[1:]``): ``(found, stats)`` with ``stats`` = (Alice's
+    bits, Bob's bits, rounds, syndromes sent, outcome), outcome 0 when Bob's map with Alice's cell 0 passed her
+    parities, 1 when a decoded difference did, 2 when Alice fell back to her whole map.
+
+    Integer arithmetic only, step for step the reference's: the parity strings of ``protocol.parity_strings``
+    (:func:`stream_words`), Bob's guesses checked against Alice's parities, the odd syndromes of the two cell sets
+    (cells 1 … n−1; their XOR is the symmetric difference's, as ``syndromes(A) ^ syndromes(B)``), Berlekamp–Massey
+    on zero-padded arrays where the reference grows lists (the padding only ever multiplies into 0), and the Chien
+    search by Horner's rule over cells 1 … n−1 (``StreamingDecoder.decode``)."""
+    n = x.size
+    order = (1 << m) - 1
+    n_words = (n + 31) // 32
+    index = np.empty(verify_bits, dtype=np.uint64)
+    for j in range(verify_bits):
+        index[j] = np.uint64((nonce * verify_bits + j) % (1 << 32))
+    rho = stream_words(k0, k1, index, np.zeros(verify_bits, np.int64), n_words, domain)
+    if n % 32:
+        last = np.uint32((1 << (n % 32)) - 1)
+        for j in range(verify_bits):
+            rho[j, n_words - 1] &= last
+    diff = np.zeros(n_words, dtype=np.uint32)  # x ⊕ y packed as protocol.pack packs a map
+    n_diff = 0
+    for c in range(n):
+        if x[c] != y[c]:
+            diff[c >> 5] |= np.uint32(1) << np.uint32(c & 31)
+            n_diff += 1
+    base = 1 if x[0] != y[0] else 0
+    guess = diff.copy()  # x ⊕ (Bob's map with Alice's cell 0)
+    if base:
+        guess[0] ^= np.uint32(1)
+    stats = np.zeros(5, dtype=np.int64)
+    alice = verify_bits + 1
+    if _parities_agree(guess, rho, n_words):
+        stats[0], stats[1], stats[2] = alice, 1, 1
+        found = np.zeros(base, dtype=np.int64)
+        return found, stats
+    symmetric = np.empty(n_diff, dtype=np.int64)  # cells ≥ 1 in exactly one of the two sets
+    n_sym = 0
+    for c in range(1, n):
+        if x[c] != y[c]:
+            symmetric[n_sym] = c
+            n_sym += 1
+    t_max = max(0, (n - alice - 1) // m)
+    cap = 4 * t_max + 8
+    S = np.zeros(cap, dtype=np.int64)  # S_1, S_2, … (index 0 holds S_1)
+    C = np.zeros(cap, dtype=np.int64)  # the reference's lists C and B, zero beyond their lengths
+    B = np.zeros(cap, dtype=np.int64)
+    update = np.zeros(cap, dtype=np.int64)
+    C[0] = B[0] = 1
+    len_c = len_b = 1
+    L, shift, b, n_s = 0, 1, 1, 0
+    bob, rounds, t = 0, 1, 0
+    while t < t_max:
+        e = 2 * t + 1  # the next odd syndrome of the difference: ⊕ over its cells of cell^e
+        s = 0
+        for i in range(n_sym):
+            s ^= exp[(log[symmetric[i]] * e) % order]
+        t += 1
+        rounds += 1
+        alice += m
+        if strict_feedback:
+            bob += 1
+        for feed in range(2):  # S_{2t−1}, then S_{2t} = S_t² (StreamingDecoder.add)
+            if feed == 1:
+                a = S[t - 1]
+                s = 0 if a == 0 else exp[(2 * log[a]) % order]
+            S[n_s] = s
+            r = n_s
+            n_s += 1
+            d = s
+            for i in range(1, L + 1):
+                d ^= _gf_mul(C[i], S[r - i], exp, log)
+            if d == 0:
+                shift += 1
+                continue
+            coef = exp[(log[d] - log[b]) % order]  # d / b (b ≠ 0: the last nonzero discrepancy)
+            len_new = max(len_c, shift + len_b)  # C ⊕ z^shift · coef · B, with B as it was
+            if len_new > cap:  # cannot happen (a locator of n_s syndromes has at most n_s + 1 terms)
+                raise ValueError("sketch: Berlekamp-Massey locator longer than its buffer")
+            span = len_b
+            for i in range(span):
+                update[i] = _gf_mul(coef, B[i], exp, log)
+            if 2 * L <= r:  # B takes the old C (an older C is never longer: B's entries are all overwritten)
+                B[:len_c] = C[:len_c]
+                len_b = len_c
+                b = d
+                L = r + 1 - L
+                shift_next = 1
+            else:
+                shift_next = shift + 1
+            for i in range(span):
+                C[i + shift] ^= update[i]
+            len_c = len_new
+            shift = shift_next
+        if L > t:
+            continue
+        # decode: the roots x of Λ(x⁻¹) among cells 1 … n−1, exactly L of them, or none found
+        if L == 0 or C[L] == 0:
+            roots = np.zeros(0, dtype=np.int64)
+            if L != 0:
+                continue
+        elif L == 1:
+            if not 1 <= C[1] <= n - 1:
+                continue
+            roots = C[1:2].copy()
+        else:
+            roots = np.empty(L, dtype=np.int64)
+            n_roots = 0
+            for cell in range(1, n):
+                v = C[0]
+                for i in range(1, L + 1):
+                    v = _gf_mul(v, cell, exp, log) ^ C[i]
+                if v == 0:
+                    if n_roots == L:
+                        n_roots += 1
+                        break
+                    roots[n_roots] = cell
+                    n_roots += 1
+            if n_roots != L:
+                continue
+        guess = diff.copy()
+        if base:
+            guess[0] ^= np.uint32(1)
+        for i in range(roots.size):
+            guess[roots[i] >> 5] ^= np.uint32(1) << np.uint32(roots[i] & 31)
+        if _parities_agree(guess, rho, n_words):
+            if not strict_feedback:
+                bob += 1
+            found = np.empty(base + roots.size, dtype=np.int64)
+            if base:
+                found[0] = 0
+            found[base:] = roots
+            stats[0], stats[1], stats[2], stats[3], stats[4] = alice, bob, rounds, t, 1
+            return found, stats
+    alice += n  # no decode within the useful length: Alice sends her map
+    found = np.empty(n_diff, dtype=np.int64)
+    j = 0
+    for c in range(n):
+        if x[c] != y[c]:
+            found[j] = c
+            j += 1
+    stats[0], stats[1], stats[2], stats[3], stats[4] = alice, bob, rounds + 1, t, 2
+    return found, stats

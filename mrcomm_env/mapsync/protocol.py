@@ -449,6 +449,30 @@ def sketch(
         return Reconciliation("sketch", base, alice, 1, 1, n, base.size > 0, {"syndromes": 0, "fallback": False})
     m = pinsketch.field_bits(n)
     gf = pinsketch.field(m)
+    if backend.compiled():  # the steps below in one call, integer for integer (kernels_numba.sketch)
+        from mrcomm_env.mapsync import kernels_numba
+
+        k0, k1 = seed_key(seed)
+        found, stats = kernels_numba.sketch(
+            np.ascontiguousarray(x),
+            np.ascontiguousarray(y),
+            k0,
+            k1,
+            int(nonce),
+            int(verify_bits),
+            DOMAIN_PARITY,
+            gf.exp,
+            gf.log,
+            m,
+            bool(strict_feedback),
+        )
+        alice, bob, rounds, t, outcome = stats.tolist()
+        if outcome == 0:  # Bob's map with Alice's cell 0 passed her parities
+            return Reconciliation(
+                "sketch", found, alice, bob, rounds, n, found.size > 0, {"syndromes": 0, "fallback": False}
+            )
+        extra = {"syndromes": t, "fallback": outcome == 2, "m": m}
+        return Reconciliation("sketch", found, alice, bob, rounds, n, True, extra)
     rho = parity_strings(seed, nonce, n, verify_bits)
     alice_parity = parities(pack(x), rho)
 
