@@ -519,6 +519,29 @@ def test_compiled_sketch_is_the_reference_step_for_step(monkeypatch):
     assert outcomes.get("decoded, wrong", 0) + outcomes.get("check, wrong", 0) > 5  # wrong guesses passed
 
 
+@pytest.mark.parametrize("cached", [False, True])
+def test_compiled_equality_is_the_reference(monkeypatch, cached):
+    """Protocol 1 on whole maps on both backends (``kernels_numba.equality_counter``): the same verdict, counter and
+    bits, and the generator left in the same state, with few rounds (differences missed) and with many."""
+    pytest.importorskip("numba")
+    rng = np.random.default_rng(31)
+    verdicts = {True: 0, False: 0}
+    for trial in range(300):
+        n = int(rng.choice([2, 31, 32, 33, 100, 256, 1024]))
+        x, y, _ = maps_with_differences(rng, n, int(rng.integers(0, min(n, 6) + 1)))
+        strings = SharedStrings(n, int(rng.integers(100)), cache=cached)
+        k = int(rng.choice([1, 2, 10, 64]))
+        runs = []
+        for compiled in (False, True):
+            _use_backend(monkeypatch, compiled)
+            generator = np.random.default_rng(trial)
+            result = proto.equality(x, y, strings, k, generator)
+            runs.append((type(result.equal), type(result.counter), result, generator.bit_generator.state))
+        assert runs[0] == runs[1]
+        verdicts[runs[0][2].equal and not np.array_equal(x, y)] += 1
+    assert verdicts[True] > 10 and verdicts[False] > 100  # "same" said of differing maps, and the rest
+
+
 @pytest.mark.parametrize(
     ("n", "res", "k", "d"),
     [(2, 1, 1, 1), (16, 1, 3, 16), (45, 3, 2, 7), (77, 1, 1, 0), (256, 1, 10, 3), (1000, 4, 5, 40), (1024, 1, 7, 1)],

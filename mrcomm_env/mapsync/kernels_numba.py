@@ -485,3 +485,34 @@ def sketch(x, y, k0, k1, nonce, verify_bits, domain, exp, log, m, strict_feedbac
             j += 1
     stats[0], stats[1], stats[2], stats[3], stats[4] = alice, bob, rounds + 1, t, 2
     return found, stats
+
+
+@numba.njit(cache=True)
+def equality_counter(x, y, database, use_database, k0, k1, domain, words_per_string, last_mask, picks):
+    """Protocol 1 on whole maps ``x`` and ``y`` (bool, n cells) with Alice's ``picks`` of i: Bob's counter, the rounds
+    whose inner products differ (``protocol.protocol1_batch`` on the one segment 0 … n−1). x·r ≠ y·r (mod 2) ⟺
+    (x ⊕ y)·r = 1 (mod 2), so one packed XOR of the maps is tested against each r_i, as :func:`inner_products`
+    forms r_i (from the database, or Philox on demand, masked to the map)."""
+    n = x.size
+    n_words = (n + 31) >> 5
+    diff = np.zeros(n_words, dtype=np.uint32)
+    for c in range(n):
+        if x[c] != y[c]:
+            diff[c >> 5] |= np.uint32(1) << np.uint32(c & 31)
+    top = np.uint64(_TO_BIT[(n - 1) & 31])
+    counter = 0
+    for j in range(picks.size):
+        i = picks[j]
+        acc = np.uint64(0)
+        for w in range(n_words):
+            if use_database:
+                r = np.uint64(database[i, w])
+            else:
+                r = _philox_lane(w >> 2, i, domain, k0, k1, w & 3)
+                if w == words_per_string - 1:
+                    r &= np.uint64(last_mask)
+            if w == n_words - 1:
+                r &= top
+            acc += _popcount32(np.uint64(diff[w]) & r)
+        counter += int(acc & np.uint64(1))
+    return counter

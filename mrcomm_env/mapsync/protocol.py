@@ -196,6 +196,14 @@ def equality(
         # so only her picks are drawn (step 3a), which keeps the generator where the full run leaves it
         _alice_picks(strings, 1, k, rng)
         return EqualityResult(True, 0, theory.protocol1_bits(n, k), 1)
+    if step4 == "fixed" and backend.compiled():  # protocol1_batch on the whole map in one call, the same picks
+        from mrcomm_env.mapsync import kernels_numba
+
+        picks = _alice_picks(strings, 1, k, rng)[0]
+        counter = kernels_numba.equality_counter(
+            np.ascontiguousarray(x, dtype=bool), np.ascontiguousarray(y, dtype=bool), *_kernel_strings(strings), picks
+        )
+        return EqualityResult(counter == 0, counter, theory.protocol1_bits(n, k), 1)
     equal, counter = protocol1_batch(pack(x), pack(y), strings, k, 0, n - 1, rng, step4)
     return EqualityResult(bool(equal[0]), int(counter[0]), theory.protocol1_bits(n, k), 1)
 
