@@ -200,8 +200,10 @@ def equality(
         from mrcomm_env.mapsync import kernels_numba
 
         picks = _alice_picks(strings, 1, k, rng)[0]
+        database, use_database, key0, key1, domain, words, last_mask = _kernel_strings(strings)
+        x_plain, y_plain = np.ascontiguousarray(x, dtype=bool), np.ascontiguousarray(y, dtype=bool)
         counter = kernels_numba.equality_counter(
-            np.ascontiguousarray(x, dtype=bool), np.ascontiguousarray(y, dtype=bool), *_kernel_strings(strings), picks
+            x_plain, y_plain, database, use_database, key0, key1, domain, words, last_mask, picks
         )
         return EqualityResult(counter == 0, counter, theory.protocol1_bits(n, k), 1)
     equal, counter = protocol1_batch(pack(x), pack(y), strings, k, 0, n - 1, rng, step4)
