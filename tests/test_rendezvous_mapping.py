@@ -828,6 +828,37 @@ def test_compiled_fusion_adds_packets_and_takes_means_as_numpy_does(monkeypatch)
             assert want.dtype == got.dtype and want.tobytes() == got.tobytes()
 
 
+def test_compiled_edge_bits_are_the_references(monkeypatch):
+    """The bits each tree edge carries both ways (``fusion_numba.edge_bits``), in random meeting sequences on random
+    trees, with packets piling up past the cumulative table's first size: the same dict on both backends."""
+    pytest.importorskip("numba")
+    rng = np.random.default_rng(17)
+    L, edges, silent = 9, 0, 0
+    for _ in range(20):
+        n = int(rng.integers(2, 9))
+        both = [filters.TeamMaps(n, np.broadcast_to(np.eye(2), (L, 2, 2)).copy(), np.zeros((L, 2))) for _ in range(2)]
+        for _ in range(int(rng.integers(5, 40))):
+            for v in range(n):
+                if rng.random() < 0.7:
+                    packet = make_packet(rng, L)
+                    for maps in both:
+                        maps.add_own(v, packet)
+            pos = rng.uniform(0, 30, size=(n, 2))
+            labels, parent = world.spanning_forest(pos, world.vehicle_links(pos, float(rng.uniform(0, 30))))
+            for g in range(labels.max() + 1):
+                members = np.flatnonzero(labels == g)
+                sent = []
+                for compiled, maps in zip((False, True), both):
+                    _use_plan_backend(monkeypatch, compiled)
+                    sent.append(maps.fuse_group(members, parent))
+                assert sent[0] == sent[1] and list(sent[0]) == list(sent[1])
+                assert all(type(bits) is int for bits in sent[1].values())
+                edges += len(sent[0])
+                silent += sum(bits == 0 for bits in sent[0].values())
+        assert both[0].known.tobytes() == both[1].known.tobytes()
+    assert edges > 300 and 0 < silent < edges
+
+
 def test_compiled_candidate_ranking_is_numpys_bit_for_bit(monkeypatch):
     """``candidate_lists`` on both backends (numpy's argpartition chooses the set on both): the same bytes, with tied
     and zero utilities, recommendations worth something or nothing or absent, NaN, and K below, at and above L."""

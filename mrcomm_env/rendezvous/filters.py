@@ -93,6 +93,7 @@ class TeamMaps:
         self.count = np.zeros((n, L), dtype=np.int64)
         self.packets: list[list[Packet]] = [[] for _ in range(n)]
         self.packet_bits: list[list[int]] = [[0] for _ in range(n)]  # cumulative bits of u's first k packets
+        self._cum_bits = np.zeros((n, 16), dtype=np.int64)  # packet_bits as an array (row u: u's list, zero padded)
         self.known = np.zeros((n, n), dtype=np.int64)  # version vectors: known[w, u] packets of u held by w
         self.common_Y, self.common_y = Y0.copy(), y0.copy()
         self.common_count = np.zeros(L, dtype=np.int64)
@@ -105,7 +106,12 @@ class TeamMaps:
             return
         self._apply(v, [packet])
         self.packets[v].append(packet)
-        self.packet_bits[v].append(self.packet_bits[v][-1] + packet.bits(self.L))
+        total = self.packet_bits[v][-1] + packet.bits(self.L)
+        self.packet_bits[v].append(total)
+        k = len(self.packet_bits[v]) - 1
+        if k == self._cum_bits.shape[1]:  # room for twice as many packets
+            self._cum_bits = np.concatenate([self._cum_bits, np.zeros_like(self._cum_bits)], axis=1)
+        self._cum_bits[v, k] = total
         self.known[v, v] += 1
 
     def _apply(self, w: int, packets: list[Packet]) -> None:
@@ -132,15 +138,7 @@ class TeamMaps:
         if len(members) > 1:
             if sides is None:
                 sides = subtree_sides(members, parent)
-            in_group = np.zeros(self.n, dtype=bool)
-            in_group[members] = True
-            for a, side_a in sides.items():
-                b = int(parent[a])
-                other = in_group.copy()
-                other[side_a] = False
-                union_a, union_b = self.known[side_a].max(0), self.known[other].max(0)
-                sent[(a, b)] = self.missing_bits(union_b, union_a)
-                sent[(b, a)] = self.missing_bits(union_a, union_b)
+            sent = self._edge_bits(members, parent, sides)
         union = self.known[members].max(0)
         upto = union.tolist()
         for w in members.tolist():
@@ -148,6 +146,37 @@ class TeamMaps:
             lack = [p for u, packets in enumerate(self.packets) for p in packets[held[u] : upto[u]]]
             self._apply(w, lack)
             self.known[w] = union
+        return sent
+
+    def _edge_bits(
+        self, members: np.ndarray, parent: np.ndarray, sides: dict[int, np.ndarray]
+    ) -> dict[tuple[int, int], int]:
+        """Bits over each tree edge of a group, both ways: the packets one side holds beyond the other's."""
+        sent: dict[tuple[int, int], int] = {}
+        if backend.compiled():  # the loop below in one call (fusion_numba.edge_bits), the same whole numbers
+            firsts = list(sides)
+            starts = np.zeros(len(firsts) + 1, dtype=np.int64)
+            np.cumsum([len(sides[a]) for a in firsts], out=starts[1:])
+            per_edge = _fusion_kernels().edge_bits(
+                self.known,
+                np.ascontiguousarray(members, dtype=np.int64),
+                starts,
+                np.concatenate([sides[a] for a in firsts]).astype(np.int64, copy=False),
+                self._cum_bits,
+            )
+            for a, (forth, back) in zip(firsts, per_edge.tolist()):
+                b = int(parent[a])
+                sent[(a, b)], sent[(b, a)] = forth, back
+            return sent
+        in_group = np.zeros(self.n, dtype=bool)
+        in_group[members] = True
+        for a, side_a in sides.items():
+            b = int(parent[a])
+            other = in_group.copy()
+            other[side_a] = False
+            union_a, union_b = self.known[side_a].max(0), self.known[other].max(0)
+            sent[(a, b)] = self.missing_bits(union_b, union_a)
+            sent[(b, a)] = self.missing_bits(union_a, union_b)
         return sent
 
     def update_common(self) -> bool:

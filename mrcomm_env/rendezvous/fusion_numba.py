@@ -51,3 +51,33 @@ def mean_of(Y, y):
         out[k, 0] = (d * y[k, 0] - b * y[k, 1]) / det
         out[k, 1] = (a * y[k, 1] - c * y[k, 0]) / det
     return out
+
+
+@numba.njit(cache=True)
+def edge_bits(known, members, side_starts, side_members, cum_bits):
+    """``TeamMaps.fuse_group``'s bits over each tree edge (a, parent[a]) of a group: ``(S, 2)``, a → b then b → a,
+    for the sides given as ``side_members[side_starts[s] : side_starts[s + 1]]`` (a's subtree). Each direction
+    carries the packets the sender's side holds beyond the receiver's side (``TeamMaps.missing_bits`` of the two
+    sides' union version vectors), summed from the cumulative packet bits ``cum_bits[u, k]``: whole numbers, so
+    the sums are the reference's."""
+    n = known.shape[0]
+    S = side_starts.size - 1
+    out = np.zeros((S, 2), dtype=np.int64)
+    in_side = np.zeros(n, dtype=np.bool_)
+    for s in range(S):
+        in_side[:] = False
+        for i in range(side_starts[s], side_starts[s + 1]):
+            in_side[side_members[i]] = True
+        for u in range(n):
+            union_a = -1
+            union_b = -1
+            for m in members:
+                if in_side[m]:
+                    union_a = max(union_a, known[m, u])
+                else:
+                    union_b = max(union_b, known[m, u])
+            if union_a > union_b:
+                out[s, 0] += cum_bits[u, union_a] - cum_bits[u, union_b]
+            elif union_b > union_a:
+                out[s, 1] += cum_bits[u, union_b] - cum_bits[u, union_a]
+    return out
