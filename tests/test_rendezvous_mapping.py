@@ -828,9 +828,10 @@ def test_compiled_fusion_adds_packets_and_takes_means_as_numpy_does(monkeypatch)
             assert want.dtype == got.dtype and want.tobytes() == got.tobytes()
 
 
-def test_compiled_edge_bits_are_the_references(monkeypatch):
-    """The bits each tree edge carries both ways (``fusion_numba.edge_bits``), in random meeting sequences on random
-    trees, with packets piling up past the cumulative table's first size: the same dict on both backends."""
+def test_compiled_group_fusion_is_the_references(monkeypatch):
+    """Groups fused over random trees in random meeting sequences, with packets piling up past the cumulative table's
+    first size: the bits each tree edge carries both ways (``fusion_numba.edge_bits``) and every member's map and
+    version vector after the exchange, the same bytes on both backends."""
     pytest.importorskip("numba")
     rng = np.random.default_rng(17)
     L, edges, silent = 9, 0, 0
@@ -855,7 +856,8 @@ def test_compiled_edge_bits_are_the_references(monkeypatch):
                 assert all(type(bits) is int for bits in sent[1].values())
                 edges += len(sent[0])
                 silent += sum(bits == 0 for bits in sent[0].values())
-        assert both[0].known.tobytes() == both[1].known.tobytes()
+                for name in ("known", "Y", "y", "count"):
+                    assert getattr(both[0], name).tobytes() == getattr(both[1], name).tobytes(), name
     assert edges > 300 and 0 < silent < edges
 
 
