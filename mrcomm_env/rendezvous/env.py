@@ -480,8 +480,9 @@ class RendezvousMappingEnv(MrcommParallelEnv):
                 self.link_bits[(a, b)] = (
                     2 * n * filters.COUNT_BITS + sent[(a, b)] + sent[(b, a)] + len(members) * per_vehicle
                 )
-            self.known_pos[np.ix_(members, members)] = self.pos[members][None, :, :]
-            self.known_phase[np.ix_(members, members)] = self.phases
+            rows = members[:, None]  # every member learns every member's position (the same cells np.ix_ picks)
+            self.known_pos[rows, members] = self.pos[members]
+            self.known_phase[rows, members] = self.phases
         self.ledger.record(bits, messages=messages)
         if maps.update_common():
             self.fused_gain = self.information_gain(maps.common_count)
