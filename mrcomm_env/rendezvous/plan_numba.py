@@ -206,9 +206,10 @@ def recommend_loop(U, landmark_pos, d_comms, working, best):
 
     * the candidate columns Munkres runs on (``protocol.candidate_columns``): when a row's n best working columns
       are not unique, numpy's ``argpartition`` picks among the tied ones its own way (and by CPU: numpy dispatches
-      it to SIMD sorts). NEED_COLUMNS: the caller runs that ``argpartition`` (``protocol.best_positions``) and
-      calls again with its (n, n) positions in ``working`` as ``best``, which the first pass then uses (an empty
-      ``best``: choose here);
+      it to SIMD sorts). NEED_COLUMNS: the caller runs that ``argpartition`` on the tied rows (:func:`tied_rows`)
+      and calls again with its positions in ``working`` as ``best``, which the first pass then adds to the other
+      rows' n best, unique and chosen here (an empty ``best``: choose here; the positions of every row, as
+      ``protocol.best_positions`` gives them, mean the same);
     * Munkres: never, :func:`lsap_max` is scipy's algorithm step for step;
     * eq. (8), when a product x·y is so close to 0 that numpy's BLAS ``@`` and two products and a sum could round
       it to different signs, or fewer working landmarks than vehicles (scipy transposes that problem). AMBIGUOUS:
@@ -227,8 +228,10 @@ def recommend_loop(U, landmark_pos, d_comms, working, best):
             ok, columns = _candidate_columns(U, working, n)
             if not ok:
                 return NEED_COLUMNS, working, assignment, in_main, -1, False
-        else:  # the sorted union of the caller's choice, as np.flatnonzero(np.bincount(best.ravel())) gives it
+        else:  # the sorted union, as np.flatnonzero(np.bincount(positions.ravel())) gives it: the rows with unique n
+            # best here, the caller's argpartition picks on the tied rows (``tied_rows``)
             chosen = np.zeros(len(working), dtype=np.bool_)
+            _clean_union(U, working, n, chosen)
             for position in best.ravel():
                 chosen[position] = True
             columns = working[np.flatnonzero(chosen)]
@@ -281,13 +284,12 @@ def _product_error(a, b, p):
 
 
 @numba.njit(cache=True)
-def _candidate_columns(U, working, n):
-    """``protocol.candidate_columns`` when every row's n best working columns are unique: ``(True, columns)``;
-    ``(False, …)`` when a row's n-th best value is tied with another column's."""
+def _clean_union(U, working, n, chosen):
+    """Marks in ``chosen`` the n best working columns of every row whose n best are unique (its n-th best value is
+    tied with no other column); returns those tied rows, where numpy's ``argpartition`` picks among the ties."""
     W = len(working)
-    if W <= n * n:
-        return True, working
-    chosen = np.zeros(W, dtype=np.bool_)
+    tied = np.empty(n, dtype=np.int64)
+    n_tied = 0
     top = np.empty(n)  # the row's n largest values so far, in decreasing order (np.partition: 5 s to compile)
     for r in range(n):
         top[:] = -np.inf
@@ -304,10 +306,41 @@ def _candidate_columns(U, working, n):
         for w in range(W):
             if U[r, working[w]] >= nth:
                 at_least += 1
-                chosen[w] = True
         if at_least != n:
-            return False, working
+            tied[n_tied] = r
+            n_tied += 1
+            continue
+        for w in range(W):
+            if U[r, working[w]] >= nth:
+                chosen[w] = True
+    return tied[:n_tied]
+
+
+@numba.njit(cache=True)
+def _candidate_columns(U, working, n):
+    """``protocol.candidate_columns`` when every row's n best working columns are unique: ``(True, columns)``;
+    ``(False, …)`` when a row's n-th best value is tied with another column's."""
+    W = len(working)
+    if W <= n * n:
+        return True, working
+    chosen = np.zeros(W, dtype=np.bool_)
+    if _clean_union(U, working, n, chosen).size:
+        return False, working
     return True, working[np.flatnonzero(chosen)]
+
+
+@numba.njit(cache=True)
+def tied_rows(U, working):
+    """After ``NEED_COLUMNS``: the rows whose n-th best working column is tied (``_clean_union``) and −U at those rows
+    and the working columns, ``(t, W)``, on which the caller runs numpy's ``argpartition`` (per row, as the reference
+    runs it on every row: a row's picks depend on that row's values only)."""
+    n = U.shape[0]
+    rows = _clean_union(U, working, n, np.zeros(len(working), dtype=np.bool_))
+    negated = np.empty((rows.size, len(working)))
+    for i in range(rows.size):
+        for w in range(len(working)):
+            negated[i, w] = -U[rows[i], working[w]]
+    return rows, negated
 
 
 @numba.njit(cache=True)

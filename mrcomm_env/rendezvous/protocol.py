@@ -216,7 +216,7 @@ def recommend(U: np.ndarray, landmark_pos: np.ndarray, d_comms: float, record: b
     if kernels is not None:  # one compiled signature: a read-only or strided view would compile the kernels again
         U, landmark_pos = _plain(U), _plain(landmark_pos)
     if kernels is not None and not record:  # the passes compiled, numpy choosing among ties where it would
-        negated_U, positions = -U, _NO_POSITIONS
+        positions = _NO_POSITIONS
         while True:
             status, working, assignment, in_main, central, connected = kernels.recommend_loop(
                 U, landmark_pos, float(d_comms), working, positions
@@ -225,7 +225,9 @@ def recommend(U: np.ndarray, landmark_pos: np.ndarray, d_comms: float, record: b
                 return Recommendation(assignment, in_main, int(central), bool(connected), steps)
             if status == kernels.AMBIGUOUS:  # the passes below go on from this working set
                 break
-            positions = best_positions(negated_U, working)
+            # numpy's argpartition on the rows whose n best are tied (the others' are unique: the kernel takes them)
+            _, negated = kernels.tied_rows(U, working)
+            positions = np.ascontiguousarray(np.argpartition(negated, n - 1, axis=1)[:, :n])
     while True:
         rows, lp = assign(U, working)
         if kernels is None:
