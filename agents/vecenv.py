@@ -154,13 +154,13 @@ class AgentSlotVecEnv(VecEnv):
     def step_wait(self) -> VecEnvStepReturn:
         if self._actions is None:
             raise RuntimeError("step_wait() called without step_async()")
+        if self.batch is not None:
+            return self._step_batch()
         if isinstance(self.action_space, spaces.Discrete):
             # plain ints: what a PettingZoo env expects for Discrete, and the base env's fast path
             slot_actions: Sequence[Any] = self._actions.reshape(self.num_envs).tolist()
         else:
             slot_actions = self._actions
-        if self.batch is not None:
-            return self._step_batch()
         self._actions = None
 
         rewards = np.zeros(self.num_envs, dtype=np.float32)
@@ -237,14 +237,11 @@ class AgentSlotVecEnv(VecEnv):
         out = self.batch.step(actions)
         rewards = out.rewards.astype(np.float32).reshape(self.num_envs)
         dones = np.repeat(out.ended, n)
-        keys = list(out.infos)
-        rows = np.stack([out.infos[key] for key in keys], axis=-1).reshape(self.num_envs, len(keys)).tolist()
-        truncated = np.repeat(out.truncated, n).tolist()
-        infos: list[dict[str, Any]] = []
-        for row, slot_truncated in zip(rows, truncated):
-            info = dict(zip(keys, row))
-            info["TimeLimit.truncated"] = slot_truncated
-            infos.append(info)
+        keys = [*out.infos, "TimeLimit.truncated"]
+        # one row per slot: its info columns' numbers, then whether its copy was cut by the time limit
+        columns = [column.reshape(self.num_envs).tolist() for column in out.infos.values()]
+        columns.append(np.repeat(out.truncated, n).tolist())
+        infos: list[dict[str, Any]] = [dict(zip(keys, row)) for row in zip(*columns)]
         if ACTION_MASK_INFO_KEY in out.infos:  # (info columns are numbers: a mask there is one number per agent)
             self._info_masks = [_info_mask(info) for info in infos]
         for copy_index, copy_rewards in enumerate(out.rewards.tolist()):
