@@ -891,6 +891,10 @@ def test_compiled_candidate_ranking_is_numpys_bit_for_bit(monkeypatch):
         ties += int(sum(len(np.unique(row)) < L for row in utility))
         nans += int(np.isnan(utility).any())
     assert ties > 200 and nans > 20
+    for compiled in (False, True):  # a recommendation that is no landmark: numpy's IndexError on both backends
+        _use_plan_backend(monkeypatch, compiled)
+        with pytest.raises(IndexError):
+            candidate_lists(np.ones((2, 5)), np.array([0, 5]), 3)
 
 
 def test_compiled_utility_is_numpys_bit_for_bit(monkeypatch):
@@ -923,6 +927,12 @@ def test_compiled_utility_is_numpys_bit_for_bit(monkeypatch):
         reaches += int((travel < t_window).sum())
         exhausted += int((count >= budget).sum())
     assert edges > 10 and reaches > 1000 and exhausted > 1000
+    # shapes numpy broadcasts (one estimate shared by every vehicle) are numpy's on both backends
+    shared = []
+    for compiled in (False, True):
+        _use_plan_backend(monkeypatch, compiled)
+        shared.append(protocol.utility_matrix(Y, count, vehicles, landmarks[:1], speed, t_window, info, rate, budget))
+    assert shared[0].shape == (n, L) and shared[0].tobytes() == shared[1].tobytes()
 
 
 @pytest.mark.parametrize("compiled", [False, True])

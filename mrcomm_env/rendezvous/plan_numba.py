@@ -468,6 +468,8 @@ def negated_work(utility, assignment):
         for m in range(L):
             negated[r, m] = -utility[r, m]
         a = assignment[r]
+        if a >= L:  # numba does not check indices; numpy would raise here too
+            raise IndexError("a recommended landmark is out of range")
         if a >= 0 and utility[r, a] > 0:  # the recommendation ranks first
             negated[r, a] = -np.inf
     return negated

@@ -61,8 +61,10 @@ def utility_matrix(
     ``budget`` independent observations: the gain counts at most the ``budget − count`` the map believes
     remain (a landmark believed exhausted is worth 0).
     """
-    per_vehicle = Y.ndim == 4 and count.ndim == 2 and landmark_pos.ndim == 3
-    if per_vehicle and len(vehicle_pos) == len(count) and backend.compiled():  # one call, up to numpy's log1p
+    n, L = np.shape(vehicle_pos)[0], np.shape(count)[-1]
+    # one map per vehicle, shapes exactly as the env's (the kernel indexes them without numpy's broadcasting)
+    per_vehicle = np.shape(Y) == (n, L, 2, 2) and np.shape(count) == (n, L) and np.shape(landmark_pos) == (n, L, 2)
+    if per_vehicle and np.shape(vehicle_pos) == (n, 2) and backend.compiled():  # one call, up to numpy's log1p
         argument = _plan_kernels().utility_argument(
             _plain(Y),
             np.ascontiguousarray(count, dtype=np.int64),
