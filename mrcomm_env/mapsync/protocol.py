@@ -196,7 +196,8 @@ def equality(
         # so only her picks are drawn (step 3a), which keeps the generator where the full run leaves it
         _alice_picks(strings, 1, k, rng)
         return EqualityResult(True, 0, theory.protocol1_bits(n, k), 1)
-    if step4 == "fixed" and backend.compiled():  # protocol1_batch on the whole map in one call, the same picks
+    same_shape = np.shape(x) == np.shape(y) == (n,)  # the kernel indexes both maps without checks
+    if step4 == "fixed" and same_shape and backend.compiled():  # protocol1_batch on the whole map in one call
         from mrcomm_env.mapsync import kernels_numba
 
         picks = _alice_picks(strings, 1, k, rng)[0]
@@ -459,7 +460,7 @@ def sketch(
         return Reconciliation("sketch", base, alice, 1, 1, n, base.size > 0, {"syndromes": 0, "fallback": False})
     m = pinsketch.field_bits(n)
     gf = pinsketch.field(m)
-    if backend.compiled():  # the steps below in one call, integer for integer (kernels_numba.sketch)
+    if x.shape == y.shape == (n,) and backend.compiled():  # the steps below in one call, integer for integer
         from mrcomm_env.mapsync import kernels_numba
 
         k0, k1 = seed_key(seed)
