@@ -64,6 +64,18 @@ def _philox_lane(block, index, domain, k0, k1, lane):
     return c3
 
 
+@numba.njit(cache=True, inline="always")
+def _string_word(database, use_database, i, w, domain, k0, k1, words_per_string, last_mask):
+    """Word ``w`` of Protocol 1's shared string r_i (uint64): from the materialised database, or Philox4x32-10 on
+    demand with the string's last word masked to the map (as :func:`philox.stream_words` and the database hold it)."""
+    if use_database:
+        return np.uint64(database[i, w])
+    r = _philox_lane(w >> 2, i, domain, k0, k1, w & 3)
+    if w == words_per_string - 1:
+        r &= np.uint64(last_mask)
+    return r
+
+
 @numba.njit(cache=True)
 def stream_words(k0, k1, index, first_word, n_words, domain):
     """:func:`philox.stream_words`: words ``first_word[s] … first_word[s] + n_words − 1`` of stream ``index[s]``,
@@ -98,12 +110,7 @@ def inner_products(
             i = index[s, j]
             acc[:] = 0
             for w in range(first, last + 1):
-                if use_database:
-                    r = np.uint64(database[i, w])
-                else:
-                    r = _philox_lane(w >> 2, i, domain, k0, k1, w & 3)
-                    if w == words_per_string - 1:
-                        r &= np.uint64(last_mask)
+                r = _string_word(database, use_database, i, w, domain, k0, k1, words_per_string, last_mask)
                 mask = _LOW
                 if w == first:
                     mask &= np.uint64(from_bit[lo[s] & 31])
@@ -505,12 +512,7 @@ def equality_counter(x, y, database, use_database, k0, k1, domain, words_per_str
         i = picks[j]
         acc = np.uint64(0)
         for w in range(n_words):
-            if use_database:
-                r = np.uint64(database[i, w])
-            else:
-                r = _philox_lane(w >> 2, i, domain, k0, k1, w & 3)
-                if w == words_per_string - 1:
-                    r &= np.uint64(last_mask)
+            r = _string_word(database, use_database, i, w, domain, k0, k1, words_per_string, last_mask)
             if w == n_words - 1:
                 r &= top
             acc += _popcount32(np.uint64(diff[w]) & r)
