@@ -376,12 +376,12 @@ def sketch(x, y, k0, k1, nonce, verify_bits, domain, exp, log, m, strict_feedbac
             diff[c >> 5] |= np.uint32(1) << np.uint32(c & 31)
             n_diff += 1
     base = 1 if x[0] != y[0] else 0
-    guess = diff.copy()  # x ⊕ (Bob's map with Alice's cell 0)
+    first_guess = diff.copy()  # x ⊕ (Bob's map with Alice's cell 0)
     if base:
-        guess[0] ^= np.uint32(1)
+        first_guess[0] ^= np.uint32(1)
     stats = np.zeros(5, dtype=np.int64)
     alice = verify_bits + 1
-    if _parities_agree(guess, rho, n_words):
+    if _parities_agree(first_guess, rho, n_words):
         stats[0], stats[1], stats[2] = alice, 1, 1
         found = np.zeros(base, dtype=np.int64)
         return found, stats
@@ -446,11 +446,9 @@ def sketch(x, y, k0, k1, nonce, verify_bits, domain, exp, log, m, strict_feedbac
         if L > t:
             continue
         # decode: the roots x of Λ(x⁻¹) among cells 1 … n−1, exactly L of them, or none found
-        if L == 0 or C[L] == 0:
-            roots = np.zeros(0, dtype=np.int64)
-            if L != 0:
-                continue
-        elif L == 1:
+        if L == 0 or C[L] == 0:  # L = 0 guesses Bob's map with Alice's cell 0 again, which her parities refused
+            continue
+        if L == 1:
             if not 1 <= C[1] <= n - 1:
                 continue
             roots = C[1:2].copy()
@@ -469,9 +467,7 @@ def sketch(x, y, k0, k1, nonce, verify_bits, domain, exp, log, m, strict_feedbac
                     n_roots += 1
             if n_roots != L:
                 continue
-        guess = diff.copy()
-        if base:
-            guess[0] ^= np.uint32(1)
+        guess = first_guess.copy()  # and the decoded cells flipped
         for i in range(roots.size):
             guess[roots[i] >> 5] ^= np.uint32(1) << np.uint32(roots[i] & 31)
         if _parities_agree(guess, rho, n_words):
