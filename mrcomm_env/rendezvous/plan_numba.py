@@ -17,6 +17,10 @@ clusters here, and l_c depends on it only through a 1e-9 relative tie tolerance,
 on entries within round-off of that tolerance. ``tests/test_rendezvous_mapping.py`` compares Munkres, the eq. (8)
 signs, single passes, whole plans (also resumed from any pass) and whole seeded episodes on both backends.
 
+The phase's other per-step arrays: eq. (1)–(4)'s utility of one map per vehicle up to numpy's ``log1p``
+(:func:`utility_argument`) and the env's candidate lists around numpy's ``argpartition`` (:func:`negated_work`,
+:func:`ranked_candidates`), each compared with the numpy code byte for byte.
+
 Used when ``core.backend.compiled()`` (docs/architecture.md).
 """
 
