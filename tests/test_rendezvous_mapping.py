@@ -68,19 +68,44 @@ def test_logdet_and_mean_of_match_numpy():
 def make_packet(rng, L):
     m = int(rng.integers(1, 4))
     ids = np.sort(rng.choice(L, size=m, replace=False))
-    return filters.Packet(
-        ids, np.stack([random_spd(rng) for _ in range(m)]), rng.normal(size=(m, 2)), rng.integers(1, 4, size=m)
-    )
+    return filters.Packet(ids, rng.normal(size=(m, 2)), rng.integers(1, 4, size=m))
 
 
-def check_no_double_counting(maps: filters.TeamMaps):
+class Gathered:
+    """The test's own record of every packet each vehicle made, apart from ``TeamMaps`` (which lets packets go)."""
+
+    def __init__(self, maps: filters.TeamMaps):
+        self.maps = maps
+        self.packets: list[list[filters.Packet]] = [[] for _ in range(maps.n)]
+
+    def add_own(self, v, packet):
+        self.maps.add_own(v, packet)
+        if len(packet.landmarks):
+            self.packets[v].append(packet)
+
+    def summed(self, version) -> tuple[np.ndarray, np.ndarray]:
+        """Prior plus the packets a version vector names, summed afresh."""
+        Y, y = self.maps.Y0.copy(), self.maps.y0.copy()
+        for u, packets in enumerate(self.packets):
+            for p in packets[: version[u]]:
+                np.add.at(Y, p.landmarks, p.count[:, None, None] * self.maps.R_inv)
+                np.add.at(y, p.landmarks, p.dy)
+        return Y, y
+
+
+def check_no_double_counting(record: Gathered):
     """Every map equals prior + each packet it holds, summed once afresh."""
+    maps = record.maps
     for w in range(maps.n):
-        Y, y = maps.information_of(maps.known[w])
+        Y, y = record.summed(maps.known[w])
         tol = 64 * EPS * max(1.0, np.abs(Y).max())
         np.testing.assert_allclose(maps.Y[w], Y, rtol=0, atol=tol)
         np.testing.assert_allclose(maps.y[w], y, rtol=0, atol=tol * 10)
-    Yc, _ = maps.information_of(maps.known.min(0))
+        # what the maps sum afresh (from the common map on) is that too
+        Yw, yw = maps.information_of(maps.known[w])
+        np.testing.assert_allclose(Yw, Y, rtol=0, atol=tol)
+        np.testing.assert_allclose(yw, y, rtol=0, atol=tol * 10)
+    Yc, _ = record.summed(maps.known.min(0))
     np.testing.assert_allclose(maps.common_Y, Yc, rtol=0, atol=64 * EPS * max(1.0, np.abs(Yc).max()))
 
 
@@ -90,11 +115,12 @@ def test_fused_map_over_any_meeting_sequence_equals_the_centralized_sum(seed, n,
     rng = np.random.default_rng(seed)
     L = 7
     Y0 = np.broadcast_to(np.eye(2) * 0.04, (L, 2, 2)).copy()
-    maps = filters.TeamMaps(n, Y0, rng.normal(size=(L, 2)))
+    maps = filters.TeamMaps(n, Y0, rng.normal(size=(L, 2)), random_spd(rng))
+    record = Gathered(maps)
     for _ in range(events):
         for v in range(n):  # some vehicles gather something in this window
             if rng.random() < 0.6:
-                maps.add_own(v, make_packet(rng, L))
+                record.add_own(v, make_packet(rng, L))
         # a random set of meetings: random groups, each fused over a random tree
         pos = rng.uniform(0, 30, size=(n, 2))
         links = world.vehicle_links(pos, float(rng.uniform(0, 30)))
@@ -104,12 +130,13 @@ def test_fused_map_over_any_meeting_sequence_equals_the_centralized_sum(seed, n,
             maps.fuse_group(members, parent)
             assert (maps.known[members] == maps.known[members].max(0)).all()
         maps.update_common()
-        check_no_double_counting(maps)
+        check_no_double_counting(record)
     # everyone meets at last: every map and the fused global map are the centralised sum
     star = np.r_[-1, np.zeros(n - 1, dtype=np.int64)]
     maps.fuse_group(np.arange(n), star)
     maps.update_common()
-    Yc, yc = maps.centralized()
+    Yc, yc = record.summed([len(p) for p in record.packets])
+    assert all(log.kept == 0 for log in maps.logs)  # everyone holds everything: every packet was let go
     for w in range(n):
         np.testing.assert_allclose(maps.Y[w], Yc, rtol=0, atol=64 * EPS * np.abs(Yc).max())
         np.testing.assert_allclose(maps.y[w], yc, rtol=0, atol=640 * EPS * max(1.0, np.abs(yc).max()))
@@ -119,7 +146,7 @@ def test_fused_map_over_any_meeting_sequence_equals_the_centralized_sum(seed, n,
 def test_channel_filter_is_the_common_information_and_fusion_adds_only_the_difference():
     rng = np.random.default_rng(7)
     L = 5
-    maps = filters.TeamMaps(3, np.broadcast_to(np.eye(2), (L, 2, 2)).copy(), np.zeros((L, 2)))
+    maps = filters.TeamMaps(3, np.broadcast_to(np.eye(2), (L, 2, 2)).copy(), np.zeros((L, 2)), random_spd(rng))
     for v in range(3):
         maps.add_own(v, make_packet(rng, L))
     maps.fuse_group(np.array([0, 1]), np.array([-1, 0, -1]))
@@ -134,7 +161,7 @@ def test_channel_filter_is_the_common_information_and_fusion_adds_only_the_diffe
 def test_a_reconnecting_vehicle_sends_only_what_the_others_lack():
     rng = np.random.default_rng(3)
     L = 6
-    maps = filters.TeamMaps(3, np.broadcast_to(np.eye(2), (L, 2, 2)).copy(), np.zeros((L, 2)))
+    maps = filters.TeamMaps(3, np.broadcast_to(np.eye(2), (L, 2, 2)).copy(), np.zeros((L, 2)), random_spd(rng))
     chain = np.array([-1, 0, 1])  # 0 — 1 — 2
     for v in range(3):
         maps.add_own(v, make_packet(rng, L))
@@ -148,11 +175,78 @@ def test_a_reconnecting_vehicle_sends_only_what_the_others_lack():
     maps.fuse_group(np.array([0, 1]), np.array([-1, 0, -1]))
     sent = maps.fuse_group(np.arange(3), chain)
     assert sent[(2, 1)] == sum(p.bits(L) for p in p2)  # only its own two new packets
-    lacking = maps.packets[0][-1].bits(L) + maps.packets[1][-1].bits(L)
+    lacking = maps.packets(0)[-1].bits(L) + maps.packets(1)[-1].bits(L)
     assert sent[(1, 2)] == lacking
     assert sent[(1, 0)] == sum(p.bits(L) for p in p2) and sent[(0, 1)] == 0
     again = maps.fuse_group(np.arange(3), chain)  # nothing new: nothing sent
     assert all(bits == 0 for bits in again.values())
+
+
+def test_a_packet_log_lets_go_only_of_packets_everyone_holds_and_keeps_their_bits():
+    rng = np.random.default_rng(5)
+    log = filters.PacketLog()
+    made = [make_packet(rng, 50) for _ in range(40)]
+    for p in made:
+        log.append(p, p.bits(50))
+    bits = np.cumsum([0] + [p.bits(50) for p in made])
+    log.drop_before(10)  # fewer to let go than to keep: nothing moves yet
+    assert (log.first, log.kept, log.made) == (0, 40, 40)
+    log.drop_before(25)  # now as many to go as to stay
+    assert (log.first, log.kept, log.made) == (25, 15, 40)
+    for k in range(25, 41):
+        assert log.bits_before(k) == bits[k]
+    for kept, p in zip(log.packets(), made[25:], strict=True):
+        assert np.array_equal(kept.landmarks, p.landmarks) and np.array_equal(kept.count, p.count)
+        assert kept.dy.tobytes() == p.dy.tobytes()
+    with pytest.raises(ValueError, match="not all kept"):
+        log.span(24, 30)
+    more = make_packet(rng, 50)
+    log.append(more, more.bits(50))
+    assert log.made == 41 and log.bits_before(41) == bits[40] + more.bits(50)
+    assert np.array_equal(log.packets()[-1].landmarks, more.landmarks)
+
+
+def test_a_connected_team_holds_no_packet_everyone_has_however_long_the_episode():
+    """Packets every vehicle holds are in the fused map and never sent again: a team that stays connected keeps
+    none of them, over a horizon in which it makes thousands (they were all kept for the whole episode once)."""
+    env = RendezvousMappingEnv(
+        n_vehicles=4, n_landmarks=30, area=900.0, d_comms=math.inf, obs_per_landmark=10_000, max_cycles=1500
+    )
+    env.reset(seed=2)
+    most = 0
+    while env.agents:
+        env.step({a: 0 for a in env.agents})
+        most = max(most, sum(log.kept for log in env.maps.logs))
+    assert sum(log.made for log in env.maps.logs) > 1000
+    assert most == 0
+
+
+def test_packet_logs_of_a_split_team_stay_within_the_bound_the_memory_estimate_counts():
+    """With d_comms = 0 vehicles fuse only when they meet at one point, and the logs grow: their arrays stay within
+    ``STORED_ENTRY_BYTES`` per entry made, apart from their first few rows (the estimate's term: an entry holds one
+    observation or more, and the sensor floor bounds the observations)."""
+    env = RendezvousMappingEnv(
+        n_vehicles=6, n_landmarks=40, area=1600.0, d_comms=0.0, obs_per_landmark=10_000, max_cycles=400
+    )
+    env.reset(seed=4)
+    made = [0]
+    add_own = env.maps.add_own
+
+    def counted(v, packet):
+        made[0] += len(packet.landmarks)
+        add_own(v, packet)
+
+    env.maps.add_own = counted
+    rng = np.random.default_rng(4)
+    most = 0
+    while env.agents:
+        env.step({a: int(rng.integers(env.action_space(a).n)) for a in env.agents})
+        logs = env.maps.logs
+        most = max(most, sum(log.entries for log in logs))
+        held = sum(a.nbytes for log in logs for a in (log.landmarks, log.dy, log.count, log.bounds, log.cum_bits))
+        assert made[0] <= env.world_count.sum()
+        assert held <= filters.STORED_ENTRY_BYTES * made[0] + len(logs) * 8 * 40
+    assert most > 200  # the logs did grow
 
 
 # ------------------------------------------------------------------------------------------------ §IV module
@@ -418,7 +512,7 @@ def test_bits_are_counted_for_utility_vectors_and_map_updates():
     expected = 2 * (n - 1) * n * filters.COUNT_BITS + (n - 1) * n * per_vehicle
     assert env.ledger.total_bits.sum() == expected
     env.step({a: 0 for a in env.agents})
-    gathered = sum(p.bits(L) for ps in env.maps.packets for p in ps)
+    gathered = sum(log.bits_before(log.made) for log in env.maps.logs)
     assert env.ledger.step_bits.sum() >= expected + gathered  # each packet crosses at least one edge
 
 
@@ -805,30 +899,23 @@ def test_compiled_window_is_the_reference_at_every_step(monkeypatch, kwargs):
 
 
 def test_compiled_fusion_adds_packets_and_takes_means_as_numpy_does(monkeypatch):
-    """Lists of packets with repeated landmarks (np.add.at's order matters), added into one map on both backends,
-    and the means of the maps: bit for bit."""
+    """Entries with repeated landmarks (np.add.at's order matters), added into one map on both backends, and the
+    means of the maps: bit for bit."""
     pytest.importorskip("numba")
     rng = np.random.default_rng(4)
     L = 12
     for trial in range(300):
-        packets = []
-        for _ in range(int(rng.integers(1, 5))):
-            m = int(rng.integers(1, 6))
-            count = rng.integers(1, 4, m)
-            packets.append(
-                filters.Packet(
-                    rng.integers(0, L if trial % 2 else 3, m),
-                    count[:, None, None] * np.eye(2) * rng.uniform(0.1, 1e4),
-                    rng.normal(0.0, 10.0 ** rng.integers(-3, 6), (m, 2)),
-                    count,
-                )
-            )
+        m = int(rng.integers(1, 20))
+        landmarks = rng.integers(0, L if trial % 2 else 3, m).astype(np.int32)
+        dcount = rng.integers(1, 4, m).astype(np.int32)
+        R_inv = random_spd(rng, 10.0 ** rng.integers(-4, 5)) if trial % 3 else np.eye(2) * rng.uniform(0.1, 1e4)
+        dy = rng.normal(0.0, 10.0 ** rng.integers(-3, 6), (m, 2))
         start = (np.eye(2) * rng.uniform(1e-4, 1e6, (L, 1, 1)), rng.normal(0.0, 100.0, (L, 2)))
         maps = []
         for compiled in (False, True):
             _use_plan_backend(monkeypatch, compiled)
             Y, y, count = start[0].copy(), start[1].copy(), np.zeros(L, dtype=np.int64)
-            filters._add_packets(Y, y, count, packets)
+            filters._add_entries(Y, y, count, landmarks, dy, dcount, R_inv)
             maps.append((Y, y, count, filters.mean_of(Y[None], y[None])))
         for want, got in zip(*maps):
             assert want.dtype == got.dtype and want.tobytes() == got.tobytes()
@@ -843,7 +930,10 @@ def test_compiled_group_fusion_is_the_references(monkeypatch):
     L, edges, silent = 9, 0, 0
     for _ in range(20):
         n = int(rng.integers(2, 9))
-        both = [filters.TeamMaps(n, np.broadcast_to(np.eye(2), (L, 2, 2)).copy(), np.zeros((L, 2))) for _ in range(2)]
+        R_inv = random_spd(rng)
+        both = [
+            filters.TeamMaps(n, np.broadcast_to(np.eye(2), (L, 2, 2)).copy(), np.zeros((L, 2)), R_inv) for _ in range(2)
+        ]
         for _ in range(int(rng.integers(5, 40))):
             for v in range(n):
                 if rng.random() < 0.7:
@@ -941,9 +1031,8 @@ def test_a_packet_outside_the_map_raises_on_both_backends(monkeypatch, compiled)
         pytest.importorskip("numba")
     _use_plan_backend(monkeypatch, compiled)
     Y, y, count = np.ones((4, 2, 2)), np.ones((4, 2)), np.zeros(4, dtype=np.int64)
-    packet = filters.Packet(np.array([1, 4]), np.ones((2, 2, 2)), np.ones((2, 2)), np.ones(2, dtype=np.int64))
     with pytest.raises(IndexError):
-        filters._add_packets(Y, y, count, [packet])
+        filters._add_entries(Y, y, count, np.array([1, 4], np.int32), np.ones((2, 2)), np.ones(2, np.int32), np.eye(2))
 
 
 def test_compiled_packets_of_a_window_are_the_references(monkeypatch):
@@ -969,15 +1058,15 @@ def test_compiled_packets_of_a_window_are_the_references(monkeypatch):
         for name in ("Y", "y", "count", "known"):
             assert getattr(want.maps, name).tobytes() == getattr(got.maps, name).tobytes(), name
         assert np.array_equal(want.step_obs, got.step_obs) and np.array_equal(want.world_count, got.world_count)
-        assert want.maps.packet_bits == got.maps.packet_bits
-        for ours, theirs in zip(want.maps.packets, got.maps.packets, strict=True):
-            assert len(ours) == len(theirs)
-            for a, b in zip(ours, theirs):
-                for field in ("landmarks", "dY", "dy", "count"):
+        for ours, theirs in zip(want.maps.logs, got.maps.logs, strict=True):
+            assert (ours.first, ours.kept) == (theirs.first, theirs.kept)
+            assert ours.cum_bits[: ours.kept + 1].tobytes() == theirs.cum_bits[: theirs.kept + 1].tobytes()
+            for a, b in zip(ours.packets(), theirs.packets(), strict=True):
+                for field in ("landmarks", "dy", "count"):
                     x, y = getattr(a, field), getattr(b, field)
                     assert x.dtype == y.dtype and x.tobytes() == y.tobytes(), field
         env = got  # go on from there: packets accumulate
-    assert sum(len(p) for p in env.maps.packets) > 200
+    assert sum(log.made for log in env.maps.logs) > 200
 
 
 @pytest.mark.parametrize(

@@ -22,7 +22,9 @@ landmark's estimate off by N(0, σ₀²)), and all start together at a launch po
 at ``obs_rate`` Hz while at a landmark; each landmark yields at most ``obs_per_landmark`` independent
 observations (the sensor floor, ``theory.py``), which makes the available information finite. Fusion
 moves whole packets tracked by version vectors (exact channel-filter bookkeeping): nothing is counted
-twice, and a vehicle that was cut off sends, when it reconnects, only what the others lack. Bits are
+twice, and a vehicle that was cut off sends, when it reconnects, only what the others lack. Packets every
+vehicle holds are folded into the fused map and let go, so memory follows what some vehicle still lacks, not
+the episode's length (at most one entry per observation the sensor floor allows: *Memory*). Bits are
 counted for the version vectors, map updates, positions and utility vectors sent on each tree edge.
 
 **The plan** (``protocol.py``): at each decision phase every connected group runs the recommendation
@@ -180,10 +182,12 @@ class RendezvousMappingEnv(MrcommParallelEnv):
     MEMORY_FORMULA = (
         "18 MiB + 140·`n_vehicles`·`n_landmarks` (every vehicle's information map and utility row) + "
         "(10 + 92·`n_vehicles`)·⌊`t_window`·`obs_rate`⌋ (the observation instants of a window and each "
-        "vehicle's observation events in it)"
+        "vehicle's observation events in it) + 60·`n_landmarks`·`obs_per_landmark` (the packets some vehicle "
+        "still lacks, at most one entry per observation the sensor floor allows: reached only by a team split "
+        "for the whole of a long episode)"
     )
     MEMORY_SHARED = 18.0 * 2**20  # the formula's constant term: working memory the copies of a batch share
-    MEMORY_ARGS = ("n_vehicles", "n_landmarks", "t_window", "obs_rate")
+    MEMORY_ARGS = ("n_vehicles", "n_landmarks", "t_window", "obs_rate", "obs_per_landmark")
     MEMORY_PROBES = {
         "ten_vehicles_30k_instants": {"t_window": 300.0, "obs_rate": 100.0, "max_cycles": 3},
         "ten_vehicles_150k_instants": {"t_window": 1500.0, "obs_rate": 100.0, "max_cycles": 3},
@@ -192,10 +196,12 @@ class RendezvousMappingEnv(MrcommParallelEnv):
 
     @classmethod
     def memory_estimate(cls, cfg) -> float:
-        # measured (tests/test_memory.py): ~140 B per vehicle × landmark, ~92 B per vehicle × observation instant
+        # measured (tests/test_memory.py): ~140 B per vehicle × landmark, ~92 B per vehicle × observation instant;
+        # the packet logs by their bound (filters.STORED_ENTRY_BYTES per entry, an entry per observation at most)
         instants = math.floor(cfg.t_window * cfg.obs_rate + 1e-9)
         n, landmarks = float(cfg.n_vehicles), float(cfg.n_landmarks)
-        return cls.MEMORY_SHARED + 140.0 * n * landmarks + (10.0 + 92.0 * n) * instants
+        packets = filters.STORED_ENTRY_BYTES * landmarks * cfg.obs_per_landmark
+        return cls.MEMORY_SHARED + 140.0 * n * landmarks + (10.0 + 92.0 * n) * instants + packets
 
     LIMIT_CONFIGS = {
         "largest_team_and_map": {
@@ -275,7 +281,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         prior_mean = self.landmarks + rng.normal(0.0, c.prior_sigma, size=(L, 2))
         Y0 = np.broadcast_to(np.eye(2) * self.y0_info, (L, 2, 2)).copy()
         y0 = prior_mean * self.y0_info
-        self.maps = filters.TeamMaps(n, Y0, y0)
+        self.maps = filters.TeamMaps(n, Y0, y0, np.eye(2) * self.r_info)
         self.logdet0 = float(filters.logdet2(Y0).sum())
         self.fused_gain = 0.0  # Σ_l ln det Y_l − ln det Y₀ of the fused map, kept apart from ln det Y₀ (round-off)
         self.world_count = np.zeros(L, dtype=np.int64)
@@ -424,15 +430,11 @@ class RendezvousMappingEnv(MrcommParallelEnv):
             return
         np.add.at(self.world_count, lm, 1)
         z = self.landmarks[lm] + self.np_random.normal(0.0, c.obs_sigma, size=(len(lm), 2))
-        R_inv = np.eye(2) * self.r_info
         L = c.n_landmarks
         if backend.compiled():  # the same packets from one call (window_numba.group_observations)
             owners, bounds, ids, counts, dy, per_vehicle = _kernels().packets(v, lm, z * self.r_info, L, self.n_agents)
-            dY = counts[:, None, None] * R_inv
             for owner, start, end in zip(owners.tolist(), bounds[:-1].tolist(), bounds[1:].tolist()):
-                self.maps.add_own(
-                    owner, filters.Packet(ids[start:end], dY[start:end], dy[start:end], counts[start:end])
-                )
+                self.maps.add_own(owner, filters.Packet(ids[start:end], dy[start:end], counts[start:end]))
             self.step_obs[:] = per_vehicle
             return
         # every observing vehicle's packet, its landmarks in increasing order, from one grouping of the (vehicle,
@@ -444,7 +446,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         bounds = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1], True]).tolist()
         for start, end in zip(bounds[:-1], bounds[1:]):  # vehicles in increasing order: the order packets are kept
             span = slice(start, end)
-            packet = filters.Packet(ids[span], counts[span, None, None] * R_inv, dy[span], counts[span])
+            packet = filters.Packet(ids[span], dy[span], counts[span])
             self.maps.add_own(int(owner[start]), packet)
         self.step_obs[:] = np.bincount(v, minlength=self.n_agents)
 

@@ -29,6 +29,7 @@ The **fused global map** is the information every vehicle of the team holds, pri
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import cache
 
@@ -67,62 +68,181 @@ def observe(Y: np.ndarray, y: np.ndarray, landmarks: np.ndarray, z: np.ndarray, 
 
 @dataclass(frozen=True)
 class Packet:
-    """Information one vehicle gathered in one window: per observed landmark the added ``dY`` and ``dy`` and
-    the number of observations (which every holder adds to its count, for the sensor floor)."""
+    """Information one vehicle gathered in one window: per observed landmark the added ``dy`` and the number of
+    observations (which every holder adds to its count, for the sensor floor). The added information matrix is
+    ``count · R⁻¹`` (H = I and one noise model, eq. (3)), which every holder computes from the count
+    (:class:`TeamMaps` knows R⁻¹): it is sent (3 entries) but not stored."""
 
     landmarks: np.ndarray  # (m,) int
-    dY: np.ndarray  # (m, 2, 2)
     dy: np.ndarray  # (m, 2)
     count: np.ndarray  # (m,) int
 
     def bits(self, n_landmarks: int) -> int:
         """Landmark index, the 3 distinct entries of dY, dy, and the count, per landmark (§III map update)."""
-        index_bits = max(1, int(np.ceil(np.log2(max(n_landmarks, 2)))))
-        return int(len(self.landmarks)) * (index_bits + 5 * FLOAT_BITS + COUNT_BITS)
+        return packet_bits(len(self.landmarks), n_landmarks)
+
+
+def packet_bits(entries: int, n_landmarks: int) -> int:
+    """Bits of a map update of ``entries`` landmarks: index, the 3 distinct entries of dY, dy, and the count each."""
+    index_bits = max(1, int(np.ceil(np.log2(max(n_landmarks, 2)))))
+    return int(entries) * (index_bits + 5 * FLOAT_BITS + COUNT_BITS)
+
+
+#: entries added to a map in one call at most: the packets of a fusion after a long split are added piece by piece,
+#: in order (the same sums), so that its working memory stays a few MB whatever the logs hold
+PIECE_ENTRIES = 1 << 16
+
+#: bytes a stored packet entry takes at most: landmark and count (int32), dy (2 float64), and, when the entry is a
+#: packet of its own, its bounds and cumulative bits (int64 each); arrays grow by half, so times 1.5
+STORED_ENTRY_BYTES = 1.5 * (4 + 4 + 16 + 8 + 8)
+
+
+def _room(array: np.ndarray, needed: int) -> np.ndarray:
+    """``array`` with room for ``needed`` rows: itself, or a copy half again as long (amortised appends)."""
+    if needed <= len(array):
+        return array
+    grown = np.zeros((max(needed, len(array) + len(array) // 2 + 8),) + array.shape[1:], dtype=array.dtype)
+    grown[: len(array)] = array
+    return grown
+
+
+class PacketLog:
+    """One vehicle's packets, in flat arrays (their entries one after another, as gathered), with the cumulative
+    bits of its first k packets.
+
+    Packet numbers are absolute (version vectors count them from the episode's start), but the log keeps only
+    those from ``first`` on: packets every vehicle holds are never sent again, so :meth:`drop_before` lets them
+    go (the common map holds their sum). Memory then follows the packets some vehicle still lacks, not the
+    episode's length."""
+
+    def __init__(self) -> None:
+        self.first = 0  # absolute number of the first packet kept
+        self.kept = 0  # packets kept
+        self.bounds = np.zeros(8, dtype=np.int64)  # packet first + j spans entries bounds[j] … bounds[j + 1]
+        self.cum_bits = np.zeros(8, dtype=np.int64)  # bits of packets 0 … first + j − 1
+        self.landmarks = np.zeros(8, dtype=np.int32)
+        self.dy = np.zeros((8, 2))
+        self.count = np.zeros(8, dtype=np.int32)
+
+    @property
+    def made(self) -> int:
+        """Packets this vehicle made so far (kept or dropped)."""
+        return self.first + self.kept
+
+    @property
+    def entries(self) -> int:
+        """Entries of the kept packets."""
+        return int(self.bounds[self.kept])
+
+    def append(self, packet: Packet, bits: int) -> None:
+        m, e, k = len(packet.landmarks), self.entries, self.kept
+        self.landmarks = _room(self.landmarks, e + m)
+        self.dy = _room(self.dy, e + m)
+        self.count = _room(self.count, e + m)
+        self.landmarks[e : e + m] = packet.landmarks
+        self.dy[e : e + m] = packet.dy
+        self.count[e : e + m] = packet.count
+        self.bounds = _room(self.bounds, k + 2)
+        self.cum_bits = _room(self.cum_bits, k + 2)
+        self.bounds[k + 1] = e + m
+        self.cum_bits[k + 1] = self.cum_bits[k] + bits
+        self.kept = k + 1
+
+    def bits_before(self, k: int) -> int:
+        """Bits of this vehicle's first ``k`` packets (``first ≤ k ≤ made``)."""
+        return int(self.cum_bits[k - self.first])
+
+    def span(self, start: int, stop: int) -> slice:
+        """The entries of packets ``start … stop − 1`` (absolute numbers, ``first ≤ start ≤ stop ≤ made``)."""
+        if not self.first <= start <= stop <= self.made:
+            raise ValueError(f"packets {start} … {stop} are not all kept (kept: {self.first} … {self.made})")
+        return slice(int(self.bounds[start - self.first]), int(self.bounds[stop - self.first]))
+
+    def packets(self) -> list[Packet]:
+        """The kept packets, in order (views of the log)."""
+        spans = [self.span(k, k + 1) for k in range(self.first, self.made)]
+        return [Packet(self.landmarks[s], self.dy[s], self.count[s]) for s in spans]
+
+    def drop_before(self, k: int) -> None:
+        """Let packets before ``k`` go (every vehicle holds them). The arrays are moved down only once at least as
+        many packets are to go as stay, so each packet is moved a bounded number of times."""
+        drop = k - self.first
+        if drop <= 0 or drop < self.kept - drop:
+            return
+        e0, e1, keep = int(self.bounds[drop]), self.entries, self.kept - drop
+        for name in ("landmarks", "dy", "count"):
+            array = getattr(self, name)
+            array[: e1 - e0] = array[e0:e1].copy()
+        self.bounds[: keep + 1] = self.bounds[drop : self.kept + 1] - e0
+        self.cum_bits[: keep + 1] = self.cum_bits[drop : self.kept + 1].copy()
+        self.first, self.kept = k, keep
 
 
 class TeamMaps:
-    """Every vehicle's landmark map, the packets behind them, and the fused common map."""
+    """Every vehicle's landmark map, the packets behind them (one :class:`PacketLog` per vehicle), and the fused
+    common map. ``R_inv``: the information of one observation (2, 2); an entry of ``count`` observations adds
+    ``count · R_inv`` to Y."""
 
-    def __init__(self, n_vehicles: int, Y0: np.ndarray, y0: np.ndarray):
+    def __init__(self, n_vehicles: int, Y0: np.ndarray, y0: np.ndarray, R_inv: np.ndarray):
         n, L = n_vehicles, len(Y0)
         self.n, self.L = n, L
         self.Y0, self.y0 = Y0, y0
+        self.R_inv = np.array(R_inv, dtype=np.float64).reshape(2, 2)
         self.Y = np.broadcast_to(Y0, (n, L, 2, 2)).copy()
         self.y = np.broadcast_to(y0, (n, L, 2)).copy()
         self.count = np.zeros((n, L), dtype=np.int64)
-        self.packets: list[list[Packet]] = [[] for _ in range(n)]
-        self.packet_bits: list[list[int]] = [[0] for _ in range(n)]  # cumulative bits of u's first k packets
-        self._cum_bits = np.zeros((n, 16), dtype=np.int64)  # packet_bits as an array (row u: u's list, zero padded)
+        self.logs = [PacketLog() for _ in range(n)]
         self.known = np.zeros((n, n), dtype=np.int64)  # version vectors: known[w, u] packets of u held by w
         self.common_Y, self.common_y = Y0.copy(), y0.copy()
         self.common_count = np.zeros(L, dtype=np.int64)
         self.common_known = np.zeros(n, dtype=np.int64)
+        self._bits_table: tuple[np.ndarray, np.ndarray] | None = None  # the logs' cumulative bits, flat (compiled)
 
     # ------------------------------------------------------------------ local information
     def add_own(self, v: int, packet: Packet) -> None:
         """Vehicle v's newly gathered information: into its own map at once, and kept for fusion."""
         if len(packet.landmarks) == 0:
             return
-        self._apply(v, [packet])
-        self.packets[v].append(packet)
-        total = self.packet_bits[v][-1] + packet.bits(self.L)
-        self.packet_bits[v].append(total)
-        k = len(self.packet_bits[v]) - 1
-        if k == self._cum_bits.shape[1]:  # room for twice as many packets
-            self._cum_bits = np.concatenate([self._cum_bits, np.zeros_like(self._cum_bits)], axis=1)
-        self._cum_bits[v, k] = total
+        log = self.logs[v]
+        log.append(packet, packet.bits(self.L))
+        self._add(v, *_joined([(log, int(log.bounds[log.kept - 1]), log.entries)]))
+        self._bits_table = None
         self.known[v, v] += 1
 
-    def _apply(self, w: int, packets: list[Packet]) -> None:
-        if packets:
-            _add_packets(self.Y[w], self.y[w], self.count[w], packets)
+    def packets(self, u: int) -> list[Packet]:
+        """The packets of vehicle u still kept: those some vehicle lacks, and any not yet let go."""
+        return self.logs[u].packets()
+
+    def _pieces(self, start: list[int], stop: list[int]) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """The entries of every vehicle u's packets ``start[u] … stop[u] − 1``, u in increasing order (the order
+        they are added), as ``(landmarks, dy, count)`` pieces of at most :data:`PIECE_ENTRIES` entries."""
+        parts: list[tuple[PacketLog, int, int]] = []
+        size = 0
+        for log, a, b in zip(self.logs, start, stop):
+            if b <= a:
+                continue
+            span = log.span(a, b)
+            for lo in range(span.start, span.stop, PIECE_ENTRIES):
+                hi = min(span.stop, lo + PIECE_ENTRIES)
+                if parts and size + hi - lo > PIECE_ENTRIES:
+                    yield _joined(parts)
+                    parts, size = [], 0
+                parts.append((log, lo, hi))
+                size += hi - lo
+        if parts:
+            yield _joined(parts)
+
+    def _add(self, w: int, landmarks: np.ndarray, dy: np.ndarray, count: np.ndarray) -> None:
+        _add_entries(self.Y[w], self.y[w], self.count[w], landmarks, dy, count, self.R_inv)
 
     # ------------------------------------------------------------------ fusion
     def missing_bits(self, have: np.ndarray, want: np.ndarray) -> int:
         """Bits of the packets in ``want`` (a version vector) beyond ``have``."""
-        bits = self.packet_bits
-        return int(sum(bits[u][w] - bits[u][h] for u, (h, w) in enumerate(zip(have.tolist(), want.tolist())) if w > h))
+        return sum(
+            log.bits_before(w) - log.bits_before(h)
+            for log, h, w in zip(self.logs, have.tolist(), want.tolist())
+            if w > h
+        )
 
     def fuse_group(
         self, members: np.ndarray, parent: np.ndarray, sides: dict[int, np.ndarray] | None = None
@@ -143,9 +263,10 @@ class TeamMaps:
         upto = union.tolist()
         for w in members.tolist():
             held = self.known[w].tolist()
-            lack = [p for u, packets in enumerate(self.packets) for p in packets[held[u] : upto[u]]]
-            self._apply(w, lack)
-            self.known[w] = union
+            if held != upto:
+                for piece in self._pieces(held, upto):
+                    self._add(w, *piece)
+                self.known[w] = union
         return sent
 
     def _edge_bits(
@@ -154,15 +275,22 @@ class TeamMaps:
         """Bits over each tree edge of a group, both ways: the packets one side holds beyond the other's."""
         sent: dict[tuple[int, int], int] = {}
         if backend.compiled():  # the loop below in one call (fusion_numba.edge_bits), the same whole numbers
+            if self._bits_table is None:
+                origin, at = [], 0
+                for log in self.logs:
+                    origin.append(at - log.first)
+                    at += log.kept + 1
+                kept = np.concatenate([log.cum_bits[: log.kept + 1] for log in self.logs])
+                self._bits_table = (kept, np.array(origin, dtype=np.int64))
             firsts = list(sides)
-            starts = np.zeros(len(firsts) + 1, dtype=np.int64)
-            np.cumsum([len(sides[a]) for a in firsts], out=starts[1:])
+            side_starts = np.zeros(len(firsts) + 1, dtype=np.int64)
+            np.cumsum([len(sides[a]) for a in firsts], out=side_starts[1:])
             per_edge = _fusion_kernels().edge_bits(
                 self.known,
                 np.ascontiguousarray(members, dtype=np.int64),
-                starts,
+                side_starts,
                 np.concatenate([sides[a] for a in firsts]).astype(np.int64, copy=False),
-                self._cum_bits,
+                *self._bits_table,
             )
             for a, (forth, back) in zip(firsts, per_edge.tolist()):
                 b = int(parent[a])
@@ -180,24 +308,29 @@ class TeamMaps:
         return sent
 
     def update_common(self) -> bool:
-        """Fold into the common map the packets every vehicle now holds; True when it grew."""
+        """Fold into the common map the packets every vehicle now holds, and let them go from the logs (nobody
+        lacks them any more); True when the common map grew."""
         floor = self.known.min(0)
         start, upto = self.common_known.tolist(), floor.tolist()
-        new = [p for u, packets in enumerate(self.packets) for p in packets[start[u] : upto[u]]]
+        grew = False
+        for landmarks, dy, count in self._pieces(start, upto):
+            _add_entries(self.common_Y, self.common_y, self.common_count, landmarks, dy, count, self.R_inv)
+            grew = True
         self.common_known = floor
-        if not new:
-            return False
-        _add_packets(self.common_Y, self.common_y, self.common_count, new)
-        return True
+        if grew:
+            for log, k in zip(self.logs, upto):
+                log.drop_before(k)
+            self._bits_table = None
+        return grew
 
     # ------------------------------------------------------------------ bookkeeping views
     def information_of(self, version: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(Y, y) of the prior plus the packets named by a version vector, summed afresh (for checks)."""
-        Y, y = self.Y0.copy(), self.y0.copy()
-        for u in range(self.n):
-            for p in self.packets[u][: version[u]]:
-                np.add.at(Y, p.landmarks, p.dY)
-                np.add.at(y, p.landmarks, p.dy)
+        """(Y, y) of the common map plus the packets beyond it that a version vector names, summed afresh (for
+        checks; ``version`` must hold at least the common map's packets, as every vehicle's does)."""
+        Y, y = self.common_Y.copy(), self.common_y.copy()
+        for landmarks, dy, count in self._pieces(self.common_known.tolist(), [int(k) for k in version]):
+            np.add.at(Y, landmarks, count[:, None, None] * self.R_inv)
+            np.add.at(y, landmarks, dy)
         return Y, y
 
     def channel_information(self, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
@@ -206,27 +339,46 @@ class TeamMaps:
 
     def centralized(self) -> tuple[np.ndarray, np.ndarray]:
         """Prior plus every packet ever gathered once: the centralised information sum."""
-        return self.information_of(np.array([len(p) for p in self.packets]))
+        return self.information_of(np.array([log.made for log in self.logs]))
 
 
-def _add_packets(Y: np.ndarray, y: np.ndarray, count: np.ndarray, packets: list[Packet]) -> None:
-    """Add ``packets`` (in order) into one map ``Y`` (L, 2, 2), ``y`` (L, 2), ``count`` (L,), in place."""
-    if len(packets) == 1:
-        p = packets[0]
-        idx, dY, dy, dcount = p.landmarks, p.dY, p.dy, p.count
-    else:
-        idx = np.concatenate([p.landmarks for p in packets])
-        dY = np.concatenate([p.dY for p in packets])
-        dy = np.concatenate([p.dy for p in packets])
-        dcount = np.concatenate([p.count for p in packets])
+def _joined(parts: list[tuple[PacketLog, int, int]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The entries ``lo … hi − 1`` of each ``(log, lo, hi)``, one after another: views when there is one part."""
+    if len(parts) == 1:
+        log, lo, hi = parts[0]
+        return log.landmarks[lo:hi], log.dy[lo:hi], log.count[lo:hi]
+    return (
+        np.concatenate([log.landmarks[lo:hi] for log, lo, hi in parts]),
+        np.concatenate([log.dy[lo:hi] for log, lo, hi in parts]),
+        np.concatenate([log.count[lo:hi] for log, lo, hi in parts]),
+    )
+
+
+def _add_entries(
+    Y: np.ndarray,
+    y: np.ndarray,
+    count: np.ndarray,
+    landmarks: np.ndarray,
+    dy: np.ndarray,
+    dcount: np.ndarray,
+    R_inv: np.ndarray,
+) -> None:
+    """Add entries (in order: a landmark may repeat) into one map ``Y`` (L, 2, 2), ``y`` (L, 2), ``count`` (L,),
+    in place: ``dcount · R_inv`` (``R_inv`` (2, 2)), ``dy`` (m, 2) and ``dcount`` (m,) at ``landmarks`` (m,)."""
     if backend.compiled():  # the same additions in the same order, in one call (fusion_numba)
-        _fusion_kernels().add_packets(
-            Y, y, count, _plain(idx, np.int64), _plain(dY, np.float64), _plain(dy, np.float64), _plain(dcount, np.int64)
+        _fusion_kernels().add_counted(
+            Y,
+            y,
+            count,
+            _plain(landmarks, np.int32),
+            _plain(dy, np.float64),
+            _plain(dcount, np.int32),
+            _plain(R_inv, np.float64),
         )
         return
-    np.add.at(Y, idx, dY)
-    np.add.at(y, idx, dy)
-    np.add.at(count, idx, dcount)
+    np.add.at(Y, landmarks, dcount[:, None, None] * R_inv)
+    np.add.at(y, landmarks, dy)
+    np.add.at(count, landmarks, dcount)
 
 
 def _plain(array, dtype) -> np.ndarray:

@@ -1,5 +1,6 @@
-"""Compiled twins (numba) of the information maps' two hot operations (``filters.py``): adding packets to a map
-(``np.add.at`` of their ``dY``, ``dy`` and counts) and the landmark means μ = Y⁻¹ y of every map.
+"""Compiled twins (numba) of the information maps' hot operations (``filters.py``): adding packet entries to a map
+(``np.add.at`` of their ``count · R⁻¹``, ``dy`` and counts), the landmark means μ = Y⁻¹ y of every map, and the
+bits over each edge of a fusion tree.
 
 On the 2–10 packets and 10 × 200 maps of a decision phase, numpy's per-call overhead is most of their cost: a
 vehicle's own packet, each fusion and the common map each take three ``np.add.at`` calls. The twins do the same
@@ -21,24 +22,24 @@ configure_numba_cache()  # before the @njit(cache=True) below: never cache into 
 
 
 @numba.njit(cache=True)
-def add_packets(Y, y, count, landmarks, dY, dy, dcount):
-    """``np.add.at`` of ``dY``, ``dy`` and ``dcount`` at ``landmarks`` into ``Y`` (L, 2, 2), ``y`` (L, 2) and
-    ``count`` (L,), in that order (repeated landmarks add up in the order given). A landmark outside 0 … L − 1
-    raises ``IndexError`` before anything is added (numba does not check indices)."""
+def add_counted(Y, y, count, landmarks, dy, dcount, R_inv):
+    """``np.add.at`` of ``dcount · R_inv``, ``dy`` and ``dcount`` at ``landmarks`` into ``Y`` (L, 2, 2), ``y`` (L, 2)
+    and ``count`` (L,) (repeated landmarks add up in the order given): each product rounded once, then added, as
+    numpy's ``dcount[:, None, None] * R_inv`` and ``np.add.at`` do. A landmark outside 0 … L − 1 raises
+    ``IndexError`` before anything is added (numba does not check indices)."""
     for i in range(landmarks.size):
         if landmarks[i] < 0 or landmarks[i] >= Y.shape[0]:
             raise IndexError("a packet's landmark index is out of range")
     for i in range(landmarks.size):
         lm = landmarks[i]
-        Y[lm, 0, 0] += dY[i, 0, 0]
-        Y[lm, 0, 1] += dY[i, 0, 1]
-        Y[lm, 1, 0] += dY[i, 1, 0]
-        Y[lm, 1, 1] += dY[i, 1, 1]
-    for i in range(landmarks.size):
-        y[landmarks[i], 0] += dy[i, 0]
-        y[landmarks[i], 1] += dy[i, 1]
-    for i in range(landmarks.size):
-        count[landmarks[i]] += dcount[i]
+        c = np.float64(dcount[i])
+        Y[lm, 0, 0] += c * R_inv[0, 0]
+        Y[lm, 0, 1] += c * R_inv[0, 1]
+        Y[lm, 1, 0] += c * R_inv[1, 0]
+        Y[lm, 1, 1] += c * R_inv[1, 1]
+        y[lm, 0] += dy[i, 0]
+        y[lm, 1] += dy[i, 1]
+        count[lm] += dcount[i]
 
 
 @numba.njit(cache=True)
@@ -54,12 +55,13 @@ def mean_of(Y, y):
 
 
 @numba.njit(cache=True)
-def edge_bits(known, members, side_starts, side_members, cum_bits):
+def edge_bits(known, members, side_starts, side_members, cum_bits, origin):
     """``TeamMaps.fuse_group``'s bits over each tree edge (a, parent[a]) of a group: ``(S, 2)``, a → b then b → a,
     for the sides given as ``side_members[side_starts[s] : side_starts[s + 1]]`` (a's subtree). Each direction
     carries the packets the sender's side holds beyond the receiver's side (``TeamMaps.missing_bits`` of the two
-    sides' union version vectors), summed from the cumulative packet bits ``cum_bits[u, k]``: whole numbers, so
-    the sums are the reference's."""
+    sides' union version vectors), summed from the cumulative bits of u's first k packets,
+    ``cum_bits[origin[u] + k]`` (every vehicle's kept log, one after another: ``TeamMaps._edge_bits``): whole
+    numbers, so the sums are the reference's."""
     n = known.shape[0]
     S = side_starts.size - 1
     out = np.zeros((S, 2), dtype=np.int64)
@@ -77,7 +79,7 @@ def edge_bits(known, members, side_starts, side_members, cum_bits):
                 else:
                     union_b = max(union_b, known[m, u])
             if union_a > union_b:
-                out[s, 0] += cum_bits[u, union_a] - cum_bits[u, union_b]
+                out[s, 0] += cum_bits[origin[u] + union_a] - cum_bits[origin[u] + union_b]
             elif union_b > union_a:
-                out[s, 1] += cum_bits[u, union_b] - cum_bits[u, union_a]
+                out[s, 1] += cum_bits[origin[u] + union_b] - cum_bits[origin[u] + union_a]
     return out
