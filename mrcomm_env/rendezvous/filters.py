@@ -134,19 +134,20 @@ class PacketLog:
         """Entries of the kept packets."""
         return int(self.bounds[self.kept])
 
-    def append(self, packet: Packet, bits: int) -> None:
+    def append(self, packet: Packet, bits: int) -> slice:
+        """Keep ``packet`` (of ``bits`` bits) as the next one; returns the span of its entries."""
         m, e, k = len(packet.landmarks), self.entries, self.kept
-        self.landmarks = _room(self.landmarks, e + m)
-        self.dy = _room(self.dy, e + m)
-        self.count = _room(self.count, e + m)
+        if e + m > len(self.landmarks):
+            self.landmarks, self.dy, self.count = (_room(a, e + m) for a in (self.landmarks, self.dy, self.count))
+        if k + 2 > len(self.bounds):
+            self.bounds, self.cum_bits = _room(self.bounds, k + 2), _room(self.cum_bits, k + 2)
         self.landmarks[e : e + m] = packet.landmarks
         self.dy[e : e + m] = packet.dy
         self.count[e : e + m] = packet.count
-        self.bounds = _room(self.bounds, k + 2)
-        self.cum_bits = _room(self.cum_bits, k + 2)
         self.bounds[k + 1] = e + m
         self.cum_bits[k + 1] = self.cum_bits[k] + bits
         self.kept = k + 1
+        return slice(e, e + m)
 
     def bits_before(self, k: int) -> int:
         """Bits of this vehicle's first ``k`` packets (``first ≤ k ≤ made``)."""
@@ -197,6 +198,7 @@ class TeamMaps:
         self.common_count = np.zeros(L, dtype=np.int64)
         self.common_known = np.zeros(n, dtype=np.int64)
         self._bits_table: tuple[np.ndarray, np.ndarray] | None = None  # the logs' cumulative bits, flat (compiled)
+        self._entry_bits = packet_bits(1, L)
 
     # ------------------------------------------------------------------ local information
     def add_own(self, v: int, packet: Packet) -> None:
@@ -204,8 +206,8 @@ class TeamMaps:
         if len(packet.landmarks) == 0:
             return
         log = self.logs[v]
-        log.append(packet, packet.bits(self.L))
-        self._add(v, *_joined([(log, int(log.bounds[log.kept - 1]), log.entries)]))
+        new = log.append(packet, self._entry_bits * len(packet.landmarks))
+        self._add(v, log.landmarks[new], log.dy[new], log.count[new])
         self._bits_table = None
         self.known[v, v] += 1
 
