@@ -118,6 +118,23 @@ def test_bench_train_slots_sets_the_copies_of_the_reference_and_of_each_env(tmp_
     assert main([*argv[:-1], "0", "--out", str(out)]) != 0  # a slot count must be positive
 
 
+def test_bench_train_compares_each_env_with_the_reference_at_its_own_slot_count(tmp_path):
+    """AsyncCL's 5 robots fill 10 slots of the 12 asked for: its ratio is to 3 copies of the reference (9 slots),
+    measured beside the 4 copies (12 slots) the other envs meet."""
+    pytest.importorskip("mpe2")
+    out = tmp_path / "bench.json"
+    argv = ["bench", "AsyncCL-v0", "MapSync-v0", "--param", "max_cycles=8", "--train", "--train-slots", "12"]
+    assert main([*argv, "--train-timesteps", "64", "--runs", "1", "--seconds", "0.1", "--out", str(out)]) == 0
+    train = json.loads(out.read_text())["train"]
+    assert set(train["references"]) == {"9", "12"} and train["reference"] == train["references"]["12"]
+    for env_id, slots, reference_slots in (("AsyncCL-v0", 10, 9), ("MapSync-v0", 12, 12)):
+        entry = train["envs"][f"mrcomm/{env_id}"]
+        reference = train["references"][str(reference_slots)]
+        assert entry["slots"] == slots and entry["reference_slots"] == reference_slots
+        assert entry["reference_agent_steps_per_s"] == reference["agent_steps_per_s"]
+        assert entry["ratio_to_reference"] == pytest.approx(entry["agent_steps_per_s"] / reference["agent_steps_per_s"])
+
+
 @pytest.mark.xdist_group("processes")
 def test_bench_batched_steps_each_batch_size_in_its_own_process(tmp_path, capsys):
     pytest.importorskip("mpe2")

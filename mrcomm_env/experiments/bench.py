@@ -36,25 +36,45 @@ def train_section(
     """PPO agent-steps/s through the agent-slot VecEnv on every target and on mpe2's ``simple_spread_v3``, with
     the share of wall time spent stepping the envs (the goal: our envs train at least as fast as the reference).
     ``slots``: about how many agent slots each VecEnv has (the reference: ``slots / 3`` copies of its 3 agents;
-    each env: as many copies as come closest); more slots means more copies per batch."""
+    each env: as many copies as come closest); more slots means more copies per batch.
+
+    Each env is compared with the reference at about its own slot count (``reference_slots``): PPO's own cost per
+    agent-step falls as its batches grow, so an env whose one copy fills more slots than asked for (MultiHop's 100
+    robots) would otherwise be compared with a reference that runs on smaller batches. ``references`` holds the
+    reference at every slot count measured; ``reference`` is the one at ``slots``."""
 
     def reference():
         from mpe2 import simple_spread_v3  # extra "bench"
 
         return simple_spread_v3.parallel_env(N=3, continuous_actions=False)
 
-    reference_copies = max(1, round(slots / 3))
-    out = {"timesteps": timesteps, "reference": train_throughput([reference] * reference_copies, timesteps)}
-    print(f"train  reference simple_spread_v3: {_train_line(out['reference'])}")
+    references: dict[int, dict[str, Any]] = {}
+
+    def reference_at(agent_slots: int) -> dict[str, Any]:
+        copies = max(1, round(agent_slots / 3))
+        if copies * 3 not in references:
+            result = train_throughput([reference] * copies, timesteps)
+            references[result["slots"]] = result
+            print(f"train  reference simple_spread_v3: {_train_line(result)}")
+        return references[copies * 3]
+
+    out: dict[str, Any] = {"timesteps": timesteps, "reference": reference_at(slots)}
     slots = out["reference"]["slots"]
     out["envs"] = {}
     for env_id in tqdm(targets, desc="PPO throughput", leave=False, disable=not progress):
         # about as many agent slots as the reference, so the policy's batch (and its cost per agent-step) match
         copies = max(1, round(slots / make(env_id, **params).n_agents))
         result = train_throughput([lambda env_id=env_id: make(env_id, **params)] * copies, timesteps)
-        result["ratio_to_reference"] = result["agent_steps_per_s"] / out["reference"]["agent_steps_per_s"]
+        matched = reference_at(result["slots"])
+        result["reference_slots"] = matched["slots"]
+        result["reference_agent_steps_per_s"] = matched["agent_steps_per_s"]
+        result["ratio_to_reference"] = result["agent_steps_per_s"] / matched["agent_steps_per_s"]
         out["envs"][env_id] = result
-        print(f"train  {env_id}: {_train_line(result)}, ratio {result['ratio_to_reference']:.2f}")
+        print(
+            f"train  {env_id}: {_train_line(result)}, ratio {result['ratio_to_reference']:.2f} "
+            f"(to the reference at {matched['slots']} slots)"
+        )
+    out["references"] = {str(k): v for k, v in sorted(references.items())}
     return out
 
 
