@@ -126,3 +126,30 @@ def test_memory_does_not_grow_with_the_horizon(env_id):
         for cfg in (short, long)
     ]
     assert peaks[1] <= peaks[0] + 1.0, f"{env_id}: {peaks[0]:.1f} MB at 10 steps, {peaks[1]:.1f} MB at 1e9"
+
+
+#: arguments under which an env's episode runs on for thousands of steps (RendezvousMapping's default sensor
+#: floor is exhausted within a few hundred phases, and the episode ends)
+LONG_EPISODE_ARGS = {"mrcomm/RendezvousMapping-v0": {"obs_per_landmark": 10_000}}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env_id", env_ids())
+def test_memory_does_not_grow_over_a_long_episode(env_id):
+    """What an env holds follows its arguments, not how long it has run: the traced peak over 1,200 random steps
+    of one episode is the peak over 150, within 1 MB (RendezvousMapping once kept every packet for the whole
+    episode, 6.7 MB more per 1,000 phases at these arguments)."""
+    config = {"max_cycles": _horizon(env_id, 10**9), **LONG_EPISODE_ARGS.get(env_id, {})}
+    peaks = [
+        measure_limit(
+            env_id,
+            config,
+            seconds=0.0,
+            min_steps=steps,
+            trace_memory=True,
+            timeout=600,
+            env_vars={"MRCOMM_BACKEND": "numpy"},
+        )["traced_peak_mb"]
+        for steps in (150, 1200)
+    ]
+    assert peaks[1] <= peaks[0] + 1.0, f"{env_id}: {peaks[0]:.2f} MB after 150 steps, {peaks[1]:.2f} MB after 1,200"
