@@ -26,21 +26,12 @@ import math
 import numpy as np
 from numba import njit
 
-from mrcomm_env.core.backend import configure_numba_cache
+from mrcomm_env.core.backend import configure_numba_cache, kernel_array
 
 configure_numba_cache()  # before the @njit(cache=True) below: never cache into the package
 
 TWO_PI = 2.0 * math.pi
 MIN_DISTANCE = 1e-6  # as ``ekf.MIN_DISTANCE``
-
-
-def _c(array):
-    """The array as a writable C-contiguous one (a copy only when it is not): every kernel then has one compiled
-    signature, instead of one per memory layout met at run time (fancy indexing may give Fortran order,
-    ``np.broadcast_to`` read-only views), each compiled or loaded when first met."""
-    if array.flags.c_contiguous and array.flags.writeable:
-        return array
-    return np.array(array, order="C")
 
 
 @njit(cache=True)
@@ -164,17 +155,17 @@ def _information(X, a, b, z, inv_sd, inv_sth):
 
 def inv(A):
     """``ekf.inv``: batched inverse of symmetric positive definite matrices."""
-    return _inv(_c(A))
+    return _inv(kernel_array(A))
 
 
 def propagate(X, P, ud):
     """``ekf.propagate``: x⁺ = f(x, u), P⁺ = F P Fᵀ + Γ Q Γᵀ (eq. (1))."""
-    return _propagate(_c(X), _c(P), _c(ud))
+    return _propagate(kernel_array(X), kernel_array(P), kernel_array(ud))
 
 
 def information(X, geo, z, inv_sd, inv_sth):
     """``ekf.information``: whitened rows [√W H | √W r] of a column at the priors X, (G, 2m, 3N+1)."""
-    return _information(_c(X), geo.a, geo.b, _c(z), inv_sd, inv_sth)
+    return _information(kernel_array(X), geo.a, geo.b, kernel_array(z), inv_sd, inv_sth)
 
 
 @njit(cache=True)
@@ -240,7 +231,15 @@ def update(Xp, Yp, A, hold, prior=None, geo=None):
             prior = _FIRST[:G] if G <= 256 else np.zeros(G, dtype=np.int64)
     elif prior is None:
         prior = _OWN[:G] if G <= 256 else np.arange(G)
-    return _update(_c(Xp), _c(Yp), _c(A), _c(hold), _c(np.asarray(prior, dtype=np.int64)), geo.a, geo.b)
+    return _update(
+        kernel_array(Xp),
+        kernel_array(Yp),
+        kernel_array(A),
+        kernel_array(hold),
+        kernel_array(prior, np.int64),
+        geo.a,
+        geo.b,
+    )
 
 
 @njit(cache=True)
@@ -255,7 +254,16 @@ def _column(Xs, Ps, ud, a, b, z, inv_sd, inv_sth, hold, prior):
 def column(Xs, Ps, ud, geo, z, inv_sd, inv_sth, hold, prior):
     """``ekf.column``: propagate, linearise, invert and update in one compiled call."""
     return _column(
-        _c(Xs), _c(Ps), _c(ud), geo.a, geo.b, _c(z), inv_sd, inv_sth, _c(hold), _c(np.asarray(prior, dtype=np.int64))
+        kernel_array(Xs),
+        kernel_array(Ps),
+        kernel_array(ud),
+        geo.a,
+        geo.b,
+        kernel_array(z),
+        inv_sd,
+        inv_sth,
+        kernel_array(hold),
+        kernel_array(prior, np.int64),
     )
 
 
@@ -337,7 +345,7 @@ def restart_chains(Lr, c_r, t, ud_ring, W, sources_known, geometries, zs, lins, 
     lin_off = np.zeros(len(firsts) + 1, dtype=np.int64)
     np.cumsum([len(A) for _, _, A in priors], out=lin_off[1:])
     return _restart_chains(
-        _c(Lr),
+        kernel_array(Lr),
         c_r,
         int(t),
         k0,
@@ -346,7 +354,7 @@ def restart_chains(Lr, c_r, t, ud_ring, W, sources_known, geometries, zs, lins, 
         bool(sources_known),
         np.concatenate([geo.a for geo in geometries]),
         np.concatenate([geo.b for geo in geometries]),
-        _c(np.concatenate(zs)),
+        kernel_array(np.concatenate(zs)),
         off,
         slot_of_col,
         np.array([X for X, _, _ in priors]),

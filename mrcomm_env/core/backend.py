@@ -20,6 +20,8 @@ import os
 from functools import cache
 from pathlib import Path
 
+import numpy as np
+
 VARIABLE = "MRCOMM_BACKEND"
 CHOICES = ("auto", "numba", "numpy")
 
@@ -57,3 +59,16 @@ def user_cache_dir() -> Path:
 
 def name() -> str:
     return "numba" if compiled() else "numpy"
+
+
+def kernel_array(array, dtype=None) -> np.ndarray:
+    """``array`` as a writable C-contiguous array (of ``dtype`` when given), a copy only when it is not one.
+
+    What a compiled kernel should be handed: numba compiles one signature per dtype, memory layout and
+    writability it meets, each compiled (or loaded) when first met, while fancy indexing may give Fortran order
+    and ``np.broadcast_to`` read-only views. The values are the same, so the results are too."""
+    if not isinstance(array, np.ndarray):
+        array = np.asarray(array)
+    if (dtype is None or array.dtype == dtype) and array.flags.c_contiguous and array.flags.writeable:
+        return array
+    return np.array(array, dtype=dtype, order="C")

@@ -36,6 +36,7 @@ from functools import cache
 import numpy as np
 
 from mrcomm_env.core import backend
+from mrcomm_env.core.backend import kernel_array
 
 #: bits of one float sent over the air
 FLOAT_BITS = 32
@@ -372,20 +373,15 @@ def _add_entries(
             Y,
             y,
             count,
-            _plain(landmarks, np.int32),
-            _plain(dy, np.float64),
-            _plain(dcount, np.int32),
-            _plain(R_inv, np.float64),
+            kernel_array(landmarks, np.int32),
+            kernel_array(dy, np.float64),
+            kernel_array(dcount, np.int32),
+            kernel_array(R_inv, np.float64),
         )
         return
     np.add.at(Y, landmarks, dcount[:, None, None] * R_inv)
     np.add.at(y, landmarks, dy)
     np.add.at(count, landmarks, dcount)
-
-
-def _plain(array, dtype) -> np.ndarray:
-    """``array`` as a C-contiguous array of ``dtype`` (a copy only when it is not one): one compiled signature."""
-    return np.ascontiguousarray(array, dtype=dtype)
 
 
 @cache

@@ -34,6 +34,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components, maximum_bipartite_matching
 
 from mrcomm_env.core import backend
+from mrcomm_env.core.backend import kernel_array
 from mrcomm_env.rendezvous.world import dense_components
 
 #: ε of §IV-A: the observation time (s) credited to a landmark that cannot be reached within the window,
@@ -66,10 +67,10 @@ def utility_matrix(
     per_vehicle = np.shape(Y) == (n, L, 2, 2) and np.shape(count) == (n, L) and np.shape(landmark_pos) == (n, L, 2)
     if per_vehicle and np.shape(vehicle_pos) == (n, 2) and backend.compiled():  # one call, up to numpy's log1p
         argument = _plan_kernels().utility_argument(
-            _plain(Y),
-            np.ascontiguousarray(count, dtype=np.int64),
-            _plain(vehicle_pos),
-            _plain(landmark_pos),
+            kernel_array(Y, np.float64),
+            kernel_array(count, np.int64),
+            kernel_array(vehicle_pos, np.float64),
+            kernel_array(landmark_pos, np.float64),
             float(speed),
             float(t_window),
             float(info_per_obs),
@@ -216,7 +217,7 @@ def recommend(U: np.ndarray, landmark_pos: np.ndarray, d_comms: float, record: b
         return Recommendation(np.array([best]), np.array([True]), best, True, steps)
     kernels = _plan_kernels() if backend.compiled() else None
     if kernels is not None:  # one compiled signature: a read-only or strided view would compile the kernels again
-        U, landmark_pos = _plain(U), _plain(landmark_pos)
+        U, landmark_pos = kernel_array(U, np.float64), kernel_array(landmark_pos, np.float64)
     if kernels is not None and not record:  # the passes compiled, numpy choosing among ties where it would
         positions = _NO_POSITIONS
         while True:
@@ -272,13 +273,6 @@ def _per_vehicle(n: int, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
     out = np.full(n, -1, dtype=np.int64)
     out[rows] = values
     return out
-
-
-def _plain(array: np.ndarray) -> np.ndarray:
-    """``array`` as a writable C-contiguous float64 array (a copy only when it is not one)."""
-    if array.dtype == np.float64 and array.flags.c_contiguous and array.flags.writeable:
-        return array
-    return np.array(array, dtype=np.float64, order="C")
 
 
 _NO_POSITIONS = np.empty((0, 0), dtype=np.int64)  # recommend_loop's `best` when it chooses the columns itself
