@@ -278,7 +278,8 @@ class AsyncCLEnv(MrcommParallelEnv):
         ),
     }
     METRICS = {
-        "mean_delay": "eq. (7): mean steps from k until a robot can compute x̂_{k|k} (complete steps only)",
+        "mean_delay": "eq. (7): mean steps from k until a robot can compute x̂_{k|k} (complete steps only; nan while no "
+        "robot has completed a step, e.g. a silent team)",
         "rms_position": "RMS position error (m) of the robots' causal team estimates, mean over steps and robots",
         "rms_orientation": "RMS orientation error (rad) of the causal team estimates, mean over steps and robots",
         "bits_sent": "bits sent by the team over the episode",
