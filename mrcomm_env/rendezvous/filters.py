@@ -330,6 +330,11 @@ class TeamMaps:
     def information_of(self, version: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(Y, y) of the common map plus the packets beyond it that a version vector names, summed afresh (for
         checks; ``version`` must hold at least the common map's packets, as every vehicle's does)."""
+        if (np.asarray(version) < self.common_known).any():
+            raise ValueError(
+                f"argument 'version' must hold at least the common map's packets {self.common_known.tolist()}, "
+                f"got {np.asarray(version).tolist()}"
+            )
         Y, y = self.common_Y.copy(), self.common_y.copy()
         for landmarks, dy, count in self._pieces(self.common_known.tolist(), [int(k) for k in version]):
             np.add.at(Y, landmarks, count[:, None, None] * self.R_inv)
