@@ -147,12 +147,10 @@ class InfoTables:
         """``_exchange_dense`` through its numba twin (``table_numba.py``)."""
         from mrcomm_env.asynccl.table_numba import exchange_dense
 
-        hi_s = self.latest if _min(modes, axis=None) >= QINF else self._offers(modes)
         bits, links, latest, known, c, disc, self.delay_sum, added, any_link = exchange_dense(
             np.asarray(modes, dtype=np.int64),
             adj,
             delivered,
-            hi_s,
             self.latest,
             self.disc,
             self.known,
@@ -160,6 +158,7 @@ class InfoTables:
             self.cum_bits,
             self.W,
             SILENT,
+            SCHEME1,
             QINF,
             float(HEADER_BITS),
             float(LIST_ENTRY_BITS),

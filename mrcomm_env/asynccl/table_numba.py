@@ -19,11 +19,37 @@ NO_ROW_LIMIT = 2**62  # larger than any step index (a plain constant: numba free
 
 
 @njit(cache=True)
+def offers(modes, latest, disc, t, scheme1, qinf):
+    """``InfoTables._offers``: the upper end of each row a sender offers, from T_t^{j-} (eq. (4)-(5)), (N senders,
+    N rows): its whole table (q = ∞, and silent senders, who send nothing), only its own row up to t (Scheme 1), or
+    its rows up to its discard frontier + q (Scheme 2); ``latest`` itself when every sender is at q = ∞."""
+    n = latest.shape[0]
+    every_qinf = True
+    for j in range(n):
+        if modes[j] < qinf:
+            every_qinf = False
+    if every_qinf:
+        return latest
+    hi_s = latest.copy()
+    for j in range(n):
+        m = modes[j]
+        if m == scheme1:
+            for v in range(n):
+                hi_s[j, v] = -1
+            hi_s[j, j] = t
+        elif m >= 1 and m < qinf:
+            cap = disc[j] + m
+            for v in range(n):
+                if latest[j, v] > cap:
+                    hi_s[j, v] = cap
+    return hi_s
+
+
+@njit(cache=True)
 def exchange_dense(
     modes,
     adj,
     delivered,
-    hi_s,
     latest,
     disc,
     known,
@@ -31,6 +57,7 @@ def exchange_dense(
     cum_bits,
     W,
     silent,
+    scheme1,
     qinf,
     header_bits,
     entry_bits,
@@ -42,9 +69,10 @@ def exchange_dense(
     """Bits and links per sender, the new ``latest``, ``known``, ``c`` and ``disc``, and the delay statistics.
 
     Returns (bits, links, latest, known, c, disc, delay_sum, added delay count, any_link); ``hist_diff`` is
-    updated in place. With no link at all nothing changes (``any_link`` False).
+    updated in place. The offers of each sender are :func:`offers`. With no link at all nothing changes (``any_link`` False).
     """
     n = latest.shape[0]
+    hi_s = offers(modes, latest, disc, t, scheme1, qinf)
     bits = np.zeros(n)
     links = np.zeros(n)
     any_link = False
