@@ -69,7 +69,8 @@ def exchange_dense(
     """Bits and links per sender, the new ``latest``, ``known``, ``c`` and ``disc``, and the delay statistics.
 
     Returns (bits, links, latest, known, c, disc, delay_sum, added delay count, any_link); ``hist_diff`` is
-    updated in place. The offers of each sender are :func:`offers`. With no link at all nothing changes (``any_link`` False).
+    updated in place. Each sender's offers are :func:`offers`. With no link at all nothing changes (``any_link``
+    False).
     """
     n = latest.shape[0]
     hi_s = offers(modes, latest, disc, t, scheme1, qinf)
