@@ -434,3 +434,30 @@ def test_times_never_reached_are_documented_metrics_and_count_as_the_episode_len
     assert env.metrics()["completion_time"] == -1  # the env's own report: not reached
     held_out = evaluate_episodes(AllAlike(), None, ENV, kwargs, [5, 6], deterministic=True)
     assert held_out["completion_time"] == 6.0
+
+
+def test_a_silent_asynccl_team_counts_at_the_episode_length_in_both_evaluations():
+    """A team that completes no step has a nan ``mean_delay``: an average that skipped it would score a silent
+    policy as well as its other episodes (or as nan), so both evaluations count it at the episode's length."""
+    from mrcomm_agents.heldout import evaluate_episodes
+    from mrcomm_baselines import make_policy
+    from mrcomm_env.experiments.evaluation import evaluate_policy
+    from mrcomm_env.registry import make
+
+    env_id, kwargs = "mrcomm/AsyncCL-v0", {"n_robots": 3, "max_cycles": 8}
+    env = make(env_id, **kwargs)
+    env.reset(seed=3)
+    while env.agents:
+        env.step(dict.fromkeys(env.agents, 0))  # action 0: silent
+    assert math.isnan(env.metrics()["mean_delay"])  # the env's own report: no step complete
+
+    class Silent:
+        def predict(self, observations, deterministic=True):
+            return np.zeros(len(observations), dtype=np.int64), None
+
+    assert evaluate_episodes(Silent(), None, env_id, kwargs, [3, 4], deterministic=True)["mean_delay"] == 8.0
+    spec = {"metric": "mean_delay"}
+    silent = evaluate_policy(env_id, kwargs, make_policy(env_id, "silent"), [3, 4], spec)
+    assert silent["metric"] == [8.0, 8.0] and silent["bits"] == [0.0, 0.0]
+    talking = evaluate_policy(env_id, kwargs, make_policy(env_id, "scheme1"), [3, 4], spec)
+    assert all(0 < m < 8 for m in talking["metric"])  # a real delay is kept as it is

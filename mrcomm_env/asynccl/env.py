@@ -277,9 +277,12 @@ class AsyncCLEnv(MrcommParallelEnv):
             Real(SIGMA_FLOOR, 10.0, fuzz=(0.01, 0.5)),
         ),
     }
+    #: a team that completes no step (a silent one) has no delay to average: evaluations count its episode at its
+    #: length, not as a missing value that an average would skip
+    UNREACHED_TIMES = ("mean_delay",)
     METRICS = {
         "mean_delay": "eq. (7): mean steps from k until a robot can compute x̂_{k|k} (complete steps only; nan while no "
-        "robot has completed a step, e.g. a silent team)",
+        "robot has completed a step, e.g. a silent team: evaluations then count the episode's length)",
         "rms_position": "RMS position error (m) of the robots' causal team estimates, mean over steps and robots",
         "rms_orientation": "RMS orientation error (rad) of the causal team estimates, mean over steps and robots",
         "bits_sent": "bits sent by the team over the episode",

@@ -80,12 +80,14 @@ def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress
     learned: dict[float, list[dict]] = {}
     for task, done in zip(tasks, run_tasks(sweep, desc=f"training {short_name(env_id)}")):
         result = done["evaluation"]
-        task["score"] = float(np.nanmean(result["metric"]))
+        task["score"] = float(np.mean(result["metric"]))
         task["bits"] = float(np.mean(result["bits"]))
         learned.setdefault(task["cost"], []).append(result)
     for cost, results in learned.items():
         # one point per training seed (its mean over the evaluation episodes): the CI is over training seeds
-        per_seed_metric = [float(np.nanmean(r["metric"])) for r in results]
+        # np.mean, not nanmean: an episode without a value must show, not vanish from the average (an unfinished
+        # time is counted at the episode's length by evaluate_policy)
+        per_seed_metric = [float(np.mean(r["metric"])) for r in results]
         per_seed_bits = [float(np.mean(r["bits"])) for r in results]
         row = comparison_row(f"learned ({algo})", cost, per_seed_metric, per_seed_bits, len(results))
         row["metric_iqm"], row["metric_iqm_low"], row["metric_iqm_high"] = iqm_ci95(per_seed_metric)
