@@ -190,7 +190,7 @@ def test_a_multihop_env_stepping_as_a_world_of_one_copy_takes_in_state_changed_f
 def test_the_multihop_world_sums_as_numpy_sums():
     """The world's ages are summed in scratch rows by ``numpy_sum``, which must be numpy's own pairwise sum to the
     last bit (a plain running sum differs from the eighth value on); values of nine orders of magnitude."""
-    from mrcomm_env.multihop.frame_numba import numpy_sum
+    from mrcomm_env.core.sums_numba import numpy_sum
 
     rng = np.random.default_rng(7)
     for size in [*range(0, 300), 8191, 8192, 8193, 9900, 65536, 1023 * 1024]:

@@ -19,14 +19,15 @@ from mrcomm_env.mapsync.sessions import _STALE_KNOWN, _STALE_NEW
 class WorldDynamics:
     """Links, world changes, walking and sensing, and the maps' disagreement."""
 
+    _change_world_compiled: Any
     _dirty: Any
+    _disagreement_compiled: Any
     _disagreement_column: Any
     _disagreement_mean: Any
     _error_mean: Any
     _errors: Any
     _events: Any
     _eye: Any
-    _hamming: Any
     _map_version: Any
     _maps_flat: Any
     _neighbour_table: Any
@@ -66,14 +67,20 @@ class WorldDynamics:
             adj = adj & bernoulli_links(self.np_random, N, c.link_prob)
         self.linked = adj
 
-    def _change_world(self) -> None:
+    def _change_world(self) -> bool:
+        """Obstacles appear on free, unoccupied cells and vanish, each cell independently (§I); returns whether
+        any cell changed (the maps' errors against the world are recomputed only then)."""
         c, rng, truth = self.cfg, self.np_random, self.truth
+        if self._change_world_compiled is not None:  # the same keys, drawn in one call (one stream)
+            draws = rng.random(2 * self.n)
+            return bool(self._change_world_compiled(truth, self.pos, draws, c.appear_rate, c.vanish_rate))
         occupied = np.zeros(self.n, dtype=bool)
         occupied[self.pos] = True
         appear = (~truth) & (~occupied) & (rng.random(self.n) < c.appear_rate)
         vanish = truth & (rng.random(self.n) < c.vanish_rate)
         truth[appear] = True
         truth[vanish] = False
+        return bool(appear.any() or vanish.any())
 
     def _move_and_sense(self, stamp: int, walk: bool) -> None:
         """Every robot moves one step (when ``walk``), then senses its cell and the 4-neighbours (§V-C)."""
@@ -133,10 +140,15 @@ class WorldDynamics:
             return
         self._dirty = False
         self._map_version += 1
+        if self._disagreement_compiled is not None:
+            rows, cols = self._pairs
+            column, mean, errors, error_mean = self._disagreement_compiled(self.maps, self.truth, rows, cols)
+            self._disagreement_column, self._disagreement_mean = column, float(mean)
+            self._errors, self._error_mean = errors, float(error_mean)
+            return
         maps = self.maps.astype(np.float64)
         ones = maps.sum(axis=1)
         ham = (ones[:, None] + ones[None, :] - 2.0 * (maps @ maps.T)) / self.n
-        self._hamming = ham
         self._disagreement_column = ham.sum(axis=1) / (self.n_agents - 1)
         pairs = ham[self._pairs]
         self._disagreement_mean = float(pairs.sum()) / pairs.size  # what .mean() computes, without its overhead

@@ -392,6 +392,8 @@ class MapSyncEnv(WorldDynamics, SyncSessions, MrcommParallelEnv):
         compiled = backend.compiled()
         self._walk_and_sense = _kernels().walk_and_sense if compiled else None
         self._observe_compiled = _kernels().observe if compiled else None
+        self._change_world_compiled = _kernels().change_world if compiled else None
+        self._disagreement_compiled = _kernels().disagreement if compiled else None
         self._no_progress = np.zeros(N)
         self._move_and_sense(0, walk=False)
         self._update_disagreement()
@@ -408,8 +410,7 @@ class MapSyncEnv(WorldDynamics, SyncSessions, MrcommParallelEnv):
             self._start_sessions(actions, t)
         if self.sessions:
             self._progress_sessions(t)
-        if self._changing:
-            self._change_world()
+        if self._changing and self._change_world():
             self._dirty = True
         self._move_and_sense(t + 1, walk=True)
         self._update_disagreement()

@@ -15,6 +15,7 @@ import numba
 import numpy as np
 
 from mrcomm_env.core.backend import configure_numba_cache
+from mrcomm_env.core.sums_numba import numpy_sum
 
 configure_numba_cache()  # before the @njit(cache=True) below: never cache into the package
 
@@ -294,6 +295,82 @@ def walk_and_sense(walk, keys, pos, neighbours, truth, sensed, distinct, maps, s
                 if j != i:
                     new_cells[i, j] += changed
     return out, flags
+
+
+@numba.njit(cache=True, inline="always")
+def _popcount64(v):
+    v = v - ((v >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    v = (v & np.uint64(0x3333333333333333)) + ((v >> np.uint64(2)) & np.uint64(0x3333333333333333))
+    v = (v + (v >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    return (v * np.uint64(0x0101010101010101)) >> np.uint64(56)
+
+
+@numba.njit(cache=True)
+def change_world(truth, pos, draws, appear_rate, vanish_rate):
+    """Twin of ``WorldDynamics._change_world`` after its draws: ``draws`` holds the appearance keys of every cell,
+    then the vanishing keys (``rng.random(2n)``, the reference's two ``rng.random(n)`` in one call: one stream).
+    A free cell no robot occupies becomes an obstacle when its key is below ``appear_rate``; an obstacle vanishes
+    when its key is below ``vanish_rate``. Both read the world as it was (a cell cannot do both). Updates
+    ``truth`` in place and returns whether any cell changed."""
+    n = truth.size
+    occupied = np.zeros(n, dtype=np.bool_)
+    for i in range(pos.size):
+        occupied[pos[i]] = True
+    changed = False
+    for c in range(n):
+        if truth[c]:
+            if draws[n + c] < vanish_rate:
+                truth[c] = False
+                changed = True
+        elif not occupied[c] and draws[c] < appear_rate:
+            truth[c] = True
+            changed = True
+    return changed
+
+
+@numba.njit(cache=True)
+def disagreement(maps, truth, pair_rows, pair_cols):
+    """Twin of ``WorldDynamics._update_disagreement``: ``(column, mean, errors, error_mean)``.
+
+    The reference's Hamming distances ``(|x| + |y| − 2 x·y) / n`` are whole numbers of cells before the division
+    (float64 holds them exactly), so counting the differing cells gives the same quotients; its sums (each row of
+    the (N, N) distances, the N(N − 1)/2 pairs ``pair_rows``, ``pair_cols`` in ``np.triu_indices`` order, the N
+    errors) are numpy's pairwise
+    sums (:func:`numpy_sum`) over the same values in the same order. The maps are packed into 64-bit words first:
+    the pairs then cost N(N − 1)/2 · n/64 popcounts."""
+    n_robots, n = maps.shape
+    n_words = (n + 63) // 64
+    words = np.zeros((n_robots, n_words), dtype=np.uint64)
+    truth_words = np.zeros(n_words, dtype=np.uint64)
+    for c in range(n):
+        bit = np.uint64(1) << np.uint64(c % 64)
+        if truth[c]:
+            truth_words[c // 64] |= bit
+        for i in range(n_robots):
+            if maps[i, c]:
+                words[i, c // 64] |= bit
+    ham = np.zeros((n_robots, n_robots))
+    errors = np.empty(n_robots)
+    for i in range(n_robots):
+        wrong = 0
+        for w in range(n_words):
+            wrong += np.int64(_popcount64(words[i, w] ^ truth_words[w]))  # int64 + uint64 would be float64
+        errors[i] = wrong / n
+        for j in range(i + 1, n_robots):
+            differ = 0
+            for w in range(n_words):
+                differ += np.int64(_popcount64(words[i, w] ^ words[j, w]))
+            ham[i, j] = ham[j, i] = differ / n
+    flat = ham.ravel()
+    column = np.empty(n_robots)
+    for i in range(n_robots):
+        column[i] = numpy_sum(flat, i * n_robots, n_robots) / (n_robots - 1)
+    picked = np.empty(pair_rows.size)
+    for p in range(pair_rows.size):
+        picked[p] = ham[pair_rows[p], pair_cols[p]]
+    mean = numpy_sum(picked, 0, picked.size) / picked.size
+    error_mean = numpy_sum(errors, 0, n_robots) / n_robots
+    return column, mean, errors, error_mean
 
 
 @numba.njit(cache=True)
