@@ -74,6 +74,18 @@ COPY_AXIS_CASES = [
     # §4 neighbourhoods: one observer per copy; episodes that terminate, and missed receptions (per-copy draws)
     {"scene": "neighborhood", "w": 8, "v": 6, "max_cycles": 40},
     {"scene": "neighborhood", "w": 12, "v": 12, "miss_probability": 0.3, "emission_cost": 0.2, "max_cycles": 20},
+    # each robot's own reward: the shipped training configuration, moving robots that miss, a neighbourhood
+    {"n_robots": 25, "mobile_fraction": 0.0, "reward_mode": "individual", "max_cycles": 40},
+    {
+        "n_robots": 10,
+        "mobile_fraction": 0.3,
+        "visual_range": 6.0,
+        "miss_probability": 0.2,
+        "reward_mode": "individual",
+        "emission_cost": 0.3,
+        "max_cycles": 15,
+    },
+    {"scene": "neighborhood", "w": 10, "v": 7, "miss_probability": 0.2, "reward_mode": "individual", "max_cycles": 30},
 ]
 
 

@@ -411,24 +411,43 @@ def test_edge_recursion_eq4_fixed_point():
     assert_close_conditioned(T[-1], 6.0, tolerance(6.0, 2, 2.0) + 3.0 * 0.5**60)
 
 
-def test_individual_reward_is_the_share_of_observers_that_singled_the_robot_out():
-    env = parallel_env(n_robots=9, mobile_fraction=0.0, reward_mode="individual", emission_cost=0.25, max_cycles=30)
+@pytest.mark.parametrize(
+    "config",
+    [
+        {"n_robots": 9, "mobile_fraction": 0.0},
+        # robots that move and miss receptions (IDs dropped and found again), and the §4 neighbourhood, whose
+        # visual slot s is robot vis_robot[s] and wireless slot h robot h + 1
+        {"n_robots": 12, "mobile_fraction": 0.3, "visual_range": 10.0, "miss_probability": 0.2, "drop_time": 3},
+        {"scene": "neighborhood", "w": 10, "v": 7, "miss_probability": 0.2},
+    ],
+    ids=["stationary", "mobile_missing", "neighborhood"],
+)
+def test_individual_reward_is_the_share_of_observers_that_singled_the_robot_out(config):
+    env = parallel_env(reward_mode="individual", emission_cost=0.25, max_cycles=30, **config)
     env.reset(seed=2)
+    n = env.n_agents
     rng = np.random.default_rng(2)
+    singled_some = pending_some = False
     while env.agents:
         acts = {a: int(rng.integers(2)) for a in env.agents}
         _, rewards, *_ = env.step(acts)
         # from each observer's own i-state (its visual label → candidate wireless IDs) and the ground truth
-        singled, seen = np.zeros(9), np.zeros(9)
-        for o in range(9):
+        singled, seen = np.zeros(n), np.zeros(n)
+        for o in range(n):
             for label, candidates in env.associations(f"robot_{o}").items():
                 slot = int(np.flatnonzero(env.filter.vlabel[o] == label)[0])  # whose blob carries the label
                 robot = int(env.scene.visual_robot(np.array([slot]))[0])
                 seen[robot] += bool(candidates)
                 singled[robot] += candidates == [robot]
-        for j in range(9):
+        for j in range(n):
             share = singled[j] / seen[j] if seen[j] else 1.0
             assert rewards[f"robot_{j}"] == pytest.approx(share - 1.0 - 0.25 * acts[f"robot_{j}"], abs=1e-12)
+        # the bit sets' count and the edge lists' count of the same i-states (the reward's two ways)
+        fast, listed = env.scene.singled_out(), env.scene.singled_out_from_edges()
+        assert all(np.array_equal(a, b) and a.dtype == b.dtype for a, b in zip(fast, listed))
+        singled_some |= bool(singled.any())
+        pending_some |= bool((singled < seen).any())
+    assert singled_some and pending_some, "robots singled out and robots still ambiguous, within the episode"
 
 
 @pytest.mark.parametrize(

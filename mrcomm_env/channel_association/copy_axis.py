@@ -2,7 +2,7 @@
 
 What :class:`~mrcomm_env.core.batched.BatchedEnv` steps instead of M env objects when
 :meth:`ChannelAssociationEnv.copy_axis_world` allows it: a scene on bit-set filters (``miss_tolerance`` 0) with
-the team reward, either a §5 field of at most ``DENSE_MAX_N`` robots (:class:`SlotFieldBatch`) or a §4
+either reward (the team's, or each robot's own: ``reward_mode``), either a §5 field of at most ``DENSE_MAX_N`` robots (:class:`SlotFieldBatch`) or a §4
 neighbourhood (:class:`NeighborhoodBatch`). Every copy's observers are rows of one :class:`CopyBitsetFilter`
 (a field: B = M·N observers; a neighbourhood: B = M), so Algorithm 1 and Algorithm 2's list operations run as
 :class:`BitsetFilter`'s own ``step`` on all copies at once; motion, ranges, sensing, observations, rewards and
@@ -25,7 +25,12 @@ import numpy as np
 
 from mrcomm_env.channel_association.filters import BitsetFilter
 from mrcomm_env.channel_association.observation import push_emission, write_istate
-from mrcomm_env.channel_association.scenes import DenseFieldScene, NeighborhoodScene, move_and_bounce
+from mrcomm_env.channel_association.scenes import (
+    DenseFieldScene,
+    NeighborhoodScene,
+    bitset_singled_out,
+    move_and_bounce,
+)
 
 
 class CopyBitsetFilter(BitsetFilter):
@@ -78,6 +83,7 @@ class CopyAxisWorld:
         self.phase_col, self.clock_codes = first._phase_col, first._clock_codes
         self.squash8, self.squash4 = first._squash8, first._squash4
         self.max_cycles, self.cost = c.max_cycles, c.emission_cost
+        self.individual = c.reward_mode == "individual"
         #: copies whose episode the world began itself (``reset_copies``) since their env object was last written
         self.restarted = np.zeros(self.m, dtype=bool)
         # the copies' state
@@ -178,7 +184,12 @@ class CopyAxisWorld:
         self.messages += n_emit
         self._sense_and_filter(emit, n_emit)
         self._refresh()
-        reward = self.team_score - 1.0 - self.cost * n_emit / n
+        if self.individual:  # ChannelAssociationEnv._step_world's reward of each robot, every copy at once
+            singled, seen = self._singled_out()
+            rewards = np.where(seen > 0, singled / np.maximum(seen, 1), 1.0) - 1.0 - self.cost * emit
+        else:
+            reward = self.team_score - 1.0 - self.cost * n_emit / n
+            rewards = np.repeat(reward[:, None], n, axis=1)
         if not self.mobile:
             final = (self.completion < 0) & ~self.stats[3].any(axis=1)
             self.completion[final] = self.step_count[final] + 1
@@ -186,7 +197,6 @@ class CopyAxisWorld:
         terminated = self.completion >= 0
         truncated = (self.step_count >= self.max_cycles) & ~terminated
         self._observe()
-        rewards = np.repeat(reward[:, None], n, axis=1)
         return self.obs.copy(), rewards, terminated, truncated, {"bits_sent": self.step_bits.copy()}
 
     # ------------------------------------------------------------------ what a scene adds
@@ -198,6 +208,10 @@ class CopyAxisWorld:
 
     def _sense_and_filter(self, emit: np.ndarray, n_emit: np.ndarray) -> None:
         """The scene's ``step`` of every copy."""
+        raise NotImplementedError
+
+    def _singled_out(self) -> tuple[np.ndarray, np.ndarray]:
+        """The scene's ``singled_out`` of every copy, (M, N) each."""
         raise NotImplementedError
 
     def _robot_stats(self) -> tuple[np.ndarray, ...]:
@@ -247,6 +261,12 @@ class SlotFieldBatch(CopyAxisWorld):
         self.wr = np.zeros((m, n, n), dtype=bool)
         self.vr = self.wr if self.same_ranges else np.zeros((m, n, n), dtype=bool)
         self.wr_packed = np.zeros((m, n), dtype=np.uint64)
+
+    def _singled_out(self) -> tuple[np.ndarray, np.ndarray]:
+        f, shape = self.filter, (self.m, self.n, self.n)  # each copy's N observer rows
+        # a slot per robot, the same in every copy: the scene's own truth (its copies were reset before any step)
+        truth = self.envs[0].scene.slot_truth()
+        return bitset_singled_out(f.C.reshape(shape), f.vt.reshape(shape), *truth, self.n)
 
     def _adopt_scene(self, i: int, scene) -> None:
         assert isinstance(scene, DenseFieldScene)
@@ -326,6 +346,12 @@ class NeighborhoodBatch(CopyAxisWorld):
         self.static_obs = first._static_obs
         f = self.filter
         self.all_wireless = f.pack(np.ones(c.w, dtype=bool))  # the known neighbourhood: every wireless slot
+
+    def _singled_out(self) -> tuple[np.ndarray, np.ndarray]:
+        """Wireless slot h is robot h + 1: the bit of visual slot s's own wireless ID is 1 << (vis_robot[s] − 1)."""
+        f, shape = self.filter, (self.m, 1, self.filter.C.shape[1])  # each copy's one observer row
+        true_bits = np.left_shift(np.uint64(1), (self.vis_robot - 1).astype(np.uint64))
+        return bitset_singled_out(f.C.reshape(shape), f.vt.reshape(shape), self.vis_robot, true_bits, self.n)
 
     def _adopt_scene(self, i: int, scene) -> None:
         assert isinstance(scene, NeighborhoodScene)

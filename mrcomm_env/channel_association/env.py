@@ -215,10 +215,10 @@ class ChannelAssociationEnv(MrcommParallelEnv):
 
     @classmethod
     def copy_axis_world(cls, cfg):
-        """Scenes on bit sets (``miss_tolerance`` 0, at most 64 wireless IDs per observer) with the team reward step
+        """Scenes on bit sets (``miss_tolerance`` 0, at most 64 wireless IDs per observer), with either reward, step
         M copies as one batch of arrays (:mod:`.copy_axis`): a neighbourhood, or a field of at most ``DENSE_MAX_N``
         robots. Other configurations step their copies in turn."""
-        if cfg.miss_tolerance != 0 or cfg.reward_mode != "team":
+        if cfg.miss_tolerance != 0:
             return None
         if cfg.scene == "neighborhood":
             return NeighborhoodBatch if cfg.w <= BITSET_MAX_W else None

@@ -96,6 +96,27 @@ def make_slot_filter(batch: int, n_w: int, n_v: int, drop_time: int, tolerance: 
     return DenseFilter(batch, n_w, n_v, drop_time, tolerance, extra_edges)
 
 
+def bitset_singled_out(C, vt, robots, true_bits, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``Scene.singled_out`` on bit-set i-states ``C`` (…, B, V) with tracked visual IDs ``vt``, robot ``robots[s]``
+    behind visual slot s and ``true_bits[s]`` its wireless slot's bit: per robot (…, n) int64, the observers
+    whose only candidate for its visual ID is its own wireless ID, and the observers holding its visual ID with
+    candidates (an edge). A leading copy axis (the copy-axis world) is summed per copy. Each robot is behind at
+    most one visual slot (a slot per robot, or the neighbourhood's labelling), so counting observers per slot is
+    counting them per robot, as the edge list's distinct (observer, robot) pairs are."""
+    bits = true_bits[..., None, :]  # the same for every observer row
+    right = C == bits
+    right &= vt
+    if not true_bits.all():  # a robot without a wireless slot is never singled out (an empty set is no match)
+        right &= bits != 0
+    lead = C.shape[:-2]
+    singled = np.zeros((*lead, n), dtype=np.int64)
+    seen = np.zeros((*lead, n), dtype=np.int64)
+    at = (robots,) if not lead else (np.arange(lead[0])[:, None], robots)
+    singled[at] = np.add.reduce(right, axis=-2, dtype=np.int64)
+    seen[at] = np.add.reduce(C != 0, axis=-2, dtype=np.int64)
+    return singled, seen
+
+
 def backend_name(f: AssociationFilter) -> str:
     return {BitsetFilter: "bitset", DenseFilter: "dense", SparseFilter: "sparse"}[type(f)]
 
@@ -149,6 +170,12 @@ class Scene:
     def singled_out(self) -> tuple[np.ndarray, np.ndarray]:
         """Per robot j: how many observers hold j's visual ID with j's wireless ID as its one candidate, and how
         many hold j's visual ID at all (with candidates left). What robot j's own emissions decide."""
+        if isinstance(self.filter, BitsetFilter):  # on the bit sets themselves, without listing every edge
+            return bitset_singled_out(self.filter.C, self.filter.vt, *self.slot_truth(), self.n)
+        return self.singled_out_from_edges()
+
+    def singled_out_from_edges(self) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`singled_out` from the filter's lists of edges and unique matches (any filter)."""
         n = self.n
         o, h, s = self.filter.edges()
         seen_pairs = np.unique(o.astype(np.int64) * n + self.visual_robot(s))
@@ -157,6 +184,26 @@ class Scene:
         right = self.wireless_robot(mh) == self.visual_robot(ms)
         singled = np.bincount(self.visual_robot(ms)[right], minlength=n)
         return singled, seen
+
+    def slot_truth(self) -> tuple[np.ndarray, np.ndarray]:
+        """(V,) the robot behind each visual slot, and (V,) uint64 the bit of that robot's wireless slot (0 when
+        it has none): the one candidate set that singles the robot out. Kept while the labelling it was made
+        from is the scene's (a neighbourhood's ``vis_robot`` is a new array every episode)."""
+        key = getattr(self, "vis_robot", None)
+        cached = self.__dict__.get("_slot_truth")
+        if cached is None or cached[0] is not key or cached[1] is not self.filter:
+            self._slot_truth = (key, self.filter, self._make_slot_truth())
+        return self._slot_truth[2]
+
+    def _make_slot_truth(self) -> tuple[np.ndarray, np.ndarray]:
+        f = self.filter
+        n_w, n_v = f.shape[1], f.shape[2]
+        robots = np.asarray(self.visual_robot(np.arange(n_v)), dtype=np.int64)
+        slot_of = np.full(self.n, -1, dtype=np.int64)
+        slot_of[self.wireless_robot(np.arange(n_w))] = np.arange(n_w)
+        slots = slot_of[robots]
+        bits = np.where(slots >= 0, np.left_shift(np.uint64(1), np.maximum(slots, 0).astype(np.uint64)), 0)
+        return robots, bits.astype(np.uint64)
 
     def wrong_matches(self) -> tuple[int, int]:
         """(wrong, all) unique matches, against the ground truth."""
