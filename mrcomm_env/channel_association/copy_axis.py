@@ -265,8 +265,8 @@ class SlotFieldBatch(CopyAxisWorld):
     def _singled_out(self) -> tuple[np.ndarray, np.ndarray]:
         f, shape = self.filter, (self.m, self.n, self.n)  # each copy's N observer rows
         # a slot per robot, the same in every copy: the scene's own truth (its copies were reset before any step)
-        truth = self.envs[0].scene.slot_truth()
-        return bitset_singled_out(f.C.reshape(shape), f.vt.reshape(shape), *truth, self.n)
+        robots, true_bits = self.envs[0].scene.slot_truth()
+        return bitset_singled_out(f.C.reshape(shape), f.vt.reshape(shape), robots, true_bits, self.n)
 
     def _adopt_scene(self, i: int, scene) -> None:
         assert isinstance(scene, DenseFieldScene)

@@ -192,11 +192,13 @@ class Scene:
         key = getattr(self, "vis_robot", None)
         cached = self.__dict__.get("_slot_truth")
         if cached is None or cached[0] is not key or cached[1] is not self.filter:
-            self._slot_truth = (key, self.filter, self._make_slot_truth())
-        return self._slot_truth[2]
+            cached = self._slot_truth = (key, self.filter, self._make_slot_truth())
+        robots, true_bits = cached[2]
+        return robots, true_bits
 
     def _make_slot_truth(self) -> tuple[np.ndarray, np.ndarray]:
         f = self.filter
+        assert isinstance(f, BitsetFilter)  # a slot per wireless and per visual ID
         n_w, n_v = f.shape[1], f.shape[2]
         robots = np.asarray(self.visual_robot(np.arange(n_v)), dtype=np.int64)
         slot_of = np.full(self.n, -1, dtype=np.int64)
