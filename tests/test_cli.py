@@ -135,6 +135,29 @@ def test_bench_train_compares_each_env_with_the_reference_at_its_own_slot_count(
         assert entry["ratio_to_reference"] == pytest.approx(entry["agent_steps_per_s"] / reference["agent_steps_per_s"])
 
 
+def test_bench_train_shipped_runs_each_env_as_its_training_configuration_does(tmp_path):
+    """``--train-shipped``: the env arguments and copies of agents/configs (``--param`` on top), against the
+    reference at about the same slot count; MaskablePPO's configuration too (RendezvousMapping)."""
+    pytest.importorskip("mpe2")
+    from mrcomm_agents.training import CONFIG_DIR
+
+    out = tmp_path / "bench.json"
+    argv = ["bench", "MapSync-v0", "RendezvousMapping-v0", "--param", "max_cycles=8", "--train-shipped"]
+    assert main([*argv, "--train-timesteps", "64", "--runs", "1", "--seconds", "0.1", "--out", str(out)]) == 0
+    train = json.loads(out.read_text())["train"]
+    for name, n_agents in (("MapSync-v0", 2), ("RendezvousMapping-v0", 10)):
+        config = json.loads((CONFIG_DIR / f"{name}.json").read_text())
+        algo = config["comparison"].get("algo", "ppo")
+        entry = train["shipped"][f"mrcomm/{name}"]
+        assert entry["shipped_algo"] == algo and entry["n_envs"] == config[algo]["n_envs"]
+        assert entry["env_kwargs"] == {**config[algo].get("env_kwargs", {}), "max_cycles": 8}
+        assert entry["slots"] == config[algo]["n_envs"] * n_agents
+        reference = train["references"][str(entry["reference_slots"])]
+        assert abs(entry["reference_slots"] - entry["slots"]) <= 1  # copies of the 3-agent reference
+        assert entry["ratio_to_reference"] == pytest.approx(entry["agent_steps_per_s"] / reference["agent_steps_per_s"])
+    assert "mrcomm/MapSync-v0" in train["envs"]  # --train's own figures as well
+
+
 @pytest.mark.xdist_group("processes")
 def test_bench_batched_steps_each_batch_size_in_its_own_process(tmp_path, capsys):
     pytest.importorskip("mpe2")

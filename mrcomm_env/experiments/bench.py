@@ -30,8 +30,23 @@ from mrcomm_env.registry import make
 TRAIN_SLOTS = 12
 
 
+def shipped_training(env_id: str) -> tuple[str, dict[str, Any], int]:
+    """The algorithm, env arguments and copies (``n_envs``) of the env's shipped training configuration, the one
+    ``mrcomm reproduce-learning`` trains (``agents/configs/<Name>-v0.json``)."""
+    from mrcomm_env.experiments.runs import comparison_spec  # reads agents/configs (extra "train")
+
+    spec = comparison_spec(env_id)
+    block = spec["settings"].get(spec["algo"], {})
+    return spec["algo"], dict(block.get("env_kwargs", {})), int(block.get("n_envs", 1))
+
+
 def train_section(
-    targets: list[str], params: dict, timesteps: int, progress: bool = True, slots: int = TRAIN_SLOTS
+    targets: list[str],
+    params: dict,
+    timesteps: int,
+    progress: bool = True,
+    slots: int = TRAIN_SLOTS,
+    shipped: bool = False,
 ) -> dict[str, Any]:
     """PPO agent-steps/s through the agent-slot VecEnv on every target and on mpe2's ``simple_spread_v3``, with
     the share of wall time spent stepping the envs (the goal: our envs train at least as fast as the reference).
@@ -41,7 +56,12 @@ def train_section(
     Each env is compared with the reference at about its own slot count (``reference_slots``): PPO's own cost per
     agent-step falls as its batches grow, so an env whose one copy fills more slots than asked for (MultiHop's 100
     robots) would otherwise be compared with a reference that runs on smaller batches. ``references`` holds the
-    reference at every slot count measured; ``reference`` is the one at ``slots``."""
+    reference at every slot count measured; ``reference`` is the one at ``slots``.
+
+    ``shipped``: also each env as its shipped training configuration runs it (:func:`shipped_training`: its env
+    arguments, updated by ``params``, and its ``n_envs`` copies), in ``shipped[<id>]``, against the reference at
+    about the same slot count. Every run trains the same PPO (:data:`BENCH_PPO`), MaskablePPO's configurations
+    too, so that the figures compare the envs' stepping."""
 
     def reference():
         from mpe2 import simple_spread_v3  # extra "bench"
@@ -74,6 +94,26 @@ def train_section(
             f"train  {env_id}: {_train_line(result)}, ratio {result['ratio_to_reference']:.2f} "
             f"(to the reference at {matched['slots']} slots)"
         )
+    if shipped:
+        out["shipped"] = {}
+        for env_id in tqdm(targets, desc="PPO throughput, shipped configurations", leave=False, disable=not progress):
+            algo, env_kwargs, n_envs = shipped_training(env_id)
+            kwargs = {**env_kwargs, **params}
+            result = train_throughput([lambda env_id=env_id, kwargs=kwargs: make(env_id, **kwargs)] * n_envs, timesteps)
+            matched = reference_at(result["slots"])
+            result.update(
+                shipped_algo=algo,
+                env_kwargs=kwargs,
+                n_envs=n_envs,
+                reference_slots=matched["slots"],
+                reference_agent_steps_per_s=matched["agent_steps_per_s"],
+                ratio_to_reference=result["agent_steps_per_s"] / matched["agent_steps_per_s"],
+            )
+            out["shipped"][env_id] = result
+            print(
+                f"train  {env_id} as shipped ({n_envs} × {kwargs}): {_train_line(result)}, "
+                f"ratio {result['ratio_to_reference']:.2f} (to the reference at {matched['slots']} slots)"
+            )
     out["references"] = {str(k): v for k, v in sorted(references.items())}
     return out
 
@@ -83,7 +123,7 @@ def train_section(
 BENCH_PPO: dict[str, Any] = {"n_steps": 64, "n_epochs": 4, "policy_kwargs": {"net_arch": [64, 64]}}
 
 
-def train_throughput(env_fns, timesteps: int, seed: int = 0) -> dict[str, float]:
+def train_throughput(env_fns, timesteps: int, seed: int = 0) -> dict[str, Any]:
     """PPO agent-steps/s through ``AgentSlotVecEnv`` over ``env_fns`` and the share of wall time in env stepping (the
     VecEnv's ``step_wait``: the copies' steps and their slots' observations, rewards and infos)."""
     import torch  # extra "train"

@@ -258,8 +258,10 @@ def cmd_bench(args) -> int:
     results["warmup_seconds"] = args.warmup
 
     results["extras"] = bench.extras_section(targets)
-    if args.train:
-        results["train"] = bench.train_section(targets, params, args.train_timesteps, slots=args.train_slots)
+    if args.train or args.train_shipped:
+        results["train"] = bench.train_section(
+            targets, params, args.train_timesteps, slots=args.train_slots, shipped=args.train_shipped
+        )
     if args.limits:
         results["limits"] = bench.limits_section(targets, args.seconds)
     if args.batched:
@@ -383,6 +385,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=bench.TRAIN_SLOTS,
         help=f"about this many agent slots per VecEnv (--train; default {bench.TRAIN_SLOTS}: 4 copies of the "
         "reference); more slots step more copies per batch",
+    )
+    p.add_argument(
+        "--train-shipped",
+        action="store_true",
+        help="--train, and also each env as its shipped training configuration runs it (agents/configs: env "
+        "arguments and n_envs), against the reference at the same slot count",
     )
     p.add_argument("--limits", action="store_true", help="also steps/s and peak memory at every documented maximum")
     p.add_argument(
