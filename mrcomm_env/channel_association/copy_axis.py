@@ -3,12 +3,12 @@
 What :class:`~mrcomm_env.core.batched.BatchedEnv` steps instead of M env objects when
 :meth:`ChannelAssociationEnv.copy_axis_world` allows it: a scene on bit-set filters (``miss_tolerance`` 0) with
 either reward (the team's, or each robot's own: ``reward_mode``), a §5 field of at most ``DENSE_MAX_N`` robots
-(:class:`SlotFieldBatch`) or a §4 neighbourhood (:class:`NeighborhoodBatch`). Every copy's observers are rows of
-one :class:`CopyBitsetFilter` (a field: B = M·N observers; a neighbourhood: B = M), so Algorithm 1 and Algorithm
-2's list operations run as :class:`BitsetFilter`'s own ``step`` on all copies at once; motion, ranges, sensing, observations, rewards and
-bits are the env's formulas with a copy axis (the scenes' ``step``, ``move_and_bounce``,
-``ChannelAssociationEnv._step_world``/``_refresh``/``_observe``), kept in the same order so that every number is
-the same, bit for bit (``tests/test_batched.py`` compares whole episodes of every copy with the single env).
+(:class:`SlotFieldBatch`) or a §4 neighbourhood (:class:`NeighborhoodBatch`). Every copy's observers are rows of one
+:class:`CopyBitsetFilter` (a field: B = M·N observers; a neighbourhood: B = M), so Algorithm 1 and Algorithm 2's
+list operations run as :class:`BitsetFilter`'s own ``step`` on all copies at once; motion, ranges, sensing,
+observations, rewards and bits are the env's formulas with a copy axis (the scenes' ``step``, ``move_and_bounce``,
+``ChannelAssociationEnv._step_world``/``_refresh``/``_observe``), kept in the same order so that every number is the
+same, bit for bit (``tests/test_batched.py`` compares whole episodes of every copy with the single env).
 
 Each copy keeps its env object: its own ``reset_arrays`` lays the scene out from its own generator, and
 :meth:`CopyAxisWorld.adopt` copies that episode's start into the copy's rows. Random draws during the episode

@@ -3,15 +3,15 @@
 What :class:`~mrcomm_env.core.batched.BatchedEnv` steps instead of M env objects when
 :meth:`MultiHopEnv.copy_axis_world` allows it: a static topology (the grid, or a field with ``speed`` 0) with the
 ``relative`` layout and the team reward, on the compiled backend. The env itself runs such a frame in one compiled
-call (``frame_numba.send_frame``, which already takes a copy axis); here everything around it does too: the
-frame's candidate lists (:func:`~.frame_numba.selected_ranks`), the ages, the eq. (1)-weighted age and the
-per-hop statistics of the frame's end, the candidates' ranking and the observation
+call (``frame_numba.send_frame``, which already takes a copy axis); here everything around it does too: the frame's
+candidate lists (:func:`~.frame_numba.selected_ranks`), the ages, the eq. (1)-weighted age and the per-hop
+statistics of the frame's end, the candidates' ranking and the observation
 (:func:`~.frame_numba.observe_candidates`). Every number is the env's, bit for bit: elementwise work is the env's
 float64 operations in the same order, and every sum is numpy's pairwise sum over the same elements in the same
 order, either :func:`~mrcomm_env.core.sums_numba.numpy_sum` on a copy's scratch row or numpy's own row reduction of
-a C-ordered ``(M, K)`` array (which sums each row as numpy sums that row alone). ``tests/test_batched.py``
-compares every copy with the env's reference code over whole episodes. A single env of such a scene steps as this world of one copy
-(``MultiHopEnv._step_one_copy``): the batch's code at M = 1.
+a C-ordered ``(M, K)`` array (which sums each row as numpy sums that row alone). ``tests/test_batched.py`` compares
+every copy with the env's reference code over whole episodes. A single env of such a scene steps as this world of
+one copy (``MultiHopEnv._step_one_copy``): the batch's code at M = 1.
 
 Each copy keeps its env object: its own ``reset_arrays`` lays out the episode from its own generator (slot order,
 positions), :meth:`StaticFrameBatch.adopt` copies that start into the copy's rows and :meth:`StaticFrameBatch.store`
