@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import mrcomm_env
 from mrcomm_env.core.batched import BatchedEnv, sample_actions
@@ -110,6 +112,43 @@ def test_a_copy_axis_world_gives_each_copy_the_single_env_episodes(kwargs):
             assert _bytes(copy.vel) == _bytes(single.vel)
 
 
+@st.composite
+def _world_scenes(draw):
+    """ChannelAssociation arguments its copy-axis worlds take (bit sets: ``miss_tolerance`` 0, at most 64 IDs),
+    drawn across the ranges a step branches on: field or neighbourhood, still or moving robots, ranges from a
+    fraction of the spacing to the arena, missed receptions, short drop times, both rewards, emission costs."""
+    common = {
+        "reward_mode": draw(st.sampled_from(["team", "individual"])),
+        "emission_cost": draw(st.sampled_from([0.0, 0.25])),
+        "miss_probability": draw(st.sampled_from([0.0, 0.0, 0.15, 0.5])),
+        "drop_time": draw(st.integers(1, 6)),
+        "max_cycles": draw(st.integers(1, 10)),
+    }
+    if draw(st.booleans()):
+        w = draw(st.integers(1, 64))
+        return {"scene": "neighborhood", "w": w, "v": draw(st.integers(1, w)), **common}
+    wireless = draw(st.floats(0.5, 30.0))
+    return {
+        "n_robots": draw(st.integers(2, 30)),
+        "mobile_fraction": draw(st.sampled_from([0.0, 0.3, 1.0])),
+        "speed": draw(st.sampled_from([0.0, 1.4, 40.0])),
+        "separation": draw(st.sampled_from([1.0, 3.0])),
+        "wireless_range": wireless,
+        "visual_range": draw(st.floats(0.25, 1.0)) * wireless,
+        **common,
+    }
+
+
+@settings(max_examples=25, deadline=None)
+@given(kwargs=_world_scenes())
+def test_copy_axis_worlds_of_drawn_scenes_give_each_copy_the_single_env_episodes(kwargs):
+    """The fixed cases above, and drawn ones (25 per run, the same ones in ``make test``)."""
+    batch = mrcomm_env.make_batched("mrcomm/ChannelAssociation-v0", 3, **kwargs)
+    assert batch.world is not None
+    horizon = 2 * kwargs["max_cycles"] + 2  # every copy ends twice, by truncation if nothing else
+    _assert_copies_are_single_envs(batch, "mrcomm/ChannelAssociation-v0", kwargs, horizon, some_terminate=False)
+
+
 def test_the_copy_axis_world_and_the_copies_in_turn_step_alike():
     env_id, kwargs = "mrcomm/ChannelAssociation-v0", {"n_robots": 8, "mobile_fraction": 0.25, "max_cycles": 9}
     make = lambda: mrcomm_env.make(env_id, **kwargs)  # noqa: E731
@@ -171,6 +210,43 @@ def test_a_multihop_copy_axis_world_gives_each_copy_the_single_env_episodes(kwar
         mine, theirs = copy.metrics(), single.metrics()
         assert mine.keys() == theirs.keys()
         assert all(mine[k] == theirs[k] or (np.isnan(mine[k]) and np.isnan(theirs[k])) for k in mine), (mine, theirs)
+
+
+@st.composite
+def _multihop_world_scenes(draw):
+    """MultiHop arguments its copy-axis world takes (a static grid or field, the relative layout, the team reward):
+    grids with partial rows, fields with their own links, every slot size from no hop to flooding, bit costs."""
+    common = {
+        "alpha": draw(st.sampled_from([0.25, 1.0, 3.0])),
+        "bits_per_estimate": draw(st.sampled_from([8, 192])),
+        "baud": draw(st.sampled_from([300.0, 3000.0])),
+        "lam": draw(st.sampled_from([0.0, 0.7])),
+        "max_cycles": draw(st.integers(1, 6)),
+    }
+    if draw(st.booleans()):
+        side = draw(st.integers(2, 6))
+        n = draw(st.integers(2, side * side))
+        kwargs = {"grid_side": side, "n_robots": n, **common}
+    else:
+        n = draw(st.integers(2, 25))
+        kwargs = {
+            "scene": "field",
+            "n_robots": n,
+            "arena_size": draw(st.sampled_from([10.0, 60.0, 200.0])),
+            "comm_range": draw(st.sampled_from([5.0, 35.0, 200.0])),
+            **common,
+        }
+    return {**kwargs, "slot_size": draw(st.integers(1, n))}
+
+
+@settings(max_examples=25, deadline=None)
+@given(kwargs=_multihop_world_scenes())
+def test_a_multihop_copy_axis_world_of_drawn_scenes_gives_each_copy_the_reference_episodes(kwargs):
+    """The fixed cases above, and drawn ones (25 per run, the same ones in ``make test``)."""
+    batch = mrcomm_env.make_batched("mrcomm/MultiHop-v0", 3, **kwargs)
+    assert batch.world is not None
+    horizon = 2 * kwargs["max_cycles"] + 2
+    _assert_copies_are_single_envs(batch, "mrcomm/MultiHop-v0", kwargs, horizon, lambda: ReferenceMultiHop(**kwargs))
 
 
 def test_a_multihop_env_stepping_as_a_world_of_one_copy_takes_in_state_changed_from_outside():
@@ -245,7 +321,7 @@ def test_copy_false_returns_the_batch_buffer_and_the_same_numbers():
     assert _bytes(two) == _bytes(held)
 
 
-def _assert_copies_are_single_envs(batch, env_id, kwargs, horizon, make_single=None):
+def _assert_copies_are_single_envs(batch, env_id, kwargs, horizon, make_single=None, some_terminate=True):
     n_copies, seed = batch.n_copies, 11
     make_single = make_single or (lambda: mrcomm_env.make(env_id, **kwargs))
     singles = [make_single() for _ in range(n_copies)]
@@ -290,7 +366,7 @@ def _assert_copies_are_single_envs(batch, env_id, kwargs, horizon, make_single=N
             }
             assert batch.bits_sent()[i] == env.bits_sent()  # the new episode's (RendezvousMapping sends at reset)
     assert (episodes_ended >= 2).all(), episodes_ended  # the automatic resets were exercised
-    if kwargs.get("scene") == "neighborhood" and not kwargs.get("miss_probability"):
+    if some_terminate and kwargs.get("scene") == "neighborhood" and not kwargs.get("miss_probability"):
         assert copies_terminated > 0  # a perfect channel tells the IDs apart in a few steps: episodes terminate
     return singles
 
