@@ -1085,15 +1085,51 @@ def test_compiled_packets_of_a_window_are_the_references(monkeypatch):
 @pytest.mark.parametrize("policy", ["paper_protocol", "random"])
 def test_whole_episodes_are_identical_with_the_compiled_plan_and_forest(monkeypatch, kwargs, policy):
     pytest.importorskip("numba")
+    _assert_backends_agree(monkeypatch, {"n_landmarks": 80, "area": 3600.0, "max_cycles": 25, **kwargs}, policy, 29)
+
+
+@st.composite
+def _drawn_configs(draw):
+    """RendezvousMapping arguments across what the compiled plan, forest, window and fusion branch on: one vehicle
+    to a crowd, few landmarks to many, no links to all, exact grids (ties) and clumps, a sensor floor of one."""
+    n = draw(st.integers(1, 9))
+    return {
+        "n_vehicles": n,
+        "n_landmarks": draw(st.integers(n, 70)),
+        "area": draw(st.sampled_from([400.0, 3600.0, 20_000.0])),
+        "speed": draw(st.sampled_from([0.2, 1.0, 3.0])),
+        "t_window": draw(st.sampled_from([1.0, 10.0, 40.0])),
+        "d_comms": draw(st.sampled_from([0.0, 5.0, 15.0, 40.0, math.inf])),
+        "sigma": draw(st.sampled_from([0.0, 5.0, 30.0])),
+        "clumping": draw(st.sampled_from([0.0, 0.5, 0.9])),
+        "k_candidates": draw(st.integers(1, 8)),
+        "obs_per_landmark": draw(st.sampled_from([1, 3, 20])),
+        "obs_rate": draw(st.sampled_from([0.2, 1.0, 4.0])),
+        "max_cycles": draw(st.integers(1, 10)),
+    }
+
+
+@settings(max_examples=25, deadline=None)
+@given(kwargs=_drawn_configs(), policy=st.sampled_from(["paper_protocol", "random"]), seed=st.integers(0, 2**16))
+def test_whole_episodes_of_drawn_configurations_are_identical_with_the_compiled_plan_and_forest(kwargs, policy, seed):
+    """The fixed cases above, and drawn ones (25 per run, the same ones in ``make test``)."""
+    pytest.importorskip("numba")
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        _assert_backends_agree(monkeypatch, kwargs, policy, seed)
+
+
+def _assert_backends_agree(monkeypatch, kwargs, policy, seed):
+    """One seeded episode under the baseline ``policy`` on each backend: every observation, reward and info, the
+    plans (assignment, l_c), the positions and the metrics, byte for byte."""
     from mrcomm_baselines import make_policy
 
     def episode(compiled):
         _use_plan_backend(monkeypatch, compiled)
-        env = RendezvousMappingEnv(n_landmarks=80, area=3600.0, max_cycles=25, **kwargs)
+        env = RendezvousMappingEnv(**kwargs)
         pol = make_policy("RendezvousMapping-v0", policy)
         views = env.local_views()
-        obs, infos = env.reset(seed=29)
-        pol.reset(views, 29)
+        obs, infos = env.reset(seed=seed)
+        pol.reset(views, seed)
         trace = [(obs, infos)]
         while env.agents:
             obs, rewards, _, _, infos = env.step(pol.act(obs, views))
