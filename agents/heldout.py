@@ -65,9 +65,9 @@ def evaluate_episodes(model, venv, env_id: str, env_kwargs: dict, seeds, determi
             episode_return += float(np.mean(list(rewards.values()))) if rewards else 0.0
         metrics = env.metrics()
         row = {k: float(v) for k, v in metrics.items() if np.isscalar(v) and not isinstance(v, str)}
-        for name in getattr(env, "UNREACHED_TIMES", ()):  # never reached: counted at the episode's length
-            if name in row and not row[name] >= 0:
-                row[name] = float(env.step_count)
+        for name in env.UNREACHED_TIMES:  # never reached: counted at the episode's length
+            if name in row:
+                row[name] = env.counted_time(name, row[name])
         bits = float(metrics.get("bits_sent", env.bits_sent()))
         row["bits_per_agent_episode"] = bits / env.n_agents
         row["bits_per_agent_step"] = bits / (env.n_agents * max(env.step_count, 1))

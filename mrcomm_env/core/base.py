@@ -210,6 +210,14 @@ class MrcommParallelEnv(ParallelEnv):
         self._require_reset("metrics")
         return self._metrics()
 
+    def counted_time(self, name: str, value: float) -> float:
+        """Metric ``name``'s ``value`` as an evaluation averages it over episodes: a time among ``UNREACHED_TIMES``
+        that was not reached (−1 or nan) counts as the episode's length, so that never reaching it is neither
+        mistaken for reaching it at once nor left out of the average."""
+        if name in self.UNREACHED_TIMES and not value >= 0:
+            return float(self.step_count)
+        return value
+
     def bits_sent(self) -> float:
         """Bits every robot has sent since ``reset()``, summed (the env's ``BitLedger``; what recordings show)."""
         self._require_reset("bits_sent")

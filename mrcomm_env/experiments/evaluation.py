@@ -107,19 +107,16 @@ def evaluate_policy(env_id: str, env_kwargs: dict, policy, seeds: list[int], spe
 
     ``spec["unfinished"]``: the value a metric that reports −1 or nan for "not done within the episode" (a
     completion time) counts as, so that never finishing is not mistaken for finishing at once. Without it, a
-    metric among the env's ``UNREACHED_TIMES`` counts as the episode's length (as the held-out evaluation of
-    training counts it), so that no episode is left out of an average."""
+    metric among the env's ``UNREACHED_TIMES`` counts as the episode's length (``counted_time``, as the held-out
+    evaluation of training counts it), so that no episode is left out of an average."""
     env = make(env_id, **env_kwargs)
-    unreached = spec["metric"] in getattr(env, "UNREACHED_TIMES", ())
     out: dict[str, list[float]] = {"metric": [], "bits": [], "return": []}
     for seed in seeds:
         metrics = run_episode(env, policy, seed)
         value = float(metrics[spec["metric"]])
-        if not value >= 0:  # −1 or nan: not done within the episode
-            if "unfinished" in spec:
-                value = float(spec["unfinished"])
-            elif unreached:
-                value = float(env.step_count)
+        if "unfinished" in spec and not value >= 0:  # −1 or nan: not done within the episode
+            value = float(spec["unfinished"])
+        value = env.counted_time(spec["metric"], value)
         out["metric"].append(value)
         out["bits"].append(bits_per_agent(env, metrics, spec.get("bits_per", "step")))
         out["return"].append(float(metrics["episode_return"]))

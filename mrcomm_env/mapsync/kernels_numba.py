@@ -335,9 +335,8 @@ def disagreement(maps, truth, pair_rows, pair_cols):
     The reference's Hamming distances ``(|x| + |y| − 2 x·y) / n`` are whole numbers of cells before the division
     (float64 holds them exactly), so counting the differing cells gives the same quotients; its sums (each row of
     the (N, N) distances, the N(N − 1)/2 pairs ``pair_rows``, ``pair_cols`` in ``np.triu_indices`` order, the N
-    errors) are numpy's pairwise
-    sums (:func:`numpy_sum`) over the same values in the same order. The maps are packed into 64-bit words first:
-    the pairs then cost N(N − 1)/2 · n/64 popcounts."""
+    errors) are numpy's pairwise sums (:func:`numpy_sum`) over the same values in the same order. The maps are
+    packed into 64-bit words first: the pairs then cost N(N − 1)/2 · n/64 popcounts."""
     n_robots, n = maps.shape
     n_words = (n + 63) // 64
     words = np.zeros((n_robots, n_words), dtype=np.uint64)
