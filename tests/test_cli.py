@@ -272,6 +272,13 @@ def test_bench_checks_every_param_before_timing(tmp_path, capsys, no_episode):
     assert "valid arguments are" in _one_error_line(capsys.readouterr().err)
 
 
+def test_bench_train_shipped_needs_a_shipped_configuration_before_timing(tmp_path, capsys, monkeypatch, no_episode):
+    monkeypatch.setattr("mrcomm_agents.training.CONFIG_DIR", tmp_path)  # no agents/configs here
+    argv = ["bench", "MapSync-v0", "--train-shipped", "--runs", "1", "--out", str(tmp_path / "b.json")]
+    assert main(argv) == 2
+    assert "has no learning configuration" in _one_error_line(capsys.readouterr().err)
+
+
 @pytest.fixture
 def blocked_dir(tmp_path):
     """A path nothing can be written under, whoever runs the test (root included): its parent is a file."""

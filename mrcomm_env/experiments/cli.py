@@ -195,6 +195,9 @@ def cmd_bench(args) -> int:
         return _bench_sweep(args, params, out)
     for env_id in targets:  # every target accepts the params, before the first timed run
         make(env_id, **params).close()
+        if args.train_shipped:  # and has a shipped training configuration that accepts them too
+            _, shipped_kwargs, _ = bench.shipped_training(env_id)
+            make(env_id, **{**shipped_kwargs, **params}).close()
     runs = args.runs
 
     def median_of(measure, label):
