@@ -347,10 +347,13 @@ class NeighborhoodBatch(CopyAxisWorld):
         f = self.filter
         self.all_wireless = f.pack(np.ones(c.w, dtype=bool))  # the known neighbourhood: every wireless slot
 
+    def _true_bits(self, copies) -> np.ndarray:
+        """(len(copies), v): the bit of each visual slot's own wireless ID; wireless slot h is robot h + 1."""
+        return np.left_shift(np.uint64(1), (self.vis_robot[copies] - 1).astype(np.uint64))
+
     def _singled_out(self) -> tuple[np.ndarray, np.ndarray]:
-        """Wireless slot h is robot h + 1: the bit of visual slot s's own wireless ID is 1 << (vis_robot[s] − 1)."""
         f, shape = self.filter, (self.m, 1, self.filter.C.shape[1])  # each copy's one observer row
-        true_bits = np.left_shift(np.uint64(1), (self.vis_robot - 1).astype(np.uint64))
+        true_bits = self._true_bits(slice(None))
         return bitset_singled_out(f.C.reshape(shape), f.vt.reshape(shape), self.vis_robot, true_bits, self.n)
 
     def _adopt_scene(self, i: int, scene) -> None:
@@ -413,8 +416,7 @@ class NeighborhoodBatch(CopyAxisWorld):
         (``Scene.true_edges``, ``Scene.wrong_matches``)."""
         f = self.filter
         C, deg, vt = f.C[copies], f.deg[copies], f.vt[copies]
-        true_bit = np.left_shift(np.uint64(1), (self.vis_robot[copies] - 1).astype(np.uint64))
-        holds_true = (C & true_bit) != 0
+        holds_true = (C & self._true_bits(copies)) != 0
         true = np.count_nonzero(holds_true & vt, axis=1)
         unique = (deg == 1) & vt
         total = np.count_nonzero(unique, axis=1)
