@@ -9,10 +9,13 @@ conditioning of the matrices the kernels invert (``tests/numerics.py``); tables,
 
 from __future__ import annotations
 
+import math
 import os
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 pytest.importorskip("numba")
 
@@ -213,10 +216,11 @@ def _episode(seed, kw, compiled, monkeypatch, log=None, ulp=False):
             if log is not None:
                 log.step = env.tables.t
             _, rew, _, _, infos = env.step({a: int(rng.integers(n_modes)) for a in env.agents})
+            estimates = kw.get("estimation", True)  # without the EKF there are none
             record.append(
                 (
-                    env.est.X.copy(),
-                    env.est.P.copy(),
+                    env.est.X.copy() if estimates else None,
+                    env.est.P.copy() if estimates else None,
                     env.tables.latest.copy(),
                     env.tables.known.copy(),
                     rew["robot_0"],
@@ -318,6 +322,46 @@ def test_backends_agree_where_the_filter_is_well_conditioned(initial_sigma, monk
         fast, _ = _episode(9, kw, True, monkeypatch)
         nudged, _ = _episode(9, kw, True, monkeypatch, ulp=True)
         assert _separation(fast, nudged) > 1e-3, "one ulp of prior mean should move the estimates by far more"
+
+
+@st.composite
+def _drawn_configs(draw):
+    """AsyncCL arguments across what the compiled exchange, offers and restart chains branch on: teams of 2 to 7,
+    every link model, links never or always up, lost deliveries, bit budgets, short histories (abandoned steps),
+    every q rule, with and without the EKF."""
+    return {
+        "n_robots": draw(st.integers(2, 7)),
+        "link_model": draw(st.sampled_from(["bernoulli", "disk", "combined"])),
+        "link_probability": draw(st.sampled_from([0.0, 0.15, 0.3, 1.0])),
+        "comm_radius": draw(st.sampled_from([0.5, 3.0, 6.0])),
+        "sensing_radius": draw(st.sampled_from([0.5, 3.0, math.inf])),
+        "packet_loss": draw(st.sampled_from([0.0, 0.2])),
+        "bit_budget": draw(st.sampled_from([None, 200.0, 2000.0])),
+        "max_history": draw(st.integers(2, 40)),
+        "trajectory": draw(st.sampled_from(["sinusoid", "waypoint"])),
+        "q_rule": draw(st.sampled_from(["paper", "oracle", "receiver"])),
+        "estimation": draw(st.booleans()),
+        "max_cycles": draw(st.integers(1, 150)),
+    }
+
+
+@settings(max_examples=25, deadline=None)
+@given(kw=_drawn_configs(), seed=st.integers(0, 2**16))
+def test_drawn_episodes_keep_the_same_books_on_both_backends(kw, seed):
+    """What is bookkeeping (who holds which packet, the bits, the delays and table sizes) is the same on both
+    backends, whatever the conditioning of the filter, which only the estimates feel (25 drawn configurations,
+    the same ones in ``make test``)."""
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        fast, m_fast = _episode(seed, kw, True, monkeypatch)
+        ref, m_ref = _episode(seed, kw, False, monkeypatch)
+    assert len(fast) == len(ref) == kw["max_cycles"]
+    for t, ((_, _, l1, k1, _, b1), (_, _, l2, k2, _, b2)) in enumerate(zip(fast, ref, strict=True)):
+        np.testing.assert_array_equal(l1, l2, err_msg=f"latest at step {t}")
+        np.testing.assert_array_equal(k1, k2, err_msg=f"known at step {t}")
+        assert b1 == b2, f"bits at step {t}"
+    assert m_fast.keys() == m_ref.keys()
+    for key in set(m_ref) - {*ESTIMATE_METRICS, "log10_condition"}:
+        assert m_fast[key] == m_ref[key] or (math.isnan(m_fast[key]) and math.isnan(m_ref[key])), key
 
 
 def test_backend_variable_is_validated(monkeypatch):
