@@ -133,6 +133,10 @@ def test_bench_train_compares_each_env_with_the_reference_at_its_own_slot_count(
         assert entry["slots"] == slots and entry["reference_slots"] == reference_slots
         assert entry["reference_agent_steps_per_s"] == reference["agent_steps_per_s"]
         assert entry["ratio_to_reference"] == pytest.approx(entry["agent_steps_per_s"] / reference["agent_steps_per_s"])
+        # the ceiling: the same agent-steps over PPO's own time only (the wall time outside the env's stepping)
+        ppo_seconds = entry["seconds"] * (1 - entry["env_step_share"])
+        ceiling = entry["agent_steps"] / ppo_seconds / reference["agent_steps_per_s"]
+        assert entry["ratio_ceiling"] == pytest.approx(ceiling) and entry["ratio_ceiling"] > entry["ratio_to_reference"]
 
 
 def test_bench_train_shipped_runs_each_env_as_its_training_configuration_does(tmp_path):
@@ -400,4 +404,6 @@ def test_bench_train_measures_ppo_without_leaving_sb3_folders_in_tmp(tmp_path, m
     result = train_throughput([lambda: make("mrcomm/ChannelAssociation-v0", max_cycles=8)] * 2, 128)
     assert result["agent_steps"] >= 128 and result["agent_steps_per_s"] > 0
     assert 0 < result["env_step_share"] < 1
+    wall_outside_the_env = result["seconds"] * (1 - result["env_step_share"])
+    assert result["ppo_agent_steps_per_s"] == pytest.approx(result["agent_steps"] / wall_outside_the_env)
     assert not list(tmp_path.glob("SB3-*"))
