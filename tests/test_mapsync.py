@@ -265,6 +265,44 @@ def test_one_sync_when_both_ask():
     assert np.array_equal(both.maps, one.maps)
 
 
+@pytest.mark.parametrize(
+    "config",
+    [
+        {"appear_rate": 0.002, "vanish_rate": 0.02, "max_cycles": 120},  # the shipped training configuration
+        {"n_robots": 5, "grid_size": 8, "appear_rate": 0.02, "vanish_rate": 0.05, "max_cycles": 80},
+        {"n_robots": 9, "res": 4, "comm_range": 5.0, "link_prob": 0.7, "max_cycles": 80},  # busy peers, broken links
+    ],
+)
+def test_syncs_completed_within_their_step_are_the_sessions_of_a_limited_link(config, monkeypatch):
+    """Without ``bits_per_step`` every sync completes in the step it is asked for, and the env takes a shorter way
+    than opening sessions and delivering their transcripts (``_sync_within_step``). Both ways give the same episode:
+    observations, rewards, infos, bits, detections, metrics, maps and the generator's state."""
+
+    def episode(general: bool) -> list:
+        env = MapSyncEnv(**config)
+        if general:  # the sessions of a link with a bit budget, which here carries every transcript at once
+            monkeypatch.setattr(env, "_sync_within_step", lambda actions, t: _open_and_progress(env, actions, t))
+        obs, infos = env.reset_arrays(seed=3)
+        rng = np.random.default_rng(3)
+        record = [obs.tolist(), sorted((k, v.tolist()) for k, v in infos.items())]
+        while env.agents:
+            obs, rewards, terminated, truncated, infos = env.step_arrays(rng.integers(0, 5, env.n_agents))
+            record += [obs.tolist(), rewards.tolist(), terminated, truncated]
+            record += [sorted((k, v.tolist()) for k, v in infos.items()), env.ledger.step_bits.tolist()]
+        record += [sorted(env.metrics().items()), list(env.detections), env.maps.tolist(), env.stamps.tolist()]
+        return [*record, env.np_random.bit_generator.state]
+
+    def _open_and_progress(env, actions, t):
+        env._start_sessions(actions, t)
+        env._progress_sessions(t)
+        assert not env.sessions  # every session completed (or was aborted) within its step
+
+    fast, general = episode(general=False), episode(general=True)
+    assert fast == general
+    metrics = dict(fast[-5])  # the record ends with the metrics, detections, maps, stamps and generator state
+    assert metrics["syncs"] > 10 and metrics["detections"] > 0 and metrics["corrected_fraction"] > 0
+
+
 def test_a_full_sync_merges_newest_wins_under_appearing_and_vanishing_obstacles():
     env = MapSyncEnv(grid_size=8, n_obstacles=12, n_robots=3, appear_rate=0.02, vanish_rate=0.1, max_cycles=400)
     env.reset(seed=2)

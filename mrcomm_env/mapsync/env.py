@@ -406,10 +406,14 @@ class MapSyncEnv(WorldDynamics, SyncSessions, MrcommParallelEnv):
             self._charged = False
         if not self._static_links:
             self._links()
-        if any(actions):
-            self._start_sessions(actions, t)
-        if self.sessions:
-            self._progress_sessions(t)
+        if self._cap is None:  # a link carries any transcript within the step: no sync outlives its step
+            if any(actions):
+                self._sync_within_step(actions, t)
+        else:
+            if any(actions):
+                self._start_sessions(actions, t)
+            if self.sessions:
+                self._progress_sessions(t)
         if self._changing and self._change_world():
             self._dirty = True
         self._move_and_sense(t + 1, walk=True)

@@ -103,9 +103,20 @@ class SyncSessions:
             self._open_session(i, j, ACTIONS[act], t)
 
     def _open_session(self, a: int, b: int, name: str, t: int) -> None:
-        x, y = self.maps[a], self.maps[b]
         nonce = self._next_session
         self._next_session += 1
+        outcome, messages, snapshot = self._run_protocol(a, b, name, nonce)
+        session = Session(a, b, name, t, messages, outcome, snapshot, 0, sum(bits for _, bits in messages))
+        self.sessions[nonce] = session
+        self.session_of[a] = self.session_of[b] = nonce
+        self._events += 1  # the infos' busy column is made from session_of when they are next read
+        self._stale |= _STALE_SESSIONS
+
+    def _run_protocol(self, a: int, b: int, name: str, nonce: int) -> tuple[Any, list, dict[str, Any]]:
+        """Alice ``a`` runs ``name`` with Bob ``b`` on their maps as they are now: the outcome (EqualityResult or
+        Reconciliation), the transcript [(sender, bits)] of its non-empty messages in order, and the snapshot
+        that the sync's end needs (which cells to merge and what each side sent about them)."""
+        x, y = self.maps[a], self.maps[b]
         outcome: Any  # EqualityResult (equality) or Reconciliation (the others)
         snapshot: dict[str, Any]
         differ = int(np.count_nonzero(x != y))  # cells that differ at the start (the metrics' denominators)
@@ -132,12 +143,52 @@ class SyncSessions:
                 snapshot["x"], snapshot["y"] = x[found], y[found]  # fancy indexing copies
                 snapshot["sa"], snapshot["sb"] = self.stamps[a][found], self.stamps[b][found]
                 snapshot["right"] = int(np.count_nonzero(snapshot["x"] != snapshot["y"]))
-        messages = [(who, int(bits)) for who, bits in messages if bits > 0]
-        session = Session(a, b, name, t, messages, outcome, snapshot, 0, sum(bits for _, bits in messages))
-        self.sessions[nonce] = session
-        self.session_of[a] = self.session_of[b] = nonce
-        self._events += 1  # the infos' busy column is made from session_of when they are next read
-        self._stale |= _STALE_SESSIONS
+        return outcome, [(who, int(bits)) for who, bits in messages if bits > 0], snapshot
+
+    def _sync_within_step(self, actions: list, t: int) -> None:
+        """``_start_sessions`` then ``_progress_sessions`` when a link carries any transcript within one step (no
+        ``bits_per_step``), so that every sync opens, completes and closes in the step it is asked for.
+
+        The same syncs in the same order, with the same charges, counts and merges: every requested sync first
+        runs its protocol on the maps as the step found them (a robot busy with an earlier one is skipped, as
+        ``_start_sessions`` skips it), then each completes in the order it opened. None can be aborted, since a
+        peer is chosen among the linked ones and the links do not change within a step. What it leaves out is the
+        ``Session`` objects and the transcript's delivery bit by bit, which only a limited link needs."""
+        session_of = self.session_of
+        opened = []
+        for i, act in enumerate(actions):
+            if act == IDLE or session_of[i] >= 0:
+                continue
+            j = self._choose_peer(i)
+            if j < 0:
+                continue
+            nonce = self._next_session
+            self._next_session += 1
+            outcome, messages, snapshot = self._run_protocol(i, j, ACTIONS[act], nonce)
+            session_of[i] = session_of[j] = nonce  # j's own request is served by this sync
+            opened.append((i, j, ACTIONS[act], outcome, messages, snapshot))
+        if not opened:
+            return
+        for a, b, name, outcome, messages, snapshot in opened:
+            self._charge(messages)
+            self._finish(a, b, name, t, outcome, snapshot, t)
+            session_of[a] = session_of[b] = -1
+        self._events += 2 * len(opened)  # each sync opens and closes (the infos are made anew)
+        self._stale |= _STALE_SESSIONS | _STALE_NEW | _STALE_KNOWN
+
+    def _charge(self, messages: list) -> None:
+        """A whole transcript delivered: ``_deliver`` of all its bits, one ledger entry per sender."""
+        charged: dict[int, list[int]] = {}
+        for who, bits in messages:
+            entry = charged.get(who)
+            if entry is None:
+                charged[who] = [bits, 1]
+            else:
+                entry[0] += bits
+                entry[1] += 1
+        for who, (bits, count) in charged.items():  # whole bits: the float sums are exact in any grouping
+            self.ledger.add(who, bits, messages=count)
+            self._charged = True
 
     def _progress_sessions(self, t: int) -> None:
         cap = self._cap
@@ -184,48 +235,50 @@ class SyncSessions:
         self._stale |= _STALE_SESSIONS | _STALE_NEW | _STALE_KNOWN
 
     def _complete(self, s: Session, t: int) -> None:
-        a, b = s.alice, s.bob
+        self._finish(s.alice, s.bob, s.protocol, s.start_step, s.outcome, s.snapshot, t)
+
+    def _finish(self, a: int, b: int, name: str, start_step: int, outcome: Any, snapshot: dict, t: int) -> None:
+        """The last bit of Alice ``a``'s ``name`` sync with Bob ``b`` (opened at ``start_step``) arrived at step t:
+        record the verdict, merge the maps, count it."""
         self._counts["syncs"] += 1
         self.robot_syncs[a] += 1  # a ≠ b
         self.robot_syncs[b] += 1
-        self._latency_sum += t - s.start_step + 1
+        self._latency_sum += t - start_step + 1
         self._latency_count += 1
         synced = True
-        if s.protocol == "equality":
-            synced = self._verdict(s, s.outcome.equal)
+        if name == "equality":
+            synced = self._verdict(a, b, name, start_step, snapshot, outcome.equal)
         else:
-            if s.protocol == "bisection":
-                self._verdict(s, not s.outcome.detected)
-            self._merge(s)
-            self._to_correct += s.snapshot["differ"]
-            self._corrected += s.snapshot["right"]
+            if name == "bisection":
+                self._verdict(a, b, name, start_step, snapshot, not outcome.detected)
+            self._merge(a, b, snapshot)
+            self._to_correct += snapshot["differ"]
+            self._corrected += snapshot["right"]
         if synced:
             self.last_sync[a, b] = self.last_sync[b, a] = t + 1
             self.new_cells[a, b] = self.new_cells[b, a] = 0
             self._last_sync_peers = self.last_sync.take(self._peer_flat)
 
-    def _verdict(self, s: Session, equal: bool) -> bool:
-        a, b = s.alice, s.bob
+    def _verdict(self, a: int, b: int, name: str, start_step: int, snapshot: dict, equal: bool) -> bool:
         self._counts["equality_tests"] += 1
-        if equal and s.snapshot["differ"]:
+        if equal and snapshot["differ"]:
             self._counts["false_equal"] += 1
         if not equal:
             self._counts["detections"] += 1
-            self.detections.append((s.start_step, a, b, s.protocol))
+            self.detections.append((start_step, a, b, name))
         self.last_test[a, b] = self.last_test[b, a] = TEST_SAME if equal else TEST_DIFFERENT
         return equal
 
-    def _merge(self, s: Session) -> None:
+    def _merge(self, alice: int, bob: int, snap: dict) -> None:
         """Last-writer-wins on the cells Bob found (OR when nothing vanishes), into the maps as they are now.
 
         Each robot believes the other holds the opposite bit on every found cell (true unless a sketch was
         wrongly accepted); it adopts that bit where the other's stamp is newer than its own current stamp.
         """
-        snap = s.snapshot
         found = snap["found"]
         if found.size == 0:
             return
-        for me, other_bit, other_stamp in ((s.alice, ~snap["x"], snap["sb"]), (s.bob, ~snap["y"], snap["sa"])):
+        for me, other_bit, other_stamp in ((alice, ~snap["x"], snap["sb"]), (bob, ~snap["y"], snap["sa"])):
             my_map, my_stamps = self.maps[me], self.stamps[me]  # row views: 1-d indexing below
             if self._lww:
                 adopt = other_stamp > my_stamps[found]
