@@ -246,6 +246,19 @@ class MapSyncEnv(WorldDynamics, SyncSessions, MrcommParallelEnv):
         )
     ]
 
+    @classmethod
+    def copy_axis_world(cls, cfg):
+        """Links that carry any transcript within a step (no ``bits_per_step``) and are always up (no ``comm_range``,
+        ``link_prob`` 1), on the compiled backend, step M copies as one batch of arrays (:mod:`.copy_axis`): the
+        default and the shipped training configuration. Other configurations step their copies in turn."""
+        if cfg.bits_per_step is not None or cfg.comm_range is not None or cfg.link_prob < 1.0:
+            return None
+        if not backend.compiled():
+            return None
+        from mrcomm_env.mapsync.copy_axis import UnlimitedLinkBatch  # numba is optional
+
+        return UnlimitedLinkBatch
+
     # ----------------------------------------------------------------- setup
     def _setup(self) -> None:
         c = self.cfg

@@ -590,3 +590,236 @@ def equality_counter(x, y, database, use_database, k0, k1, domain, words_per_str
             acc += _popcount32(np.uint64(diff[w]) & r)
         counter += int(acc & np.uint64(1))
     return counter
+
+
+# the sync kinds of ``step_copies`` (``sessions.EQUALITY`` and ``sessions.BISECTION``: the actions that ask for them)
+_EQUALITY, _BISECTION = 1, 2
+# columns of ``step_copies``'s counts: the env's ``_counts`` (in its order), then its merge and latency counters
+SYNCS, FALSE_EQUAL, EQUALITY_TESTS, DETECTIONS, ABORTED, CORRECTED, TO_CORRECT, LATENCY_SUM, LATENCY_COUNT = range(9)
+N_COUNTS = 9
+
+
+@numba.njit(cache=True)
+def _settle_sync(
+    m, a, b, kind, equal, found, maps, stamps, known, last_sync, new_cells, last_test, counts, dirty, lww, t
+):
+    """``SyncSessions._finish`` of one sync of copy ``m`` that opened and completes at step ``t`` (its verdict, its
+    merge, its counts). The merge reads what each robot sent as its map and stamps now: both robots' rows are
+    as the protocol found them, since a robot is in one sync at a time and no merge of another touches them."""
+    counts[m, SYNCS] += 1
+    counts[m, LATENCY_SUM] += 1  # t − t + 1: the sync ended in the step it began
+    counts[m, LATENCY_COUNT] += 1
+    x, y = maps[m, a], maps[m, b]
+    differ = 0
+    for c in range(x.size):
+        if x[c] != y[c]:
+            differ += 1
+    synced = True
+    if kind == _EQUALITY or kind == _BISECTION:  # SyncSessions._verdict: Protocol 1's answer, both ends learn it
+        counts[m, EQUALITY_TESTS] += 1
+        if equal and differ > 0:
+            counts[m, FALSE_EQUAL] += 1
+        if not equal:
+            counts[m, DETECTIONS] += 1
+        last_test[m, a, b] = last_test[m, b, a] = 1 if equal else 0  # TEST_SAME, TEST_DIFFERENT
+        if kind == _EQUALITY:
+            synced = equal
+    if kind != _EQUALITY:
+        size = found.size
+        right = 0
+        if size:  # SyncSessions._merge: last-writer-wins (OR when nothing vanishes), Alice's row first
+            xs, ys = np.empty(size, dtype=np.bool_), np.empty(size, dtype=np.bool_)
+            sa, sb = np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64)
+            for q in range(size):
+                cell = found[q]
+                xs[q], ys[q] = x[cell], y[cell]
+                sa[q], sb[q] = stamps[m, a, cell], stamps[m, b, cell]
+                if xs[q] != ys[q]:
+                    right += 1
+            for side in range(2):
+                me = a if side == 0 else b
+                mine, other = (xs, sb) if side == 0 else (ys, sa)
+                for q in range(size):
+                    cell = found[q]
+                    other_bit = not mine[q]  # each believes the other holds the opposite bit
+                    if lww:
+                        adopt = other[q] > stamps[m, me, cell]
+                    else:
+                        adopt = other_bit and not maps[m, me, cell]
+                    if adopt:
+                        if stamps[m, me, cell] < 0:
+                            known[m, me] += 1
+                        maps[m, me, cell] = other_bit
+                        if other[q] > stamps[m, me, cell]:
+                            stamps[m, me, cell] = other[q]
+            dirty[m] = True
+        counts[m, TO_CORRECT] += differ
+        counts[m, CORRECTED] += right
+    if synced:
+        last_sync[m, a, b] = last_sync[m, b, a] = t + 1
+        new_cells[m, a, b] = new_cells[m, b, a] = 0
+
+
+@numba.njit(cache=True)
+def step_copies(
+    sync_copy,
+    sync_a,
+    sync_b,
+    sync_kind,
+    sync_equal,
+    sync_bits,
+    sync_messages,
+    found,
+    found_offsets,
+    draws,
+    maps,
+    stamps,
+    truth,
+    pos,
+    known,
+    new_cells,
+    last_sync,
+    last_test,
+    robot_syncs,
+    step_bits,
+    total_bits,
+    messages,
+    counts,
+    recent,
+    recent_max,
+    recent_any,
+    dirty,
+    column,
+    mean,
+    errors,
+    error_mean,
+    sums,
+    step_count,
+    changing,
+    lww,
+    appear_rate,
+    vanish_rate,
+    neighbours,
+    sensed,
+    distinct,
+    pair_rows,
+    pair_cols,
+    linked,
+    no_sessions,
+    no_progress,
+    lam,
+    bit_scale,
+    horizon,
+    obs,
+    rewards,
+):
+    """``MapSyncEnv._step_world`` and ``_observe`` of M copies whose links carry any transcript within a step (no
+    ``bits_per_step``, static links), after their syncs' protocols ran (``UnlimitedLinkBatch``): every array with
+    a leading copy axis is the env's state of the same name (``counts``: the columns above; ``sums``: the summed
+    disagreement and error; ``step_bits``, ``total_bits``, ``messages``: the ledger's). Sync s of copy
+    ``sync_copy[s]``, Alice ``sync_a[s]`` and Bob ``sync_b[s]``, is of kind ``sync_kind[s]`` (its action), with
+    Protocol 1's answer ``sync_equal[s]`` (equality, or bisection's first test), the bits and messages
+    ``sync_bits[s]``, ``sync_messages[s]`` each sent (Alice, Bob) and the found cells
+    ``found[found_offsets[s]:found_offsets[s + 1]]``; the syncs come in the order they opened. ``draws[m]`` are
+    copy m's keys of the step, the world's changes (2n, when ``changing``) then the walk's (N × 4). Writes the
+    observations ``obs`` and the team rewards ``rewards``; the same operations in the same order as the env, so
+    the same numbers."""
+    n_copies, n_robots, n = maps.shape
+    step_bits[:] = 0.0  # BitLedger.begin_step
+    charged = np.zeros(n_copies, dtype=np.bool_)
+    for s in range(sync_copy.size):  # SyncSessions._sync_within_step: charge the transcript, then finish
+        m, a, b = sync_copy[s], sync_a[s], sync_b[s]
+        for side in range(2):
+            who = a if side == 0 else b
+            if sync_messages[s, side]:
+                step_bits[m, who] += sync_bits[s, side]
+                total_bits[m, who] += sync_bits[s, side]
+                messages[m] += sync_messages[s, side]
+                charged[m] = True
+        robot_syncs[m, a] += 1
+        robot_syncs[m, b] += 1
+        _settle_sync(
+            m,
+            a,
+            b,
+            sync_kind[s],
+            sync_equal[s],
+            found[found_offsets[s] : found_offsets[s + 1]],
+            maps,
+            stamps,
+            known,
+            last_sync,
+            new_cells,
+            last_test,
+            counts,
+            dirty,
+            lww,
+            step_count[m],
+        )
+    walk_from = 2 * n if changing else 0
+    for m in range(n_copies):
+        t = step_count[m]
+        if changing and change_world(truth[m], pos[m], draws[m, :walk_from], appear_rate, vanish_rate):
+            dirty[m] = True
+        keys = np.empty((n_robots, 4))
+        for i in range(n_robots):
+            for d in range(4):
+                keys[i, d] = draws[m, walk_from + 4 * i + d]
+        moved, flags = walk_and_sense(
+            True,
+            keys,
+            pos[m],
+            neighbours,
+            truth[m],
+            sensed,
+            distinct,
+            maps[m],
+            stamps[m],
+            known[m],
+            new_cells[m],
+            t + 1,
+        )
+        pos[m] = moved
+        if flags & 2:
+            dirty[m] = True
+        if dirty[m]:  # WorldDynamics._update_disagreement
+            dirty[m] = False
+            col, mean_m, err, err_mean = disagreement(maps[m], truth[m], pair_rows, pair_cols)
+            column[m] = col
+            mean[m] = mean_m
+            errors[m] = err
+            error_mean[m] = err_mean
+        team_bits = 0.0
+        if charged[m] or recent_any[m]:  # the recent bits' moving average, as MapSyncEnv._step_world keeps it
+            for i in range(n_robots):
+                recent[m, i] *= 0.9
+            if charged[m]:
+                for i in range(n_robots):
+                    team_bits += step_bits[m, i]  # whole numbers of bits: exact in any summation order
+                    recent[m, i] += 0.1 * step_bits[m, i]
+                recent_max[m] = recent[m].max()
+            else:
+                recent_max[m] *= 0.9
+            recent_any[m] = recent_max[m] > 1e-6 * n
+            if not recent_any[m]:
+                recent[m] = 0.0
+                recent_max[m] = 0.0
+        sums[m, 0] += mean[m]
+        sums[m, 1] += error_mean[m]
+        rewards[m] = -mean[m] - lam * team_bits / bit_scale
+        t += 1
+        step_count[m] = t
+        observe(
+            obs[m],
+            t,
+            min(t / horizon, 1.0),
+            last_sync[m],
+            new_cells[m],
+            linked,
+            last_test[m],
+            no_sessions,
+            no_progress,
+            recent[m],
+            known[m],
+            n,
+        )

@@ -28,6 +28,16 @@ _STALE_NEW, _STALE_LINKS, _STALE_SESSIONS, _STALE_RECENT, _STALE_KNOWN = 1, 2, 4
 _STALE_ALL = 31
 
 
+def choose_peer(peers: list[int], session_of, linked_row, last_sync_row) -> int:
+    """Of ``peers`` (in peer order), the one not in a sync (``session_of`` < 0) and linked that this robot synced
+    with least recently (``last_sync_row``, the step of each pair's last sync); the first on ties, −1 if none."""
+    best, best_age = -1, -(2**62)
+    for j in peers:
+        if session_of[j] < 0 and linked_row[j] and -last_sync_row[j] > best_age:
+            best, best_age = j, int(-last_sync_row[j])
+    return best
+
+
 @dataclass
 class Session:
     """One sync between Alice (the requester) and Bob, in flight over their link."""
@@ -85,12 +95,7 @@ class SyncSessions:
     # ----------------------------------------------------------------- syncs
     def _choose_peer(self, i: int) -> int:
         """The linked, free peer that robot i synced with least recently (the first in peer order on ties)."""
-        session_of, linked, last_sync = self.session_of, self.linked[i], self.last_sync[i]
-        best, best_age = -1, -(2**62)
-        for j in self._peer_lists[i]:
-            if session_of[j] < 0 and linked[j] and -last_sync[j] > best_age:
-                best, best_age = j, int(-last_sync[j])
-        return best
+        return choose_peer(self._peer_lists[i], self.session_of, self.linked[i], self.last_sync[i])
 
     def _start_sessions(self, actions: list, t: int) -> None:
         for i, act in enumerate(actions):
@@ -117,13 +122,28 @@ class SyncSessions:
         Reconciliation), the transcript [(sender, bits)] of its non-empty messages in order, and the snapshot
         that the sync's end needs (which cells to merge and what each side sent about them)."""
         x, y = self.maps[a], self.maps[b]
-        outcome: Any  # EqualityResult (equality) or Reconciliation (the others)
+        outcome, messages = self._transcript(x, y, a, b, name, nonce)
         snapshot: dict[str, Any]
         differ = int(np.count_nonzero(x != y))  # cells that differ at the start (the metrics' denominators)
         if name == "equality":
+            snapshot = {"differ": differ > 0}
+        else:
+            found = outcome.found
+            snapshot = {"found": found, "differ": differ, "right": 0}
+            if found.size:  # what each sent about the found cells (nothing to merge otherwise, see _merge)
+                snapshot["x"], snapshot["y"] = x[found], y[found]  # fancy indexing copies
+                snapshot["sa"], snapshot["sb"] = self.stamps[a][found], self.stamps[b][found]
+                snapshot["right"] = int(np.count_nonzero(snapshot["x"] != snapshot["y"]))
+        return outcome, messages, snapshot
+
+    def _transcript(self, x, y, a: int, b: int, name: str, nonce: int) -> tuple[Any, list]:
+        """Alice ``a`` (map ``x``) runs ``name`` with Bob ``b`` (map ``y``): the outcome (EqualityResult or
+        Reconciliation) and the transcript [(sender, bits)] of its non-empty messages in the order they are sent,
+        Bob's way back (the found cells, and their stamps both ways under last-writer-wins) included."""
+        outcome: Any
+        if name == "equality":
             outcome = proto.equality(x, y, self.strings, self._k, self.np_random)
             messages = [(a, outcome.alice_bits), (b, outcome.bob_bits)]
-            snapshot = {"differ": differ > 0}
         else:
             if name == "bisection":
                 outcome = proto.bisection(x, y, self.strings, self._k, self._res, self.np_random)
@@ -138,12 +158,7 @@ class SyncSessions:
             messages.append((b, proto.return_bits(outcome.candidates, found.size)))
             if self._lww and found.size:
                 messages += [(b, found.size * self._stamp_bits), (a, found.size * self._stamp_bits)]
-            snapshot = {"found": found, "differ": differ, "right": 0}
-            if found.size:  # what each sent about the found cells (nothing to merge otherwise, see _merge)
-                snapshot["x"], snapshot["y"] = x[found], y[found]  # fancy indexing copies
-                snapshot["sa"], snapshot["sb"] = self.stamps[a][found], self.stamps[b][found]
-                snapshot["right"] = int(np.count_nonzero(snapshot["x"] != snapshot["y"]))
-        return outcome, [(who, int(bits)) for who, bits in messages if bits > 0], snapshot
+        return outcome, [(who, int(bits)) for who, bits in messages if bits > 0]
 
     def _sync_within_step(self, actions: list, t: int) -> None:
         """``_start_sessions`` then ``_progress_sessions`` when a link carries any transcript within one step (no
