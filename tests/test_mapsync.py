@@ -227,6 +227,14 @@ def test_return_code_length():
     assert proto.return_bits(256, 3) == 9 + math.ceil(math.log2(math.comb(256, 3)))
 
 
+@pytest.mark.parametrize("candidates", [1, 2, 3, 16, 45, 256, 1000])
+def test_the_return_bits_table_is_return_bits_for_every_count_of_found_cells(candidates):
+    """What the compiled syncs charge for Bob's way back (they have no big integers for ⌈log2 C(C, d)⌉)."""
+    table = proto.return_bits_table(candidates)
+    assert table.tolist() == [proto.return_bits(candidates, d) for d in range(candidates + 1)]
+    assert table[0] == max(1, candidates.bit_length()) and not table.flags.writeable
+
+
 # ------------------------------------------------------------------------------------------------ env mechanics
 def step_all(env, action_of):
     return env.step({a: action_of.get(a, IDLE) for a in env.agents})
@@ -639,6 +647,24 @@ def test_protocol1_and_algorithm1_on_equal_maps_return_and_draw_what_the_full_ru
         for name in ("protocol", "alice_bits", "bob_bits", "rounds", "candidates", "detected", "extra"):
             assert getattr(got, name) == getattr(want, name), (n, res, name)
         assert shortcut.bit_generator.state == full.bit_generator.state
+
+
+def test_bisection_tests_counts_algorithm1s_protocol1_calls_when_no_test_errs(monkeypatch):
+    """What the compiled bisection draws ahead: exactly the reference's Protocol 1 calls when no test errs (k = 40), and
+    never fewer when tests do err (k = 1: a differing segment then often tests "same" and is not split)."""
+    kernels = pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    _use_backend(monkeypatch, False)
+    rng = np.random.default_rng(7)
+    fewer = 0
+    for n, res, d in [(2, 1, 1), (16, 1, 16), (45, 3, 7), (77, 1, 0), (256, 1, 3), (1000, 4, 40), (1024, 1, 1)]:
+        x, y, _ = maps_with_differences(rng, n, d)
+        strings = SharedStrings(n, 9)
+        exact = proto.bisection(x, y, strings, 40, res, np.random.default_rng(n)).extra["protocol1_calls"]
+        assert kernels.bisection_tests(x, y, res) == exact, (n, res, d)
+        erring = proto.bisection(x, y, strings, 1, res, np.random.default_rng(n)).extra["protocol1_calls"]
+        assert erring <= exact
+        fewer += erring < exact
+    assert fewer > 0  # tests did err
 
 
 @pytest.mark.parametrize("n", [4, 64, 300])

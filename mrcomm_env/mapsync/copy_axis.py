@@ -26,17 +26,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from mrcomm_env.mapsync import kernels_numba
-from mrcomm_env.mapsync.sessions import (
-    _STALE_ALL,
-    ACTIONS,
-    BISECTION,
-    EQUALITY,
-    IDLE,
-    choose_peer,
-)
+from mrcomm_env.mapsync import kernels_numba, pinsketch, theory
+from mrcomm_env.mapsync import protocol as proto
+from mrcomm_env.mapsync.philox import DOMAIN_PARITY, SharedStrings, seed_key
+from mrcomm_env.mapsync.sessions import _STALE_ALL, ACTIONS, BISECTION, EQUALITY, FULL, IDLE, SKETCH, choose_peer
 
-assert (kernels_numba._EQUALITY, kernels_numba._BISECTION) == (EQUALITY, BISECTION)  # the kernel's sync kinds
+# the kernel's sync kinds are the actions that ask for them
+assert (kernels_numba._EQUALITY, kernels_numba._BISECTION, kernels_numba._FULL, kernels_numba._SKETCH) == (
+    EQUALITY,
+    BISECTION,
+    FULL,
+    SKETCH,
+)
 
 _COUNT_NAMES = ("syncs", "false_equal", "equality_tests", "detections", "aborted_syncs")  # the env's _counts
 
@@ -63,6 +64,17 @@ class UnlimitedLinkBatch:
         self.peer_lists = first._peer_lists
         self.no_sessions = np.full(N, -1, dtype=np.int64)
         self.no_progress = np.zeros(N)
+        # what the compiled protocols need: Protocol 1's shared strings (the same database seed in every copy) and
+        # bits, the sketch's parity count, domain and field, Bob's way back for every count of found cells
+        self.k, self.stamp_bits = int(c.k), int(first._stamp_bits)
+        strings = SharedStrings(n, c.database_seed, explicit=c.explicit_database, cache=True)  # as the env's reset
+        self.strings = (*proto._kernel_strings(strings), theory.protocol1_bits(n, c.k))
+        m_bits = pinsketch.field_bits(n)
+        self.sketch_consts = (proto.sketch_verify_bits(n), DOMAIN_PARITY, m_bits)
+        field = pinsketch.field(m_bits)
+        self.exp, self.log = field.exp, field.log
+        self.return_table = proto.return_bits_table(n)
+        self.sketch_keys = np.zeros((m, 2), dtype=np.int64)  # each copy's episode key of the sketch's strings
         # the copies' state: the env's arrays of the same names with a copy axis
         self.maps = np.zeros((m, N, n), dtype=bool)
         self.stamps = np.zeros((m, N, n), dtype=np.int64)
@@ -127,6 +139,7 @@ class UnlimitedLinkBatch:
         self.error_mean[i] = env._error_mean
         self.sums[i] = env._sum_disagreement, env._sum_error
         self.step_count[i] = env.step_count
+        self.sketch_keys[i] = seed_key(env.sketch_seed)
         self.fill_draws[i] = env.np_random.random  # a reset with a seed makes a new generator
 
     def store(self, i: int) -> None:
@@ -180,9 +193,12 @@ class UnlimitedLinkBatch:
         ``(M,)``, truncated ``(M,)`` and the info columns; copies that end are not reset here. The observations are
         the world's own buffer, rewritten whole at the next step (``BatchedEnv`` copies it unless ``copy=False``)."""
         actions = self._checked(actions)
-        copies, alices, bobs, kinds, equal, bits, messages, found, found_offsets = self._run_syncs(actions)
+        copies, alices, bobs, kinds, equal, bits, messages, found, found_offsets, picks, nonces = self._open_syncs(
+            actions
+        )
         for copy_draws, fill in zip(self.draws, self.fill_draws):  # the env's keys, in the env's order
             fill(out=copy_draws)
+        opened_at = self.step_count.copy() if copies.size else None
         kernels_numba.step_copies(
             copies,
             alices,
@@ -193,6 +209,15 @@ class UnlimitedLinkBatch:
             messages,
             found,
             found_offsets,
+            picks,
+            nonces,
+            self.sketch_keys,
+            self.strings,
+            self.sketch_consts,
+            self.exp,
+            self.log,
+            self.return_table,
+            self.stamp_bits,
             self.draws,
             self.maps,
             self.stamps,
@@ -235,6 +260,10 @@ class UnlimitedLinkBatch:
             self.obs,
             self.rewards,
         )
+        if opened_at is not None:  # SyncSessions._verdict's list of detections: the tests that found a difference
+            for m, a, b, kind, same in zip(copies.tolist(), alices.tolist(), bobs.tolist(), kinds.tolist(), equal):
+                if not same and (kind == EQUALITY or kind == BISECTION):
+                    self.envs[m].detections.append((int(opened_at[m]), a, b, ACTIONS[kind]))
         N = self.n_agents
         infos = {  # MapSyncEnv._agent_infos, in its order
             "bits_sent": self.step_bits.copy(),
@@ -264,12 +293,14 @@ class UnlimitedLinkBatch:
             )
         return actions.astype(np.int64, copy=False)
 
-    def _run_syncs(self, actions: np.ndarray) -> tuple:
+    def _open_syncs(self, actions: np.ndarray) -> tuple:
         """The syncs the robots ask for, in the env's order (``SyncSessions._sync_within_step``): each robot that
-        acts and is not yet in a sync opens one with its chosen peer, whose protocol runs now on the copy's maps
-        with the copy's generator. Returns the kernel's sync arguments."""
-        copies, alices, bobs, kinds, equal, bits, counts, found = [], [], [], [], [], [], [], []
-        N = self.n_agents
+        acts and is not yet in a sync opens one with its chosen peer. What draws from the copy's generator is done
+        here, in that order: Algorithm 1 runs whole (``SyncSessions._transcript``: it draws its picks round by
+        round), an equality test draws Alice's picks (``protocol._alice_picks``); the other protocols and the rest
+        run in ``kernels_numba.step_copies``. Returns its sync arguments."""
+        copies, alices, bobs, kinds, nonces, equal, bits, counts, found, picks = [], [], [], [], [], [], [], [], [], []
+        N, no_picks = self.n_agents, np.zeros(self.k, dtype=np.int64)
         for m in np.flatnonzero(actions.any(axis=1)).tolist():
             env, maps, last_sync = self.envs[m], self.maps[m], self.last_sync[m]
             busy = [-1] * N
@@ -281,30 +312,27 @@ class UnlimitedLinkBatch:
                     continue
                 nonce = env._next_session
                 env._next_session += 1
-                name = ACTIONS[act]
-                outcome, transcript = env._transcript(maps[i], maps[j], i, j, name, nonce)
                 busy[i] = busy[j] = nonce  # j's own request is served by this sync
-                sent = [0, 0, 0, 0]  # Alice's bits and messages, Bob's
-                for who, size in transcript:
-                    side = 0 if who == i else 2
-                    sent[side] += size
-                    sent[side + 1] += 1
-                if act == EQUALITY:
-                    answer = outcome.equal
-                    cells = None
-                else:
-                    answer = not outcome.detected  # bisection's first test (read only for bisection)
-                    cells = outcome.found
-                if act in (EQUALITY, BISECTION) and not answer:  # SyncSessions._verdict's list of detections
-                    env.detections.append((int(self.step_count[m]), i, j, name))
+                sent, cells, answer, alice_picks = [0, 0, 0, 0], None, False, no_picks
+                if act == BISECTION:
+                    outcome, transcript = env._transcript(maps[i], maps[j], i, j, ACTIONS[act], nonce)
+                    for who, size in transcript:  # Alice's bits and messages, Bob's
+                        side = 0 if who == i else 2
+                        sent[side] += size
+                        sent[side + 1] += 1
+                    cells, answer = outcome.found, not outcome.detected
+                elif act == EQUALITY:
+                    alice_picks = proto._alice_picks(env.strings, 1, self.k, env.np_random)[0]
                 copies.append(m)
                 alices.append(i)
                 bobs.append(j)
                 kinds.append(act)
+                nonces.append(nonce)
                 equal.append(answer)
                 bits.append((sent[0], sent[2]))
                 counts.append((sent[1], sent[3]))
                 found.append(cells)
+                picks.append(alice_picks)
         offsets = np.zeros(len(found) + 1, dtype=np.int64)
         parts = [cells for cells in found if cells is not None and cells.size]
         if found:
@@ -319,4 +347,6 @@ class UnlimitedLinkBatch:
             np.array(counts, dtype=np.int64).reshape(-1, 2),
             np.concatenate(parts).astype(np.int64, copy=False) if parts else np.zeros(0, dtype=np.int64),
             offsets,
+            np.array(picks, dtype=np.int64).reshape(-1, self.k),
+            np.array(nonces, dtype=np.int64),
         )

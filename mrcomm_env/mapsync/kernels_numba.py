@@ -126,6 +126,38 @@ def inner_products(
 
 
 @numba.njit(cache=True)
+def bisection_tests(x, y, res):
+    """Protocol 1 calls of :func:`bisection` on maps ``x`` and ``y`` when every test of a segment that differs says
+    so: the most it makes (with step 4 fixed a segment of equal cells always tests "same", and a differing one that
+    tests "same" is not split further), and what it makes unless a test errs (probability ≤ 2^−k each)."""
+    n = x.size
+    differs = np.zeros(n + 1, np.int64)
+    for c in range(n):
+        differs[c + 1] = differs[c] + (1 if x[c] != y[c] else 0)
+    tests = 0
+    lo = np.zeros(1, np.int64)
+    hi = np.full(1, n - 1, np.int64)
+    while lo.size > 0:
+        n_split = 0
+        for s in range(lo.size):
+            if hi[s] - lo[s] + 1 > res:
+                tests += 1
+                if differs[hi[s] + 1] - differs[lo[s]] > 0:
+                    n_split += 1
+        next_lo = np.empty(2 * n_split, np.int64)
+        next_hi = np.empty(2 * n_split, np.int64)
+        j = 0
+        for s in range(lo.size):
+            if hi[s] - lo[s] + 1 > res and differs[hi[s] + 1] - differs[lo[s]] > 0:
+                mid = (lo[s] + hi[s]) // 2
+                next_lo[j], next_hi[j] = lo[s], mid
+                next_lo[j + 1], next_hi[j + 1] = mid + 1, hi[s]
+                j += 2
+        lo, hi = next_lo, next_hi
+    return tests
+
+
+@numba.njit(cache=True)
 def bisection(
     x,
     y,
@@ -592,8 +624,8 @@ def equality_counter(x, y, database, use_database, k0, k1, domain, words_per_str
     return counter
 
 
-# the sync kinds of ``step_copies`` (``sessions.EQUALITY`` and ``sessions.BISECTION``: the actions that ask for them)
-_EQUALITY, _BISECTION = 1, 2
+# the sync kinds of ``step_copies``: the actions that ask for them (``sessions.EQUALITY`` … ``sessions.SKETCH``)
+_EQUALITY, _BISECTION, _FULL, _SKETCH = 1, 2, 3, 4
 # columns of ``step_copies``'s counts: the env's ``_counts`` (in its order), then its merge and latency counters
 SYNCS, FALSE_EQUAL, EQUALITY_TESTS, DETECTIONS, ABORTED, CORRECTED, TO_CORRECT, LATENCY_SUM, LATENCY_COUNT = range(9)
 N_COUNTS = 9
@@ -661,6 +693,50 @@ def _settle_sync(
 
 
 @numba.njit(cache=True)
+def _protocol(kind, x, y, picks, strings, sketch_keys, nonce, sketch_consts, exp, log, return_table, stamp_bits, lww):
+    """``SyncSessions._transcript`` of an equality test, a full map or a sketch, with what it sends: ``(found,
+    equal, sent)``, ``sent`` = (Alice's bits, her messages, Bob's bits, his messages) of the non-empty messages.
+    ``picks`` are Alice's k picks of i (drawn by the caller from the copy's generator, as ``protocol.equality`` draws
+    them); ``strings`` = (database, use_database, key0, key1, domain, words_per_string, last_mask, protocol1_bits);
+    ``sketch_consts`` = (verify_bits, domain, m). Bob's way back costs ``return_table[d]`` bits for d found cells of
+    the n candidates (``protocol.return_bits(n, d)``, from a table: its ⌈log2 C(n, d)⌉ needs big integers)."""
+    n = x.size
+    sent = np.zeros(4, dtype=np.int64)
+    if kind == _EQUALITY:  # protocol.equality: its equal-maps shortcut gives the counter the kernel gives them, 0
+        database, use_database, key0, key1, domain, words, last_mask, p1_bits = strings
+        counter = equality_counter(x, y, database, use_database, key0, key1, domain, words, last_mask, picks)
+        sent[0], sent[1], sent[2], sent[3] = p1_bits, 1, 1, 1  # Proposition 1's bits, then the verdict bit
+        return np.zeros(0, dtype=np.int64), counter == 0, sent
+    if kind == _FULL:  # protocol.full
+        found = np.nonzero(x != y)[0].astype(np.int64)
+        alice, bob = n, 0
+    else:  # protocol.sketch
+        verify_bits, domain, m = sketch_consts
+        same_rest = True
+        for c in range(1, n):
+            if x[c] != y[c]:
+                same_rest = False
+                break
+        if same_rest:  # Bob's map with Alice's cell 0 is her map: it passes her parities
+            found = np.zeros(1 if x[0] != y[0] else 0, dtype=np.int64)
+            alice, bob = verify_bits + 1, 1
+        else:
+            found, stats = sketch(x, y, sketch_keys[0], sketch_keys[1], nonce, verify_bits, domain, exp, log, m, False)
+            alice, bob = stats[0], stats[1]
+    d = found.size
+    back = return_table[d]
+    for bits, side in ((alice, 0), (bob, 2), (back, 2)):
+        if bits > 0:
+            sent[side] += bits
+            sent[side + 1] += 1
+    if lww and d:  # the found cells' stamps, both ways
+        for side in (2, 0):
+            sent[side] += d * stamp_bits
+            sent[side + 1] += 1
+    return found, False, sent
+
+
+@numba.njit(cache=True)
 def step_copies(
     sync_copy,
     sync_a,
@@ -671,6 +747,15 @@ def step_copies(
     sync_messages,
     found,
     found_offsets,
+    sync_picks,
+    sync_nonce,
+    sketch_keys,
+    strings,
+    sketch_consts,
+    exp,
+    log,
+    return_table,
+    stamp_bits,
     draws,
     maps,
     stamps,
@@ -714,21 +799,48 @@ def step_copies(
     rewards,
 ):
     """``MapSyncEnv._step_world`` and ``_observe`` of M copies whose links carry any transcript within a step (no
-    ``bits_per_step``, static links), after their syncs' protocols ran (``UnlimitedLinkBatch``): every array with
+    ``bits_per_step``, static links), the syncs' protocols included but Algorithm 1's (``UnlimitedLinkBatch``),
+    which the caller runs, as it draws its picks as it goes: every array with
     a leading copy axis is the env's state of the same name (``counts``: the columns above; ``sums``: the summed
     disagreement and error; ``step_bits``, ``total_bits``, ``messages``: the ledger's). Sync s of copy
     ``sync_copy[s]``, Alice ``sync_a[s]`` and Bob ``sync_b[s]``, is of kind ``sync_kind[s]`` (its action), with
     Protocol 1's answer ``sync_equal[s]`` (equality, or bisection's first test), the bits and messages
     ``sync_bits[s]``, ``sync_messages[s]`` each sent (Alice, Bob) and the found cells
-    ``found[found_offsets[s]:found_offsets[s + 1]]``; the syncs come in the order they opened. ``draws[m]`` are
+    ``found[found_offsets[s]:found_offsets[s + 1]]``, given for a bisection and written here for the others (see
+    :func:`_protocol`: an equality test's picks ``sync_picks[s]``, a sketch's nonce ``sync_nonce[s]`` and its copy's
+    key ``sketch_keys[m]``); the syncs come in the order they opened. ``draws[m]`` are
     copy m's keys of the step, the world's changes (2n, when ``changing``) then the walk's (N × 4). Writes the
     observations ``obs`` and the team rewards ``rewards``; the same operations in the same order as the env, so
     the same numbers."""
     n_copies, n_robots, n = maps.shape
     step_bits[:] = 0.0  # BitLedger.begin_step
     charged = np.zeros(n_copies, dtype=np.bool_)
-    for s in range(sync_copy.size):  # SyncSessions._sync_within_step: charge the transcript, then finish
-        m, a, b = sync_copy[s], sync_a[s], sync_b[s]
+    for s in range(sync_copy.size):  # SyncSessions._sync_within_step: run, charge the transcript, then finish
+        m, a, b, kind = sync_copy[s], sync_a[s], sync_b[s], sync_kind[s]
+        if kind == _BISECTION:  # run by the caller (its picks are drawn as it goes)
+            cells = found[found_offsets[s] : found_offsets[s + 1]]
+        else:  # a robot is in one sync at a time: no other sync's merge has touched these rows this step
+            cells, sync_equal[s], sent = _protocol(
+                kind,
+                maps[m, a],
+                maps[m, b],
+                sync_picks[s],
+                strings,
+                sketch_keys[m],
+                sync_nonce[s],
+                sketch_consts,
+                exp,
+                log,
+                return_table,
+                stamp_bits,
+                lww,
+            )
+            sync_bits[s, 0], sync_messages[s, 0], sync_bits[s, 1], sync_messages[s, 1] = (
+                sent[0],
+                sent[1],
+                sent[2],
+                sent[3],
+            )
         for side in range(2):
             who = a if side == 0 else b
             if sync_messages[s, side]:
@@ -742,9 +854,9 @@ def step_copies(
             m,
             a,
             b,
-            sync_kind[s],
+            kind,
             sync_equal[s],
-            found[found_offsets[s] : found_offsets[s + 1]],
+            cells,
             maps,
             stamps,
             known,

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
@@ -364,21 +365,19 @@ def _bisection_compiled(x, y, strings: SharedStrings, k: int, res: int, rng: np.
 
     The reference draws Alice's picks round by round, ``rng.integers(0, 100n, (segments, k))``; successive draws
     of one range are one stream, however they are batched. The twin gets that stream drawn ahead and uses it in
-    order; the generator is then put back and advanced by exactly the picks used, so that it ends where the
-    reference leaves it. Enough picks: with step 4 fixed a test says "different" only for a segment that truly
-    differs (Proposition 2's error is one-sided), so each of the ``depth`` levels has at most d such segments, and
-    each of those has its two halves tested: at most 1 + 2·d·depth Protocol 1 calls of k picks.
+    order. Enough picks: with step 4 fixed a test says "different" only for a segment that truly differs
+    (Proposition 2's error is one-sided), so Algorithm 1 makes at most the tests it makes when no test errs
+    (``kernels_numba.bisection_tests``), and exactly those unless a test errs. When one did, fewer picks were
+    used, and the generator is put back and advanced by exactly the picks used, so that it ends where the
+    reference leaves it.
     """
     from mrcomm_env.mapsync import kernels_numba
 
     n = x.size
-    d = int(np.count_nonzero(x != y))
-    depth = theory.recursion_depth(n, res)
-    draws = k * (1 + 2 * d * depth) if depth else 0
+    draws = k * kernels_numba.bisection_tests(x, y, res)
     if draws > _POOL_MAX:
         return None
-    # equal maps: the whole-map test is the only one, and it uses all k picks (nothing to put back)
-    state = rng.bit_generator.state if d else None
+    state = rng.bit_generator.state  # for a test that errs (probability ≤ 2^−k each)
     pool = rng.integers(0, strings.size, size=draws) if draws else np.zeros(0, np.int64)
     found, stats, rounds = kernels_numba.bisection(
         x,
@@ -393,7 +392,7 @@ def _bisection_compiled(x, y, strings: SharedStrings, k: int, res: int, rng: np.
     if used < 0:  # cannot happen by the bound above; the reference then runs from the same generator state
         rng.bit_generator.state = state
         return None
-    if used < draws:  # only when d > 0: equal maps use all k picks
+    if used < draws:  # a test said "same" of a segment that differs
         rng.bit_generator.state = state
         if used:
             rng.integers(0, strings.size, size=used)
@@ -532,6 +531,20 @@ def return_bits(candidates: int, found: int) -> int:
     if candidates <= 0:
         return 0
     return theory.count_bits(candidates) + theory.ceil_log2_binomial(candidates, found)
+
+
+@lru_cache(maxsize=8)
+def return_bits_table(candidates: int) -> np.ndarray:
+    """:func:`return_bits` of ``candidates`` cells for every count of found cells 0 … ``candidates`` (read-only int64),
+    for compiled code, which has no big integers: C(C, d) is carried from d to d + 1 exactly (0.6 s at C = 65,536)."""
+    table = np.zeros(candidates + 1, dtype=np.int64)
+    if candidates > 0:
+        count, binomial = theory.count_bits(candidates), 1
+        for d in range(candidates + 1):
+            table[d] = count + (binomial - 1).bit_length()  # theory.ceil_log2_binomial(candidates, d)
+            binomial = binomial * (candidates - d) // (d + 1)
+    table.flags.writeable = False
+    return table
 
 
 def reconcile(
