@@ -26,10 +26,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from mrcomm_env.core import pcg64_numba
 from mrcomm_env.mapsync import kernels_numba, pinsketch, theory
 from mrcomm_env.mapsync import protocol as proto
 from mrcomm_env.mapsync.philox import DOMAIN_PARITY, SharedStrings, seed_key
-from mrcomm_env.mapsync.sessions import _STALE_ALL, ACTIONS, BISECTION, EQUALITY, FULL, IDLE, SKETCH, choose_peer
+from mrcomm_env.mapsync.sessions import _STALE_ALL, ACTIONS, BISECTION, EQUALITY, FULL, SKETCH
 
 # the kernel's sync kinds are the actions that ask for them
 assert (kernels_numba._EQUALITY, kernels_numba._BISECTION, kernels_numba._FULL, kernels_numba._SKETCH) == (
@@ -99,9 +100,21 @@ class UnlimitedLinkBatch:
         self.error_mean = np.zeros(m)
         self.sums = np.zeros((m, 2))  # summed disagreement and error over the episode's steps
         self.step_count = np.zeros(m, dtype=np.int64)
-        # each copy's keys of a step: the world's changes (2n, only in a changing world), then the walk's (N × 4)
-        self.draws = np.zeros((m, (2 * n if self.changing else 0) + 4 * N))
-        self.fill_draws = [env.np_random.random for env in envs]
+        # each copy's generator (its env's, which it continues while the world steps) and session counter
+        self.rng_state = np.zeros((m, pcg64_numba.STATE_WORDS), dtype=np.uint64)
+        self.next_session = np.zeros(m, dtype=np.int64)
+        self.peer_order = np.ascontiguousarray(first._peer_order, dtype=np.int64)
+        self.pick_range = int(strings.size)  # Protocol 1's 100n strings
+        # a step's syncs, at most one per two robots of every copy
+        most = m * (N // 2)
+        self.sync_copy, self.sync_a, self.sync_b = (np.zeros(most, dtype=np.int64) for _ in range(3))
+        self.sync_kind, self.sync_nonce = np.zeros(most, dtype=np.int64), np.zeros(most, dtype=np.int64)
+        self.sync_picks = np.zeros((most, self.k), dtype=np.int64)
+        self.picks_drawn = np.zeros(most, dtype=bool)
+        self.sync_equal = np.zeros(most, dtype=bool)
+        self.sync_bits = np.zeros((most, 2), dtype=np.int64)
+        self.sync_messages = np.zeros((most, 2), dtype=np.int64)
+        self.found_offsets = np.zeros(most + 1, dtype=np.int64)
         self.obs = np.zeros((m, *first._obs_buf.shape), dtype=np.float32)
         self.rewards = np.zeros(m)
 
@@ -140,7 +153,8 @@ class UnlimitedLinkBatch:
         self.sums[i] = env._sum_disagreement, env._sum_error
         self.step_count[i] = env.step_count
         self.sketch_keys[i] = seed_key(env.sketch_seed)
-        self.fill_draws[i] = env.np_random.random  # a reset with a seed makes a new generator
+        pcg64_numba.state_of(env.np_random, self.rng_state[i])  # a reset with a seed makes a new generator
+        self.next_session[i] = env._next_session
 
     def store(self, i: int) -> None:
         """Write copy ``i``'s rows into its env, which then holds the copy's episode as if it had stepped it."""
@@ -175,6 +189,8 @@ class UnlimitedLinkBatch:
         env._error_mean = float(self.error_mean[i])
         env._sum_disagreement, env._sum_error = (float(v) for v in self.sums[i])
         env.step_count = env._steps = int(self.step_count[i])
+        pcg64_numba.set_state(env.np_random, self.rng_state[i])
+        env._next_session = int(self.next_session[i])
         env._state_version += 1
         # the observation and infos are made anew from the state just written
         env._events += 1
@@ -193,12 +209,27 @@ class UnlimitedLinkBatch:
         ``(M,)``, truncated ``(M,)`` and the info columns; copies that end are not reset here. The observations are
         the world's own buffer, rewritten whole at the next step (``BatchedEnv`` copies it unless ``copy=False``)."""
         actions = self._checked(actions)
-        copies, alices, bobs, kinds, equal, bits, messages, found, found_offsets, picks, nonces = self._open_syncs(
-            actions
+        count = kernels_numba.open_syncs(
+            actions,
+            self.peer_order,
+            self.last_sync,
+            self.next_session,
+            self.sync_copy,
+            self.sync_a,
+            self.sync_b,
+            self.sync_kind,
+            self.sync_nonce,
         )
-        for copy_draws, fill in zip(self.draws, self.fill_draws):  # the env's keys, in the env's order
-            fill(out=copy_draws)
-        opened_at = self.step_count.copy() if copies.size else None
+        copies, alices, bobs, kinds = (
+            self.sync_copy[:count],
+            self.sync_a[:count],
+            self.sync_b[:count],
+            self.sync_kind[:count],
+        )
+        equal, bits, messages = self.sync_equal[:count], self.sync_bits[:count], self.sync_messages[:count]
+        picks, picks_drawn, offsets = self.sync_picks[:count], self.picks_drawn[:count], self.found_offsets[: count + 1]
+        found = self._run_bisections(count)
+        opened_at = self.step_count.copy() if count else None
         kernels_numba.step_copies(
             copies,
             alices,
@@ -208,9 +239,12 @@ class UnlimitedLinkBatch:
             bits,
             messages,
             found,
-            found_offsets,
+            offsets,
             picks,
-            nonces,
+            picks_drawn,
+            self.sync_nonce[:count],
+            self.rng_state,
+            self.pick_range,
             self.sketch_keys,
             self.strings,
             self.sketch_consts,
@@ -218,7 +252,6 @@ class UnlimitedLinkBatch:
             self.log,
             self.return_table,
             self.stamp_bits,
-            self.draws,
             self.maps,
             self.stamps,
             self.truth,
@@ -261,9 +294,9 @@ class UnlimitedLinkBatch:
             self.rewards,
         )
         if opened_at is not None:  # SyncSessions._verdict's list of detections: the tests that found a difference
-            for m, a, b, kind, same in zip(copies.tolist(), alices.tolist(), bobs.tolist(), kinds.tolist(), equal):
-                if not same and (kind == EQUALITY or kind == BISECTION):
-                    self.envs[m].detections.append((int(opened_at[m]), a, b, ACTIONS[kind]))
+            for s in np.flatnonzero(~equal & ((kinds == EQUALITY) | (kinds == BISECTION))).tolist():
+                m = int(copies[s])
+                self.envs[m].detections.append((int(opened_at[m]), int(alices[s]), int(bobs[s]), ACTIONS[kinds[s]]))
         N = self.n_agents
         infos = {  # MapSyncEnv._agent_infos, in its order
             "bits_sent": self.step_bits.copy(),
@@ -293,60 +326,48 @@ class UnlimitedLinkBatch:
             )
         return actions.astype(np.int64, copy=False)
 
-    def _open_syncs(self, actions: np.ndarray) -> tuple:
-        """The syncs the robots ask for, in the env's order (``SyncSessions._sync_within_step``): each robot that
-        acts and is not yet in a sync opens one with its chosen peer. What draws from the copy's generator is done
-        here, in that order: Algorithm 1 runs whole (``SyncSessions._transcript``: it draws its picks round by
-        round), an equality test draws Alice's picks (``protocol._alice_picks``); the other protocols and the rest
-        run in ``kernels_numba.step_copies``. Returns its sync arguments."""
-        copies, alices, bobs, kinds, nonces, equal, bits, counts, found, picks = [], [], [], [], [], [], [], [], [], []
-        N, no_picks = self.n_agents, np.zeros(self.k, dtype=np.int64)
-        for m in np.flatnonzero(actions.any(axis=1)).tolist():
-            env, maps, last_sync = self.envs[m], self.maps[m], self.last_sync[m]
-            busy = [-1] * N
-            for i, act in enumerate(actions[m].tolist()):
-                if act == IDLE or busy[i] >= 0:
-                    continue
-                j = choose_peer(self.peer_lists[i], busy, self.linked[i], last_sync[i])
-                if j < 0:
-                    continue
-                nonce = env._next_session
-                env._next_session += 1
-                busy[i] = busy[j] = nonce  # j's own request is served by this sync
-                sent, cells, answer, alice_picks = [0, 0, 0, 0], None, False, no_picks
-                if act == BISECTION:
-                    outcome, transcript = env._transcript(maps[i], maps[j], i, j, ACTIONS[act], nonce)
-                    for who, size in transcript:  # Alice's bits and messages, Bob's
-                        side = 0 if who == i else 2
+    def _run_bisections(self, count: int) -> np.ndarray:
+        """Algorithm 1 of the step's syncs that ask for it, run here (``SyncSessions._transcript``): it draws its picks
+        round by round, which only the env's code does. A copy with one runs all its syncs' draws here, in their order
+        (an equality test's picks too), on its env's generator brought up to the world's state and back. Writes their
+        answers, bits and messages, and returns the found cells of every sync (``found_offsets``)."""
+        kinds = self.sync_kind[:count]
+        self.picks_drawn[:count] = False
+        self.found_offsets[: count + 1] = 0
+        bisections = np.flatnonzero(kinds == BISECTION)
+        if not bisections.size:
+            return _NO_CELLS
+        found = []
+        sizes = np.zeros(count, dtype=np.int64)
+        copies = self.sync_copy[:count]
+        for m in np.unique(copies[bisections]).tolist():  # copies run in any order: each has its own generator
+            env = self.envs[m]
+            maps = self.maps[m]
+            pcg64_numba.set_state(env.np_random, self.rng_state[m])
+            for s in np.flatnonzero(copies == m).tolist():
+                a, b, kind = int(self.sync_a[s]), int(self.sync_b[s]), int(kinds[s])
+                if kind == EQUALITY:
+                    self.sync_picks[s] = proto._alice_picks(env.strings, 1, self.k, env.np_random)[0]
+                    self.picks_drawn[s] = True
+                elif kind == BISECTION:
+                    nonce = int(self.sync_nonce[s])
+                    outcome, transcript = env._transcript(maps[a], maps[b], a, b, ACTIONS[kind], nonce)
+                    sent = [0, 0, 0, 0]  # Alice's bits and messages, Bob's
+                    for who, size in transcript:
+                        side = 0 if who == a else 2
                         sent[side] += size
                         sent[side + 1] += 1
-                    cells, answer = outcome.found, not outcome.detected
-                elif act == EQUALITY:
-                    alice_picks = proto._alice_picks(env.strings, 1, self.k, env.np_random)[0]
-                copies.append(m)
-                alices.append(i)
-                bobs.append(j)
-                kinds.append(act)
-                nonces.append(nonce)
-                equal.append(answer)
-                bits.append((sent[0], sent[2]))
-                counts.append((sent[1], sent[3]))
-                found.append(cells)
-                picks.append(alice_picks)
-        offsets = np.zeros(len(found) + 1, dtype=np.int64)
-        parts = [cells for cells in found if cells is not None and cells.size]
-        if found:
-            np.cumsum([0 if cells is None else cells.size for cells in found], out=offsets[1:])
-        return (
-            np.array(copies, dtype=np.int64),
-            np.array(alices, dtype=np.int64),
-            np.array(bobs, dtype=np.int64),
-            np.array(kinds, dtype=np.int64),
-            np.array(equal, dtype=bool),
-            np.array(bits, dtype=np.int64).reshape(-1, 2),
-            np.array(counts, dtype=np.int64).reshape(-1, 2),
-            np.concatenate(parts).astype(np.int64, copy=False) if parts else np.zeros(0, dtype=np.int64),
-            offsets,
-            np.array(picks, dtype=np.int64).reshape(-1, self.k),
-            np.array(nonces, dtype=np.int64),
-        )
+                    self.sync_bits[s] = sent[0], sent[2]
+                    self.sync_messages[s] = sent[1], sent[3]
+                    self.sync_equal[s] = not outcome.detected
+                    sizes[s] = outcome.found.size
+                    found.append((s, outcome.found))
+            pcg64_numba.state_of(env.np_random, self.rng_state[m])
+        np.cumsum(sizes, out=self.found_offsets[1 : count + 1])
+        cells = np.zeros(int(self.found_offsets[count]), dtype=np.int64)
+        for s, part in found:
+            cells[self.found_offsets[s] : self.found_offsets[s + 1]] = part
+        return cells
+
+
+_NO_CELLS = np.zeros(0, dtype=np.int64)

@@ -15,6 +15,7 @@ import numba
 import numpy as np
 
 from mrcomm_env.core.backend import configure_numba_cache
+from mrcomm_env.core.pcg64_numba import integers_fill, random_fill
 from mrcomm_env.core.sums_numba import numpy_sum
 
 configure_numba_cache()  # before the @njit(cache=True) below: never cache into the package
@@ -693,6 +694,37 @@ def _settle_sync(
 
 
 @numba.njit(cache=True)
+def open_syncs(actions, peer_order, last_sync, next_session, sync_copy, sync_a, sync_b, sync_kind, sync_nonce):
+    """``SyncSessions._sync_within_step``'s openings of M copies whose links are always up: robot by robot, one that
+    asks for a sync (action ≠ 0) and is not yet in one opens it with the free peer it synced with least recently (the
+    first in ``peer_order`` on ties, ``choose_peer``), whose own request it serves; each takes the copy's next
+    session number (``next_session``, the sketch's nonce). Writes the syncs in the order they open and returns how
+    many."""
+    n_copies, n_robots = actions.shape
+    busy = np.empty(n_robots, np.int64)
+    count = 0
+    for m in range(n_copies):
+        busy[:] = -1
+        for i in range(n_robots):
+            if actions[m, i] == 0 or busy[i] >= 0:
+                continue
+            best, best_age = -1, -(2**62)
+            for o in range(n_robots - 1):
+                j = peer_order[i, o]
+                if busy[j] < 0 and -last_sync[m, i, j] > best_age:
+                    best, best_age = j, -last_sync[m, i, j]
+            if best < 0:
+                continue
+            nonce = next_session[m]
+            next_session[m] = nonce + 1
+            busy[i] = busy[best] = nonce
+            sync_copy[count], sync_a[count], sync_b[count] = m, i, best
+            sync_kind[count], sync_nonce[count] = actions[m, i], nonce
+            count += 1
+    return count
+
+
+@numba.njit(cache=True)
 def _protocol(kind, x, y, picks, strings, sketch_keys, nonce, sketch_consts, exp, log, return_table, stamp_bits, lww):
     """``SyncSessions._transcript`` of an equality test, a full map or a sketch, with what it sends: ``(found,
     equal, sent)``, ``sent`` = (Alice's bits, her messages, Bob's bits, his messages) of the non-empty messages.
@@ -748,7 +780,10 @@ def step_copies(
     found,
     found_offsets,
     sync_picks,
+    picks_drawn,
     sync_nonce,
+    rng_state,
+    pick_range,
     sketch_keys,
     strings,
     sketch_consts,
@@ -756,7 +791,6 @@ def step_copies(
     log,
     return_table,
     stamp_bits,
-    draws,
     maps,
     stamps,
     truth,
@@ -808,8 +842,10 @@ def step_copies(
     ``sync_bits[s]``, ``sync_messages[s]`` each sent (Alice, Bob) and the found cells
     ``found[found_offsets[s]:found_offsets[s + 1]]``, given for a bisection and written here for the others (see
     :func:`_protocol`: an equality test's picks ``sync_picks[s]``, a sketch's nonce ``sync_nonce[s]`` and its copy's
-    key ``sketch_keys[m]``); the syncs come in the order they opened. ``draws[m]`` are
-    copy m's keys of the step, the world's changes (2n, when ``changing``) then the walk's (N × 4). Writes the
+    key ``sketch_keys[m]``); the syncs come in the order they opened. Every copy draws from its own generator
+    state ``rng_state[m]`` (:mod:`~mrcomm_env.core.pcg64_numba`) what the env draws, in its order: an equality test's
+    picks (unless the caller drew them, ``picks_drawn[s]``, for a copy whose Algorithm 1 it ran), then the world's
+    changes (2n, when ``changing``) and the walk's keys (N × 4). Writes the
     observations ``obs`` and the team rewards ``rewards``; the same operations in the same order as the env, so
     the same numbers."""
     n_copies, n_robots, n = maps.shape
@@ -820,6 +856,8 @@ def step_copies(
         if kind == _BISECTION:  # run by the caller (its picks are drawn as it goes)
             cells = found[found_offsets[s] : found_offsets[s + 1]]
         else:  # a robot is in one sync at a time: no other sync's merge has touched these rows this step
+            if kind == _EQUALITY and not picks_drawn[s]:  # Alice's picks (protocol._alice_picks)
+                integers_fill(rng_state[m], 0, pick_range, sync_picks[s])
             cells, sync_equal[s], sent = _protocol(
                 kind,
                 maps[m, a],
@@ -868,15 +906,15 @@ def step_copies(
             lww,
             step_count[m],
         )
-    walk_from = 2 * n if changing else 0
+    world_draws = np.empty(2 * n)
+    keys = np.empty((n_robots, 4))
     for m in range(n_copies):
         t = step_count[m]
-        if changing and change_world(truth[m], pos[m], draws[m, :walk_from], appear_rate, vanish_rate):
-            dirty[m] = True
-        keys = np.empty((n_robots, 4))
-        for i in range(n_robots):
-            for d in range(4):
-                keys[i, d] = draws[m, walk_from + 4 * i + d]
+        if changing:  # WorldDynamics._change_world's keys, then the walk's: the env's draws in its order
+            random_fill(rng_state[m], world_draws)
+            if change_world(truth[m], pos[m], world_draws, appear_rate, vanish_rate):
+                dirty[m] = True
+        random_fill(rng_state[m], keys.reshape(-1))
         moved, flags = walk_and_sense(
             True,
             keys,
