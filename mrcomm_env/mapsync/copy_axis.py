@@ -6,20 +6,24 @@ What :class:`~mrcomm_env.core.batched.BatchedEnv` steps instead of M env objects
 it is asked for, ``SyncSessions._sync_within_step``), links always up (no ``comm_range``, ``link_prob`` 1), on the
 compiled backend. That is the default and the shipped training configuration.
 
-A step has two parts. First the syncs: for every copy whose robots asked for one, the env's own choice of peers and
-the env's protocol runs (``SyncSessions._transcript``: Protocol 1, Algorithm 1, the full map, the sketch) on the
-copy's maps, with the copy's generator, in the env's order; they are Python and the protocols' compiled kernels, as
-in the env. Then everything else, for all copies in one compiled call (``kernels_numba.step_copies``): each sync's
-charges, verdict, last-writer-wins merge and counts, the changing world, the walk and sensing, the disagreement,
-the recent bits, the reward and the observation. Each copy's keys of the step (the world's changes, then the walk's)
-are drawn from its own generator in one call, the same stream as the env's two calls. Every number is the env's:
-the kernel's operations are the env's, in its order (``tests/test_batched.py`` compares each copy with the single env
-over whole episodes).
+A step is three compiled calls over all copies. ``kernels_numba.open_syncs`` opens the syncs the robots ask for, in
+the env's order (``SyncSessions._sync_within_step``: each asking robot not yet in a sync, with the free peer it synced
+with least recently). ``kernels_numba.settle_syncs`` runs each sync's protocol (Protocol 1, Algorithm 1, the full
+map, the sketch: the env's compiled twins), charges its transcript and finishes it (verdict, last-writer-wins merge,
+counts). ``kernels_numba.advance_copies`` changes the world, walks and senses, and computes the disagreement, the
+recent bits, the reward and the observation. Between the last two, Python charges Bob's way back of each Algorithm 1
+sync (``protocol.return_bits``: its ⌈log2 C(C, d)⌉ needs big integers) and lists the detections.
+
+Each copy draws from its own generator, what the env draws and in its order (Alice's picks, the world's changes, the
+walk's keys): the world holds the generator's PCG64 state and draws with numpy's own algorithms, compiled
+(:mod:`~mrcomm_env.core.pcg64_numba`). Every number is the env's: the kernels' operations are the env's, in its
+order (``tests/test_batched.py`` compares each copy with the single env over whole episodes, the generator's state
+included).
 
 Each copy keeps its env object: its ``reset_arrays`` begins the episode from its own generator,
-:meth:`UnlimitedLinkBatch.adopt` takes that start into the copy's rows, and :meth:`UnlimitedLinkBatch.store` writes the
-rows back, for the metrics of an ended episode and for anything read from the env. The env object also keeps what
-the syncs use: its generator, its session counter (the sketch's nonce) and its list of detections.
+:meth:`UnlimitedLinkBatch.adopt` takes that start (the generator's state and session counter included) into the
+copy's rows, and :meth:`UnlimitedLinkBatch.store` writes the rows back, for the metrics of an ended episode and for
+anything read from the env. The world appends to the env's list of detections as it goes.
 """
 
 from __future__ import annotations
@@ -69,7 +73,7 @@ class UnlimitedLinkBatch:
         # bits, the sketch's parity count, domain and field, Bob's way back for every count of found cells
         self.k, self.stamp_bits = int(c.k), int(first._stamp_bits)
         strings = SharedStrings(n, c.database_seed, explicit=c.explicit_database, cache=True)  # as the env's reset
-        self.strings = (*proto._kernel_strings(strings), theory.protocol1_bits(n, c.k))
+        self.protocol1 = (*proto._kernel_strings(strings), theory.protocol1_bits(n, c.k), int(c.k), int(c.res))
         m_bits = pinsketch.field_bits(n)
         self.sketch_consts = (proto.sketch_verify_bits(n), DOMAIN_PARITY, m_bits)
         field = pinsketch.field(m_bits)
@@ -109,12 +113,9 @@ class UnlimitedLinkBatch:
         most = m * (N // 2)
         self.sync_copy, self.sync_a, self.sync_b = (np.zeros(most, dtype=np.int64) for _ in range(3))
         self.sync_kind, self.sync_nonce = np.zeros(most, dtype=np.int64), np.zeros(most, dtype=np.int64)
-        self.sync_picks = np.zeros((most, self.k), dtype=np.int64)
-        self.picks_drawn = np.zeros(most, dtype=bool)
         self.sync_equal = np.zeros(most, dtype=bool)
-        self.sync_bits = np.zeros((most, 2), dtype=np.int64)
-        self.sync_messages = np.zeros((most, 2), dtype=np.int64)
-        self.found_offsets = np.zeros(most + 1, dtype=np.int64)
+        self.sync_candidates, self.sync_found = np.zeros(most, dtype=np.int64), np.zeros(most, dtype=np.int64)
+        self.charged = np.zeros(m, dtype=bool)
         self.obs = np.zeros((m, *first._obs_buf.shape), dtype=np.float32)
         self.rewards = np.zeros(m)
 
@@ -226,32 +227,46 @@ class UnlimitedLinkBatch:
             self.sync_b[:count],
             self.sync_kind[:count],
         )
-        equal, bits, messages = self.sync_equal[:count], self.sync_bits[:count], self.sync_messages[:count]
-        picks, picks_drawn, offsets = self.sync_picks[:count], self.picks_drawn[:count], self.found_offsets[: count + 1]
-        found = self._run_bisections(count)
-        opened_at = self.step_count.copy() if count else None
-        kernels_numba.step_copies(
+        equal, candidates, found = self.sync_equal[:count], self.sync_candidates[:count], self.sync_found[:count]
+        kernels_numba.settle_syncs(
             copies,
             alices,
             bobs,
             kinds,
-            equal,
-            bits,
-            messages,
-            found,
-            offsets,
-            picks,
-            picks_drawn,
             self.sync_nonce[:count],
+            equal,
+            candidates,
+            found,
             self.rng_state,
             self.pick_range,
+            self.protocol1,
             self.sketch_keys,
-            self.strings,
             self.sketch_consts,
             self.exp,
             self.log,
             self.return_table,
             self.stamp_bits,
+            self.lww,
+            self.maps,
+            self.stamps,
+            self.known,
+            self.last_sync,
+            self.new_cells,
+            self.last_test,
+            self.robot_syncs,
+            self.step_bits,
+            self.total_bits,
+            self.messages,
+            self.counts,
+            self.dirty,
+            self.charged,
+            self.step_count,
+        )
+        if count:
+            self._after_syncs(copies, alices, bobs, kinds, equal, candidates, found)
+        kernels_numba.advance_copies(
+            self.rng_state,
+            self.charged,
             self.maps,
             self.stamps,
             self.truth,
@@ -260,11 +275,7 @@ class UnlimitedLinkBatch:
             self.new_cells,
             self.last_sync,
             self.last_test,
-            self.robot_syncs,
             self.step_bits,
-            self.total_bits,
-            self.messages,
-            self.counts,
             self.recent,
             self.recent_max,
             self.recent_any,
@@ -276,7 +287,6 @@ class UnlimitedLinkBatch:
             self.sums,
             self.step_count,
             self.changing,
-            self.lww,
             self.appear_rate,
             self.vanish_rate,
             self.neighbours,
@@ -293,10 +303,6 @@ class UnlimitedLinkBatch:
             self.obs,
             self.rewards,
         )
-        if opened_at is not None:  # SyncSessions._verdict's list of detections: the tests that found a difference
-            for s in np.flatnonzero(~equal & ((kinds == EQUALITY) | (kinds == BISECTION))).tolist():
-                m = int(copies[s])
-                self.envs[m].detections.append((int(opened_at[m]), int(alices[s]), int(bobs[s]), ACTIONS[kinds[s]]))
         N = self.n_agents
         infos = {  # MapSyncEnv._agent_infos, in its order
             "bits_sent": self.step_bits.copy(),
@@ -326,48 +332,20 @@ class UnlimitedLinkBatch:
             )
         return actions.astype(np.int64, copy=False)
 
-    def _run_bisections(self, count: int) -> np.ndarray:
-        """Algorithm 1 of the step's syncs that ask for it, run here (``SyncSessions._transcript``): it draws its picks
-        round by round, which only the env's code does. A copy with one runs all its syncs' draws here, in their order
-        (an equality test's picks too), on its env's generator brought up to the world's state and back. Writes their
-        answers, bits and messages, and returns the found cells of every sync (``found_offsets``)."""
-        kinds = self.sync_kind[:count]
-        self.picks_drawn[:count] = False
-        self.found_offsets[: count + 1] = 0
-        bisections = np.flatnonzero(kinds == BISECTION)
-        if not bisections.size:
-            return _NO_CELLS
-        found = []
-        sizes = np.zeros(count, dtype=np.int64)
-        copies = self.sync_copy[:count]
-        for m in np.unique(copies[bisections]).tolist():  # copies run in any order: each has its own generator
-            env = self.envs[m]
-            maps = self.maps[m]
-            pcg64_numba.set_state(env.np_random, self.rng_state[m])
-            for s in np.flatnonzero(copies == m).tolist():
-                a, b, kind = int(self.sync_a[s]), int(self.sync_b[s]), int(kinds[s])
-                if kind == EQUALITY:
-                    self.sync_picks[s] = proto._alice_picks(env.strings, 1, self.k, env.np_random)[0]
-                    self.picks_drawn[s] = True
-                elif kind == BISECTION:
-                    nonce = int(self.sync_nonce[s])
-                    outcome, transcript = env._transcript(maps[a], maps[b], a, b, ACTIONS[kind], nonce)
-                    sent = [0, 0, 0, 0]  # Alice's bits and messages, Bob's
-                    for who, size in transcript:
-                        side = 0 if who == a else 2
-                        sent[side] += size
-                        sent[side + 1] += 1
-                    self.sync_bits[s] = sent[0], sent[2]
-                    self.sync_messages[s] = sent[1], sent[3]
-                    self.sync_equal[s] = not outcome.detected
-                    sizes[s] = outcome.found.size
-                    found.append((s, outcome.found))
-            pcg64_numba.state_of(env.np_random, self.rng_state[m])
-        np.cumsum(sizes, out=self.found_offsets[1 : count + 1])
-        cells = np.zeros(int(self.found_offsets[count]), dtype=np.int64)
-        for s, part in found:
-            cells[self.found_offsets[s] : self.found_offsets[s + 1]] = part
-        return cells
-
-
-_NO_CELLS = np.zeros(0, dtype=np.int64)
+    def _after_syncs(self, copies, alices, bobs, kinds, equal, candidates, found) -> None:
+        """What needs Python after ``kernels_numba.settle_syncs``: Bob's way back of every Algorithm 1 sync
+        (``protocol.return_bits`` of its candidates: ⌈log2 C(C, d)⌉ needs big integers), added to Bob's one ledger
+        entry of the step (whole bits: the float sums are exact in any grouping), and the list of detections
+        (``SyncSessions._verdict``: the tests that found a difference, in the order the syncs opened)."""
+        for s in np.flatnonzero(kinds == BISECTION).tolist():
+            back = proto.return_bits(int(candidates[s]), int(found[s]))
+            if back > 0:
+                m, b = int(copies[s]), int(bobs[s])
+                self.step_bits[m, b] += back
+                self.total_bits[m, b] += back
+                self.messages[m] += 1
+                self.charged[m] = True
+        for s in np.flatnonzero(~equal & ((kinds == EQUALITY) | (kinds == BISECTION))).tolist():
+            m = int(copies[s])
+            step = int(self.step_count[m])  # the step the sync opened and ended in (advance_copies counts it)
+            self.envs[m].detections.append((step, int(alices[s]), int(bobs[s]), ACTIONS[kinds[s]]))

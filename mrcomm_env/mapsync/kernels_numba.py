@@ -173,9 +173,13 @@ def bisection(
     k,
     res,
     p1_bits,
+    state,
+    pick_range,
 ):
     """Algorithm 1 as request/response rounds, every round in one call: twin of ``protocol.bisection`` with
-    step 4 fixed, Alice's picks of i taken in order from ``pool`` (what successive ``rng.integers`` calls draw).
+    step 4 fixed. Alice's picks of i are drawn round by round, as the reference draws them
+    (``rng.integers(0, pick_range, (segments, k))``), from the PCG64 state ``state`` (:mod:`~mrcomm_env.core.pcg64_numba`),
+    or, when ``state`` is empty, taken in order from ``pool`` (what successive ``rng.integers`` calls draw).
 
     Returns ``(found, stats, messages)``: the sorted cells Bob found; ``stats`` = (alice bits, bob bits, rounds,
     Protocol 1 calls, cells compared bit by bit, detected, tests that missed a difference, picks used), with
@@ -229,10 +233,14 @@ def bisection(
                 inner_lo[j] = lo[s]
                 inner_hi[j] = hi[s]
                 j += 1
-        if used + n_inner * k > pool.size:
+        if state.size:  # step 3a, segment by segment
+            index = np.empty((n_inner, k), np.int64)
+            integers_fill(state, 0, pick_range, index.reshape(-1))
+        elif used + n_inner * k > pool.size:
             stats[7] = -1
             return found[:0], stats, messages
-        index = pool[used : used + n_inner * k].reshape(n_inner, k)  # step 3a, segment by segment
+        else:
+            index = pool[used : used + n_inner * k].reshape(n_inner, k)
         used += n_inner * k
         parity = inner_products(
             maps,
@@ -724,73 +732,185 @@ def open_syncs(actions, peer_order, last_sync, next_session, sync_copy, sync_a, 
     return count
 
 
+_NO_POOL = np.zeros(0, dtype=np.int64)
+
+
 @numba.njit(cache=True)
-def _protocol(kind, x, y, picks, strings, sketch_keys, nonce, sketch_consts, exp, log, return_table, stamp_bits, lww):
-    """``SyncSessions._transcript`` of an equality test, a full map or a sketch, with what it sends: ``(found,
-    equal, sent)``, ``sent`` = (Alice's bits, her messages, Bob's bits, his messages) of the non-empty messages.
-    ``picks`` are Alice's k picks of i (drawn by the caller from the copy's generator, as ``protocol.equality`` draws
-    them); ``strings`` = (database, use_database, key0, key1, domain, words_per_string, last_mask, protocol1_bits);
-    ``sketch_consts`` = (verify_bits, domain, m). Bob's way back costs ``return_table[d]`` bits for d found cells of
-    the n candidates (``protocol.return_bits(n, d)``, from a table: its ⌈log2 C(n, d)⌉ needs big integers)."""
+def _protocol(kind, x, y, state, pick_range, protocol1, nonce, sketch_key, sketch_consts, exp, log, return_table):
+    """``SyncSessions._transcript`` of one sync, with the copy's PCG64 ``state`` drawing what the protocol draws:
+    ``(found, equal, sent, candidates)``, ``equal`` Protocol 1's answer (equality, or Algorithm 1's first test),
+    ``sent`` = (Alice's bits, her messages, Bob's bits, his messages) of the transcript's non-empty messages but the
+    found cells' stamps. Bob's way back is in ``sent`` but for Algorithm 1, whose candidates (the cells it compared,
+    returned; −1 for the others) vary: ⌈log2 C(C, d)⌉ needs big integers, so the caller adds it
+    (``protocol.return_bits``); for the others it is ``return_table[d]`` (C = n). ``protocol1`` = (database,
+    use_database, key0, key1, domain, words_per_string, last_mask, Protocol 1's bits, k, res); ``sketch_consts`` =
+    (verify_bits, domain, m)."""
     n = x.size
+    database, use_database, key0, key1, domain, words, last_mask, p1_bits, k, res = protocol1
     sent = np.zeros(4, dtype=np.int64)
     if kind == _EQUALITY:  # protocol.equality: its equal-maps shortcut gives the counter the kernel gives them, 0
-        database, use_database, key0, key1, domain, words, last_mask, p1_bits = strings
+        picks = np.empty(k, dtype=np.int64)
+        integers_fill(state, 0, pick_range, picks)  # Alice's picks (protocol._alice_picks)
         counter = equality_counter(x, y, database, use_database, key0, key1, domain, words, last_mask, picks)
         sent[0], sent[1], sent[2], sent[3] = p1_bits, 1, 1, 1  # Proposition 1's bits, then the verdict bit
-        return np.zeros(0, dtype=np.int64), counter == 0, sent
-    if kind == _FULL:  # protocol.full
-        found = np.nonzero(x != y)[0].astype(np.int64)
-        alice, bob = n, 0
-    else:  # protocol.sketch
-        verify_bits, domain, m = sketch_consts
-        same_rest = True
-        for c in range(1, n):
-            if x[c] != y[c]:
-                same_rest = False
-                break
-        if same_rest:  # Bob's map with Alice's cell 0 is her map: it passes her parities
-            found = np.zeros(1 if x[0] != y[0] else 0, dtype=np.int64)
-            alice, bob = verify_bits + 1, 1
-        else:
-            found, stats = sketch(x, y, sketch_keys[0], sketch_keys[1], nonce, verify_bits, domain, exp, log, m, False)
-            alice, bob = stats[0], stats[1]
-    d = found.size
-    back = return_table[d]
-    for bits, side in ((alice, 0), (bob, 2), (back, 2)):
-        if bits > 0:
-            sent[side] += bits
-            sent[side + 1] += 1
-    if lww and d:  # the found cells' stamps, both ways
-        for side in (2, 0):
-            sent[side] += d * stamp_bits
-            sent[side + 1] += 1
-    return found, False, sent
+        return np.zeros(0, dtype=np.int64), counter == 0, sent, -1
+    candidates, back, equal = n, np.int64(0), False
+    if kind == _BISECTION:  # protocol.bisection with step 4 fixed (its equal-maps shortcut computes the same)
+        found, stats, rounds = bisection(
+            x,
+            y,
+            database,
+            use_database,
+            key0,
+            key1,
+            domain,
+            words,
+            last_mask,
+            _NO_POOL,
+            k,
+            res,
+            p1_bits,
+            state,
+            pick_range,
+        )
+        for r in range(rounds.shape[0]):
+            if rounds[r, 0] > 0:
+                sent[0] += rounds[r, 0]
+                sent[1] += 1
+            if rounds[r, 1] > 0:
+                sent[2] += rounds[r, 1]
+                sent[3] += 1
+        equal, candidates = stats[5] == 0, stats[4]
+    else:
+        if kind == _FULL:  # protocol.full
+            found = np.nonzero(x != y)[0].astype(np.int64)
+            alice, bob = n, 0
+        else:  # protocol.sketch
+            verify_bits, sketch_domain, m = sketch_consts
+            same_rest = True
+            for c in range(1, n):
+                if x[c] != y[c]:
+                    same_rest = False
+                    break
+            if same_rest:  # Bob's map with Alice's cell 0 is her map: it passes her parities
+                found = np.zeros(1 if x[0] != y[0] else 0, dtype=np.int64)
+                alice, bob = verify_bits + 1, 1
+            else:
+                found, stats = sketch(
+                    x, y, sketch_key[0], sketch_key[1], nonce, verify_bits, sketch_domain, exp, log, m, False
+                )
+                alice, bob = stats[0], stats[1]
+        back = return_table[found.size]
+        for bits, side in ((alice, 0), (bob, 2), (back, 2)):
+            if bits > 0:
+                sent[side] += bits
+                sent[side + 1] += 1
+        candidates = -1
+    return found, equal, sent, candidates
 
 
 @numba.njit(cache=True)
-def step_copies(
+def settle_syncs(
     sync_copy,
     sync_a,
     sync_b,
     sync_kind,
-    sync_equal,
-    sync_bits,
-    sync_messages,
-    found,
-    found_offsets,
-    sync_picks,
-    picks_drawn,
     sync_nonce,
+    sync_equal,
+    sync_candidates,
+    sync_found,
     rng_state,
     pick_range,
+    protocol1,
     sketch_keys,
-    strings,
     sketch_consts,
     exp,
     log,
     return_table,
     stamp_bits,
+    lww,
+    maps,
+    stamps,
+    known,
+    last_sync,
+    new_cells,
+    last_test,
+    robot_syncs,
+    step_bits,
+    total_bits,
+    messages,
+    counts,
+    dirty,
+    charged,
+    step_count,
+):
+    """``SyncSessions._sync_within_step`` of M copies after their syncs opened (:func:`open_syncs`): each sync, in
+    the order they opened, runs its protocol (:func:`_protocol`, its draws from its copy's generator state
+    ``rng_state[m]``, :mod:`~mrcomm_env.core.pcg64_numba`), charges its transcript to its senders and finishes
+    (:func:`_settle_sync`). Every array with a leading copy axis is the env's state of the same name (``counts``:
+    the columns above; ``step_bits``, ``total_bits``, ``messages``: the ledger's, ``charged``: whether a copy's
+    robots sent bits this step). Writes each sync's answer ``sync_equal`` (detections are listed by the caller),
+    and for Algorithm 1 its candidates and found cells, whose way back the caller charges to Bob
+    (``sync_candidates``, ``sync_found``; −1 for the others)."""
+    step_bits[:] = 0.0  # BitLedger.begin_step
+    charged[:] = False
+    for s in range(sync_copy.size):
+        m, a, b = sync_copy[s], sync_a[s], sync_b[s]
+        # a robot is in one sync at a time: no other sync's merge has touched these rows this step
+        cells, sync_equal[s], sent, sync_candidates[s] = _protocol(
+            sync_kind[s],
+            maps[m, a],
+            maps[m, b],
+            rng_state[m],
+            pick_range,
+            protocol1,
+            sync_nonce[s],
+            sketch_keys[m],
+            sketch_consts,
+            exp,
+            log,
+            return_table,
+        )
+        d = cells.size
+        sync_found[s] = d
+        if lww and d:  # the found cells' stamps, both ways
+            sent[2] += d * stamp_bits
+            sent[3] += 1
+            sent[0] += d * stamp_bits
+            sent[1] += 1
+        for side in range(2):  # one ledger entry per sender, of the sum of its messages (whole bits: exact)
+            who = a if side == 0 else b
+            if sent[2 * side + 1]:
+                step_bits[m, who] += sent[2 * side]
+                total_bits[m, who] += sent[2 * side]
+                messages[m] += sent[2 * side + 1]
+                charged[m] = True
+        robot_syncs[m, a] += 1
+        robot_syncs[m, b] += 1
+        _settle_sync(
+            m,
+            a,
+            b,
+            sync_kind[s],
+            sync_equal[s],
+            cells,
+            maps,
+            stamps,
+            known,
+            last_sync,
+            new_cells,
+            last_test,
+            counts,
+            dirty,
+            lww,
+            step_count[m],
+        )
+
+
+@numba.njit(cache=True)
+def advance_copies(
+    rng_state,
+    charged,
     maps,
     stamps,
     truth,
@@ -799,11 +919,7 @@ def step_copies(
     new_cells,
     last_sync,
     last_test,
-    robot_syncs,
     step_bits,
-    total_bits,
-    messages,
-    counts,
     recent,
     recent_max,
     recent_any,
@@ -815,7 +931,6 @@ def step_copies(
     sums,
     step_count,
     changing,
-    lww,
     appear_rate,
     vanish_rate,
     neighbours,
@@ -832,85 +947,18 @@ def step_copies(
     obs,
     rewards,
 ):
-    """``MapSyncEnv._step_world`` and ``_observe`` of M copies whose links carry any transcript within a step (no
-    ``bits_per_step``, static links), the syncs' protocols included but Algorithm 1's (``UnlimitedLinkBatch``),
-    which the caller runs, as it draws its picks as it goes: every array with
-    a leading copy axis is the env's state of the same name (``counts``: the columns above; ``sums``: the summed
-    disagreement and error; ``step_bits``, ``total_bits``, ``messages``: the ledger's). Sync s of copy
-    ``sync_copy[s]``, Alice ``sync_a[s]`` and Bob ``sync_b[s]``, is of kind ``sync_kind[s]`` (its action), with
-    Protocol 1's answer ``sync_equal[s]`` (equality, or bisection's first test), the bits and messages
-    ``sync_bits[s]``, ``sync_messages[s]`` each sent (Alice, Bob) and the found cells
-    ``found[found_offsets[s]:found_offsets[s + 1]]``, given for a bisection and written here for the others (see
-    :func:`_protocol`: an equality test's picks ``sync_picks[s]``, a sketch's nonce ``sync_nonce[s]`` and its copy's
-    key ``sketch_keys[m]``); the syncs come in the order they opened. Every copy draws from its own generator
-    state ``rng_state[m]`` (:mod:`~mrcomm_env.core.pcg64_numba`) what the env draws, in its order: an equality test's
-    picks (unless the caller drew them, ``picks_drawn[s]``, for a copy whose Algorithm 1 it ran), then the world's
-    changes (2n, when ``changing``) and the walk's keys (N × 4). Writes the
-    observations ``obs`` and the team rewards ``rewards``; the same operations in the same order as the env, so
-    the same numbers."""
+    """The rest of ``MapSyncEnv._step_world`` and ``_observe`` of M copies after their syncs (:func:`settle_syncs`):
+    the changing world and the walk, on the keys each copy draws from its generator state ``rng_state[m]`` in the
+    env's order (the world's 2n, when ``changing``, then the walk's N × 4), the sensing, the disagreement, the recent
+    bits' average, the reward and the observation. Every array with a leading copy axis is the env's state of the
+    same name (``sums``: the summed disagreement and error). Writes the observations ``obs`` and the team rewards
+    ``rewards``; the same operations in the same order as the env, so the same numbers."""
     n_copies, n_robots, n = maps.shape
-    step_bits[:] = 0.0  # BitLedger.begin_step
-    charged = np.zeros(n_copies, dtype=np.bool_)
-    for s in range(sync_copy.size):  # SyncSessions._sync_within_step: run, charge the transcript, then finish
-        m, a, b, kind = sync_copy[s], sync_a[s], sync_b[s], sync_kind[s]
-        if kind == _BISECTION:  # run by the caller (its picks are drawn as it goes)
-            cells = found[found_offsets[s] : found_offsets[s + 1]]
-        else:  # a robot is in one sync at a time: no other sync's merge has touched these rows this step
-            if kind == _EQUALITY and not picks_drawn[s]:  # Alice's picks (protocol._alice_picks)
-                integers_fill(rng_state[m], 0, pick_range, sync_picks[s])
-            cells, sync_equal[s], sent = _protocol(
-                kind,
-                maps[m, a],
-                maps[m, b],
-                sync_picks[s],
-                strings,
-                sketch_keys[m],
-                sync_nonce[s],
-                sketch_consts,
-                exp,
-                log,
-                return_table,
-                stamp_bits,
-                lww,
-            )
-            sync_bits[s, 0], sync_messages[s, 0], sync_bits[s, 1], sync_messages[s, 1] = (
-                sent[0],
-                sent[1],
-                sent[2],
-                sent[3],
-            )
-        for side in range(2):
-            who = a if side == 0 else b
-            if sync_messages[s, side]:
-                step_bits[m, who] += sync_bits[s, side]
-                total_bits[m, who] += sync_bits[s, side]
-                messages[m] += sync_messages[s, side]
-                charged[m] = True
-        robot_syncs[m, a] += 1
-        robot_syncs[m, b] += 1
-        _settle_sync(
-            m,
-            a,
-            b,
-            kind,
-            sync_equal[s],
-            cells,
-            maps,
-            stamps,
-            known,
-            last_sync,
-            new_cells,
-            last_test,
-            counts,
-            dirty,
-            lww,
-            step_count[m],
-        )
     world_draws = np.empty(2 * n)
     keys = np.empty((n_robots, 4))
     for m in range(n_copies):
         t = step_count[m]
-        if changing:  # WorldDynamics._change_world's keys, then the walk's: the env's draws in its order
+        if changing:  # WorldDynamics._change_world
             random_fill(rng_state[m], world_draws)
             if change_world(truth[m], pos[m], world_draws, appear_rate, vanish_rate):
                 dirty[m] = True

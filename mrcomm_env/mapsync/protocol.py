@@ -357,28 +357,40 @@ def _bisection_of_equal_maps(n: int, strings: SharedStrings, k: int, res: int, r
 
 #: most picks of i drawn ahead for one compiled Algorithm 1 run (8 MB); larger runs take the reference path
 _POOL_MAX = 1 << 20
+_NO_PICKS = np.zeros(0, dtype=np.int64)
+_NO_STATE = np.zeros(0, dtype=np.uint64)
 
 
 def _bisection_compiled(x, y, strings: SharedStrings, k: int, res: int, rng: np.random.Generator):
-    """:func:`bisection` (step 4 fixed) through the compiled twin ``kernels_numba.bisection``; None when its
-    picks would not fit in ``_POOL_MAX``.
+    """:func:`bisection` (step 4 fixed) through the compiled twin ``kernels_numba.bisection``; None when it cannot
+    take the run (the reference then runs from the same generator state).
 
-    The reference draws Alice's picks round by round, ``rng.integers(0, 100n, (segments, k))``; successive draws
-    of one range are one stream, however they are batched. The twin gets that stream drawn ahead and uses it in
-    order. Enough picks: with step 4 fixed a test says "different" only for a segment that truly differs
-    (Proposition 2's error is one-sided), so Algorithm 1 makes at most the tests it makes when no test errs
-    (``kernels_numba.bisection_tests``), and exactly those unless a test errs. When one did, fewer picks were
-    used, and the generator is put back and advanced by exactly the picks used, so that it ends where the
-    reference leaves it.
+    The reference draws Alice's picks round by round, ``rng.integers(0, 100n, (segments, k))``. From numpy's PCG64
+    (every env's generator) the twin draws the same numbers round by round itself, from the generator's state
+    (``core.pcg64_numba``), which it then hands back. From another bit generator it takes them drawn ahead: with
+    step 4 fixed a test says "different" only for a segment that truly differs (Proposition 2's error is
+    one-sided), so Algorithm 1 makes at most the tests it makes when no test errs
+    (``kernels_numba.bisection_tests``); when a test erred, fewer picks were used, and the generator is put back and
+    advanced by exactly those, so that it ends where the reference leaves it. None when more than ``_POOL_MAX``
+    picks would be drawn ahead.
     """
+    from mrcomm_env.core import pcg64_numba
     from mrcomm_env.mapsync import kernels_numba
 
     n = x.size
-    draws = k * kernels_numba.bisection_tests(x, y, res)
-    if draws > _POOL_MAX:
-        return None
-    state = rng.bit_generator.state  # for a test that errs (probability ≤ 2^−k each)
-    pool = rng.integers(0, strings.size, size=draws) if draws else np.zeros(0, np.int64)
+    pcg64 = isinstance(rng.bit_generator, np.random.PCG64)
+    saved: dict = {}
+    if pcg64:
+        state = np.empty(pcg64_numba.STATE_WORDS, dtype=np.uint64)
+        pcg64_numba.state_of(rng, state)
+        draws, pool = 0, _NO_PICKS
+    else:
+        state = _NO_STATE
+        draws = k * kernels_numba.bisection_tests(x, y, res)
+        if draws > _POOL_MAX:
+            return None
+        saved = dict(rng.bit_generator.state)  # for a test that errs (probability ≤ 2^−k each)
+        pool = rng.integers(0, strings.size, size=draws) if draws else _NO_PICKS
     found, stats, rounds = kernels_numba.bisection(
         x,
         y,
@@ -387,13 +399,17 @@ def _bisection_compiled(x, y, strings: SharedStrings, k: int, res: int, rng: np.
         k,
         res,
         theory.protocol1_bits(n, k),
+        state,
+        strings.size,
     )
     alice, bob, n_rounds, tests, compared, detected, missed, used = stats.tolist()
-    if used < 0:  # cannot happen by the bound above; the reference then runs from the same generator state
-        rng.bit_generator.state = state
+    if pcg64:
+        pcg64_numba.set_state(rng, state)
+    elif used < 0:  # cannot happen by the bound above; the reference then runs from the same generator state
+        rng.bit_generator.state = saved
         return None
-    if used < draws:  # a test said "same" of a segment that differs
-        rng.bit_generator.state = state
+    elif used < draws:  # a test said "same" of a segment that differs
+        rng.bit_generator.state = saved
         if used:
             rng.integers(0, strings.size, size=used)
     messages: list[tuple[str, int]] = []
