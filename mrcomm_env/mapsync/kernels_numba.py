@@ -376,9 +376,24 @@ def disagreement(maps, truth, pair_rows, pair_cols):
     The reference's Hamming distances ``(|x| + |y| − 2 x·y) / n`` are whole numbers of cells before the division
     (float64 holds them exactly), so counting the differing cells gives the same quotients; its sums (each row of
     the (N, N) distances, the N(N − 1)/2 pairs ``pair_rows``, ``pair_cols`` in ``np.triu_indices`` order, the N
-    errors) are numpy's pairwise sums (:func:`numpy_sum`) over the same values in the same order. The maps are
-    packed into 64-bit words first: the pairs then cost N(N − 1)/2 · n/64 popcounts."""
+    errors) are numpy's pairwise sums (:func:`numpy_sum`) over the same values in the same order. A small team's
+    cells are compared one by one (loops the compiler vectorises); a larger team's maps are packed into 64-bit words
+    first: its N(N − 1)/2 pairs then cost n/64 popcounts each."""
     n_robots, n = maps.shape
+    if n_robots <= _COMPARED_CELL_BY_CELL:
+        ham = np.zeros((n_robots, n_robots))
+        errors = np.empty(n_robots)
+        for i in range(n_robots):
+            wrong = 0
+            for c in range(n):
+                wrong += maps[i, c] != truth[c]
+            errors[i] = wrong / n
+            for j in range(i + 1, n_robots):
+                differ = 0
+                for c in range(n):
+                    differ += maps[i, c] != maps[j, c]
+                ham[i, j] = ham[j, i] = differ / n
+        return _disagreement_sums(ham, errors, pair_rows, pair_cols)
     n_words = (n + 63) // 64
     words = np.zeros((n_robots, n_words), dtype=np.uint64)
     truth_words = np.zeros(n_words, dtype=np.uint64)
@@ -401,6 +416,17 @@ def disagreement(maps, truth, pair_rows, pair_cols):
             for w in range(n_words):
                 differ += np.int64(_popcount64(words[i, w] ^ words[j, w]))
             ham[i, j] = ham[j, i] = differ / n
+    return _disagreement_sums(ham, errors, pair_rows, pair_cols)
+
+
+#: teams up to this size compare their maps cell by cell in :func:`disagreement` (larger ones pack them first)
+_COMPARED_CELL_BY_CELL = 8
+
+
+@numba.njit(cache=True)
+def _disagreement_sums(ham, errors, pair_rows, pair_cols):
+    """:func:`disagreement`'s sums of the (N, N) Hamming distances ``ham`` and the N ``errors``, numpy's own."""
+    n_robots = errors.size
     flat = ham.ravel()
     column = np.empty(n_robots)
     for i in range(n_robots):
