@@ -244,11 +244,15 @@ class AgentSlotVecEnv(VecEnv):
         infos: list[dict[str, Any]] = [dict(zip(keys, row)) for row in zip(*columns)]
         if ACTION_MASK_INFO_KEY in out.infos:  # (info columns are numbers: a mask there is one number per agent)
             self._info_masks = [_info_mask(info) for info in infos]
-        for copy_index, copy_rewards in enumerate(out.rewards.tolist()):
-            total = self._copy_returns[copy_index]
-            for reward in copy_rewards:  # in agent order, as the per-agent path adds them
-                total += reward
-            self._copy_returns[copy_index] = total
+        if n <= self.n_copies:  # agent by agent over all copies: each copy adds in agent order, as below
+            for agent_rewards in out.rewards.T:
+                self._copy_returns += agent_rewards
+        else:
+            for copy_index, copy_rewards in enumerate(out.rewards.tolist()):
+                total = self._copy_returns[copy_index]
+                for reward in copy_rewards:  # in agent order, as the per-agent path adds them
+                    total += reward
+                self._copy_returns[copy_index] = total
         self._copy_lengths += 1
         self._observations[:] = out.observations.reshape(self._observations.shape)
         for copy_index, final in out.final_observations.items():

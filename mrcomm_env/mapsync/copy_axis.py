@@ -66,7 +66,6 @@ class UnlimitedLinkBatch:
         self.neighbours, self.sensed, self.distinct = first._neighbour_table, first._sensed, first._sensed_distinct
         self.pair_rows, self.pair_cols = (np.ascontiguousarray(p, dtype=np.int64) for p in first._pairs)
         self.linked = np.ascontiguousarray(~first._eye)
-        self.peer_lists = first._peer_lists
         self.no_sessions = np.full(N, -1, dtype=np.int64)
         self.no_progress = np.zeros(N)
         # what the compiled protocols need: Protocol 1's shared strings (the same database seed in every copy) and
@@ -117,7 +116,7 @@ class UnlimitedLinkBatch:
         self.sync_candidates, self.sync_found = np.zeros(most, dtype=np.int64), np.zeros(most, dtype=np.int64)
         self.charged = np.zeros(m, dtype=bool)
         self.obs = np.zeros((m, *first._obs_buf.shape), dtype=np.float32)
-        self.rewards = np.zeros(m)
+        self.rewards = np.zeros((m, N))
 
     # ------------------------------------------------------------------ copies in and out
     def adopt(self, i: int) -> None:
@@ -212,6 +211,7 @@ class UnlimitedLinkBatch:
         actions = self._checked(actions)
         count = kernels_numba.open_syncs(
             actions,
+            len(ACTIONS),
             self.peer_order,
             self.last_sync,
             self.next_session,
@@ -221,6 +221,8 @@ class UnlimitedLinkBatch:
             self.sync_kind,
             self.sync_nonce,
         )
+        if count < 0:
+            self._refuse(actions, -1 - count)
         copies, alices, bobs, kinds = (
             self.sync_copy[:count],
             self.sync_a[:count],
@@ -228,7 +230,7 @@ class UnlimitedLinkBatch:
             self.sync_kind[:count],
         )
         equal, candidates, found = self.sync_equal[:count], self.sync_candidates[:count], self.sync_found[:count]
-        kernels_numba.settle_syncs(
+        for_python = kernels_numba.settle_syncs(
             copies,
             alices,
             bobs,
@@ -262,7 +264,7 @@ class UnlimitedLinkBatch:
             self.charged,
             self.step_count,
         )
-        if count:
+        if for_python:
             self._after_syncs(copies, alices, bobs, kinds, equal, candidates, found)
         kernels_numba.advance_copies(
             self.rng_state,
@@ -312,25 +314,25 @@ class UnlimitedLinkBatch:
             "busy": np.zeros((self.n_copies, N)),  # every sync ended in its step
             "syncs": self.robot_syncs.astype(np.float64),
         }
-        rewards = np.repeat(self.rewards[:, None], N, axis=1)
         truncated = self.step_count >= self.max_cycles
-        return self.obs, rewards, np.zeros(self.n_copies, dtype=bool), truncated, infos
+        return self.obs, self.rewards.copy(), np.zeros(self.n_copies, dtype=bool), truncated, infos
 
     def _checked(self, actions: np.ndarray) -> np.ndarray:
-        """The actions as int64, refusing what the env's Discrete(5) check refuses."""
+        """The actions as int64, refusing a dtype the env's Discrete(5) check refuses (``open_syncs`` checks the
+        values, and :meth:`_refuse` names the first outside the range)."""
         if actions.dtype.kind not in "iu":
             raise ValueError(
                 f"argument 'actions' must hold integers in [0, {len(ACTIONS) - 1}] (Discrete({len(ACTIONS)})), "
                 f"got dtype {actions.dtype}"
             )
-        bad = (actions < 0) | (actions >= len(ACTIONS))
-        if bad.any():
-            copy, robot = np.argwhere(bad)[0].tolist()
-            raise ValueError(
-                f"action of robot_{robot} (copy {copy}) must be an integer in [0, {len(ACTIONS) - 1}], "
-                f"got {actions[copy, robot].item()!r}"
-            )
-        return actions.astype(np.int64, copy=False)
+        return actions if actions.dtype == np.int64 else actions.astype(np.int64)
+
+    def _refuse(self, actions: np.ndarray, flat: int) -> None:
+        copy, robot = divmod(flat, self.n_agents)
+        raise ValueError(
+            f"action of robot_{robot} (copy {copy}) must be an integer in [0, {len(ACTIONS) - 1}], "
+            f"got {actions[copy, robot].item()!r}"
+        )
 
     def _after_syncs(self, copies, alices, bobs, kinds, equal, candidates, found) -> None:
         """What needs Python after ``kernels_numba.settle_syncs``: Bob's way back of every Algorithm 1 sync

@@ -728,13 +728,19 @@ def _settle_sync(
 
 
 @numba.njit(cache=True)
-def open_syncs(actions, peer_order, last_sync, next_session, sync_copy, sync_a, sync_b, sync_kind, sync_nonce):
+def open_syncs(
+    actions, n_actions, peer_order, last_sync, next_session, sync_copy, sync_a, sync_b, sync_kind, sync_nonce
+):
     """``SyncSessions._sync_within_step``'s openings of M copies whose links are always up: robot by robot, one that
     asks for a sync (action ≠ 0) and is not yet in one opens it with the free peer it synced with least recently (the
     first in ``peer_order`` on ties, ``choose_peer``), whose own request it serves; each takes the copy's next
     session number (``next_session``, the sketch's nonce). Writes the syncs in the order they open and returns how
-    many."""
+    many; −1 − (flat index of the first action outside [0, ``n_actions``)) before opening any, when there is one."""
     n_copies, n_robots = actions.shape
+    for m in range(n_copies):
+        for i in range(n_robots):
+            if actions[m, i] < 0 or actions[m, i] >= n_actions:
+                return -1 - (m * n_robots + i)
     busy = np.empty(n_robots, np.int64)
     count = 0
     for m in range(n_copies):
@@ -877,9 +883,11 @@ def settle_syncs(
     the columns above; ``step_bits``, ``total_bits``, ``messages``: the ledger's, ``charged``: whether a copy's
     robots sent bits this step). Writes each sync's answer ``sync_equal`` (detections are listed by the caller),
     and for Algorithm 1 its candidates and found cells, whose way back the caller charges to Bob
-    (``sync_candidates``, ``sync_found``; −1 for the others)."""
+    (``sync_candidates``, ``sync_found``; −1 for the others). Returns how many syncs the caller has to look at (an
+    Algorithm 1 sync, or a test that found a difference)."""
     step_bits[:] = 0.0  # BitLedger.begin_step
     charged[:] = False
+    for_caller = 0
     for s in range(sync_copy.size):
         m, a, b = sync_copy[s], sync_a[s], sync_b[s]
         # a robot is in one sync at a time: no other sync's merge has touched these rows this step
@@ -931,6 +939,9 @@ def settle_syncs(
             lww,
             step_count[m],
         )
+        if sync_kind[s] == _BISECTION or (sync_kind[s] == _EQUALITY and not sync_equal[s]):
+            for_caller += 1
+    return for_caller
 
 
 @numba.njit(cache=True)
@@ -978,7 +989,7 @@ def advance_copies(
     env's order (the world's 2n, when ``changing``, then the walk's N × 4), the sensing, the disagreement, the recent
     bits' average, the reward and the observation. Every array with a leading copy axis is the env's state of the
     same name (``sums``: the summed disagreement and error). Writes the observations ``obs`` and the team rewards
-    ``rewards``; the same operations in the same order as the env, so the same numbers."""
+    ``rewards`` (M, N); the same operations in the same order as the env, so the same numbers."""
     n_copies, n_robots, n = maps.shape
     world_draws = np.empty(2 * n)
     keys = np.empty((n_robots, 4))
@@ -1030,7 +1041,7 @@ def advance_copies(
                 recent_max[m] = 0.0
         sums[m, 0] += mean[m]
         sums[m, 1] += error_mean[m]
-        rewards[m] = -mean[m] - lam * team_bits / bit_scale
+        rewards[m] = -mean[m] - lam * team_bits / bit_scale  # the team reward, every robot's
         t += 1
         step_count[m] = t
         observe(
