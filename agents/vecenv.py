@@ -273,15 +273,17 @@ class AgentSlotVecEnv(VecEnv):
     ) -> None:
         """``_start_episode`` from a batch: ``info_columns`` key → (M, N) with ``row`` the copy's, or (N,)."""
         first_slot = copy_index * self.n_agents
+        slots = slice(first_slot, first_slot + self.n_agents)
         keys = list(info_columns)
         columns = [info_columns[key] if row is None else info_columns[key][row] for key in keys]
         rows = np.stack(columns, axis=-1).tolist() if keys else [[] for _ in range(self.n_agents)]
-        for agent_index, values in enumerate(rows):
-            slot = first_slot + agent_index
-            self._active[slot] = True
-            self._observations[slot] = observations[agent_index]
-            self.reset_infos[slot] = dict(zip(keys, values))
-            self._info_masks[slot] = _info_mask(self.reset_infos[slot])
+        self._active[slots] = True
+        self._observations[slots] = observations
+        self.reset_infos[slots] = [dict(zip(keys, values)) for values in rows]
+        masked = ACTION_MASK_INFO_KEY in info_columns  # (a column of numbers: one per agent)
+        self._info_masks[slots] = (
+            [_info_mask(info) for info in self.reset_infos[slots]] if masked else [None] * len(rows)
+        )
         self._copy_returns[copy_index] = 0.0
         self._copy_lengths[copy_index] = 0
 
