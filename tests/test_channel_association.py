@@ -445,6 +445,9 @@ def test_individual_reward_is_the_share_of_observers_that_singled_the_robot_out(
         # the bit sets' count and the edge lists' count of the same i-states (the reward's two ways)
         fast, listed = env.scene.singled_out(), env.scene.singled_out_from_edges()
         assert all(np.array_equal(a, b) and a.dtype == b.dtype for a, b in zip(fast, listed))
+        # the metrics' true edges per observer, likewise
+        fast, listed = env.scene.true_edges(), env.scene.true_edges_from_edges()
+        assert np.array_equal(fast, listed) and fast.dtype == listed.dtype
         singled_some |= bool(singled.any())
         pending_some |= bool((singled < seen).any())
     assert singled_some and pending_some, "robots singled out and robots still ambiguous, within the episode"

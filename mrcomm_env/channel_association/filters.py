@@ -95,7 +95,19 @@ class FilterBase:
         self.drop_time = int(drop_time)
         self.tolerance = int(tolerance)
         self.extra_edges = bool(extra_edges)
-        self.rng = np.random.default_rng(0)
+        self._rng: np.random.Generator | None = None
+
+    @property
+    def rng(self) -> np.random.Generator:
+        """The generator of local visual labels: its owner's (a scene hands in the env's), else one seeded 0, made on
+        first use (a scene's new filter every episode would otherwise make one for nothing)."""
+        if self._rng is None:
+            self._rng = np.random.default_rng(0)
+        return self._rng
+
+    @rng.setter
+    def rng(self, generator: np.random.Generator) -> None:
+        self._rng = generator
 
 
 class DenseFilter(FilterBase):

@@ -117,6 +117,13 @@ def bitset_singled_out(C, vt, robots, true_bits, n: int) -> tuple[np.ndarray, np
     return singled, seen
 
 
+def bitset_true_edges(C, true_bits) -> np.ndarray:
+    """``Scene.true_edges`` on bit-set i-states ``C`` (B, V): per observer, the visual slots whose candidates hold the
+    wireless bit ``true_bits[s]`` of the robot behind the slot (0 when it has none). An edge (h, s) is true when h is
+    that robot's wireless slot, and a slot's candidate set holds each bit once, so these are the true edges."""
+    return np.count_nonzero(C & true_bits, axis=-1).astype(np.int64)
+
+
 def backend_name(f: AssociationFilter) -> str:
     return {BitsetFilter: "bitset", DenseFilter: "dense", SparseFilter: "sparse"}[type(f)]
 
@@ -164,6 +171,14 @@ class Scene:
 
     def true_edges(self) -> np.ndarray:
         """Number of true edges (wireless and visual ID of the same robot) per robot."""
+        if isinstance(self.filter, BitsetFilter):  # on the bit sets themselves, without listing every edge
+            counts = np.zeros(self.n, dtype=np.int64)
+            counts[: self.filter.C.shape[0]] = bitset_true_edges(self.filter.C, self.slot_truth()[1])
+            return counts
+        return self.true_edges_from_edges()
+
+    def true_edges_from_edges(self) -> np.ndarray:
+        """:meth:`true_edges` from the filter's list of edges (any filter)."""
         o, h, s = self.filter.edges()
         return np.bincount(o[self.wireless_robot(h) == self.visual_robot(s)], minlength=self.n)
 
