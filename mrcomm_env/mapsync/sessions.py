@@ -192,7 +192,8 @@ class SyncSessions:
         self._stale |= _STALE_SESSIONS | _STALE_NEW | _STALE_KNOWN
 
     def _charge(self, messages: list) -> None:
-        """A whole transcript delivered: ``_deliver`` of all its bits, one ledger entry per sender."""
+        """Charge (sender, bits) ``messages`` (a whole transcript, or the parts a step delivers), one ledger entry of
+        their bits and number per sender, in the order the senders first appear."""
         charged: dict[int, list[int]] = {}
         for who, bits in messages:
             entry = charged.get(who)
@@ -221,7 +222,7 @@ class SyncSessions:
 
     def _deliver(self, s: Session, budget: int) -> None:
         """Charge the next ``budget`` bits of the transcript to their senders, in order."""
-        charged: dict[int, list[int]] = {}  # sender → [bits, messages]: one ledger entry per sender
+        parts = []  # (sender, bits) of every message, or message part, that crosses the link this step
         skip, left = s.sent, budget  # bits of the transcript already delivered; bits this step may carry
         for who, bits in s.messages:
             if left <= 0:
@@ -231,17 +232,10 @@ class SyncSessions:
                 continue
             part = bits - skip if bits - skip < left else left
             skip = 0
-            entry = charged.get(who)
-            if entry is None:
-                charged[who] = [part, 1]
-            else:
-                entry[0] += part
-                entry[1] += 1
+            parts.append((who, part))
             left -= part
         s.sent += budget - left
-        for who, (bits, messages) in charged.items():  # whole bits: the float sums are exact in any grouping
-            self.ledger.add(who, bits, messages=messages)
-            self._charged = True
+        self._charge(parts)
 
     def _close(self, key: int) -> None:
         s = self.sessions.pop(key)
