@@ -70,7 +70,7 @@ class UnlimitedLinkBatch:
         self.no_progress = np.zeros(N)
         # what the compiled protocols need: Protocol 1's shared strings (the same database seed in every copy) and
         # bits, the sketch's parity count, domain and field, Bob's way back for every count of found cells
-        self.k, self.stamp_bits = int(c.k), int(first._stamp_bits)
+        self.stamp_bits = int(first._stamp_bits)
         strings = SharedStrings(n, c.database_seed, explicit=c.explicit_database, cache=True)  # as the env's reset
         self.protocol1 = (*proto._kernel_strings(strings), theory.protocol1_bits(n, c.k), int(c.k), int(c.res))
         m_bits = pinsketch.field_bits(n)

@@ -7,6 +7,10 @@ Algorithm 1); this twin computes the same parities in one call: for every segmen
 ``r_i`` restricted to the segment (from the materialised database, or Philox4x32-10 on demand exactly as
 :func:`philox.stream_words`), ANDed with each robot's map, popcount, parity. ``tests/test_mapsync.py``
 compares both kernel by kernel, bit for bit. Used when ``core.backend.compiled()`` (docs/architecture.md).
+
+The env's other hot loops have twins here too (the walk and sensing, the changing world, the disagreement, the
+observation), and the copy-axis world of ``copy_axis.py`` steps M copies through :func:`open_syncs`,
+:func:`settle_syncs` and :func:`advance_copies`, which run those twins and the protocols' on every copy's rows.
 """
 
 from __future__ import annotations
@@ -659,9 +663,9 @@ def equality_counter(x, y, database, use_database, k0, k1, domain, words_per_str
     return counter
 
 
-# the sync kinds of ``step_copies``: the actions that ask for them (``sessions.EQUALITY`` … ``sessions.SKETCH``)
+# the sync kinds of ``settle_syncs``: the actions that ask for them (``sessions.EQUALITY`` … ``sessions.SKETCH``)
 _EQUALITY, _BISECTION, _FULL, _SKETCH = 1, 2, 3, 4
-# columns of ``step_copies``'s counts: the env's ``_counts`` (in its order), then its merge and latency counters
+# columns of ``settle_syncs``'s counts: the env's ``_counts`` (in its order), then its merge and latency counters
 SYNCS, FALSE_EQUAL, EQUALITY_TESTS, DETECTIONS, ABORTED, CORRECTED, TO_CORRECT, LATENCY_SUM, LATENCY_COUNT = range(9)
 N_COUNTS = 9
 
