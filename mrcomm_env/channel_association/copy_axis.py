@@ -14,10 +14,9 @@ Each copy keeps its env object: its own ``reset_arrays`` lays the scene out from
 :meth:`CopyAxisWorld.adopt` copies that episode's start into the copy's rows. Random draws during the episode
 (missed receptions, the labels of new visual IDs) come from the copy's own generator, in the env's order.
 :meth:`CopyAxisWorld.store` writes a copy's rows back into its env, for its metrics and for anything read from
-the env. A neighbourhood's episodes end every few steps, so its world also begins the next episode of an ended
-copy and computes the ended episode's metrics itself (:meth:`NeighborhoodBatch.reset_copies`,
-:meth:`NeighborhoodBatch.final_metrics`), with the same draws and formulas, leaving the env object to be brought
-up to date when it is read."""
+the env. A neighbourhood's episodes, and a still field's, end every few steps, so both worlds also begin the next
+episode of an ended copy and compute the ended episode's metrics themselves (``reset_copies``, ``final_metrics``),
+with the same draws and formulas, leaving the env object to be brought up to date when it is read."""
 
 from __future__ import annotations
 
@@ -29,6 +28,10 @@ from mrcomm_env.channel_association.scenes import (
     DenseFieldScene,
     NeighborhoodScene,
     bitset_singled_out,
+    draw_field,
+    fast_coordinates,
+    field_positions,
+    field_shape,
     move_and_bounce,
 )
 
@@ -248,16 +251,18 @@ class SlotFieldBatch(CopyAxisWorld):
         c, n = envs[0].cfg, envs[0].n_agents
         super().__init__(envs, n, n, n, c.wireless_range > c.visual_range)
         m = self.m
-        self.n_stat = n - int(round(c.mobile_fraction * n))  # layout_field's count: the same in every copy
+        n_mob, self.cols, self.cells, self.size = field_shape(n, c.separation, c.mobile_fraction)  # every copy's
+        self.n_stat = n - n_mob
         self.mobile = self.n_stat < n
         k = n - self.n_stat
         self.wrange, self.vrange = float(c.wireless_range), float(c.visual_range)
         self.same_ranges = not self.vrange < self.wrange
-        self.self_inf = np.where(np.eye(n, dtype=bool), np.inf, 0.0)[self.n_stat :]
+        self.self_inf_all = np.where(np.eye(n, dtype=bool), np.inf, 0.0)
+        self.self_inf = self.self_inf_all[self.n_stat :]
+        self.static_obs = envs[0]._static_obs
         self.pos = np.zeros((m, n, 2))
         self.vel = np.zeros((m, k, 2))
         self.fast = np.zeros((m, k, 2), dtype=bool)
-        self.size = np.zeros(2)
         self.wr = np.zeros((m, n, n), dtype=bool)
         self.vr = self.wr if self.same_ranges else np.zeros((m, n, n), dtype=bool)
         self.wr_packed = np.zeros((m, n), dtype=np.uint64)
@@ -311,6 +316,104 @@ class SlotFieldBatch(CopyAxisWorld):
                 self.vr.reshape(-1, n),
                 self.mobile,
             )
+
+    def reset_copies(self, copies: list[int]) -> tuple[np.ndarray, list[dict[str, np.ndarray]]]:
+        """Begin the next episode of each copy in ``copies`` (ended, reset without a seed) in the world itself:
+        ``ChannelAssociationEnv.reset_arrays()`` of a dense field, with the same draws from the copy's generator
+        (``FieldScene.reset``'s layout and headings, then the labels of ``BitsetFilter.init_known`` in a still
+        field), without its env object, which :meth:`store` brings up to date when it is read. A still field ends as
+        soon as every i-state is final, every few steps as shipped for training (25 robots), where resets through
+        the env objects cost about as much as the steps. Returns the observations of every copy and each reset
+        copy's info columns."""
+        c, f, n, k = self.cfg, self.filter, self.n, self.n - self.n_stat
+        draws = []
+        for i in copies:  # FieldScene.reset: each copy draws from its own generator, so copies may go in any order
+            rng = f.rngs[i]
+            draws.append(draw_field(rng, n, k, self.cells))  # layout_field's draws
+            heading = rng.uniform(0.0, 2.0 * np.pi, size=k)
+            if self.mobile:
+                vel = c.speed * np.stack((np.cos(heading), np.sin(heading)), axis=1)
+                fast = fast_coordinates(vel, self.size)
+                self.vel[i] = vel
+                self.fast[i] = False if fast is None else fast
+        chosen, offsets, places = (np.stack(column) for column in zip(*draws))
+        self.pos[copies] = field_positions(chosen, offsets, places, self.cols, c.separation, self.size)
+        # DenseFieldScene._update_ranges() of the reset copies: every pair, elementwise as the scene computes it
+        z = np.ascontiguousarray(self.pos[copies]).view(np.complex128)[..., 0]
+        d = np.abs(z[:, :, None] - z[:, None, :])
+        d += self.self_inf_all
+        w = d <= self.wrange
+        self.wr[copies] = w
+        if not self.same_ranges:
+            self.vr[copies] = d <= self.vrange
+        self.wr_packed[copies] = w @ f._pow[:n]
+        rows = np.concatenate([np.arange(i * n, (i + 1) * n) for i in copies])
+        # BitsetFilter.reset of the copies' rows; a still field then knows its neighbourhoods (init_known)
+        f.C[rows] = 0
+        f.wt[rows] = 0
+        f.heard[:, rows] = 0
+        f.vt[rows] = False
+        f.vlabel[rows] = -1
+        f.new_ids[rows] = 0
+        f.copy_conflicts[copies] = 0
+        if not self.mobile:
+            vr = self.vr[copies].reshape(-1, n)
+            wt = self.wr_packed[copies].reshape(-1)
+            f.wt[rows] = wt
+            f.vt[rows] = vr
+            f.C[rows] = np.where(vr, wt[:, None], np.uint64(0))
+            for j, i in enumerate(copies):  # the labels, after the layout's draws, from each copy's generator
+                seen = vr[j * n : (j + 1) * n]  # row-major, as the env's vlabel[v_mask] = …
+                f.vlabel[self._rows(i)][seen] = f.rngs[i].integers(0, 2**31, size=int(np.count_nonzero(seen)))
+        f.deg[rows] = np.bitwise_count(f.C[rows])
+        for i in copies:  # ChannelAssociationEnv._reset_world
+            self.obs[i] = 0.0
+            self.obs[i, :, : self.n_static] = self.static_obs
+            self.emit[i] = False
+            self.step_count[i] = 0
+            self.completion[i] = -1
+            self.step_bits[i] = 0.0
+            self.total_bits[i] = 0.0
+            self.messages[i] = 0
+            self.restarted[i] = True
+        self._refresh()  # the same values for the other copies: their filters did not change since their step
+        self._observe()
+        infos = [{"bits_sent": self.step_bits[i].copy()} for i in copies]
+        return self.obs, infos
+
+    def final_metrics(self, copies: list[int]) -> list[dict[str, float]]:
+        """``ChannelAssociationEnv.metrics()`` of the copies ``copies`` (whose episodes just ended), computed on their
+        rows without writing them into the env objects. Robot j is wireless and visual slot j of every observer, so
+        an edge is true when its wireless slot is its visual slot (``Scene.true_edges``, ``Scene.wrong_matches``).
+        The means run over each copy's measured observers with the env's own expressions (numpy's mean of the
+        selected entries), so that they round alike."""
+        f, n = self.filter, self.n
+        measured = np.arange(n) >= (self.n_stat if self.mobile else 0)  # the mobile robots (last), or every one
+        true_bits = f._pow[:n]
+        out = []
+        for i in copies:
+            rows = self._rows(i)
+            C, deg, vt = f.C[rows], f.deg[rows], f.vt[rows]
+            matched, nv, ne = (column[i] for column in self.stats[:3])
+            sel = measured & (nv > 0)
+            frac = float((matched[sel] / nv[sel]).mean()) if sel.any() else 0.0
+            true = np.count_nonzero(C & true_bits, axis=-1).astype(np.int64)  # scenes.bitset_true_edges
+            ratio = float((ne[sel] / np.maximum(true[sel], 1)).mean()) if sel.any() else 1.0
+            unique = (deg == 1) & vt
+            total = int(np.count_nonzero(unique))
+            wrong = int(np.count_nonzero(unique & (C != true_bits)))
+            out.append(
+                {
+                    "completion_time": float(self.completion[i]),
+                    "fraction_matched": frac,
+                    "edge_ratio": ratio,
+                    "fraction_wrong": wrong / total if total else 0.0,
+                    "conflicts": float(f.copy_conflicts[i]),
+                    "messages_sent": float(self.messages[i]),
+                    "bits_sent": float(self.total_bits[i].sum()),
+                }
+            )
+        return out
 
     def _move(self) -> None:
         """``DenseFieldScene._move`` of every copy (``move_and_bounce`` takes the copy axis)."""

@@ -38,18 +38,36 @@ def layout_field(rng: np.random.Generator, n: int, separation: float, mobile_fra
     The arena is the ⌈√n⌉-column grid of spacing ``separation``; stationary robots take randomly chosen
     cells so the density (1/separation²) is the same for any mix. Returns positions, mobile mask, size.
     """
-    n_mob = int(round(mobile_fraction * n))
-    cols = int(math.ceil(math.sqrt(n)))
-    rows = int(math.ceil(n / cols))
-    size = np.array([cols * separation, rows * separation])
-    cells = rng.permutation(cols * rows)[: n - n_mob]
-    grid = np.stack((cells % cols, cells // cols), axis=1).astype(np.float64)
-    stat = (grid + 0.5) * separation + rng.uniform(-0.5, 0.5, size=grid.shape) * separation
-    mob = rng.uniform(0.0, 1.0, size=(n_mob, 2)) * size
-    pos = np.concatenate((stat, mob))
+    n_mob, cols, cells, size = field_shape(n, separation, mobile_fraction)
+    chosen, offsets, places = draw_field(rng, n, n_mob, cells)
+    pos = field_positions(chosen, offsets, places, cols, separation, size)
     mobile = np.zeros(n, dtype=bool)
     mobile[n - n_mob :] = True
     return pos, mobile, size
+
+
+def field_shape(n: int, separation: float, mobile_fraction: float) -> tuple[int, int, int, np.ndarray]:
+    """:func:`layout_field`'s mobile robots, grid columns, grid cells and arena size (the same every episode)."""
+    cols = int(math.ceil(math.sqrt(n)))
+    rows = int(math.ceil(n / cols))
+    return int(round(mobile_fraction * n)), cols, cols * rows, np.array([cols * separation, rows * separation])
+
+
+def draw_field(rng: np.random.Generator, n: int, n_mob: int, cells: int):
+    """:func:`layout_field`'s draws, in its order: the stationary robots' cells and offsets, the mobile robots'
+    places (each as fractions of a spacing or of the arena)."""
+    chosen = rng.permutation(cells)[: n - n_mob]
+    offsets = rng.uniform(-0.5, 0.5, size=(n - n_mob, 2))
+    places = rng.uniform(0.0, 1.0, size=(n_mob, 2))
+    return chosen, offsets, places
+
+
+def field_positions(chosen, offsets, places, cols: int, separation: float, size: np.ndarray) -> np.ndarray:
+    """Positions (…, N, 2) from :func:`draw_field`'s draws (a leading copy axis allowed: elementwise, so each copy
+    gets what it would alone)."""
+    grid = np.stack((chosen % cols, chosen // cols), axis=-1).astype(np.float64)
+    stat = (grid + 0.5) * separation + offsets * separation
+    return np.concatenate((stat, places * size), axis=-2)
 
 
 def move_and_bounce(p: np.ndarray, vel: np.ndarray, size: np.ndarray, fast: np.ndarray | None = None) -> None:

@@ -24,8 +24,8 @@ MapSync's links without a bit budget, ``mapsync/copy_axis.py``); the batch then 
 the env objects only to reset a copy (its own ``reset_arrays``, from its own generator) and to read a copy's
 metrics (the world writes the copy's state back first: :meth:`BatchedEnv.sync_copies`); a world with
 ``reset_copies(copies)`` begins ended copies' next episodes itself, with the env's draws, and one with
-``final_metrics(copies)`` computes the env's metrics of ended episodes on its rows (a neighbourhood, whose
-episodes end every few steps). Both ways give the same numbers; the tests compare each copy with the single env
+``final_metrics(copies)`` computes the env's metrics of ended episodes on its rows (ChannelAssociation's
+neighbourhoods and fields, whose episodes end every few steps when nothing moves). Both ways give the same numbers; the tests compare each copy with the single env
 over whole episodes.
 
 **Memory.** The batch refuses at construction, naming ``n_copies``, a batch whose copies together need
