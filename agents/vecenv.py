@@ -246,7 +246,8 @@ class AgentSlotVecEnv(VecEnv):
             self._info_masks = [_info_mask(info) for info in infos]
         # each copy adds its agents' rewards one by one in agent order, as the per-agent path does: an accumulation
         # is a running sum, never regrouped
-        self._copy_returns = np.add.accumulate(np.column_stack((self._copy_returns, out.rewards)), axis=1)[:, -1]
+        running = np.concatenate((self._copy_returns[:, None], out.rewards), axis=1)
+        self._copy_returns = np.add.accumulate(running, axis=1)[:, -1]
         self._copy_lengths += 1
         self._observations[:] = out.observations.reshape(self._observations.shape)
         for copy_index, final in out.final_observations.items():
