@@ -455,8 +455,8 @@ def make_vec_env(env_id: str, n_envs: int = 1, seed: int | None = None, **env_kw
 
 
 def _dicts_of_columns(keys: list[str], columns: list[list[Any]], count: int) -> list[dict[str, Any]]:
-    """``count`` dicts, the i-th holding ``column[i]`` under each key, keys in order: filled column by column, which
-    is 2.5 times faster than a ``dict(zip(keys, row))`` per row at a hundred slots."""
+    """``count`` dicts, the i-th holding each column's i-th value under the column's key, keys in order: filled
+    column by column, 2.5 times as fast as a ``dict(zip(keys, row))`` per row at a hundred slots."""
     dicts: list[dict[str, Any]] = [{} for _ in range(count)]
     for key, column in zip(keys, columns):
         for entry, value in zip(dicts, column):

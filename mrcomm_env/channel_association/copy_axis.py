@@ -322,9 +322,9 @@ class SlotFieldBatch(CopyAxisWorld):
         ``ChannelAssociationEnv.reset_arrays()`` of a dense field, with the same draws from the copy's generator
         (``FieldScene.reset``'s layout and headings, then the labels of ``BitsetFilter.init_known`` in a still
         field), without its env object, which :meth:`store` brings up to date when it is read. A still field ends as
-        soon as every i-state is final, every few steps as shipped for training (25 robots), where resets through
-        the env objects cost about as much as the steps. Returns the observations of every copy and each reset
-        copy's info columns."""
+        soon as every i-state is final: about every ten steps as shipped for training (25 robots, random actions),
+        often enough that resets through the env objects were a large part of a batch's time. Returns the
+        observations of every copy and each reset copy's info columns."""
         c, f, n, k = self.cfg, self.filter, self.n, self.n - self.n_stat
         draws = []
         for i in copies:  # FieldScene.reset: each copy draws from its own generator, so copies may go in any order

@@ -25,8 +25,8 @@ the env objects only to reset a copy (its own ``reset_arrays``, from its own gen
 metrics (the world writes the copy's state back first: :meth:`BatchedEnv.sync_copies`); a world with
 ``reset_copies(copies)`` begins ended copies' next episodes itself, with the env's draws, and one with
 ``final_metrics(copies)`` computes the env's metrics of ended episodes on its rows (ChannelAssociation's
-neighbourhoods and fields, whose episodes end every few steps when nothing moves). Both ways give the same numbers; the tests compare each copy with the single env
-over whole episodes.
+neighbourhoods and fields: where nothing moves, their episodes end every few steps). Both ways give the same
+numbers; the tests compare each copy with the single env over whole episodes.
 
 **Memory.** The batch refuses at construction, naming ``n_copies``, a batch whose copies together need
 more than the env's memory budget by its own estimate (``batch_memory_estimate``: one env's peak, plus each
