@@ -85,6 +85,7 @@ class CopyAxisWorld:
         self.id_bits, self.n_static, self.clock = first._id_bits, first._n_static, first._clock
         self.phase_col, self.clock_codes = first._phase_col, first._clock_codes
         self.squash8, self.squash4 = first._squash8, first._squash4
+        self.static_obs = first._static_obs  # each robot's own ID bits and observer flag, written at every reset
         self.max_cycles, self.cost = c.max_cycles, c.emission_cost
         self.individual = c.reward_mode == "individual"
         #: copies whose episode the world began itself (``reset_copies``) since their env object was last written
@@ -202,6 +203,25 @@ class CopyAxisWorld:
         self._observe()
         return self.obs.copy(), rewards, terminated, truncated, {"bits_sent": self.step_bits.copy()}
 
+    def _begin_episodes(self, copies: list[int]) -> tuple[np.ndarray, list[dict[str, np.ndarray]]]:
+        """The rest of ``ChannelAssociationEnv._reset_world`` for the copies ``copies``, whose scene and filter rows a
+        world's ``reset_copies`` has just laid out: the bits, counters and observation rows begin again, then
+        ``_refresh`` and ``_observe`` (the same values for the other copies: their filters did not change since their
+        step). Returns the observations of every copy and each reset copy's info columns."""
+        for i in copies:
+            self.obs[i] = 0.0
+            self.obs[i, :, : self.n_static] = self.static_obs
+            self.emit[i] = False
+            self.step_count[i] = 0
+            self.completion[i] = -1
+            self.step_bits[i] = 0.0
+            self.total_bits[i] = 0.0
+            self.messages[i] = 0
+            self.restarted[i] = True
+        self._refresh()
+        self._observe()
+        return self.obs, [{"bits_sent": self.step_bits[i].copy()} for i in copies]
+
     # ------------------------------------------------------------------ what a scene adds
     def _adopt_scene(self, i: int, scene) -> None:
         """Take the scene state of copy ``i`` that changes during an episode (beyond the filter)."""
@@ -259,7 +279,6 @@ class SlotFieldBatch(CopyAxisWorld):
         self.same_ranges = not self.vrange < self.wrange
         self.self_inf_all = np.where(np.eye(n, dtype=bool), np.inf, 0.0)
         self.self_inf = self.self_inf_all[self.n_stat :]
-        self.static_obs = envs[0]._static_obs
         self.pos = np.zeros((m, n, 2))
         self.vel = np.zeros((m, k, 2))
         self.fast = np.zeros((m, k, 2), dtype=bool)
@@ -366,20 +385,7 @@ class SlotFieldBatch(CopyAxisWorld):
                 seen = vr[j * n : (j + 1) * n]  # row-major, as the env's vlabel[v_mask] = …
                 f.vlabel[self._rows(i)][seen] = f.rngs[i].integers(0, 2**31, size=int(np.count_nonzero(seen)))
         f.deg[rows] = np.bitwise_count(f.C[rows])
-        for i in copies:  # ChannelAssociationEnv._reset_world
-            self.obs[i] = 0.0
-            self.obs[i, :, : self.n_static] = self.static_obs
-            self.emit[i] = False
-            self.step_count[i] = 0
-            self.completion[i] = -1
-            self.step_bits[i] = 0.0
-            self.total_bits[i] = 0.0
-            self.messages[i] = 0
-            self.restarted[i] = True
-        self._refresh()  # the same values for the other copies: their filters did not change since their step
-        self._observe()
-        infos = [{"bits_sent": self.step_bits[i].copy()} for i in copies]
-        return self.obs, infos
+        return self._begin_episodes(copies)
 
     def final_metrics(self, copies: list[int]) -> list[dict[str, float]]:
         """``ChannelAssociationEnv.metrics()`` of the copies ``copies`` (whose episodes just ended), computed on their
@@ -446,7 +452,6 @@ class NeighborhoodBatch(CopyAxisWorld):
         c = first.cfg
         super().__init__(envs, 1, c.w, c.v)
         self.vis_robot = np.zeros((self.m, c.v), dtype=np.int64)
-        self.static_obs = first._static_obs
         f = self.filter
         self.all_wireless = f.pack(np.ones(c.w, dtype=bool))  # the known neighbourhood: every wireless slot
 
@@ -485,21 +490,8 @@ class NeighborhoodBatch(CopyAxisWorld):
             f.new_ids[i] = 0
             f.heard[:, i] = 0
             f.copy_conflicts[i] = 0
-            # ChannelAssociationEnv._reset_world
-            self.obs[i] = 0.0
-            self.obs[i, :, : self.n_static] = self.static_obs
-            self.emit[i] = False
-            self.step_count[i] = 0
-            self.completion[i] = -1
-            self.step_bits[i] = 0.0
-            self.total_bits[i] = 0.0
-            self.messages[i] = 0
-            self.restarted[i] = True
         f.deg[copies] = np.bitwise_count(f.C[copies])
-        self._refresh()  # the same values for the other copies: their filters did not change since their step
-        self._observe()
-        infos = [{"bits_sent": self.step_bits[i].copy()} for i in copies]
-        return self.obs, infos
+        return self._begin_episodes(copies)
 
     def _sense_and_filter(self, emit: np.ndarray, n_emit: np.ndarray) -> None:
         """``NeighborhoodScene.step`` of every copy: wireless slot h is robot h + 1."""
