@@ -149,6 +149,48 @@ def test_copy_axis_worlds_of_drawn_scenes_give_each_copy_the_single_env_episodes
     _assert_copies_are_single_envs(batch, "mrcomm/ChannelAssociation-v0", kwargs, horizon, some_terminate=False)
 
 
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"n_robots": 25, "mobile_fraction": 0.0, "reward_mode": "individual", "max_cycles": 40},  # as shipped
+        {"n_robots": 9, "mobile_fraction": 0.4, "max_cycles": 7},  # moving robots: ends by the time limit only
+        {"scene": "neighborhood", "w": 8, "v": 6, "max_cycles": 40},
+    ],
+    ids=["still field", "moving field", "neighbourhood"],
+)
+def test_channel_association_worlds_begin_ended_episodes_without_their_env_objects(kwargs, monkeypatch):
+    """Episodes end every few steps in these scenes: the world begins the next ones and computes the ended ones'
+    metrics itself (``reset_copies``, ``final_metrics``), never asking the copies' env objects. A terminated
+    episode's completion time is its length; a truncated one has none (-1)."""
+    batch = mrcomm_env.make_batched("mrcomm/ChannelAssociation-v0", 4, **kwargs)
+    batch.reset(seed=3)
+    asked = []
+    for env in batch.envs:
+        monkeypatch.setattr(env, "reset_arrays", lambda *args, **kw: asked.append("reset_arrays"))
+        monkeypatch.setattr(env, "metrics", lambda: asked.append("metrics"))
+    rng = np.random.default_rng(0)
+    lengths = np.zeros(4, dtype=int)
+    ends = {"terminated": 0, "truncated": 0}
+    for _ in range(60):
+        out = batch.step(sample_actions(batch.action_space, rng, (4, batch.n_agents)))
+        lengths += 1
+        assert sorted(out.final_metrics) == sorted(out.reset_infos) == np.flatnonzero(out.ended).tolist()
+        for i, metrics in out.final_metrics.items():
+            if out.terminated[i]:
+                ends["terminated"] += 1
+                assert metrics["completion_time"] == lengths[i] and metrics["fraction_matched"] == 1.0
+            else:
+                ends["truncated"] += 1
+                assert metrics["completion_time"] == -1 and lengths[i] == kwargs["max_cycles"]
+            lengths[i] = 0
+            assert (out.reset_infos[i]["bits_sent"] == 0).all()
+    assert asked == []
+    if kwargs.get("mobile_fraction", 0.0) > 0:
+        assert ends["truncated"] >= 8 and ends["terminated"] == 0
+    else:
+        assert ends["terminated"] >= 8
+
+
 def test_the_copy_axis_world_and_the_copies_in_turn_step_alike():
     env_id, kwargs = "mrcomm/ChannelAssociation-v0", {"n_robots": 8, "mobile_fraction": 0.25, "max_cycles": 9}
     make = lambda: mrcomm_env.make(env_id, **kwargs)  # noqa: E731
