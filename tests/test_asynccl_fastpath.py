@@ -73,9 +73,11 @@ def test_fast_step_equals_general_step(seed, kw, monkeypatch):
     ],
 )
 def test_compiled_restart_chains_are_the_loop_bit_for_bit(seed, kw, before_every_source):
-    """``_step_recent``'s restart loop in one compiled call (``ekf_numba.restart_chains``) runs each restarting filter
-    through the very kernel calls of the loop: two envs, one with and one without it, give the same bytes.
-    ``before_every_source``: some restart runs while a robot has no odometry yet (the ring's standstill slot)."""
+    """``_step_recent``'s restart loop in one compiled call (``ekf_numba.restart_chains``), and the whole column of the
+    step in one (``ekf_numba.recent_column``: the restarts, the extended estimates and column t), run each filter
+    through the very kernel calls of the loop: three envs, the fused call, the restart call alone and the loop,
+    give the same bytes. ``before_every_source``: some restart runs while a robot has no odometry yet (the ring's
+    standstill slot)."""
     pytest.importorskip("numba")
     import types
 
@@ -84,22 +86,30 @@ def test_compiled_restart_chains_are_the_loop_bit_for_bit(seed, kw, before_every
     kernels = ekf.backend("numba")
     calls = []
 
-    def counted(Lr, c_r, t, *rest):
-        calls.append((len(c_r), t - min(c_r), bool(rest[2])))  # filters, columns back, every source known
-        return kernels.restart_chains(Lr, c_r, t, *rest)
+    def counted(Lx, c_r, src_e, t, *rest):
+        if c_r:  # filters restarting, columns back, every source known
+            calls.append((len(c_r), t - min(c_r), bool(rest[5])))
+        return kernels.recent_column(Lx, c_r, src_e, t, *rest)
 
-    envs = [parallel_env(max_cycles=100, **kw) for _ in range(2)]
-    for env, restart in zip(envs, (counted, None)):
+    envs = [parallel_env(max_cycles=100, **kw) for _ in range(3)]
+    variants = (
+        {"recent_column": counted},
+        {"recent_column": None},
+        {"recent_column": None, "restart_chains": None},
+    )
+    for env, variant in zip(envs, variants, strict=True):
         env.reset(seed=seed)
-        env.unwrapped.est.k = types.SimpleNamespace(**{**vars(kernels), "restart_chains": restart})
+        env.unwrapped.est.k = types.SimpleNamespace(**{**vars(kernels), **variant})
     rng = np.random.default_rng(seed)
     n_modes = envs[0].action_space("robot_0").n
     while envs[0].agents:
         actions = {a: int(rng.integers(n_modes)) for a in envs[0].agents}
-        (obs_a, rew_a, *_), (obs_b, rew_b, *_) = (env.step(actions) for env in envs)
-        est_a, est_b = (env.unwrapped.est for env in envs)
-        assert est_a.X.tobytes() == est_b.X.tobytes() and est_a.P.tobytes() == est_b.P.tobytes()
-        assert all(obs_a[a].tobytes() == obs_b[a].tobytes() and rew_a[a] == rew_b[a] for a in obs_b)
+        (obs_a, rew_a, *_), *others = (env.step(actions) for env in envs)
+        est_a = envs[0].unwrapped.est
+        for env, (obs_b, rew_b, *_) in zip(envs[1:], others, strict=True):
+            est_b = env.unwrapped.est
+            assert est_a.X.tobytes() == est_b.X.tobytes() and est_a.P.tobytes() == est_b.P.tobytes()
+            assert all(obs_a[a].tobytes() == obs_b[a].tobytes() and rew_a[a] == rew_b[a] for a in obs_b)
     assert len(calls) >= 5
     assert max(filters for filters, _, _ in calls) >= 3 and max(back for _, back, _ in calls) >= 4
     assert any(not known for _, _, known in calls) == before_every_source

@@ -235,4 +235,6 @@ def backend(name: str | None = None) -> types.SimpleNamespace:
         column=module.column,
         # the restart loop of ``Estimators._step_recent`` in one call (compiled only: numpy runs the loop)
         restart_chains=getattr(module, "restart_chains", None),
+        # the rest of that step too: restarts, extended estimates and column t in one call (compiled only)
+        recent_column=getattr(module, "recent_column", None),
     )

@@ -16,12 +16,16 @@ because at these sizes (3N = 15) the cost of numpy is its per-call overhead, not
   is not numerically positive definite falls back to the LU inverse.
 
 ``restart_chains`` has no numpy twin: it is ``Estimators._restart_chains``'s loop (the numpy backend runs the loop)
-in one call, the same kernel calls filter by filter (``tests/test_asynccl_fastpath.py`` compares the bytes).
+in one call, the same kernel calls filter by filter. ``recent_column`` goes one step further: the rest of
+``Estimators._step_recent`` (those restarts, the extended estimates, each prior's odometry and held rows, and the
+column call) in one call: at N = 5 the Python and numpy glue around the two calls took about 45 µs per step, the
+restarts' own arithmetic about 50 µs (``tests/test_asynccl_fastpath.py`` compares the bytes of both with the loop's).
 """
 
 from __future__ import annotations
 
 import math
+from itertools import accumulate
 
 import numpy as np
 from numba import njit
@@ -325,6 +329,39 @@ def _restart_chains(
     return X_out, P_out
 
 
+def _chain_inputs(geometries, zs, lins, k0, n3):
+    """The columns k0, k0+1, … (``geometries``, ``zs``) and the central chain's kept priors ``lins`` (first column →
+    (X, Y, A)) as the flat arrays the compiled chains read: each column's measurements at ``off[k - k0]`` …
+    ``off[k - k0 + 1]``, each prior's rows of A at ``lin_off[s]`` … ``lin_off[s + 1]``, ``slot_of_col`` the prior
+    slot s of a first column (−1: none). Python lists and ``accumulate``, not numpy calls: at these sizes (a few
+    columns of ≤ N(N−1) measurements) numpy's per-call overhead was half of the chains' own time."""
+    off = np.array(list(accumulate((geo.m for geo in geometries), initial=0)), dtype=np.int64)
+    slot_of_col = [-1] * len(geometries)
+    firsts = sorted(lins)
+    for s, k in enumerate(firsts):
+        slot_of_col[k - k0] = s
+    if firsts:
+        priors = [lins[k] for k in firsts]
+        lin_off = np.array(list(accumulate((len(A) for _, _, A in priors), initial=0)), dtype=np.int64)
+        lin_X = np.array([X for X, _, _ in priors])
+        lin_Y = np.array([Y for _, Y, _ in priors])
+        lin_A = np.concatenate([A for _, _, A in priors])
+    else:
+        lin_off = np.zeros(1, dtype=np.int64)
+        lin_X, lin_Y, lin_A = np.empty((0, n3)), np.empty((0, n3, n3)), np.empty((0, n3 + 1))
+    return (
+        np.concatenate([geo.a for geo in geometries]),
+        np.concatenate([geo.b for geo in geometries]),
+        kernel_array(np.concatenate(zs)),
+        off,
+        np.array(slot_of_col, dtype=np.int64),
+        lin_X,
+        lin_Y,
+        lin_A,
+        lin_off,
+    )
+
+
 def restart_chains(Lr, c_r, t, ud_ring, W, sources_known, geometries, zs, lins, inv_sd, inv_sth):
     """Columns c+1 … t-1 of filters restarting from the central estimates x̂_{c|c} (``Estimators._step_recent``'s
     restart loop) in one compiled call: (X, P) at column t-1, one row per filter.
@@ -336,14 +373,6 @@ def restart_chains(Lr, c_r, t, ud_ring, W, sources_known, geometries, zs, lins, 
     depends on the others of a batched call, so running them one by one gives the loop's numbers."""
     c_r = np.asarray(c_r, dtype=np.int64)
     k0 = int(c_r.min()) + 1
-    off = np.zeros(len(geometries) + 1, dtype=np.int64)
-    np.cumsum([geo.m for geo in geometries], out=off[1:])
-    slot_of_col = np.full(len(geometries), -1, dtype=np.int64)
-    firsts = sorted(lins)
-    slot_of_col[np.asarray(firsts, dtype=np.int64) - k0] = np.arange(len(firsts))
-    priors = [lins[k] for k in firsts]
-    lin_off = np.zeros(len(firsts) + 1, dtype=np.int64)
-    np.cumsum([len(A) for _, _, A in priors], out=lin_off[1:])
     return _restart_chains(
         kernel_array(Lr),
         c_r,
@@ -352,15 +381,118 @@ def restart_chains(Lr, c_r, t, ud_ring, W, sources_known, geometries, zs, lins, 
         ud_ring,
         int(W),
         bool(sources_known),
-        np.concatenate([geo.a for geo in geometries]),
-        np.concatenate([geo.b for geo in geometries]),
-        kernel_array(np.concatenate(zs)),
-        off,
-        slot_of_col,
-        np.array([X for X, _, _ in priors]),
-        np.array([Y for _, Y, _ in priors]),
-        np.concatenate([A for _, _, A in priors]),
-        lin_off,
+        *_chain_inputs(geometries, zs, lins, k0, ud_ring.shape[1] * 3),
+        float(inv_sd),
+        float(inv_sth),
+    )
+
+
+@njit(cache=True)
+def _recent_column(
+    Lx,
+    c_r,
+    src_e,
+    t,
+    k0,
+    X_prev,
+    P_prev,
+    cX,
+    cP,
+    ud_ring,
+    W,
+    sources_known,
+    a_cat,
+    b_cat,
+    z_cat,
+    off,
+    slot_of_col,
+    lin_X,
+    lin_Y,
+    lin_A,
+    lin_off,
+    inv_sd,
+    inv_sth,
+):
+    F, n = Lx.shape
+    nr, ne = len(c_r), len(src_e)
+    G = 1 + nr + ne  # the filters with a prior of column t of their own; the other F - G share the central one
+    n3 = 3 * n
+    Xs = np.empty((G, n3))
+    Ps = np.empty((G, n3, n3))
+    Xs[0] = cX
+    Ps[0] = cP
+    if nr > 0:  # columns c+1 … t-1 of the restarting filters
+        Xc, Pc = _restart_chains(
+            Lx[1 : 1 + nr],
+            c_r,
+            t,
+            k0,
+            ud_ring,
+            W,
+            sources_known,
+            a_cat,
+            b_cat,
+            z_cat,
+            off,
+            slot_of_col,
+            lin_X,
+            lin_Y,
+            lin_A,
+            lin_off,
+            inv_sd,
+            inv_sth,
+        )
+        Xs[1 : 1 + nr] = Xc
+        Ps[1 : 1 + nr] = Pc
+    for q in range(ne):  # the extended filters: their previous causal estimate
+        Xs[1 + nr + q] = X_prev[src_e[q]]
+        Ps[1 + nr + q] = P_prev[src_e[q]]
+    ud = np.empty((G, n, 4))
+    for g in range(G):  # each own prior's last available odometry of step t-1 (the central row: everyone's)
+        for i in range(n):
+            src = min(Lx[g, i], t - 1)
+            slot = src % W if sources_known or src >= 0 else W  # the standstill slot: no odometry yet
+            for q in range(4):
+                ud[g, i, q] = ud_ring[slot, i, q]
+    j = t - k0
+    lo, hi = off[j], off[j + 1]
+    a, b, z = a_cat[lo:hi].copy(), b_cat[lo:hi].copy(), z_cat[lo:hi].copy()
+    hold = np.empty((F, 2 * (hi - lo)), dtype=np.bool_)
+    for g in range(F):  # a filter holds the rows of column t of the packets it holds (``obs_of_row``)
+        for r in range(2 * (hi - lo)):
+            hold[g, r] = Lx[g, a[r >> 1]] >= t
+    prior = np.zeros(F, dtype=np.int64)
+    for g in range(G):
+        prior[g] = g
+    return _column(Xs, Ps, ud, a, b, z, inv_sd, inv_sth, hold, prior)
+
+
+def recent_column(
+    Lx, c_r, src_e, t, X_prev, P_prev, central, ud_ring, W, sources_known, geometries, zs, lins, inv_sd, inv_sth
+):
+    """``Estimators._step_recent``'s column t in one compiled call: ``column``'s (X⁻, Y⁻, A, X, P) of the filters of
+    ``Lx`` (F, N): the central chain (row 0, prior ``central`` = x̂_{t-1|t-1}), the filters restarting from
+    x̂_{c|c}, c = ``c_r`` ≤ t-2 (their columns c+1 … t-1 as ``restart_chains`` runs them), those extending their
+    previous estimate ``X_prev[src_e]``, ``P_prev[src_e]``, then those restarting at t-1 (the central prior).
+    ``geometries``/``zs``: columns k0 … t (k0 = min(c_r)+1, or t without restarts); ``lins`` as ``restart_chains``'s.
+    The loop's very kernel calls on the same inputs, so the loop's numbers (``tests/test_asynccl_fastpath.py``)."""
+    c_r = np.array(c_r, dtype=np.int64)
+    k0 = t - len(geometries) + 1
+    cX, cP = central
+    return _recent_column(
+        Lx,
+        c_r,
+        np.array(src_e, dtype=np.int64),
+        int(t),
+        k0,
+        X_prev,
+        P_prev,
+        kernel_array(cX),
+        kernel_array(cP),
+        ud_ring,
+        int(W),
+        bool(sources_known),
+        *_chain_inputs(geometries, zs, lins, k0, Lx.shape[1] * 3),
         float(inv_sd),
         float(inv_sth),
     )

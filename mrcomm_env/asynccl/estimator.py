@@ -21,8 +21,8 @@ holds. Which packets a filter holds is read from the robot's information table.
   unless memory ran out), ``_step_recent`` runs the step as a fixed sequence of batched calls: the central
   prior of column t is shared by every robot with c = t-1, a restart from an older x̂_{c|c} starts from the
   central chain's kept prior of column c+1 (``lin``: its state, information and whitened measurement rows),
-  and each update is one Gram product over the rows a filter holds (on the compiled backend the restarting
-  filters' columns are one call, ``ekf_numba.restart_chains``). ``_step_general`` (through
+  and each update is one Gram product over the rows a filter holds (on the compiled backend the whole step,
+  the restarting filters' columns included, is one call, ``ekf_numba.recent_column``). ``_step_general`` (through
   ``_advance``) handles every other case; both run the same column steps.
 * **Bounded memory.** When the shared packet ring drops a column that some robot never completed, that
   robot adopts its causal estimate of the column as its new checkpoint (no longer centralized-exact).
@@ -277,6 +277,29 @@ class Estimators:
             for r in robots:
                 res_of[r] = g
         Lx = np.array([(t,) * n] + [held[r[0]] for r in order], dtype=np.int64)  # holdings of each filter
+        recent = getattr(self.k, "recent_column", None)
+        if recent is not None:  # compiled: the calls below in one (``ekf_numba.recent_column``)
+            k0 = min(c_r) + 1 if rows_r else t
+            packets = self.packets
+            Xp, Yp, JA, Xn, Pn = recent(
+                Lx,
+                c_r,
+                src_e,
+                t,
+                self.X,
+                self.P,
+                self.central[t - 1],
+                self.ud_ring,
+                W,
+                self._sources_known,
+                [self._geometry(packets[k]) for k in range(k0, t + 1)],
+                [packets[k].z for k in range(k0, t + 1)],
+                {c + 1: lin[(c + 1, ("C", c), b"")] for c in set(c_r)},
+                self._inv_sd,
+                self._inv_sth,
+            )
+            lin[(t, ("C", t - 1), b"")] = (Xp[0], Yp[0], JA[0])
+            return Xn, Pn, res_of
         ar = self._ar
         cX, cP = self.central[t - 1]
         Xs, Ps = [cX[None]], [cP[None]]
