@@ -192,6 +192,83 @@ def test_inverse_falls_back_when_not_positive_definite():
     assert_close_conditioned(ekf_numba.inv(A)[0], np.diag([1.0, -0.5, 1.0 / 3.0]), solve_tolerance(A, 1.0))
 
 
+def _cholesky_inverse_one_sum_at_a_time(Y: np.ndarray) -> np.ndarray:
+    """Y⁻¹ = L⁻ᵀ L⁻¹ as three plain loops in Python floats, every sum on its own, terms in ascending k: the
+    arithmetic ``ekf_numba._inv_spd_into`` promises, whatever its loops interleave."""
+    n = len(Y)
+    L = [[0.0] * n for _ in range(n)]
+    for j in range(n):
+        s = float(Y[j, j])
+        for k in range(j):
+            s -= L[j][k] * L[j][k]
+        d = math.sqrt(s)
+        L[j][j] = d
+        for i in range(j + 1, n):
+            s = float(Y[i, j])
+            for k in range(j):
+                s -= L[i][k] * L[j][k]
+            L[i][j] = s / d
+    inv = [[0.0] * n for _ in range(n)]  # (L⁻¹)[i][j], i ≥ j
+    for i in range(n):
+        inv_d = 1.0 / L[i][i]
+        for j in range(i):
+            s = 0.0
+            for k in range(j, i):
+                s -= L[i][k] * (inv[k][j] if k > j else 1.0 / L[j][j])
+            inv[i][j] = s * inv_d
+        inv[i][i] = inv_d
+    out = np.empty((n, n))
+    for i in range(n):
+        for j in range(i + 1):
+            s = 0.0
+            for k in range(i, n):
+                s += inv[k][i] * inv[k][j]
+            out[i, j] = out[j, i] = s
+    return out
+
+
+@pytest.mark.parametrize("n", [1, 3, 4, 5, 7, 8, 12, 15, 17])
+def test_compiled_inverse_keeps_the_bits_of_one_sum_at_a_time(n):
+    """The compiled inverse runs four sums at once; each entry must still be the sequential loop's, bit for bit,
+    for sizes on and off its groups of four (3N = 15 is N = 5 robots), over six decades of scale per column."""
+    rng = np.random.default_rng(n)
+    for _ in range(20):
+        A = rng.standard_normal((n, n)) * np.exp(rng.uniform(-7.0, 7.0, n))[None, :]
+        Y = A @ A.T + 1e-9 * np.eye(n)
+        got = ekf_numba.inv(Y[None])[0]
+        assert got.tobytes() == _cholesky_inverse_one_sum_at_a_time(Y).tobytes()
+
+
+@pytest.mark.parametrize("n", [2, 5, 8])
+def test_compiled_update_keeps_the_bits_of_one_sum_at_a_time(n):
+    """The compiled update's x = x⁻ + P b runs four entries' sums at once; each entry must still be the sequential
+    sum in Python floats over the update's own P, b accumulated row by row as the kernel promises, then wrapped."""
+    rng = np.random.default_rng(n)
+    G = 3
+    geo, X, z = _problem(rng, n, G, False)
+    Yp = ekf.inv(_spd(rng, G, 3 * n))
+    A = ekf.information(X, geo, z, 1.0 / SD, 1.0 / STH)
+    hold = rng.random((G, 2 * geo.m)) < 0.7
+    Xn, Pn = ekf_numba.update(X, Yp, A, hold, None, geo)
+    n3 = 3 * n
+    for g in range(G):
+        bvec = [0.0] * n3
+        for r in np.flatnonzero(hold[g]).tolist():
+            j = r >> 1
+            ia, ib = 3 * int(geo.a[j]), 3 * int(geo.b[j])
+            cols = [ib, ib + 1, ia, ia + 1, ia + 2][: 5 if r & 1 else 4]
+            for c in cols:
+                bvec[c] += float(A[g, r, c]) * float(A[g, r, n3])
+        for i in range(n3):
+            s = 0.0
+            for c in range(n3):
+                s += float(Pn[g, i, c]) * bvec[c]
+            x = float(X[g, i]) + s
+            if i % 3 == 2:
+                x = (x + math.pi) % (2.0 * math.pi) - math.pi
+            assert np.float64(x).tobytes() == Xn[g, i].tobytes(), (g, i)
+
+
 def _episode(seed, kw, compiled, monkeypatch, log=None, ulp=False):
     """A seeded episode on one backend; ``log`` (a ``ConditionLog``) records κ of what its kernels invert, ``ulp``
     moves the prior mean by one ulp (to measure how sensitive the problem itself is)."""

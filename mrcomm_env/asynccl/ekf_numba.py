@@ -13,7 +13,10 @@ because at these sizes (3N = 15) the cost of numpy is its per-call overhead, not
   part of the prior information (what ``ekf.update`` sees to first order through its symmetrised result);
 * the inverse of the (symmetric positive definite) information matrix goes through its Cholesky factor,
   P = L⁻ᵀ L⁻¹, which is about four times cheaper than the LU inverse and exactly symmetric. A matrix that
-  is not numerically positive definite falls back to the LU inverse.
+  is not numerically positive definite falls back to the LU inverse;
+* independent sums (of the inverse, and of x = x⁻ + P b) run four at a time, each with its own terms in its own
+  order, so each keeps its bits: at 3N = 15 a running sum's wait for its previous term set the pace, not the
+  arithmetic (``tests/test_asynccl_backends.py`` pins both to a one-sum-at-a-time loop in Python floats).
 
 ``restart_chains`` has no numpy twin: it is ``Estimators._restart_chains``'s loop (the numpy backend runs the loop)
 in one call, the same kernel calls filter by filter. ``recent_column`` goes one step further: the rest of
@@ -44,42 +47,128 @@ def _inv_spd_into(Y, out, L):
 
     ``L`` (n, n) is scratch: its lower triangle receives L, its upper triangle U = (L⁻¹)ᵀ, so that every inner
     loop runs along a row.
+
+    Each entry is one running sum, and a sum waits for its previous term: at 3N = 15 the three phases were bound
+    by that latency, not by the arithmetic. So each phase runs four independent sums at once (four rows of L, four
+    entries of a row of L⁻¹, four entries of Y⁻¹), each with its own terms in its own order (k ascending), which
+    gives every entry the bits of the one-sum-at-a-time loop (``tests/test_asynccl_backends.py`` compares them)
+    in about two thirds of its time at 3N = 15 and half of it at 3N = 60 (a throwaway timing).
     """
+    if not _cholesky_into(Y, L):  # not numerically positive definite: LU inverse, symmetrised like ``ekf.update``
+        n = Y.shape[0]
+        P = np.linalg.inv(Y)
+        for r in range(n):
+            for c in range(n):
+                out[r, c] = 0.5 * (P[r, c] + P[c, r])
+        return
+    _invert_factor(L)
+    _gram_into(L, out)
+
+
+@njit(cache=True)
+def _cholesky_into(Y, L):
+    """The lower triangle of ``L`` = the Cholesky factor of ``Y``; False (``L`` unfinished) when a pivot is not
+    positive."""
     n = Y.shape[0]
     for j in range(n):
         s = Y[j, j]
         for k in range(j):
             s -= L[j, k] * L[j, k]
-        if not s > 0.0:  # not numerically positive definite: LU inverse, symmetrised like ``ekf.update``
-            P = np.linalg.inv(Y)
-            for r in range(n):
-                for c in range(n):
-                    out[r, c] = 0.5 * (P[r, c] + P[c, r])
-            return
+        if not s > 0.0:
+            return False
         d = math.sqrt(s)
         L[j, j] = d
-        for i in range(j + 1, n):
+        # L[i, j] = (Y[i, j] − Σ_{k<j} L[i, k] L[j, k]) / L[j, j], rows i > j four at a time
+        i = j + 1
+        while i + 3 < n:
+            s0, s1, s2, s3 = Y[i, j], Y[i + 1, j], Y[i + 2, j], Y[i + 3, j]
+            for k in range(j):
+                ljk = L[j, k]
+                s0 -= L[i, k] * ljk
+                s1 -= L[i + 1, k] * ljk
+                s2 -= L[i + 2, k] * ljk
+                s3 -= L[i + 3, k] * ljk
+            L[i, j] = s0 / d
+            L[i + 1, j] = s1 / d
+            L[i + 2, j] = s2 / d
+            L[i + 3, j] = s3 / d
+            i += 4
+        while i < n:
             s = Y[i, j]
             for k in range(j):
                 s -= L[i, k] * L[j, k]
             L[i, j] = s / d
-    # U[j, i] = (L⁻¹)[i, j] for i ≥ j, row by row of L⁻¹: (L⁻¹)[i, j] = −Σ_{j≤k<i} L[i, k] (L⁻¹)[k, j] / L[i, i]
+            i += 1
+    return True
+
+
+@njit(cache=True)
+def _invert_factor(L):
+    """U[j, i] = (L⁻¹)[i, j] for i ≥ j into the upper triangle of ``L`` (its diagonal: 1 / L[i, i]), row by row of
+    L⁻¹: (L⁻¹)[i, j] = −Σ_{j≤k<i} L[i, k] (L⁻¹)[k, j] / L[i, i]. The sums of entries j … j+3 start at k = j … j+3,
+    so their first terms come one by one, then the terms k ≥ j+3 of all four together."""
+    n = L.shape[0]
     for i in range(n):
         inv_d = 1.0 / L[i, i]
-        for j in range(i):
+        j = 0
+        while j + 3 < i:
+            lik = L[i, j]
+            s0 = 0.0 - lik * L[j, j]
+            lik = L[i, j + 1]
+            s0 -= lik * L[j, j + 1]
+            s1 = 0.0 - lik * L[j + 1, j + 1]
+            lik = L[i, j + 2]
+            s0 -= lik * L[j, j + 2]
+            s1 -= lik * L[j + 1, j + 2]
+            s2 = 0.0 - lik * L[j + 2, j + 2]
+            s3 = 0.0
+            for k in range(j + 3, i):
+                lik = L[i, k]
+                s0 -= lik * L[j, k]
+                s1 -= lik * L[j + 1, k]
+                s2 -= lik * L[j + 2, k]
+                s3 -= lik * L[j + 3, k]
+            L[j, i] = s0 * inv_d
+            L[j + 1, i] = s1 * inv_d
+            L[j + 2, i] = s2 * inv_d
+            L[j + 3, i] = s3 * inv_d
+            j += 4
+        while j < i:
             s = 0.0
             for k in range(j, i):
                 s -= L[i, k] * L[j, k]
             L[j, i] = s * inv_d
+            j += 1
         L[i, i] = inv_d
-    # out[i, j] = Σ_{k ≥ max(i, j)} (L⁻¹)[k, i] (L⁻¹)[k, j] = Σ_k U[i, k] U[j, k]
+
+
+@njit(cache=True)
+def _gram_into(L, out):
+    """out[i, j] = Σ_{k ≥ max(i, j)} (L⁻¹)[k, i] (L⁻¹)[k, j] = Σ_k U[i, k] U[j, k] (``_invert_factor``'s U), entries
+    j ≤ i four at a time."""
+    n = L.shape[0]
     for i in range(n):
-        for j in range(i + 1):
+        j = 0
+        while j + 3 <= i:
+            s0 = s1 = s2 = s3 = 0.0
+            for k in range(i, n):
+                uik = L[i, k]
+                s0 += uik * L[j, k]
+                s1 += uik * L[j + 1, k]
+                s2 += uik * L[j + 2, k]
+                s3 += uik * L[j + 3, k]
+            out[i, j] = out[j, i] = s0
+            out[i, j + 1] = out[j + 1, i] = s1
+            out[i, j + 2] = out[j + 2, i] = s2
+            out[i, j + 3] = out[j + 3, i] = s3
+            j += 4
+        while j <= i:
             s = 0.0
             for k in range(i, n):
                 s += L[i, k] * L[j, k]
             out[i, j] = s
             out[j, i] = s
+            j += 1
 
 
 @njit(cache=True)
@@ -211,11 +300,26 @@ def _update(Xp, Yp, A, hold, prior, a, b):
                 for y in range(k):
                     Y[cx, cols[y]] += hx * row[cols[y]]
         _inv_spd_into(Y, Pn[g], L)
-        for i in range(n3):
+        i = 0
+        while i + 3 < n3:  # x = x⁻ + P b, four independent sums at once (each in its own order: ``_inv_spd_into``)
+            s0 = s1 = s2 = s3 = 0.0
+            for j in range(n3):
+                bj = bvec[j]
+                s0 += Pn[g, i, j] * bj
+                s1 += Pn[g, i + 1, j] * bj
+                s2 += Pn[g, i + 2, j] * bj
+                s3 += Pn[g, i + 3, j] * bj
+            Xn[g, i] = Xp[p, i] + s0
+            Xn[g, i + 1] = Xp[p, i + 1] + s1
+            Xn[g, i + 2] = Xp[p, i + 2] + s2
+            Xn[g, i + 3] = Xp[p, i + 3] + s3
+            i += 4
+        while i < n3:
             s = 0.0
             for j in range(n3):
                 s += Pn[g, i, j] * bvec[j]
             Xn[g, i] = Xp[p, i] + s
+            i += 1
         for i in range(2, n3, 3):  # wrap the headings into (-π, π]
             Xn[g, i] = (Xn[g, i] + math.pi) % TWO_PI - math.pi
     return Xn, Pn
