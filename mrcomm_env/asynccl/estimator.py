@@ -258,7 +258,12 @@ class Estimators:
             if ci >= t:
                 continue
             held[robots[0]] = Lrow
-            rb = next((r for r in robots if valid[r]), None) if ci < t - 1 else None
+            rb = None
+            if ci < t - 1:  # the first of its robots whose previous estimate is still valid
+                for r in robots:
+                    if valid[r]:
+                        rb = r
+                        break
             if rb is not None:
                 rows_e.append(robots)
                 src_e.append(rb)
@@ -398,9 +403,12 @@ class Estimators:
         valid = [False] * n
         if self._cache_step == t - 1 and min(cl) < t - 1:
             ex = None if exact_all else self.exact.tolist()
+            before = None  # holdings ≤ t-1 (what was known at t-1), computed once if some robot needs them
             for i in range(n):
                 if cl[i] < t - 1 and cl[i] == self._cache_c[i] and (ex is None or ex[i] == self._cache_exact[i]):
-                    valid[i] = [min(x, t - 1) for x in Ll[i]] == self._cache_L[i]
+                    if before is None:
+                        before = np.minimum(L, t - 1).tolist()
+                    valid[i] = before[i] == self._cache_L[i]
         ident = [-1] * n if exact_all else np.where(self.exact, -1, np.arange(n)).tolist()
         groups: dict = {}
         for i in range(n):
