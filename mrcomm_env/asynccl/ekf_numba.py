@@ -186,64 +186,77 @@ def _inv(A):
 def _propagate(X, P, ud):
     """``ekf.propagate``: x⁺ = f(x, u) and P⁺ = F P Fᵀ + Γ Q Γᵀ (eq. (1)); ud = [v dt, σ_v dt, σ_ω dt, ω dt]."""
     G, n3 = X.shape
-    n = n3 // 3
-    Xn = X.copy()
+    Xn = np.empty((G, n3))
     Pn = np.empty((G, n3, n3))
-    fx = np.empty(n)
-    fy = np.empty(n)
+    fx = np.empty(n3 // 3)
+    fy = np.empty(n3 // 3)
     for g in range(G):
-        T = Pn[g]
-        T[:, :] = P[g]
-        for i in range(n):
-            phi = X[g, 3 * i + 2]
-            c, s = math.cos(phi), math.sin(phi)
-            vdt = ud[g, i, 0]
-            fx[i], fy[i] = -vdt * s, vdt * c  # ∂x/∂φ, ∂y/∂φ
-            Xn[g, 3 * i] += vdt * c
-            Xn[g, 3 * i + 1] += vdt * s
-            Xn[g, 3 * i + 2] += ud[g, i, 3]
-        for i in range(n):  # F P: rows x_i, y_i gain ∂/∂φ times row φ_i (which E leaves as it is)
-            for j in range(n3):
-                T[3 * i, j] += fx[i] * P[g, 3 * i + 2, j]
-                T[3 * i + 1, j] += fy[i] * P[g, 3 * i + 2, j]
-        for i in range(n):  # (F P) Fᵀ: the same on the columns
-            for j in range(n3):
-                T[j, 3 * i] += fx[i] * T[j, 3 * i + 2]
-                T[j, 3 * i + 1] += fy[i] * T[j, 3 * i + 2]
-        for i in range(n):  # Γ Q Γᵀ: σ_v² dt² (c, s)(c, s)ᵀ on (x_i, y_i), σ_ω² dt² on φ_i
-            phi = X[g, 3 * i + 2]
-            gx, gy = ud[g, i, 1] * math.cos(phi), ud[g, i, 1] * math.sin(phi)
-            T[3 * i, 3 * i] += gx * gx
-            T[3 * i, 3 * i + 1] += gx * gy
-            T[3 * i + 1, 3 * i] += gx * gy
-            T[3 * i + 1, 3 * i + 1] += gy * gy
-            T[3 * i + 2, 3 * i + 2] += ud[g, i, 2] * ud[g, i, 2]
+        _propagate_one(X[g], P[g], ud[g], Xn[g], Pn[g], fx, fy)
     return Xn, Pn
+
+
+@njit(cache=True)
+def _propagate_one(x, P, ud, xn, T, fx, fy):
+    """One filter of ``_propagate`` into ``xn`` (3N,) and ``T`` (3N, 3N); ``fx``, ``fy`` (N,) are scratch."""
+    n3 = x.shape[0]
+    n = n3 // 3
+    T[:, :] = P
+    xn[:] = x
+    for i in range(n):
+        phi = x[3 * i + 2]
+        c, s = math.cos(phi), math.sin(phi)
+        vdt = ud[i, 0]
+        fx[i], fy[i] = -vdt * s, vdt * c  # ∂x/∂φ, ∂y/∂φ
+        xn[3 * i] += vdt * c
+        xn[3 * i + 1] += vdt * s
+        xn[3 * i + 2] += ud[i, 3]
+    for i in range(n):  # F P: rows x_i, y_i gain ∂/∂φ times row φ_i (which E leaves as it is)
+        for j in range(n3):
+            T[3 * i, j] += fx[i] * P[3 * i + 2, j]
+            T[3 * i + 1, j] += fy[i] * P[3 * i + 2, j]
+    for i in range(n):  # (F P) Fᵀ: the same on the columns
+        for j in range(n3):
+            T[j, 3 * i] += fx[i] * T[j, 3 * i + 2]
+            T[j, 3 * i + 1] += fy[i] * T[j, 3 * i + 2]
+    for i in range(n):  # Γ Q Γᵀ: σ_v² dt² (c, s)(c, s)ᵀ on (x_i, y_i), σ_ω² dt² on φ_i
+        phi = x[3 * i + 2]
+        gx, gy = ud[i, 1] * math.cos(phi), ud[i, 1] * math.sin(phi)
+        T[3 * i, 3 * i] += gx * gx
+        T[3 * i, 3 * i + 1] += gx * gy
+        T[3 * i + 1, 3 * i] += gx * gy
+        T[3 * i + 1, 3 * i + 1] += gy * gy
+        T[3 * i + 2, 3 * i + 2] += ud[i, 2] * ud[i, 2]
 
 
 @njit(cache=True)
 def _information(X, a, b, z, inv_sd, inv_sth):
     G, n3 = X.shape
-    m = len(a)
-    A = np.zeros((G, 2 * m, n3 + 1))
+    A = np.zeros((G, 2 * len(a), n3 + 1))
     for g in range(G):
-        for j in range(m):
-            ia, ib = 3 * a[j], 3 * b[j]
-            dx, dy = X[g, ib] - X[g, ia], X[g, ib + 1] - X[g, ia + 1]
-            d = max(math.hypot(dx, dy), MIN_DISTANCE)
-            sr = inv_sd / z[j, 0]  # √w of the range row, 1/(σ_d z_d)
-            f = sr / d
-            u0, u1 = dx * f, dy * f
-            f = inv_sth / (d * d)
-            p0, p1 = dy * f, dx * f
-            r = A[g, 2 * j]  # range row: ∓(Δx, Δy)/d at a / b, times 1/(σ_d z_d)
-            r[ia], r[ia + 1], r[ib], r[ib + 1] = -u0, -u1, u0, u1
-            r[n3] = inv_sd - d * sr
-            r = A[g, 2 * j + 1]  # bearing row: (Δy, −Δx)/d², −1 at a and (−Δy, Δx)/d² at b, times 1/σ_θ
-            r[ia], r[ia + 1], r[ia + 2], r[ib], r[ib + 1] = p0, -p1, -inv_sth, -p0, p1
-            br = ((X[g, ia + 2] - math.atan2(dy, dx)) + (z[j, 1] + math.pi)) % TWO_PI - math.pi
-            r[n3] = br * inv_sth
+        _information_one(X[g], a, b, z, inv_sd, inv_sth, A[g])
     return A
+
+
+@njit(cache=True)
+def _information_one(x, a, b, z, inv_sd, inv_sth, A):
+    """One filter of ``_information``: its rows' non-zero entries into ``A`` (2m, 3N+1), whose others must be 0."""
+    n3 = x.shape[0]
+    for j in range(len(a)):
+        ia, ib = 3 * a[j], 3 * b[j]
+        dx, dy = x[ib] - x[ia], x[ib + 1] - x[ia + 1]
+        d = max(math.hypot(dx, dy), MIN_DISTANCE)
+        sr = inv_sd / z[j, 0]  # √w of the range row, 1/(σ_d z_d)
+        f = sr / d
+        u0, u1 = dx * f, dy * f
+        f = inv_sth / (d * d)
+        p0, p1 = dy * f, dx * f
+        r = A[2 * j]  # range row: ∓(Δx, Δy)/d at a / b, times 1/(σ_d z_d)
+        r[ia], r[ia + 1], r[ib], r[ib + 1] = -u0, -u1, u0, u1
+        r[n3] = inv_sd - d * sr
+        r = A[2 * j + 1]  # bearing row: (Δy, −Δx)/d², −1 at a and (−Δy, Δx)/d² at b, times 1/σ_θ
+        r[ia], r[ia + 1], r[ia + 2], r[ib], r[ib + 1] = p0, -p1, -inv_sth, -p0, p1
+        br = ((x[ia + 2] - math.atan2(dy, dx)) + (z[j, 1] + math.pi)) % TWO_PI - math.pi
+        r[n3] = br * inv_sth
 
 
 def inv(A):
@@ -263,7 +276,7 @@ def information(X, geo, z, inv_sd, inv_sth):
 
 @njit(cache=True)
 def _update(Xp, Yp, A, hold, prior, a, b):
-    G, m2 = hold.shape
+    G = hold.shape[0]
     n3 = Xp.shape[1]
     Xn = np.empty((G, n3))
     Pn = np.empty((G, n3, n3))
@@ -273,56 +286,64 @@ def _update(Xp, Yp, A, hold, prior, a, b):
     cols = np.empty(5, dtype=np.int64)
     for g in range(G):
         p = prior[g]
-        # Y starts from the symmetric part of Y⁻: the Cholesky factorisation below reads only the lower triangle,
-        # while ``ekf.update``'s LU inverse sees the whole matrix and symmetrises its result, which removes the
-        # antisymmetric part of Y⁻ to first order. An LU inverse Y⁻ = P⁻⁻¹ (``ekf.inv``) is asymmetric by up to
-        # ε·κ(P⁻)·‖Y⁻‖; read from one triangle only, that changed P = Y⁻¹ by a relative κ(Y)·ε·κ(P⁻), up to O(1)
-        # at the κ of near-noiseless sensing. A Y⁻ of this module (``inv``) is exactly symmetric: nothing changes.
-        for i in range(n3):
-            for j in range(i + 1):
-                s = 0.5 * (Yp[p, i, j] + Yp[p, j, i])
-                Y[i, j] = s
-                Y[j, i] = s
-        bvec[:] = 0.0
-        for r in range(m2):
-            if not hold[g, r]:
-                continue
-            # the row's non-zero columns: x, y (and φ for a bearing row) of the observer, x, y of the target
-            j = r >> 1
-            cols[0], cols[1], cols[2], cols[3], cols[4] = 3 * b[j], 3 * b[j] + 1, 3 * a[j], 3 * a[j] + 1, 3 * a[j] + 2
-            k = 5 if r & 1 else 4
-            row = A[p, r]
-            res = row[n3]
-            for x in range(k):
-                cx = cols[x]
-                hx = row[cx]
-                bvec[cx] += hx * res
-                for y in range(k):
-                    Y[cx, cols[y]] += hx * row[cols[y]]
-        _inv_spd_into(Y, Pn[g], L)
-        i = 0
-        while i + 3 < n3:  # x = x⁻ + P b, four independent sums at once (each in its own order: ``_inv_spd_into``)
-            s0 = s1 = s2 = s3 = 0.0
-            for j in range(n3):
-                bj = bvec[j]
-                s0 += Pn[g, i, j] * bj
-                s1 += Pn[g, i + 1, j] * bj
-                s2 += Pn[g, i + 2, j] * bj
-                s3 += Pn[g, i + 3, j] * bj
-            Xn[g, i] = Xp[p, i] + s0
-            Xn[g, i + 1] = Xp[p, i + 1] + s1
-            Xn[g, i + 2] = Xp[p, i + 2] + s2
-            Xn[g, i + 3] = Xp[p, i + 3] + s3
-            i += 4
-        while i < n3:
-            s = 0.0
-            for j in range(n3):
-                s += Pn[g, i, j] * bvec[j]
-            Xn[g, i] = Xp[p, i] + s
-            i += 1
-        for i in range(2, n3, 3):  # wrap the headings into (-π, π]
-            Xn[g, i] = (Xn[g, i] + math.pi) % TWO_PI - math.pi
+        _update_one(Xp[p], Yp[p], A[p], hold[g], a, b, Xn[g], Pn[g], Y, L, bvec, cols)
     return Xn, Pn
+
+
+@njit(cache=True)
+def _update_one(xp, Yp, A, hold, a, b, xn, Pn, Y, L, bvec, cols):
+    """One filter of ``_update`` into ``xn`` (3N,) and ``Pn`` (3N, 3N): prior ``xp``, ``Yp``, rows ``A`` (2m, 3N+1) of
+    which it holds those of ``hold`` (2m,); ``Y``, ``L`` (3N, 3N), ``bvec`` (3N,), ``cols`` (5,) are scratch."""
+    n3 = xp.shape[0]
+    # Y starts from the symmetric part of Y⁻: the Cholesky factorisation below reads only the lower triangle,
+    # while ``ekf.update``'s LU inverse sees the whole matrix and symmetrises its result, which removes the
+    # antisymmetric part of Y⁻ to first order. An LU inverse Y⁻ = P⁻⁻¹ (``ekf.inv``) is asymmetric by up to
+    # ε·κ(P⁻)·‖Y⁻‖; read from one triangle only, that changed P = Y⁻¹ by a relative κ(Y)·ε·κ(P⁻), up to O(1)
+    # at the κ of near-noiseless sensing. A Y⁻ of this module (``inv``) is exactly symmetric: nothing changes.
+    for i in range(n3):
+        for j in range(i + 1):
+            s = 0.5 * (Yp[i, j] + Yp[j, i])
+            Y[i, j] = s
+            Y[j, i] = s
+    bvec[:] = 0.0
+    for r in range(hold.shape[0]):
+        if not hold[r]:
+            continue
+        # the row's non-zero columns: x, y (and φ for a bearing row) of the observer, x, y of the target
+        j = r >> 1
+        cols[0], cols[1], cols[2], cols[3], cols[4] = 3 * b[j], 3 * b[j] + 1, 3 * a[j], 3 * a[j] + 1, 3 * a[j] + 2
+        k = 5 if r & 1 else 4
+        row = A[r]
+        res = row[n3]
+        for x in range(k):
+            cx = cols[x]
+            hx = row[cx]
+            bvec[cx] += hx * res
+            for y in range(k):
+                Y[cx, cols[y]] += hx * row[cols[y]]
+    _inv_spd_into(Y, Pn, L)
+    i = 0
+    while i + 3 < n3:  # x = x⁻ + P b, four independent sums at once (each in its own order: ``_inv_spd_into``)
+        s0 = s1 = s2 = s3 = 0.0
+        for j in range(n3):
+            bj = bvec[j]
+            s0 += Pn[i, j] * bj
+            s1 += Pn[i + 1, j] * bj
+            s2 += Pn[i + 2, j] * bj
+            s3 += Pn[i + 3, j] * bj
+        xn[i] = xp[i] + s0
+        xn[i + 1] = xp[i + 1] + s1
+        xn[i + 2] = xp[i + 2] + s2
+        xn[i + 3] = xp[i + 3] + s3
+        i += 4
+    while i < n3:
+        s = 0.0
+        for j in range(n3):
+            s += Pn[i, j] * bvec[j]
+        xn[i] = xp[i] + s
+        i += 1
+    for i in range(2, n3, 3):  # wrap the headings into (-π, π]
+        xn[i] = (xn[i] + math.pi) % TWO_PI - math.pi
 
 
 _FIRST = np.zeros(256, dtype=np.int64)  # prior indices "all the first prior" and "each its own", sliced per call
@@ -400,36 +421,51 @@ def _restart_chains(
     n3 = 3 * n
     X_out = np.empty((G, n3))
     P_out = np.empty((G, n3, n3))
-    prior = np.zeros(1, dtype=np.int64)  # one filter, its own prior
+    m_max = 0
+    for j in range(len(off) - 1):
+        m_max = max(m_max, off[j + 1] - off[j])
+    # one filter at a time through the one-filter kernels, on buffers allocated once: its estimate (x, P), its
+    # prior of the next column (xp, Pp, Yp) and that column's rows (A), and the kernels' scratch
+    x, xp, bvec = np.empty(n3), np.empty(n3), np.empty(n3)
+    P, Pp, Yp, Y = np.empty((n3, n3)), np.empty((n3, n3)), np.empty((n3, n3)), np.empty((n3, n3))
+    L = np.zeros((n3, n3))
+    A = np.empty((2 * m_max, n3 + 1))
+    hold = np.empty(2 * m_max, dtype=np.bool_)
+    ud = np.empty((n, 4))
+    fx, fy = np.empty(n), np.empty(n)
+    cols = np.empty(5, dtype=np.int64)
     for g in range(G):
         k = c_r[g] + 1
         j = k - k0
         s = slot_of_col[j]
         lo, hi = off[j], off[j + 1]
-        a, b = a_cat[lo:hi].copy(), b_cat[lo:hi].copy()
-        hold = np.empty((1, 2 * (hi - lo)), dtype=np.bool_)
+        a, b = a_cat[lo:hi], b_cat[lo:hi]
+        held = hold[: 2 * (hi - lo)]
         for r in range(2 * (hi - lo)):  # a filter holds a row iff it holds its observer's packet (``obs_of_row``)
-            hold[0, r] = Lr[g, a[r >> 1]] >= k
-        Xp = lin_X[s : s + 1].copy()
-        Yp = lin_Y[s : s + 1].copy()
-        A = lin_A[lin_off[s] : lin_off[s + 1]].copy().reshape((1, lin_off[s + 1] - lin_off[s], n3 + 1))
-        X, P = _update(Xp, Yp, A, hold, prior, a, b)  # column c+1: the central chain's prior, the rows it holds
+            held[r] = Lr[g, a[r >> 1]] >= k
+        # column c+1: the central chain's prior, the rows it holds
+        _update_one(lin_X[s], lin_Y[s], lin_A[lin_off[s] : lin_off[s + 1]], held, a, b, x, P, Y, L, bvec, cols)
         for k in range(c_r[g] + 2, t):  # columns c+2 … t-1: its own prior, its last available odometry of k-1
             j = k - k0
             lo, hi = off[j], off[j + 1]
-            a, b, z = a_cat[lo:hi].copy(), b_cat[lo:hi].copy(), z_cat[lo:hi].copy()
-            ud = np.empty((1, n, 4))
+            a, b, z = a_cat[lo:hi], b_cat[lo:hi], z_cat[lo:hi]
             for i in range(n):
                 src = min(Lr[g, i], k - 1)
                 slot = src % W if sources_known or src >= 0 else W  # the standstill slot: no odometry yet
                 for q in range(4):
-                    ud[0, i, q] = ud_ring[slot, i, q]
-            hold = np.empty((1, 2 * (hi - lo)), dtype=np.bool_)
+                    ud[i, q] = ud_ring[slot, i, q]
+            held = hold[: 2 * (hi - lo)]
             for r in range(2 * (hi - lo)):
-                hold[0, r] = Lr[g, a[r >> 1]] >= k
-            _, _, _, X, P = _column(X, P, ud, a, b, z, inv_sd, inv_sth, hold, prior)
-        X_out[g] = X[0]
-        P_out[g] = P[0]
+                held[r] = Lr[g, a[r >> 1]] >= k
+            rows = A[: 2 * (hi - lo)]
+            rows[:, :] = 0.0
+            # ``_column``'s four kernels, this filter's share of each
+            _propagate_one(x, P, ud, xp, Pp, fx, fy)
+            _information_one(xp, a, b, z, inv_sd, inv_sth, rows)
+            _inv_spd_into(Pp, Yp, L)
+            _update_one(xp, Yp, rows, held, a, b, x, P, Y, L, bvec, cols)
+        X_out[g] = x
+        P_out[g] = P
     return X_out, P_out
 
 
