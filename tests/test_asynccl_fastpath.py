@@ -31,9 +31,6 @@ def test_fast_step_equals_general_step(seed, kw, monkeypatch):
     log = ConditionLog()  # κ of the matrices each path inverts in this step (columns of a restart add up)
 
     def checked(self, t, L, valid, groups):
-        if log.kernels is None:  # record what this env's kernels invert from now on
-            log.kernels = self.k
-            self.k = log.namespace()
         log.kappa.clear()
         log.step = "fast"
         out = fast(self, t, L, valid, groups)
@@ -55,6 +52,10 @@ def test_fast_step_equals_general_step(seed, kw, monkeypatch):
     monkeypatch.setattr(est_mod.Estimators, "_step_recent", checked)
     env = parallel_env(max_cycles=120, **kw)
     env.reset(seed=seed)
+    # record what this env's kernels invert; the namespace has no compiled grouping, so every step goes through
+    # _step_recent (the one checked here)
+    log.kernels = env.unwrapped.est.k
+    env.unwrapped.est.k = log.namespace()
     rng = np.random.default_rng(seed)
     n_modes = env.action_space("robot_0").n
     while env.agents:
@@ -75,9 +76,10 @@ def test_fast_step_equals_general_step(seed, kw, monkeypatch):
 def test_compiled_restart_chains_are_the_loop_bit_for_bit(seed, kw, before_every_source):
     """``_step_recent``'s restart loop in one compiled call (``ekf_numba.restart_chains``), and the whole column of the
     step in one (``ekf_numba.recent_column``: the restarts, the extended estimates and column t), run each filter
-    through the very kernel calls of the loop: three envs, the fused call, the restart call alone and the loop,
-    give the same bytes. ``before_every_source``: some restart runs while a robot has no odometry yet (the ring's
-    standstill slot)."""
+    through the very kernel calls of the loop, and the robots share filters as ``Estimators._groups`` groups them
+    (``ekf_numba.group_filters``): four envs, the fused call with the compiled and the Python grouping, the restart
+    call alone and the loop, give the same bytes. ``before_every_source``: some restart runs while a robot has no
+    odometry yet (the ring's standstill slot)."""
     pytest.importorskip("numba")
     import types
 
@@ -91,9 +93,10 @@ def test_compiled_restart_chains_are_the_loop_bit_for_bit(seed, kw, before_every
             calls.append((len(c_r), t - min(c_r), bool(rest[5])))
         return kernels.recent_column(Lx, c_r, src_e, t, *rest)
 
-    envs = [parallel_env(max_cycles=100, **kw) for _ in range(3)]
+    envs = [parallel_env(max_cycles=100, **kw) for _ in range(4)]
     variants = (
         {"recent_column": counted},
+        {"recent_column": counted, "group_filters": None},  # the robots grouped in Python
         {"recent_column": None},
         {"recent_column": None, "restart_chains": None},
     )

@@ -237,4 +237,6 @@ def backend(name: str | None = None) -> types.SimpleNamespace:
         restart_chains=getattr(module, "restart_chains", None),
         # the rest of that step too: restarts, extended estimates and column t in one call (compiled only)
         recent_column=getattr(module, "recent_column", None),
+        # and how the robots of such a step share their filters (compiled only)
+        group_filters=getattr(module, "group_filters", None),
     )

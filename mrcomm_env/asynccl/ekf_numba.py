@@ -636,3 +636,107 @@ def recent_column(
         float(inv_sd),
         float(inv_sth),
     )
+
+
+@njit(cache=True)
+def _still_valid(t, c, L, cache_ok, cache_c, cache_L):
+    """(N,) bool: robots whose causal estimate of step t-1 is still valid (``group_filters``)."""
+    n = c.shape[0]
+    valid = np.zeros(n, dtype=np.bool_)
+    if cache_ok:
+        for i in range(n):
+            if c[i] < t - 1 and c[i] == cache_c[i]:
+                same = True
+                for j in range(n):
+                    if min(L[i, j], t - 1) != cache_L[i, j]:
+                        same = False
+                        break
+                valid[i] = same
+    return valid
+
+
+@njit(cache=True)
+def _shared_filters(c, L):
+    """Each robot's group (robots with the same c and row of ``L``), groups numbered by their first robot: the group
+    of every robot, each group's first robot, and the number of groups."""
+    n = c.shape[0]
+    group_of = np.full(n, -1, dtype=np.int64)
+    firsts = np.empty(n, dtype=np.int64)
+    G = 0
+    for i in range(n):
+        for g in range(G):
+            f = firsts[g]
+            if c[f] == c[i]:
+                same = True
+                for j in range(n):
+                    if L[f, j] != L[i, j]:
+                        same = False
+                        break
+                if same:
+                    group_of[i] = g
+                    break
+        if group_of[i] < 0:
+            firsts[G] = i
+            group_of[i] = G
+            G += 1
+    return group_of, firsts, G
+
+
+@njit(cache=True)
+def group_filters(t, c, L, cache_ok, cache_c, cache_L):
+    """``Estimators.step``'s filters of step t ≥ 1 while every robot is exact, in one compiled call: robots with the
+    same frontier c and holdings (a row of ``L`` = min(latest, t)) share one causal filter; groups are numbered by
+    their first robot. A group with c ≥ t reads x̂_{t|t} (filter 0, the central chain); one that can extend its
+    previous estimate (c < t-1, and a robot whose frontier and holdings ≤ t-1 are those of step t-1: ``cache_ok``
+    says step t-1's ``cache_c``, ``cache_L`` may be compared) extends that robot's; one with c = t-1 restarts from
+    the central prior of t; the others restart from x̂_{c|c}. Filters: 0, then the restarting groups (R), the
+    extending ones (E) and those restarting at t-1 (A), each in group order, as ``Estimators._step_recent``
+    orders them. Returns their holdings ``Lx`` (F, N), R's checkpoints ``c_r``, E's source robots ``src_e`` and
+    each robot's filter ``res_of`` (N,)."""
+    n = c.shape[0]
+    valid = _still_valid(t, c, L, cache_ok, cache_c, cache_L)
+    group_of, firsts, G = _shared_filters(c, L)
+    NONE, RESTART, EXTEND, AT_T1 = 0, 1, 2, 3
+    kind = np.empty(G, dtype=np.int64)
+    source = np.full(G, -1, dtype=np.int64)
+    counts = np.zeros(4, dtype=np.int64)
+    for g in range(G):
+        ci = c[firsts[g]]
+        if ci >= t:
+            kind[g] = NONE
+        else:
+            if ci < t - 1:  # the group's first robot whose previous estimate is still valid
+                for r in range(firsts[g], n):
+                    if group_of[r] == g and valid[r]:
+                        source[g] = r
+                        break
+            if source[g] >= 0:
+                kind[g] = EXTEND
+            elif ci == t - 1:
+                kind[g] = AT_T1
+            else:
+                kind[g] = RESTART
+        counts[kind[g]] += 1
+    F = 1 + counts[RESTART] + counts[EXTEND] + counts[AT_T1]
+    Lx = np.empty((F, n), dtype=np.int64)
+    Lx[0, :] = t
+    c_r = np.empty(counts[RESTART], dtype=np.int64)
+    src_e = np.empty(counts[EXTEND], dtype=np.int64)
+    filter_of = np.zeros(G, dtype=np.int64)
+    q, qr, qe = 1, 0, 0
+    for want in (RESTART, EXTEND, AT_T1):
+        for g in range(G):
+            if kind[g] == want:
+                filter_of[g] = q
+                Lx[q, :] = L[firsts[g]]
+                if want == RESTART:
+                    c_r[qr] = c[firsts[g]]
+                    qr += 1
+                elif want == EXTEND:
+                    src_e[qe] = source[g]
+                    qe += 1
+                q += 1
+    res_of = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        res_of[i] = filter_of[group_of[i]]
+    return Lx, c_r, src_e, res_of

@@ -22,7 +22,8 @@ holds. Which packets a filter holds is read from the robot's information table.
   prior of column t is shared by every robot with c = t-1, a restart from an older x̂_{c|c} starts from the
   central chain's kept prior of column c+1 (``lin``: its state, information and whitened measurement rows),
   and each update is one Gram product over the rows a filter holds (on the compiled backend the whole step,
-  the restarting filters' columns included, is one call, ``ekf_numba.recent_column``). ``_step_general`` (through
+  the restarting filters' columns included, is one call, ``ekf_numba.recent_column``, after one that groups the
+  robots into filters, ``ekf_numba.group_filters``, as ``_groups`` and ``_step_recent`` do). ``_step_general`` (through
   ``_advance``) handles every other case; both run the same column steps.
 * **Bounded memory.** When the shared packet ring drops a column that some robot never completed, that
   robot adopts its causal estimate of the column as its new checkpoint (no longer centralized-exact).
@@ -282,28 +283,8 @@ class Estimators:
             for r in robots:
                 res_of[r] = g
         Lx = np.array([(t,) * n] + [held[r[0]] for r in order], dtype=np.int64)  # holdings of each filter
-        recent = getattr(self.k, "recent_column", None)
-        if recent is not None:  # compiled: the calls below in one (``ekf_numba.recent_column``)
-            k0 = min(c_r) + 1 if rows_r else t
-            packets = self.packets
-            Xp, Yp, JA, Xn, Pn = recent(
-                Lx,
-                c_r,
-                src_e,
-                t,
-                self.X,
-                self.P,
-                self.central[t - 1],
-                self.ud_ring,
-                W,
-                self._sources_known,
-                [self._geometry(packets[k]) for k in range(k0, t + 1)],
-                [packets[k].z for k in range(k0, t + 1)],
-                {c + 1: lin[(c + 1, ("C", c), b"")] for c in set(c_r)},
-                self._inv_sd,
-                self._inv_sth,
-            )
-            lin[(t, ("C", t - 1), b"")] = (Xp[0], Yp[0], JA[0])
+        if getattr(self.k, "recent_column", None) is not None:  # compiled: the calls below in one
+            Xn, Pn = self._fused_column(t, Lx, c_r, src_e)
             return Xn, Pn, res_of
         ar = self._ar
         cX, cP = self.central[t - 1]
@@ -328,6 +309,31 @@ class Estimators:
         Xp, Yp, JA, Xn, Pn = self.k.column(Xp, Pp, ud, geo, pk.z, self._inv_sd, self._inv_sth, hold, pr)
         lin[(t, ("C", t - 1), b"")] = (Xp[0], Yp[0], JA[0])
         return Xn, Pn, res_of
+
+    def _fused_column(self, t, Lx, c_r, src_e):
+        """``_step_recent``'s column t for the filters of ``Lx`` (restarts from ``c_r``, extensions of ``src_e``) in
+        one compiled call (``ekf_numba.recent_column``); stores the central chain's prior of column t."""
+        lin, packets = self.lin, self.packets
+        k0 = min(c_r) + 1 if c_r else t
+        Xp, Yp, JA, Xn, Pn = self.k.recent_column(
+            Lx,
+            c_r,
+            src_e,
+            t,
+            self.X,
+            self.P,
+            self.central[t - 1],
+            self.ud_ring,
+            self.W,
+            self._sources_known,
+            [self._geometry(packets[k]) for k in range(k0, t + 1)],
+            [packets[k].z for k in range(k0, t + 1)],
+            {c + 1: lin[(c + 1, ("C", c), b"")] for c in set(c_r)},
+            self._inv_sd,
+            self._inv_sth,
+        )
+        lin[(t, ("C", t - 1), b"")] = (Xp[0], Yp[0], JA[0])
+        return Xn, Pn
 
     def _restart_chains(self, t, Lr, c_r):
         """Columns c+1 … t-1 of the groups restarting from x̂_{c|c} (c ≤ t-2) with holdings ``Lr``: their (X, P) at
@@ -387,9 +393,29 @@ class Estimators:
             Xc, Pc = Xc[pos], Pc[pos]
         return Xc, Pc
 
+    def _groups(self, t, cl, L, cache_ok, exact_all):
+        """Which robots' previous causal estimates are still ``valid`` (as ``ekf_numba.group_filters`` says), and the
+        ``groups`` of robots that share a filter: key (own checkpoint id or −1, c, holdings) → robots, in order."""
+        n = self.n
+        valid = [False] * n
+        if cache_ok:
+            ex = None if exact_all else self.exact.tolist()
+            cache_c, cache_L = self._cache_c.tolist(), self._cache_L.tolist()
+            before = None  # holdings ≤ t-1 (what was known at t-1), computed once if some robot needs them
+            for i in range(n):
+                if cl[i] < t - 1 and cl[i] == cache_c[i] and (ex is None or ex[i] == self._cache_exact[i]):
+                    if before is None:
+                        before = np.minimum(L, t - 1).tolist()
+                    valid[i] = before[i] == cache_L[i]
+        ident = [-1] * n if exact_all else np.where(self.exact, -1, np.arange(n)).tolist()
+        Ll = L.tolist()
+        groups: dict = {}
+        for i in range(n):
+            groups.setdefault((ident[i], cl[i], tuple(Ll[i])), []).append(i)
+        return valid, groups
+
     def step(self, t: int, c: np.ndarray, latest: np.ndarray) -> None:
         """Central column t and the causal estimates x̂_{t|t} of every robot after the exchange of step t."""
-        n = self.n
         L = np.minimum(latest, t)
         exact_all = self._all_exact
         if not exact_all:
@@ -397,24 +423,24 @@ class Estimators:
                 if self.ck[i][0] < c[i]:
                     self._checkpoint(int(i), int(c[i]))
         cl = c.tolist()
+        self._sources_known = min(cl) >= 0
         # a previous causal estimate (step t-1) is still valid when nothing about steps ≤ t-1 arrived; it is
         # only worth extending for a robot whose checkpoint is older than t-1 (from t-1 the restart is as cheap)
-        Ll = L.tolist()
-        valid = [False] * n
-        if self._cache_step == t - 1 and min(cl) < t - 1:
-            ex = None if exact_all else self.exact.tolist()
-            before = None  # holdings ≤ t-1 (what was known at t-1), computed once if some robot needs them
-            for i in range(n):
-                if cl[i] < t - 1 and cl[i] == self._cache_c[i] and (ex is None or ex[i] == self._cache_exact[i]):
-                    if before is None:
-                        before = np.minimum(L, t - 1).tolist()
-                    valid[i] = before[i] == self._cache_L[i]
-        ident = [-1] * n if exact_all else np.where(self.exact, -1, np.arange(n)).tolist()
-        groups: dict = {}
-        for i in range(n):
-            groups.setdefault((ident[i], cl[i], tuple(Ll[i])), []).append(i)
-        self._sources_known = min(cl) >= 0
-        fast = self._step_recent(t, L, valid, groups) if exact_all and t >= 1 else None
+        cache_ok = self._cache_step == t - 1 and min(cl) < t - 1
+        fast, recent = None, exact_all and t >= 1
+        if recent and getattr(self.k, "group_filters", None) is not None and self.k.recent_column is not None:
+            # compiled: the grouping below and _step_recent's order of filters in one call, then its column
+            Lx, c_r, src_e, res_of = self.k.group_filters(
+                t, c, L, cache_ok, *((self._cache_c, self._cache_L) if cache_ok else (c, L))
+            )
+            restarts = c_r.tolist()
+            if all((ci + 1, ("C", ci), b"") in self.lin for ci in set(restarts)):
+                fast = (*self._fused_column(t, Lx, restarts, src_e), res_of)
+            recent = False  # a central prior a restart needs is gone: _step_recent would find the same
+        if fast is None:
+            valid, groups = self._groups(t, cl, L, cache_ok, exact_all)
+            if recent:
+                fast = self._step_recent(t, L, valid, groups)
         if fast is not None:
             Xn, Pn, res_of = fast
             self.central[t] = (Xn[0], Pn[0])
@@ -425,7 +451,7 @@ class Estimators:
             self.X = np.array(X)[res_of]
             self.P = np.array(P)[res_of]
         # what the validity test of the next step compares with (robots' frontiers, exactness, holdings ≤ t)
-        self._cache_step, self._cache_c, self._cache_exact, self._cache_L = t, cl, self.exact.tolist(), Ll
+        self._cache_step, self._cache_c, self._cache_exact, self._cache_L = t, c.copy(), self.exact.tolist(), L
         # keep central estimates some exact robot may still start from, and this step's linearisations
         lo = min(min(cl) if exact_all else int(c[self.exact].min(initial=t)), t)
         if lo > self._central_lo:
