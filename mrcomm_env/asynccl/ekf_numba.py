@@ -21,8 +21,9 @@ because at these sizes (3N = 15) the cost of numpy is its per-call overhead, not
 ``restart_chains`` has no numpy twin: it is ``Estimators._restart_chains``'s loop (the numpy backend runs the loop)
 in one call, the same kernel calls filter by filter. ``recent_column`` goes one step further: the rest of
 ``Estimators._step_recent`` (those restarts, the extended estimates, each prior's odometry and held rows, and the
-column call) in one call: at N = 5 the Python and numpy glue around the two calls took about 45 µs per step, the
-restarts' own arithmetic about 50 µs (``tests/test_asynccl_fastpath.py`` compares the bytes of both with the loop's).
+column call) in one call: at N = 5 the restart call's marshalling took about 35 µs per step against 59 µs inside
+it, and the numpy between the two calls about as much again (``tests/test_asynccl_fastpath.py`` compares the bytes
+of both with the loop's).
 """
 
 from __future__ import annotations

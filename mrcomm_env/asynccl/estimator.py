@@ -436,7 +436,7 @@ class Estimators:
             restarts = c_r.tolist()
             if all((ci + 1, ("C", ci), b"") in self.lin for ci in set(restarts)):
                 fast = (*self._fused_column(t, Lx, restarts, src_e), res_of)
-            recent = False  # a central prior a restart needs is gone: _step_recent would find the same
+            recent = False  # done, or a central prior a restart needs is gone, which _step_recent would find too
         if fast is None:
             valid, groups = self._groups(t, cl, L, cache_ok, exact_all)
             if recent:
