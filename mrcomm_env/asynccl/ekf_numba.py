@@ -398,26 +398,8 @@ def column(Xs, Ps, ud, geo, z, inv_sd, inv_sth, hold, prior):
 
 
 @njit(cache=True)
-def _restart_chains(
-    Lr,
-    c_r,
-    t,
-    k0,
-    ud_ring,
-    W,
-    sources_known,
-    a_cat,
-    b_cat,
-    z_cat,
-    off,
-    slot_of_col,
-    lin_X,
-    lin_Y,
-    lin_A,
-    lin_off,
-    inv_sd,
-    inv_sth,
-):
+def _restart_chains(Lr, c_r, t, k0, ud_ring, W, sources_known, chain, inv_sd, inv_sth):
+    a_cat, b_cat, z_cat, off, slot_of_col, lin_X, lin_Y, lin_A, lin_off = chain  # ``_chain_inputs``
     G, n = Lr.shape
     n3 = 3 * n
     X_out = np.empty((G, n3))
@@ -472,7 +454,8 @@ def _restart_chains(
 
 def _chain_inputs(geometries, zs, lins, k0, n3):
     """The columns k0, k0+1, … (``geometries``, ``zs``) and the central chain's kept priors ``lins`` (first column →
-    (X, Y, A)) as the flat arrays the compiled chains read: each column's measurements at ``off[k - k0]`` …
+    (X, Y, A)) as the flat arrays the compiled chains read, one tuple (a_cat, b_cat, z_cat, off, slot_of_col, lin_X,
+    lin_Y, lin_A, lin_off): each column's measurements at ``off[k - k0]`` …
     ``off[k - k0 + 1]``, each prior's rows of A at ``lin_off[s]`` … ``lin_off[s + 1]``, ``slot_of_col`` the prior
     slot s of a first column (−1: none). Python lists and ``accumulate``, not numpy calls: at these sizes (a few
     columns of ≤ N(N−1) measurements) numpy's per-call overhead was half of the chains' own time."""
@@ -522,38 +505,15 @@ def restart_chains(Lr, c_r, t, ud_ring, W, sources_known, geometries, zs, lins, 
         ud_ring,
         int(W),
         bool(sources_known),
-        *_chain_inputs(geometries, zs, lins, k0, ud_ring.shape[1] * 3),
+        _chain_inputs(geometries, zs, lins, k0, ud_ring.shape[1] * 3),
         float(inv_sd),
         float(inv_sth),
     )
 
 
 @njit(cache=True)
-def _recent_column(
-    Lx,
-    c_r,
-    src_e,
-    t,
-    k0,
-    X_prev,
-    P_prev,
-    cX,
-    cP,
-    ud_ring,
-    W,
-    sources_known,
-    a_cat,
-    b_cat,
-    z_cat,
-    off,
-    slot_of_col,
-    lin_X,
-    lin_Y,
-    lin_A,
-    lin_off,
-    inv_sd,
-    inv_sth,
-):
+def _recent_column(Lx, c_r, src_e, t, k0, X_prev, P_prev, cX, cP, ud_ring, W, sources_known, chain, inv_sd, inv_sth):
+    a_cat, b_cat, z_cat, off = chain[0], chain[1], chain[2], chain[3]  # ``_chain_inputs``
     F, n = Lx.shape
     nr, ne = len(c_r), len(src_e)
     G = 1 + nr + ne  # the filters with a prior of column t of their own; the other F - G share the central one
@@ -563,26 +523,7 @@ def _recent_column(
     Xs[0] = cX
     Ps[0] = cP
     if nr > 0:  # columns c+1 … t-1 of the restarting filters
-        Xc, Pc = _restart_chains(
-            Lx[1 : 1 + nr],
-            c_r,
-            t,
-            k0,
-            ud_ring,
-            W,
-            sources_known,
-            a_cat,
-            b_cat,
-            z_cat,
-            off,
-            slot_of_col,
-            lin_X,
-            lin_Y,
-            lin_A,
-            lin_off,
-            inv_sd,
-            inv_sth,
-        )
+        Xc, Pc = _restart_chains(Lx[1 : 1 + nr], c_r, t, k0, ud_ring, W, sources_known, chain, inv_sd, inv_sth)
         Xs[1 : 1 + nr] = Xc
         Ps[1 : 1 + nr] = Pc
     for q in range(ne):  # the extended filters: their previous causal estimate
@@ -633,7 +574,7 @@ def recent_column(
         ud_ring,
         int(W),
         bool(sources_known),
-        *_chain_inputs(geometries, zs, lins, k0, Lx.shape[1] * 3),
+        _chain_inputs(geometries, zs, lins, k0, Lx.shape[1] * 3),
         float(inv_sd),
         float(inv_sth),
     )
