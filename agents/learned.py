@@ -8,16 +8,14 @@ masked envs, the robot's own ``action_mask`` field of its local view.
 
 from __future__ import annotations
 
-import json
-import pickle
-import zipfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from mrcomm_agents.training import ALGORITHMS, RunError, algorithm_class, policy_class_override
+from mrcomm_agents.artifacts import MODEL_FILE, RunError, load_model, read_json, read_statistics, refuse_pickles
+from mrcomm_agents.training import ALGORITHMS, config_from_record, model_spec
 from mrcomm_env.core.policy import LocalViews, Policy
 from mrcomm_env.registry import canonical_id, short_name
 
@@ -30,7 +28,7 @@ def pretrained_dir(env_id: str) -> Path:
 
 
 def has_pretrained(env_id: str) -> bool:
-    return (pretrained_dir(env_id) / "model.zip").exists()
+    return (pretrained_dir(env_id) / MODEL_FILE).exists()
 
 
 #: the card beside each shipped model: how it was trained and the evaluation mode it was chosen with
@@ -41,11 +39,11 @@ def model_card(env_id: str) -> dict[str, Any]:
     """The shipped model's card (``agents/pretrained/<Name>-v0/card.json``): env id and arguments, algorithm, seed,
     agent-steps, the evaluation mode (``deterministic``) it was chosen with and the command that remakes it."""
     path = pretrained_dir(env_id) / CARD_NAME
+    if not path.exists():
+        raise RunError(f"the pretrained model of {canonical_id(env_id)} has no {path.name}")
     try:
-        card = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise RunError(f"the pretrained model of {canonical_id(env_id)} has no {path.name}") from None
-    except json.JSONDecodeError:
+        card = read_json(path)
+    except RunError:
         raise RunError(f"{path} is corrupt (not JSON); reinstall the package or re-export the model") from None
     if not isinstance(card.get("deterministic"), bool):
         raise RunError(f"{path} must say whether the model acts deterministically ('deterministic': true/false)")
@@ -61,7 +59,14 @@ class LearnedPolicy(Policy):
 
     name = "learned"
 
-    def __init__(self, run: str | Path, env_id: str, algo: str | None = None, deterministic: bool = True):
+    def __init__(
+        self,
+        run: str | Path,
+        env_id: str,
+        algo: str | None = None,
+        deterministic: bool = True,
+        trust_pickle: bool = False,
+    ):
         super().__init__()
         if not isinstance(deterministic, bool):
             raise RunError(f"parameter 'deterministic' must be true or false, got {deterministic!r}")
@@ -71,10 +76,8 @@ class LearnedPolicy(Policy):
         config_path = run / "config.json"
         if not config_path.exists():
             raise RunError(f"{run} is not a training run (no config.json); train one with 'mrcomm train'")
-        try:
-            record = json.loads(config_path.read_text())
-        except json.JSONDecodeError:
-            raise RunError(f"{config_path} is corrupt (not JSON)") from None
+        refuse_pickles(run, trust_pickle)  # before anything of the run is read (agents/artifacts.py)
+        record = read_json(config_path)
         trained_on = record.get("env_id")  # stored canonical by TrainConfig.validate
         if trained_on != canonical_id(env_id):
             raise RunError(f"the model in {run} was trained on {trained_on}, not {canonical_id(env_id)}")
@@ -85,25 +88,17 @@ class LearnedPolicy(Policy):
         if record.get("algo") and self.algo != record["algo"]:
             raise RunError(f"the model in {run} was trained with {record['algo']}, not {self.algo}")
         self.env_kwargs = record.get("env_kwargs", {})
-        model_path = run / "model.zip"
+        if not isinstance(self.env_kwargs, dict):
+            raise RunError(f"{config_path} is corrupt: 'env_kwargs' is not an object")
+        model_path = run / MODEL_FILE
         if not model_path.exists():
-            raise RunError(f"{run} has no model.zip (the run has not finished; resume it with --resume)")
+            raise RunError(f"{run} has no {MODEL_FILE} (the run has not finished; resume it with --resume)")
         try:
-            self.model = algorithm_class(self.algo).load(
-                str(model_path), device="cpu", custom_objects=policy_class_override(record)
-            )
-        except (zipfile.BadZipFile, ValueError, KeyError, EOFError, RuntimeError) as exc:
-            raise RunError(f"cannot load {model_path}: {type(exc).__name__}: {exc}") from None
-        self.normalizer = None
-        stats = run / "vecnormalize.pkl"
-        if record.get("normalize", True):
-            if not stats.exists():
-                raise RunError(f"{run} has no vecnormalize.pkl, which its config says it was trained with")
-            try:
-                with open(stats, "rb") as fh:
-                    self.normalizer = pickle.load(fh)
-            except (pickle.UnpicklingError, EOFError, AttributeError) as exc:
-                raise RunError(f"cannot load {stats}: {type(exc).__name__}") from None
+            config = config_from_record({**record, "algo": self.algo})
+        except TypeError as exc:
+            raise RunError(f"{config_path} is corrupt: {exc}") from None
+        self.model = load_model(model_path, model_spec(config), trust_pickle=trust_pickle)
+        self.normalizer = read_statistics(run, trust_pickle=trust_pickle) if record.get("normalize", True) else None
         self.params = {"run": str(run), "algo": self.algo, "deterministic": deterministic}
 
     def reset(self, views: LocalViews, seed: int | None = None) -> None:
@@ -134,8 +129,9 @@ class LearnedPolicy(Policy):
         return dict(zip(agents, np.asarray(actions, dtype=np.float32)))
 
 
-def load_policy(spec: str, env_id: str, **params) -> LearnedPolicy:
-    """``ppo:PATH``, ``maskable_ppo:PATH``, ``dqn:PATH`` or ``pretrained``; ``params``: ``deterministic``."""
+def load_policy(spec: str, env_id: str, trust_pickle: bool = False, **params) -> LearnedPolicy:
+    """``ppo:PATH``, ``maskable_ppo:PATH``, ``dqn:PATH`` or ``pretrained``; ``params``: ``deterministic``.
+    ``trust_pickle``: load a run written before ``agents/artifacts.py``'s formats (only one the user made)."""
     unknown = set(params) - {"deterministic"}
     if unknown:
         raise RunError(f"a learned policy takes only the parameter 'deterministic', got {sorted(unknown)}")
@@ -144,11 +140,11 @@ def load_policy(spec: str, env_id: str, **params) -> LearnedPolicy:
             raise RunError(f"no pretrained model ships for {canonical_id(env_id)}")
         # the mode the model was chosen with (its card), unless the caller asks for the other one
         params.setdefault("deterministic", model_card(env_id)["deterministic"])
-        return LearnedPolicy(pretrained_dir(env_id), env_id, **params)
+        return LearnedPolicy(pretrained_dir(env_id), env_id, trust_pickle=trust_pickle, **params)
     algo, _, path = spec.partition(":")
     if algo not in ALGORITHMS or not path:
         raise RunError(f"a learned policy is ALGO:PATH with ALGO one of {', '.join(ALGORITHMS)}, got {spec!r}")
-    return LearnedPolicy(path, env_id, algo, **params)
+    return LearnedPolicy(path, env_id, algo, trust_pickle=trust_pickle, **params)
 
 
 def is_learned(spec: str) -> bool:

@@ -3,7 +3,8 @@
 A run folder holds everything needed to evaluate, resume or reproduce it:
 
 * ``config.json`` — env id and arguments, algorithm, hyperparameters, seed, package versions, git commit;
-* ``model.zip`` and ``vecnormalize.pkl`` — the final policy and its observation/return statistics;
+* ``model.zip`` and ``vecnormalize.json`` — the final policy and its observation/return statistics, in formats
+  that load without running code from the folder (``agents/artifacts.py``);
 * ``checkpoints/step-<agent-steps>/`` — the last two checkpoints (model with optimizer state, statistics,
   timestep count), so that one damaged by a crash mid-write still leaves the other;
 * ``progress.csv`` and TensorBoard event files — SB3's own logger;
@@ -35,13 +36,32 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.logger import CSVOutputFormat, Logger, make_output_format
 from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 from tqdm.auto import tqdm
 
+from mrcomm_agents.artifacts import (
+    MODEL_FILE,
+    PICKLED_STATISTICS_FILE,
+    STATISTICS_FILE,
+    ModelSpec,
+    PickleRefused,
+    RunError,
+    load_model,
+    pickle_refusal,
+    pickled_entries,
+    read_json,
+    read_statistics,
+    refuse_pickles,
+    save_model,
+    save_statistics,
+    strip_pickles,
+    unpickle_statistics,
+    write_bytes_atomically,
+    write_json,
+)
 from mrcomm_agents.heldout import HeldOutEvaluation
 from mrcomm_agents.policies import CandidatePolicy
 from mrcomm_agents.vecenv import AgentSlotVecEnv
@@ -99,10 +119,6 @@ HYPERPARAMETER_RANGES = {
 #: checkpoints kept: the newest may be damaged by a crash while it is written; the one before it then serves
 KEEP_CHECKPOINTS = 2
 LOCK_NAME = ".lock"
-
-
-class RunError(ValueError):
-    """A run folder that cannot be trained, resumed or loaded as asked."""
 
 
 @dataclass
@@ -192,14 +208,48 @@ def default_config(env_id: str, algo: str = "ppo") -> dict[str, Any]:
     return json.loads(path.read_text()).get(algo, {})
 
 
-def policy_class_override(record: dict[str, Any]) -> dict[str, Any] | None:
-    """The policy class for SB3's ``load`` when a run used our own (``policy: candidates``): its model.zip names
-    the class by the module path it was saved under (models saved before the packages were renamed say
-    ``agents.policies``), so the class is handed over rather than looked up by that name."""
-    if record.get("policy") not in ("candidates", "candidate_set"):
-        return None
+def policy_choice(config: TrainConfig, probe=None) -> tuple[Any, dict[str, Any]]:
+    """(policy, policy_kwargs) of a run: SB3's ``MlpPolicy`` with ``net_arch``, or :class:`CandidatePolicy` with the
+    env's candidate layout; ``probe``: an env of the run's arguments (made when not given). Training builds its
+    model from these, and loading rebuilds the model's pickled entries from them (``agents/artifacts.py``)."""
+    policy_kwargs = dict(config.hyperparams.get("policy_kwargs", {}))
+    if config.policy not in ("candidates", "candidate_set", "candidate_subset"):
+        policy_kwargs.setdefault("net_arch", list(config.net_arch))
+        return "MlpPolicy", policy_kwargs
+    own_probe = probe is None
+    probe = make(config.env_id, **config.env_kwargs) if own_probe else probe
+    policy_kwargs.update(layout=probe.observation_layout(), hidden=int(config.net_arch[0]))
+    if own_probe:
+        probe.close()
+    if config.policy in ("candidate_set", "candidate_subset"):
+        policy_kwargs.update(context=True)
+    if config.policy == "candidate_subset":
+        policy_kwargs.update(subset=True)
+    return CandidatePolicy, policy_kwargs
 
-    return {"policy_class": CandidatePolicy}
+
+def model_spec(config: TrainConfig, venv=None) -> ModelSpec:
+    """What :func:`~mrcomm_agents.artifacts.load_model` rebuilds a model of this run from: the algorithm, the
+    policy and the spaces of ``venv`` (the run's training VecEnv when resuming), else of an env made with the run's
+    arguments."""
+    probe = make(config.env_id, **config.env_kwargs)
+    try:
+        policy, policy_kwargs = policy_choice(config, probe)
+        if venv is None:
+            agent = probe.possible_agents[0]
+            observation_space, action_space = probe.observation_space(agent), probe.action_space(agent)
+        else:
+            observation_space, action_space = venv.observation_space, venv.action_space
+    finally:
+        probe.close()
+    return ModelSpec(
+        algorithm=algorithm_class(config.algo),
+        policy=policy,
+        policy_kwargs=policy_kwargs,
+        observation_space=observation_space,
+        action_space=action_space,
+        hyperparams=dict(config.hyperparams),
+    )
 
 
 def load_config_file(path: str | Path, algo: str) -> dict[str, Any]:
@@ -266,19 +316,6 @@ def git_commit() -> str | None:
     return out.stdout.strip() or None if out.returncode == 0 else None
 
 
-def write_json(path: Path, data: dict) -> None:
-    """Atomic: a temporary file renamed into place, so a reader never sees half a file."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=_plain))
-    os.replace(tmp, path)
-
-
-def _plain(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"not JSON serialisable: {value!r}")
-
-
 # ------------------------------------------------------------------------------------------------ training
 class _Progress:
     """A tqdm bar over agent-steps plus periodic checkpoints (SB3's own bar needs ``rich``).
@@ -322,13 +359,15 @@ def train(
     progress: bool = True,
     requested: dict[str, Any] | None = None,
     teacher: Policy | None = None,
+    trust_pickle: bool = False,
 ) -> Path:
     """Train (or with ``resume``, continue) the run in folder ``out``; returns the folder.
 
     With ``resume``, ``requested`` holds the settings the caller named explicitly (``env_id``, ``algo``, ``seed``,
     ``env_kwargs``, ``timesteps``): each must agree with the run's ``config.json`` — except ``timesteps``, which
     may extend the run, a finished one included. ``teacher``: the policy ``config.init_from`` names, cloned
-    before PPO starts (a new run only)."""
+    before PPO starts (a new run only). ``trust_pickle``: resume a run written before ``agents/artifacts.py``'s
+    formats (``vecnormalize.pkl``), unpickling its statistics; only for a run the user made."""
     out = Path(out)
     if not resume:
         if config is None:
@@ -338,16 +377,18 @@ def train(
             raise ValueError("pass the policy that 'init_from' names as 'teacher' (and only then)")
     with run_lock(out):  # the folder is created and locked before any work: one that cannot be written fails here
         if resume:
-            config = _resumable(out, requested or {})
+            config = _resumable(out, requested or {}, trust_pickle)
         else:
             if (out / "done.json").exists() or _checkpoints(out):
                 raise RunError(f"{out} already holds a run; pass --resume to continue it or choose another --out")
             _clear_unstarted(out)  # a run that stopped before its first checkpoint starts over
         assert config is not None  # a new run was given one; a resumed run read its own
-        return _train_locked(config, out, resume, progress, teacher)
+        return _train_locked(config, out, resume, progress, teacher, trust_pickle)
 
 
-def _train_locked(config: TrainConfig, out: Path, resume: bool, progress: bool, teacher: Policy | None) -> Path:
+def _train_locked(
+    config: TrainConfig, out: Path, resume: bool, progress: bool, teacher: Policy | None, trust_pickle: bool = False
+) -> Path:
 
     torch.set_num_threads(1)
     ckpt = out / "checkpoints"
@@ -359,7 +400,7 @@ def _train_locked(config: TrainConfig, out: Path, resume: bool, progress: bool, 
 
     venv = make_training_env(config, config.seed)
     if resume:
-        model, venv = _load_newest_checkpoint(cls, config, ckpt, venv)
+        model, venv = _load_newest_checkpoint(config, ckpt, venv, trust_pickle)
         done_steps = model.num_timesteps
         if config.freeze_normalization and isinstance(venv, VecNormalize):
             venv.training = False  # as the run left them (the checkpoint holds the clone's statistics)
@@ -367,20 +408,8 @@ def _train_locked(config: TrainConfig, out: Path, resume: bool, progress: bool, 
     else:
         if config.normalize:
             venv = VecNormalize(venv, norm_obs=True, norm_reward=True, gamma=config.hyperparams.get("gamma", 0.99))
-        kwargs = dict(config.hyperparams)
-        policy_kwargs = dict(kwargs.pop("policy_kwargs", {}))
-        if config.policy in ("candidates", "candidate_set", "candidate_subset"):
-            probe = make(config.env_id, **config.env_kwargs)
-            policy = CandidatePolicy
-            policy_kwargs.update(layout=probe.observation_layout(), hidden=int(config.net_arch[0]))
-            if config.policy in ("candidate_set", "candidate_subset"):
-                policy_kwargs.update(context=True)
-            if config.policy == "candidate_subset":
-                policy_kwargs.update(subset=True)
-            probe.close()
-        else:
-            policy = "MlpPolicy"
-            policy_kwargs.setdefault("net_arch", list(config.net_arch))
+        kwargs = {k: v for k, v in config.hyperparams.items() if k != "policy_kwargs"}
+        policy, policy_kwargs = policy_choice(config)
         model = cls(policy, venv, seed=config.seed, device="cpu", verbose=0, policy_kwargs=policy_kwargs, **kwargs)
         done_steps = 0
         if teacher is not None:
@@ -444,6 +473,33 @@ def run_lock(out: Path) -> Iterator[None]:
         os.close(fd)  # releases the lock (the kernel does the same when the process dies)
 
 
+def convert_run(out: Path, trust_pickle: bool = False) -> list[str]:
+    """Rewrite a run folder written before ``agents/artifacts.py`` (its final files and every checkpoint) in the
+    formats that load without running code; returns what was rewritten. ``model.zip``'s pickled entries are
+    dropped unread (they are rebuilt on load); ``vecnormalize.pkl`` has to be unpickled to be converted, so that
+    needs ``trust_pickle``: only for a run the user made. Holds the run's lock while it works."""
+    out = Path(out)
+    if not (out / "config.json").exists():
+        raise RunError(f"{out} is not a training run (no config.json)")
+    with run_lock(out):
+        folders = [out, *_checkpoints(out)]
+        pickles = [f / PICKLED_STATISTICS_FILE for f in folders if (f / PICKLED_STATISTICS_FILE).exists()]
+        if pickles and not trust_pickle:
+            raise pickle_refusal(pickles[0], f" (and {len(pickles) - 1} more)" if len(pickles) > 1 else "")
+        done = []
+        for folder in folders:
+            model = folder / MODEL_FILE
+            if model.exists() and pickled_entries(model):
+                write_bytes_atomically(model, strip_pickles(model.read_bytes(), model))
+                done.append(str(model))
+            pickled = folder / PICKLED_STATISTICS_FILE
+            if pickled.exists():
+                save_statistics(unpickle_statistics(pickled), folder / STATISTICS_FILE)
+                pickled.unlink()  # after its JSON twin is in place: a crash between the two leaves both, which loads
+                done.append(str(pickled))
+        return done
+
+
 def has_checkpoint(out: Path) -> bool:
     """Whether the run in ``out`` wrote a checkpoint (it can be resumed; without one it starts over)."""
     return bool(_checkpoints(out))
@@ -470,11 +526,9 @@ def _clear_unstarted(out: Path) -> None:
 
 def _save_files(m, config: TrainConfig, folder: Path) -> None:
     # model first, then statistics, then the step count: a reader trusts state.json only when all exist
-    m.save(str(folder / ".model.tmp.zip"))
-    os.replace(folder / ".model.tmp.zip", folder / "model.zip")
+    save_model(m, folder / MODEL_FILE)
     if config.normalize:
-        m.get_vec_normalize_env().save(str(folder / ".vecnormalize.tmp.pkl"))
-        os.replace(folder / ".vecnormalize.tmp.pkl", folder / "vecnormalize.pkl")
+        save_statistics(m.get_vec_normalize_env(), folder / STATISTICS_FILE)
     write_json(folder / "state.json", {"num_timesteps": int(m.num_timesteps)})
 
 
@@ -490,29 +544,32 @@ def _save_checkpoint(m, config: TrainConfig, ckpt: Path) -> None:
     os.replace(tmp, ckpt / name)
     for old in _checkpoints(ckpt.parent)[KEEP_CHECKPOINTS:]:
         if old == ckpt:  # the single checkpoint of the old layout
-            for stale in ("model.zip", "vecnormalize.pkl", "state.json"):
+            for stale in (MODEL_FILE, STATISTICS_FILE, PICKLED_STATISTICS_FILE, "state.json"):
                 (ckpt / stale).unlink(missing_ok=True)
         else:
             shutil.rmtree(old, ignore_errors=True)
 
 
-def _load_newest_checkpoint(cls, config: TrainConfig, ckpt: Path, venv):
-    """(model, venv) from the newest checkpoint that loads; a damaged one is reported and the older one used."""
-
+def _load_newest_checkpoint(config: TrainConfig, ckpt: Path, venv, trust_pickle: bool = False):
+    """(model, venv) from the newest checkpoint that loads; a damaged one (a crash mid-write) is reported and the
+    older one used. A pickle (a run written before ``agents/artifacts.py``) is refused before anything is read,
+    unless ``trust_pickle``; a file that asks to run code is refused outright, not skipped as damage."""
+    folders = _checkpoints(ckpt.parent)
+    for folder in folders:
+        refuse_pickles(folder, trust_pickle)
     base = venv
     problems = []
-    for folder in _checkpoints(ckpt.parent):
+    for folder in folders:
         try:
-            env = VecNormalize.load(str(folder / "vecnormalize.pkl"), base) if config.normalize else base
-            model = cls.load(
-                str(folder / "model.zip"),
-                env=env,
-                device="cpu",
-                custom_objects=policy_class_override({"policy": config.policy}),
-            )
-            state = json.loads((folder / "state.json").read_text())
-            model.num_timesteps = int(state["num_timesteps"])
-        except Exception as exc:  # noqa: BLE001 - any damage (zip, pickle, JSON) means: try the older one
+            env = read_statistics(folder, base, trust_pickle) if config.normalize else base
+            model = load_model(folder / MODEL_FILE, model_spec(config, base), env=env, trust_pickle=trust_pickle)
+            model.num_timesteps = int(read_json(folder / "state.json")["num_timesteps"])
+        except PickleRefused:
+            raise
+        except RunError as exc:
+            problems.append(f"{folder.name}: {exc}")
+            continue
+        except (KeyError, TypeError, ValueError) as exc:  # a state.json without its count
             problems.append(f"{folder.name}: {type(exc).__name__}")
             continue
         if problems:
@@ -553,14 +610,16 @@ def _cut_progress_log(path: Path, steps: int) -> None:
     os.replace(tmp, path)
 
 
-def _resumable(out: Path, requested: dict[str, Any]) -> TrainConfig:
+def _resumable(out: Path, requested: dict[str, Any], trust_pickle: bool = False) -> TrainConfig:
     config_path = out / "config.json"
     if not config_path.exists():
         raise RunError(f"cannot resume {out}: it holds no run (config.json is missing)")
+    for folder in _checkpoints(out):  # before anything of the run is read
+        refuse_pickles(folder, trust_pickle)
     try:
-        record = json.loads(config_path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError):
-        raise RunError(f"cannot resume {out}: {config_path} is corrupt (not JSON); start the run over") from None
+        record = read_json(config_path)
+    except RunError as exc:
+        raise RunError(f"cannot resume {out}: {exc}; start the run over") from None
     config = config_from_record(record)
     _check_agreement(config, requested, out)
     finished = (out / "done.json").exists()
@@ -571,7 +630,7 @@ def _resumable(out: Path, requested: dict[str, Any]) -> TrainConfig:
         )
     wanted = requested.get("timesteps")
     if finished:
-        done = int(json.loads((out / "done.json").read_text())["num_timesteps"])
+        done = _finished_steps(out / "done.json")
         if wanted is None or wanted <= done:
             raise RunError(
                 f"cannot resume {out}: the run has finished ({done} agent-steps); pass --timesteps larger than "
@@ -605,6 +664,13 @@ def _check_agreement(config: TrainConfig, requested: dict[str, Any], out: Path) 
 
 
 _UNSET = object()
+
+
+def _finished_steps(path: Path) -> int:
+    steps = read_json(path).get("num_timesteps")
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
+        raise RunError(f"{path} is corrupt: 'num_timesteps' is not a count of agent-steps")
+    return steps
 
 
 def config_from_record(record: dict) -> TrainConfig:

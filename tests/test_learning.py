@@ -150,7 +150,7 @@ def test_reproduce_learning_end_to_end_on_a_tiny_budget(tmp_path, monkeypatch):
     assert (docs / "learning" / "ChannelAssociation-v0-curves.png").stat().st_size > 0
     assert "learning/ChannelAssociation-v0-curves.png" in page and "64 agent-steps each" in page
     shipped = tmp_path / "pretrained" / "ChannelAssociation-v0"
-    assert {p.name for p in shipped.iterdir()} == {"model.zip", "vecnormalize.pkl", "config.json", "card.json"}
+    assert {p.name for p in shipped.iterdir()} == {"model.zip", "vecnormalize.json", "config.json", "card.json"}
     card = json.loads((shipped / "card.json").read_text())
     assert card["env_kwargs"] == json.loads((shipped / "config.json").read_text())["env_kwargs"]
     assert card["deterministic"] is False  # the mode of the (patched) comparison config above

@@ -7,13 +7,13 @@ import csv
 import json
 import math
 import os
-import pickle
 
 import numpy as np
 import pytest
 import torch
 
 from mrcomm_agents import training
+from mrcomm_agents.artifacts import STATISTICS_FILE, load_statistics
 from mrcomm_agents.learned import LearnedPolicy, load_policy
 from mrcomm_agents.training import RunError, TrainConfig, train
 from mrcomm_env.experiments.cli import main
@@ -69,7 +69,7 @@ def adam_steps(model) -> int:
 
 def test_a_run_folder_holds_model_statistics_config_and_logs(tmp_path):
     out = train(config(2 * ROLLOUT), tmp_path / "run", progress=False)
-    for name in ("model.zip", "vecnormalize.pkl", "config.json", "progress.csv", "done.json"):
+    for name in ("model.zip", "vecnormalize.json", "config.json", "progress.csv", "done.json"):
         assert (out / name).stat().st_size > 0, name
     assert list(out.glob("events.out.tfevents.*")), "no TensorBoard event file"
     record = json.loads((out / "config.json").read_text())
@@ -132,8 +132,7 @@ def test_resume_loses_neither_steps_nor_optimizer_nor_statistics(tmp_path, monke
     assert adam_steps(model) == rollouts * per_rollout
     # VecNormalize saw one observation per agent-step of the whole run, plus the N reset observations of the
     # start and of the resumption (its count starts at 1e-4); statistics lost on resume would count half
-    with open(tmp_path / "run" / "vecnormalize.pkl", "rb") as fh:
-        stats = pickle.load(fh)
+    stats = load_statistics(tmp_path / "run" / STATISTICS_FILE)
     assert stats.obs_rms.count == pytest.approx(target + 2 * N_AGENTS, abs=1e-3)
     # the resumed run appended to the log: one row per rollout of the whole run, steps increasing, one header,
     # and the held-out evaluations of the new run's start and of the end (the interrupted process, stopped by

@@ -152,7 +152,7 @@ def test_critic_warmup_trains_only_the_critic_then_releases_the_actor():
 
 
 def test_freeze_normalization_keeps_the_statistics_the_clone_was_fitted_with(tmp_path, capsys):
-    import pickle
+    from mrcomm_agents.artifacts import STATISTICS_FILE, load_statistics
 
     counts = {}
     for frozen in (False, True):
@@ -162,8 +162,7 @@ def test_freeze_normalization_keeps_the_statistics_the_clone_was_fitted_with(tmp
         argv = ["train", "ChannelAssociation-v0", "--init-from", "baseline:id_bits", "--timesteps", "128", "--quiet"]
         argv += ["--param", "max_cycles=8", "--config", str(config), "--out", str(out)]
         assert main(argv) == 0
-        with open(out / "vecnormalize.pkl", "rb") as handle:
-            counts[frozen] = pickle.load(handle).obs_rms.count
+        counts[frozen] = load_statistics(out / STATISTICS_FILE).obs_rms.count
     # the same seed clones from the same rollouts; only the unfrozen run goes on counting PPO's observations
     assert counts[False] - counts[True] >= 128, counts
 

@@ -82,7 +82,7 @@ def cmd_evaluate(args) -> int:
     json_path = check_writable_file(args.json, "--json") if args.json else None
     # everything a bad argument could break is built once before the first episode: the env with its
     # params, the policy with its params, and the policy's reset against this env (e.g. a mode it needs)
-    policy = make_any_policy(env_id, args.policy, **policy_params)
+    policy = make_any_policy(env_id, args.policy, trust_pickle=args.trust_pickle, **policy_params)
     trained_on = getattr(policy, "env_kwargs", None)
     if trained_on is not None:
         # a learned model acts in the setting it was trained in (its spaces depend on the env's arguments): the
@@ -98,7 +98,9 @@ def cmd_evaluate(args) -> int:
     if args.video:
         folder = check_writable_dir(args.video, "--video")
         name = f"{short_name(env_id)}-{args.policy.replace(':', '_').replace('/', '_')}.gif"
-        video = record_episode(env_id, [args.policy], args.seed, folder / name, params, policy_params)
+        video = record_episode(
+            env_id, [args.policy], args.seed, folder / name, params, policy_params, trust_pickle=args.trust_pickle
+        )
         print(f"recorded the first episode: {video['path']}", file=sys.stderr)
     metrics = evaluate(lambda: make(env_id, **params), policy, args.episodes, args.seed, progress=not args.quiet)
     width = max(len(name) for name in metrics)
@@ -345,6 +347,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", metavar="PATH")
     p.add_argument("--video", metavar="DIR", help="also record the first episode into DIR/<Name>-<policy>.gif")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--trust-pickle",
+        action="store_true",
+        help="load a learned model's run written before the safe formats (it unpickles: only a run you made)",
+    )
     p.set_defaults(func=cmd_evaluate)
 
     p = command("record", help="record one episode, several policies side by side, as a GIF or MP4")

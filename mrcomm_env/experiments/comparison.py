@@ -152,11 +152,12 @@ def export_pretrained(run: str | Path, env_id: str, shipped: dict | None = None)
     """Copy a run's model, statistics and config into ``agents/pretrained/<Name>-v0/`` (shipped in the package;
     ``mrcomm evaluate ID --policy pretrained``). Checkpoints and logs stay behind: well under 1 MB. ``shipped``:
     the comparison's account of the run (:func:`shipped_run`), written into the card."""
-    from mrcomm_agents.learned import pretrained_dir  # extra "train"
+    from mrcomm_agents.artifacts import MODEL_FILE, STATISTICS_FILE  # extra "train"
+    from mrcomm_agents.learned import pretrained_dir
 
     target = pretrained_dir(env_id)
     target.mkdir(parents=True, exist_ok=True)
-    for name in ("model.zip", "vecnormalize.pkl", "config.json"):
+    for name in (MODEL_FILE, STATISTICS_FILE, "config.json"):
         if (Path(run) / name).exists():
             tmp = target / f".{name}.tmp"
             shutil.copyfile(Path(run) / name, tmp)

@@ -16,9 +16,10 @@ from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.registry import canonical_id, make
 
 
-def make_any_policy(env_id: str, name: str, **params):
+def make_any_policy(env_id: str, name: str, trust_pickle: bool = False, **params):
     """A scripted baseline by name, or a learned model: ``ppo:PATH``, ``maskable_ppo:PATH``, ``dqn:PATH``,
-    ``pretrained``. Unknown names raise ``ValueError`` listing both kinds."""
+    ``pretrained``. Unknown names raise ``ValueError`` listing both kinds. ``trust_pickle``: a learned model's run
+    may be one written before the formats that load without running code (``--trust-pickle``)."""
     if name in policy_names(env_id):
         return make_policy(env_id, name, **params)
     try:
@@ -28,7 +29,7 @@ def make_any_policy(env_id: str, name: str, **params):
             raise ValueError("learned policies need the training extra: pip install 'mrcomm-env[train]'") from None
         raise
     if is_learned(name):
-        return load_policy(name, env_id, **params)
+        return load_policy(name, env_id, trust_pickle=trust_pickle, **params)
     raise ValueError(
         f"unknown policy {name!r} for {canonical_id(env_id)}; valid policies are: "
         f"{', '.join(policy_names(env_id))}, pretrained, or ALGO:RUN_FOLDER with ALGO ppo, maskable_ppo or dqn"

@@ -52,8 +52,10 @@ def record_episode(
     policy_params: dict[str, Any] | None = None,
     max_steps: int | None = None,
     fps: float = 4.0,
+    trust_pickle: bool = False,
 ) -> dict[str, Any]:
     """Record one episode of each policy in ``policies`` side by side into ``out`` (.gif or .mp4).
+    ``trust_pickle``: learned models may come from runs written before the formats that load without running code.
 
     Returns ``{"frames", "path", "bytes", "metrics": {policy: final metrics}}``. Bad input (suffix, policy,
     arguments, the missing video extra) raises ``ValueError`` before any frame is drawn."""
@@ -68,7 +70,7 @@ def record_episode(
     if not (isinstance(fps, (int, float)) and 0 < fps <= 100):
         raise ValueError(f"argument 'fps' must be a number in (0, 100], got {fps!r}")
     params = dict(params or {})
-    agents = [make_any_policy(env_id, name, **dict(policy_params or {})) for name in policies]
+    agents = [make_any_policy(env_id, name, trust_pickle, **dict(policy_params or {})) for name in policies]
     envs = [make(env_id, render_mode="rgb_array", **{**getattr(p, "env_kwargs", {}), **params}) for p in agents]
     writer = _writer(out, fps)  # the video extra is checked before any episode runs
     frames = 0

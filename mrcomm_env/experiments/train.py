@@ -56,8 +56,35 @@ def add_train_parser(command) -> None:
         help="sweeps: held-out episodes each run is scored on (seeds 20000+, apart from reproduce-learning's)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--trust-pickle",
+        action="store_true",
+        help="with --resume: a run written before the safe formats (it unpickles: only a run you made)",
+    )
     add_runner_arguments(p)
     p.set_defaults(func=cmd_train)
+
+    p = command(
+        "convert-run",
+        help="rewrite a run folder written before the safe formats (vecnormalize.pkl, pickles in model.zip)",
+    )
+    p.add_argument("run", help="the run folder (its checkpoints are converted too)")
+    p.add_argument(
+        "--trust-pickle",
+        action="store_true",
+        help="unpickle the run's vecnormalize.pkl to convert it: only for a run you made",
+    )
+    p.set_defaults(func=cmd_convert_run)
+
+
+def cmd_convert_run(args: argparse.Namespace) -> int:
+    from mrcomm_agents.training import convert_run  # extra "train"
+
+    done = convert_run(Path(args.run), trust_pickle=args.trust_pickle)
+    print(f"converted {len(done)} file(s) of {args.run}" if done else f"{args.run} is already in the safe formats")
+    for path in done:
+        print(f"  {path}")
+    return 0
 
 
 def seed_list(text: str) -> list[int]:
@@ -110,6 +137,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     args.algo = args.algo or "ppo"
     args.seed = 0 if args.seed is None else args.seed
     out = Path(args.out or f"runs/{short_name(env_id)}-{args.algo}-s{args.seed}")
+    if args.trust_pickle and not args.resume:
+        raise ValueError("--trust-pickle applies to --resume only: a new run writes no pickle")
     if args.resume:
         for flag, value in (
             ("--config", args.config),
@@ -120,7 +149,7 @@ def cmd_train(args: argparse.Namespace) -> int:
             if value:
                 raise ValueError(f"{flag} cannot be used with --resume: a resumed run keeps its own settings")
         requested = {"env_id": env_id, **explicit, "env_kwargs": parse_params(args.param), "timesteps": args.timesteps}
-        train(None, out, resume=True, progress=not args.quiet, requested=requested)
+        train(None, out, resume=True, progress=not args.quiet, requested=requested, trust_pickle=args.trust_pickle)
         print(f"resumed and finished {out}")
         return 0
     settings = default_config(env_id, args.algo)
