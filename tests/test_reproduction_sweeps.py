@@ -75,17 +75,17 @@ def test_a_task_that_fails_twice_ends_reproduce_with_one_line_naming_it(tmp_path
 
     real = rendezvous_mapping.episode_to_cap
 
-    def fail_for_greedy(env_kwargs, planner, seed, cap):
+    def fail_for_greedy(env_kwargs, planner, seed, cap, *args):
         if planner == "greedy":
             raise RuntimeError("the planner crashed")
-        return real(env_kwargs, planner, seed, cap)
+        return real(env_kwargs, planner, seed, cap, *args)
 
     monkeypatch.setattr(rendezvous_mapping, "episode_to_cap", fail_for_greedy)
     out = tmp_path / "results"
     assert main(["reproduce", "RendezvousMapping-v0", "--tiny", "--workers", "1", "--out", str(out)]) == 1
     err = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]
     assert err.startswith("mrcomm: error: ") and "failed twice" in err
-    assert "fig8_infinite_comms sigma=0 clumping=0 draw=0 greedy" in err and '"planner": "greedy"' in err
+    assert "fig8_infinite_comms [main] sigma=0 clumping=0 draw=0 greedy" in err and '"planner": "greedy"' in err
     assert "RuntimeError: the planner crashed" in err
     assert not (out / "REPORT.md").exists()
     # the tasks that succeeded are kept for the rerun

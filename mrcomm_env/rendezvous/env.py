@@ -6,7 +6,7 @@
 | Actions | `Discrete(K + 2)`, K = `k_candidates`: `0 … K−1` go to candidate landmark i and observe it (slot 0 is the group's recommended landmark l_p(v) when the vehicle has one); `K` rendezvous at the group's central landmark l_c, observing l_p(v) on the way when the detour fits the window (Fig. 5 actions 2 and 3); `K + 1` hold (keep observing the landmark it is at). Infeasible actions (empty candidate slots) are masked: `env.action_masks()` (N, K+2) and the infos `action_mask_0 …`; taken anyway they act as hold |
 | Observations | `Box(0, 1, (11 + 12K,))`: own position, phase, group share, whole-team connected, own map's information fraction; per candidate (relative position, eq. (1) utility, travel time, in main cluster, recommended, valid); the rendezvous landmark (relative position, travel time, detour fits, plan connected); the K nearest vehicles it knows of (relative position, linked now, staleness, valid) |
 | Reward | team reward: increase of Σ_l ln det Y_l of the **fused** global map (the information every vehicle holds) over the step, in units of one landmark's available information per vehicle |
-| Arguments | `n_vehicles`, `n_landmarks`, `area`, `speed`, `t_window`, `d_comms`, `sigma`, `clumping`, `k_candidates`, `prior_sigma`, `obs_sigma`, `obs_rate`, `obs_per_landmark`, `max_cycles` (alias `max_phases`) |
+| Arguments | `n_vehicles`, `n_landmarks`, `area`, `speed`, `t_window`, `d_comms`, `sigma`, `clumping`, `k_candidates`, `prior_sigma`, `obs_sigma`, `obs_rate`, `obs_per_landmark`, `start_spread`, `max_cycles` (alias `max_phases`) |
 
 **One env step is one decision phase** (§I, Fig. 1): the actions chosen at phase k are carried out over the
 gathering window t_window (travel at speed u, observe, wait), and the window ends with the next decision
@@ -16,7 +16,10 @@ phase, at which every connected group fuses its maps over a Dijkstra spanning tr
 mean clustering coefficient C of the landmark graphs at d_comms and d_max = u·t_window (metrics
 ``clustering_dcomms``, ``clustering_dmax``); ``clumping`` then pulls landmarks into clumps, for C beyond what
 the σ shift reaches (our extension). Every vehicle starts with the same prior map (§III: each
-landmark's estimate off by N(0, σ₀²)), and all start together at a launch point drawn in the area.
+landmark's estimate off by N(0, σ₀²)); ``planned_clustering`` gives C on that map, the layout the vehicles
+plan with. All start together at a launch point drawn in the area, or, with ``start_spread`` > 0, spread
+around it by N(0, start_spread²) per axis (as the paper's Fig. 4 shows them); a split team regroups at the
+launch point until its first whole-team plan.
 
 **Filters and fusion** (``filters.py``): information form per landmark, observations z = x + N(0, σ_obs²I)
 at ``obs_rate`` Hz while at a landmark; each landmark yields at most ``obs_per_landmark`` independent
@@ -129,6 +132,12 @@ class RendezvousMappingEnv(MrcommParallelEnv):
             "vehicle (makes the available information finite)",
             Int(lo=1, hi=10_000, fuzz=(1, 20)),
         ),
+        "start_spread": Param(
+            0.0,
+            "σ_start (m): std per axis of each vehicle's start around the launch point, kept within the area "
+            "(0: all start at the launch point; the paper's Fig. 4 shows them spread), at most 10 km",
+            Real(lo=0.0, hi=1e4, fuzz=(0.0, 30.0)),
+        ),
         "max_cycles": Param(
             100, "episode length in decision phases (`max_phases` is accepted as an alias)", Int(lo=1, fuzz=(1, 30))
         ),
@@ -235,6 +244,12 @@ class RendezvousMappingEnv(MrcommParallelEnv):
             "holds alike, instead of at each subgroup's own estimate of that landmark (subgroups could miss each "
             "other for good); the observation's and local view's rendezvous point is that point",
         ),
+        (
+            "v0 rev 3",
+            "the argument `start_spread` (vehicles spread around the launch point, as in the paper's Fig. 4; the "
+            "default 0 keeps every episode as it was); `planned_clustering(radius)`, C on the prior map the "
+            "vehicles plan with",
+        ),
     ]
 
     def __init__(self, render_mode: str | None = None, **kwargs):
@@ -279,13 +294,17 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         L = c.n_landmarks
         self.landmarks = world.clump(world.jittered_grid(L, self.side, c.sigma, rng), self.side, c.clumping, rng)
         prior_mean = self.landmarks + rng.normal(0.0, c.prior_sigma, size=(L, 2))
+        self.prior_mean = prior_mean  # the common map every vehicle starts with and plans its first phase on
         Y0 = np.broadcast_to(np.eye(2) * self.y0_info, (L, 2, 2)).copy()
         y0 = prior_mean * self.y0_info
         self.maps = filters.TeamMaps(n, Y0, y0, np.eye(2) * self.r_info)
         self.logdet0 = float(filters.logdet2(Y0).sum())
         self.fused_gain = 0.0  # Σ_l ln det Y_l − ln det Y₀ of the fused map, kept apart from ln det Y₀ (round-off)
         self.world_count = np.zeros(L, dtype=np.int64)
-        self.pos = np.broadcast_to(rng.uniform(0.0, self.side, size=2), (n, 2)).copy()
+        launch = rng.uniform(0.0, self.side, size=2)
+        self.pos = np.broadcast_to(launch, (n, 2)).copy()
+        if c.start_spread > 0:  # drawn last: without a spread, every other draw of the episode is as before
+            self.pos = world.reflect(launch + rng.normal(0.0, c.start_spread, size=(n, 2)), self.side)
         self.at_landmark = np.full(n, -1, dtype=np.int64)
         self.known_pos = np.broadcast_to(self.pos, (n, n, 2)).copy()
         self.known_phase = np.zeros((n, n), dtype=np.int64)
@@ -299,9 +318,10 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         # point, so the subgroups of a split team head for one place: their own maps' estimates of l_c have
         # drifted apart since, and two subgroups aiming at two estimates could miss each other for good
         # (§IV computes l_c from the information the whole team shares; §V assumes the team never splits).
-        # All vehicles start together, at the start point, which is where they regroup before the first plan.
+        # Before the first whole-team plan a split team regroups at the launch point (where all start, unless
+        # spread around it).
         self.regroup = np.zeros(n, dtype=np.int64)
-        self.regroup_point = self.pos.copy()
+        self.regroup_point = np.broadcast_to(launch, (n, 2)).copy()
         self.action_kind = np.full(n, HOLD, dtype=np.int64)
         self.action_ok = np.ones(n, dtype=bool)
         self.step_obs = np.zeros(n, dtype=np.int64)
@@ -567,9 +587,18 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         return self.information_gain(self.maps.count) / self.available
 
     def clustering(self, radius: float) -> float:
+        """C of the landmark graph of ``radius`` on the true layout."""
         key = f"{radius:.9g}"
         if key not in self._clustering:
             self._clustering[key] = world.clustering_coefficient(self.landmarks, radius)
+        return self._clustering[key]
+
+    def planned_clustering(self, radius: float) -> float:
+        """C of the landmark graph of ``radius`` on the common prior map: the layout the vehicles plan and travel
+        on (§III), which the prior error σ₀ moves away from the true one."""
+        key = f"planned {radius:.9g}"
+        if key not in self._clustering:
+            self._clustering[key] = world.clustering_coefficient(self.prior_mean, radius)
         return self._clustering[key]
 
     # ----------------------------------------------------------------- views
