@@ -232,16 +232,19 @@ def model_spec(config: TrainConfig, venv=None) -> ModelSpec:
     """What :func:`~mrcomm_agents.artifacts.load_model` rebuilds a model of this run from: the algorithm, the
     policy and the spaces of ``venv`` (the run's training VecEnv when resuming), else of an env made with the run's
     arguments."""
-    probe = make(config.env_id, **config.env_kwargs)
-    try:
-        policy, policy_kwargs = policy_choice(config, probe)
-        if venv is None:
+    if venv is not None and config.policy == "mlp":  # nothing left to ask an env: the spaces are the VecEnv's
+        policy, policy_kwargs = policy_choice(config)
+        observation_space, action_space = venv.observation_space, venv.action_space
+    else:
+        probe = make(config.env_id, **config.env_kwargs)
+        try:
+            policy, policy_kwargs = policy_choice(config, probe)
             agent = probe.possible_agents[0]
             observation_space, action_space = probe.observation_space(agent), probe.action_space(agent)
-        else:
-            observation_space, action_space = venv.observation_space, venv.action_space
-    finally:
-        probe.close()
+            if venv is not None:
+                observation_space, action_space = venv.observation_space, venv.action_space
+        finally:
+            probe.close()
     return ModelSpec(
         algorithm=algorithm_class(config.algo),
         policy=policy,
