@@ -9,7 +9,10 @@ comparison uses (:data:`HELDOUT_SEEDS` on), with the policy as it is then, and r
   ``disagreement``, ``weighted_mean_age``, ``iterations_to_half_info``), averaged over the episodes; a time
   that was never reached (the env's ``UNREACHED_TIMES``, −1 or NaN) counts as the episode's length;
 * ``bits_per_agent_step``: bits sent per robot per step, and ``bits_per_agent_episode``;
-* ``episode_return``.
+* ``episode_return``;
+
+and ``time/training_seconds``, the wall time training had taken when the evaluation started, the evaluations
+excluded (what ``mrcomm race`` compares trainers by), and ``time/heldout_seconds``, the seconds the evaluations took.
 
 They reach ``progress.csv`` and TensorBoard with the rollout's own row (``tensorboard --logdir runs/``).
 """
@@ -28,6 +31,11 @@ from mrcomm_env.registry import make
 #: first episode seed of the held-out evaluation (comparisons use 10000+, sweeps 20000+)
 HELDOUT_SEEDS = 30_000
 PREFIX = "heldout/"
+#: the log's running total of seconds spent evaluating, which ``time/time_elapsed`` includes
+SECONDS_KEY = "time/heldout_seconds"
+#: the wall time training has taken when an evaluation starts, evaluations excluded (to the microsecond: SB3 logs
+#: ``time/time_elapsed`` in whole seconds)
+TRAINING_SECONDS_KEY = "time/training_seconds"
 
 
 def normalized(venv, observations: np.ndarray) -> np.ndarray:
@@ -78,6 +86,23 @@ def evaluate_episodes(model, venv, env_id: str, env_kwargs: dict, seeds, determi
     return {key: float(np.mean(values)) for key, values in totals.items()}
 
 
+def record_heldout(logger, model, venv, env_id: str, env_kwargs: dict, episodes: int, deterministic: bool) -> float:
+    """Evaluate ``model`` on ``episodes`` held-out episodes and record the means under ``heldout/`` in ``logger``;
+    returns the seconds it took. ``venv``: the training VecNormalize (or a detached one) whose statistics normalise
+    the observations. torch's global generator, which SB3 samples actions from, is saved and restored: training
+    draws nothing less."""
+    start = time.perf_counter()
+    state = torch.get_rng_state()
+    try:
+        seeds = range(HELDOUT_SEEDS, HELDOUT_SEEDS + episodes)
+        means = evaluate_episodes(model, venv, env_id, env_kwargs, seeds, deterministic)
+    finally:
+        torch.set_rng_state(state)
+    for key, value in means.items():
+        logger.record(PREFIX + key, value)
+    return time.perf_counter() - start
+
+
 class HeldOutEvaluation(BaseCallback):
     """When a new run starts (agent-step 0), when a rollout ends and ``every`` agent-steps have passed since the
     last time, and once more when training ends: see the module docstring.
@@ -89,6 +114,8 @@ class HeldOutEvaluation(BaseCallback):
         super().__init__()
         self.env_id, self.env_kwargs = env_id, dict(env_kwargs)
         self.every, self.episodes, self.deterministic = int(every), int(episodes), bool(deterministic)
+        #: seconds spent in held-out evaluations since training started (inside ``time/time_elapsed``)
+        self.seconds = 0.0
         self.next_at = self.every
 
     def _on_training_start(self) -> None:
@@ -104,16 +131,12 @@ class HeldOutEvaluation(BaseCallback):
         self.logger.dump(self.num_timesteps)
 
     def _evaluate(self) -> None:
-        state = torch.get_rng_state()
-        try:
-            seeds = range(HELDOUT_SEEDS, HELDOUT_SEEDS + self.episodes)
-            means = evaluate_episodes(
-                self.model, self.training_env, self.env_id, self.env_kwargs, seeds, self.deterministic
-            )
-        finally:
-            torch.set_rng_state(state)
-        for key, value in means.items():
-            self.logger.record(PREFIX + key, value)
+        elapsed = (time.time_ns() - self.model.start_time) / 1e9 if self.num_timesteps else 0.0
+        self.logger.record(TRAINING_SECONDS_KEY, max(elapsed - self.seconds, 0.0))
+        self.seconds += record_heldout(
+            self.logger, self.model, self.training_env, self.env_id, self.env_kwargs, self.episodes, self.deterministic
+        )
+        self.logger.record(SECONDS_KEY, self.seconds)
 
     def _on_step(self) -> bool:
         return True

@@ -1,13 +1,16 @@
 """A trained SB3 model as a team policy: the same interface, metrics and JSON as a scripted baseline.
 
 ``mrcomm evaluate ID --policy ppo:runs/NAME`` loads a run folder written by ``mrcomm train``;
-``--policy pretrained`` loads the small model shipped in ``agents/pretrained/<Name>-v0/``. The policy sees
+``--policy pretrained`` loads the small model shipped in ``agents/pretrained/<Name>-v0/``; ``ippo:RUN`` and
+``mappo:RUN`` load the batched trainer's runs (an SB3 model too). A run that stopped before it finished (Ctrl-C)
+is evaluated with its newest checkpoint, and says so on stderr. The policy sees
 exactly what it was trained on: each agent's observation (normalised with the run's statistics), and, for
 masked envs, the robot's own ``action_mask`` field of its local view.
 """
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +18,7 @@ import numpy as np
 import torch
 
 from mrcomm_agents.artifacts import MODEL_FILE, RunError, load_model, read_json, read_statistics, refuse_pickles
-from mrcomm_agents.training import ALGORITHMS, config_from_record, model_spec
+from mrcomm_agents.training import ALGORITHMS, checkpoints, config_from_record, model_spec
 from mrcomm_env.core.policy import LocalViews, Policy
 from mrcomm_env.registry import canonical_id, short_name
 
@@ -90,15 +93,24 @@ class LearnedPolicy(Policy):
         self.env_kwargs = record.get("env_kwargs", {})
         if not isinstance(self.env_kwargs, dict):
             raise RunError(f"{config_path} is corrupt: 'env_kwargs' is not an object")
-        model_path = run / MODEL_FILE
+        model_path, source = run / MODEL_FILE, run
         if not model_path.exists():
-            raise RunError(f"{run} has no {MODEL_FILE} (the run has not finished; resume it with --resume)")
+            # a run stopped early (Ctrl-C, a crash) holds checkpoints: its newest one is the policy it has
+            found = checkpoints(run)
+            if not found:
+                raise RunError(
+                    f"{run} has no {MODEL_FILE} and no checkpoint (it stopped before its first one; train it again)"
+                )
+            source = found[0]
+            refuse_pickles(source, trust_pickle)
+            model_path = source / MODEL_FILE
+            print(f"{run} has not finished: using its newest checkpoint, {source.name}", file=sys.stderr)
         try:
             config = config_from_record({**record, "algo": self.algo})
         except TypeError as exc:
             raise RunError(f"{config_path} is corrupt: {exc}") from None
         self.model = load_model(model_path, model_spec(config), trust_pickle=trust_pickle)
-        self.normalizer = read_statistics(run, trust_pickle=trust_pickle) if record.get("normalize", True) else None
+        self.normalizer = read_statistics(source, trust_pickle=trust_pickle) if record.get("normalize", True) else None
         self.params = {"run": str(run), "algo": self.algo, "deterministic": deterministic}
 
     def reset(self, views: LocalViews, seed: int | None = None) -> None:
@@ -130,7 +142,8 @@ class LearnedPolicy(Policy):
 
 
 def load_policy(spec: str, env_id: str, trust_pickle: bool = False, **params) -> LearnedPolicy:
-    """``ppo:PATH``, ``maskable_ppo:PATH``, ``dqn:PATH`` or ``pretrained``; ``params``: ``deterministic``.
+    """``ppo:PATH``, ``maskable_ppo:PATH``, ``dqn:PATH``, ``ippo:PATH``, ``mappo:PATH`` or ``pretrained``;
+    ``params``: ``deterministic``.
     ``trust_pickle``: load a run written before ``agents/artifacts.py``'s formats (only one the user made)."""
     unknown = set(params) - {"deterministic"}
     if unknown:

@@ -24,18 +24,21 @@ import contextlib
 import csv
 import fcntl
 import importlib
+import io
 import json
 import os
 import platform
 import shutil
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.logger import CSVOutputFormat, Logger, make_output_format
@@ -62,22 +65,44 @@ from mrcomm_agents.artifacts import (
     write_bytes_atomically,
     write_json,
 )
-from mrcomm_agents.heldout import HeldOutEvaluation
+from mrcomm_agents.batched_ppo import (
+    BATCHED_ALGORITHMS,
+    BatchedPPO,
+    build_model,
+    default_copies,
+    detached_normalizer,
+    make_critic,
+    masks_actions,
+)
+from mrcomm_agents.batched_ppo import (
+    DEFAULTS as BATCHED_DEFAULTS,
+)
+from mrcomm_agents.batched_ppo import (
+    check_env as check_batched_env,
+)
+from mrcomm_agents.heldout import SECONDS_KEY, TRAINING_SECONDS_KEY, HeldOutEvaluation, record_heldout
 from mrcomm_agents.policies import CandidatePolicy
 from mrcomm_agents.vecenv import AgentSlotVecEnv
 from mrcomm_agents.warm_start import CriticWarmup, clone
+from mrcomm_env.core.batched import BatchedEnv
 from mrcomm_env.core.config import Int, Optional, Real
 from mrcomm_env.core.policy import Policy
 from mrcomm_env.registry import canonical_id, make, short_name
 
 CONFIG_DIR = Path(__file__).with_name("configs")
 POLICY_NAMES = ("mlp", "candidates", "candidate_set", "candidate_subset")
-#: algorithms ``mrcomm train`` knows: name → (module, class); MaskablePPO needs the env's action masks
+#: algorithms ``mrcomm train`` knows: name → (module, class); MaskablePPO needs the env's action masks. ``ippo``
+#: and ``mappo`` are the batched trainer (``agents/batched_ppo.py``): their model is an SB3 PPO (MaskablePPO where
+#: the env masks actions, :func:`algorithm_class`) whose policy that trainer trains
 ALGORITHMS = {
     "ppo": ("stable_baselines3", "PPO"),
     "maskable_ppo": ("sb3_contrib", "MaskablePPO"),
     "dqn": ("stable_baselines3", "DQN"),
+    "ippo": ("stable_baselines3", "PPO"),
+    "mappo": ("stable_baselines3", "PPO"),
 }
+#: the file beside ``model.zip`` holding MAPPO's centralised critic and its optimizer (tensors only)
+CRITIC_FILE = "critic.pt"
 #: arguments of ``train`` that are not the algorithm's own hyperparameters
 RUN_KEYS = (
     "n_envs",
@@ -129,7 +154,9 @@ class TrainConfig:
     seed: int = 0
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     hyperparams: dict[str, Any] = field(default_factory=dict)
-    n_envs: int = 4  #: copies of the parallel env; the VecEnv has n_envs × N agent slots
+    #: copies of the parallel env (the VecEnv has n_envs × N agent slots; ippo/mappo step them as one world);
+    #: None: 4 for the SB3 algorithms, :func:`~mrcomm_agents.batched_ppo.default_copies` for ippo/mappo
+    n_envs: int | None = None
     normalize: bool = True  #: VecNormalize on observations and returns
     net_arch: list[int] = field(default_factory=lambda: [64, 64])
     #: ``mlp`` (SB3's MlpPolicy), ``candidates`` (one shared scorer per candidate, ``agents/policies.py``; needs
@@ -157,9 +184,12 @@ class TrainConfig:
         self.env_id = canonical_id(self.env_id)
         if self.algo not in ALGORITHMS:
             raise ValueError(f"argument 'algo' must be one of {', '.join(ALGORITHMS)}, got {self.algo!r}")
+        if self.n_envs is None and self.algo not in BATCHED_ALGORITHMS:
+            self.n_envs = 4
         for name in ("timesteps", "n_envs", "checkpoint_every"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            unset = value is None and name == "n_envs"  # ippo/mappo: default_copies, once the env is made
+            if not unset and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
                 raise ValueError(f"argument '{name}' must be an integer ≥ 1, got {value!r}")
         for name in ("seed", "eval_every", "eval_episodes", "critic_warmup"):
             value = getattr(self, name)
@@ -186,6 +216,8 @@ class TrainConfig:
             if name in HYPERPARAMETER_RANGES and not callable(value):
                 HYPERPARAMETER_RANGES[name](name, value)
         env = make(self.env_id, **self.env_kwargs)  # the env's own arguments are checked before any work
+        if self.algo in BATCHED_ALGORITHMS:
+            self._validate_batched(env)
         if self.policy != "mlp" and env.observation_layout() is None:
             raise ValueError(
                 f"policy {self.policy!r} needs an observation of candidates; {self.env_id} with "
@@ -199,13 +231,26 @@ class TrainConfig:
         env.close()
         return self
 
+    def _validate_batched(self, env) -> None:
+        """ippo/mappo: the env's spaces (and for mappo its state), the copies' memory and the rollout's sizes."""
+        check_batched_env(env, self.algo)
+        if self.n_envs is None:
+            self.n_envs = default_copies(env.n_agents)
+        BatchedEnv.check_memory(env, int(self.n_envs or 1), "n_envs")  # the copies together, before any work
+        for name in ("n_steps", "batch_size", "n_epochs"):
+            value = self.hyperparams.get(name, BATCHED_DEFAULTS[name])
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"argument '{name}' must be an integer ≥ 1, got {value!r}")
+
 
 def default_config(env_id: str, algo: str = "ppo") -> dict[str, Any]:
-    """The tuned settings shipped in ``agents/configs/<Name>-v0.json`` for ``algo`` (empty when none)."""
+    """The tuned settings shipped in ``agents/configs/<Name>-v0.json`` for ``algo``: empty when none, and for
+    ippo/mappo the batched trainer's documented defaults under any shipped ones."""
     path = CONFIG_DIR / f"{short_name(env_id)}.json"
-    if not path.exists():
-        return {}
-    return json.loads(path.read_text()).get(algo, {})
+    shipped = json.loads(path.read_text()).get(algo, {}) if path.exists() else {}
+    if algo in BATCHED_ALGORITHMS:
+        return {**BATCHED_DEFAULTS, **shipped}
+    return shipped
 
 
 def policy_choice(config: TrainConfig, probe=None) -> tuple[Any, dict[str, Any]]:
@@ -232,9 +277,11 @@ def model_spec(config: TrainConfig, venv=None) -> ModelSpec:
     """What :func:`~mrcomm_agents.artifacts.load_model` rebuilds a model of this run from: the algorithm, the
     policy and the spaces of ``venv`` (the run's training VecEnv when resuming), else of an env made with the run's
     arguments."""
+    probe = None
     if venv is not None and config.policy == "mlp":  # nothing left to ask an env: the spaces are the VecEnv's
         policy, policy_kwargs = policy_choice(config)
         observation_space, action_space = venv.observation_space, venv.action_space
+        algorithm = algorithm_class(config.algo)
     else:
         probe = make(config.env_id, **config.env_kwargs)
         try:
@@ -243,10 +290,11 @@ def model_spec(config: TrainConfig, venv=None) -> ModelSpec:
             observation_space, action_space = probe.observation_space(agent), probe.action_space(agent)
             if venv is not None:
                 observation_space, action_space = venv.observation_space, venv.action_space
+            algorithm = algorithm_class(config.algo, probe)
         finally:
             probe.close()
     return ModelSpec(
-        algorithm=algorithm_class(config.algo),
+        algorithm=algorithm,
         policy=policy,
         policy_kwargs=policy_kwargs,
         observation_space=observation_space,
@@ -284,15 +332,17 @@ def split_settings(settings: dict[str, Any]) -> tuple[dict[str, Any], dict[str, 
 def make_training_env(config: TrainConfig, seed: int):
     """The agent-slot VecEnv under a VecMonitor (episode returns in the logs, counted once per agent slot)."""
 
-    env_fns = [lambda: make(config.env_id, **config.env_kwargs) for _ in range(config.n_envs)]
+    env_fns = [lambda: make(config.env_id, **config.env_kwargs) for _ in range(int(config.n_envs or 1))]
     venv = AgentSlotVecEnv(env_fns)
     venv.seed(seed)
     return VecMonitor(venv)
 
 
-def algorithm_class(algo: str):
-
+def algorithm_class(algo: str, env=None):
+    """The SB3 class of ``algo``'s model; for ippo/mappo on an env that masks actions (``env``), MaskablePPO."""
     module, name = ALGORITHMS[algo]
+    if algo in BATCHED_ALGORITHMS and env is not None and masks_actions(env):
+        module, name = ALGORITHMS["maskable_ppo"]
     try:
         return getattr(importlib.import_module(module), name)
     except ImportError:
@@ -331,6 +381,8 @@ class _Progress:
 
         outer = self
         self.rollout_start = start
+        self.bar: Any = None  # the callback's, from the start of training
+        self.last = self.next_save = start
 
         class Callback(BaseCallback):
             def _on_training_start(self) -> None:
@@ -394,6 +446,8 @@ def _train_locked(
 ) -> Path:
 
     torch.set_num_threads(1)
+    if config.algo in BATCHED_ALGORITHMS:
+        return _train_batched(config, out, resume, progress, teacher, trust_pickle)
     ckpt = out / "checkpoints"
     ckpt.mkdir(exist_ok=True)
     cls = algorithm_class(config.algo)
@@ -452,6 +506,178 @@ def _train_locked(
     return out
 
 
+def _train_batched(
+    config: TrainConfig, out: Path, resume: bool, progress: bool, teacher: Policy | None, trust_pickle: bool
+) -> Path:
+    """ippo/mappo: the same run folder, checkpoints, logs, held-out rows and interrupt handling as the SB3 path,
+    with :class:`~mrcomm_agents.batched_ppo.BatchedPPO` stepping ``n_envs`` copies as one world."""
+    ckpt = out / "checkpoints"
+    ckpt.mkdir(exist_ok=True)
+    if not resume:
+        record = {**asdict(config), "versions": package_versions(), "git_commit": git_commit()}
+        write_json(out / "config.json", record)
+    model, normalizer, critic, critic_optimizer = _batched_model(config, out, resume, teacher, trust_pickle)
+    done_steps = int(model.num_timesteps)
+    batch = BatchedEnv(lambda: make(config.env_id, **config.env_kwargs), int(config.n_envs or 1), copy=False)
+    # a resumed run continues on other episodes than those it trained on before the interruption
+    trainer = BatchedPPO(model, batch, normalizer, config.seed + done_steps, critic, critic_optimizer)
+    trainer.critic_warmup_until = config.critic_warmup
+    csv_log = resumed_csv_output(str(out / "progress.csv")) if resume else make_output_format("csv", str(out))
+    model.set_logger(Logger(str(out), [csv_log, make_output_format("tensorboard", str(out))]))
+
+    def save() -> None:
+        _save_checkpoint(model, config, ckpt, normalizer, trainer.critic_state())
+
+    every = config.checkpoint_every
+    next_save = [(done_steps // every + 1) * every]
+    rollout_start = [done_steps]
+    evaluate_every = config.eval_every or config.timesteps + 1
+    next_eval = [(done_steps // evaluate_every + 1) * evaluate_every]
+
+    evaluating = [0.0]  # seconds in held-out evaluations since training started (SECONDS_KEY)
+
+    def heldout() -> None:
+        if config.eval_episodes:
+            # evaluations run inside learn()'s clock: training's own time is that clock minus them
+            started = trainer.started
+            since = 0.0 if started is None else time.perf_counter() - started
+            model.logger.record(TRAINING_SECONDS_KEY, max(since - evaluating[0], 0.0))
+            evaluating[0] += record_heldout(
+                model.logger,
+                model,
+                normalizer,
+                config.env_id,
+                config.env_kwargs,
+                config.eval_episodes,
+                config.eval_deterministic,
+            )
+            model.logger.record(SECONDS_KEY, evaluating[0])
+
+    def on_rollout_start() -> None:
+        rollout_start[0] = model.num_timesteps
+        if model.num_timesteps >= next_save[0]:
+            save()
+            next_save[0] = (model.num_timesteps // every + 1) * every
+
+    def on_rollout_end() -> None:
+        if model.num_timesteps >= next_eval[0]:
+            heldout()
+            next_eval[0] = (model.num_timesteps // evaluate_every + 1) * evaluate_every
+
+    if not resume and config.eval_episodes:  # the starting point of the curve (a warm start's clone, or chance)
+        heldout()
+        evaluating[0] = 0.0  # before training starts: not inside time/time_elapsed
+        model.logger.record(SECONDS_KEY, 0.0)
+        model.logger.record("time/total_timesteps", 0)
+        model.logger.record("time/time_elapsed", 0.0)
+        model.logger.dump(0)
+    bar = tqdm(total=config.timesteps, initial=done_steps, desc="agent-steps", unit="step", disable=not progress)
+    try:
+        trainer.learn(config.timesteps, on_rollout_start, on_rollout_end, bar.update)
+    except KeyboardInterrupt:
+        # as the SB3 path: the rollout being collected was not trained on, so its steps are not counted
+        model.num_timesteps = rollout_start[0]
+        save()
+        raise
+    finally:
+        bar.close()
+    save()
+    if config.eval_episodes:  # the final policy's row, as the SB3 path's last one
+        before = evaluating[0]
+        heldout()
+        model.logger.record("time/total_timesteps", model.num_timesteps)
+        model.logger.record("time/time_elapsed", trainer.elapsed + evaluating[0] - before)
+        model.logger.dump(model.num_timesteps)
+    _save_files(model, config, out, normalizer, trainer.critic_state())
+    write_json(out / "done.json", {"num_timesteps": int(model.num_timesteps)})
+    model.logger.close()
+    batch.close()
+    return out
+
+
+def _batched_model(config: TrainConfig, out: Path, resume: bool, teacher: Policy | None, trust_pickle: bool):
+    """(model, normalizer, critic, critic optimizer) of an ippo/mappo run: new (with the warm start, if any) or
+    from its newest checkpoint; the critic and its optimizer are None for ippo."""
+    probe = make(config.env_id, **config.env_kwargs)
+    agent = probe.possible_agents[0]
+    observation_space, action_space = probe.observation_space(agent), probe.action_space(agent)
+    critic_state = None
+    if resume:
+        model, normalizer, critic_state = _load_newest_batched(config, out / "checkpoints", trust_pickle)
+        if config.freeze_normalization and normalizer is not None:
+            normalizer.training = False
+        _cut_progress_log(out / "progress.csv", model.num_timesteps)
+    else:
+        policy, policy_kwargs = policy_choice(config, probe)
+        model = build_model(
+            algorithm_class(config.algo, probe),
+            policy,
+            policy_kwargs,
+            observation_space,
+            action_space,
+            config.hyperparams,
+            config.seed,
+        )
+        normalizer = detached_normalizer(observation_space.shape, model.gamma) if config.normalize else None
+        if teacher is not None:
+            report = clone(model, normalizer, teacher, config.env_id, config.env_kwargs, config.seed)
+            write_json(out / "warm_start.json", {"teacher": config.init_from, **report.as_dict()})
+            if config.freeze_normalization and normalizer is not None:
+                normalizer.training = False  # the clone was fitted to these statistics
+    n_agents = probe.n_agents
+    probe.close()
+    critic = critic_optimizer = None
+    if config.algo == "mappo":
+        obs_dim = int(np.prod(observation_space.shape or (1,)))
+        critic, critic_optimizer = make_critic(n_agents, obs_dim, config.net_arch, model.lr_schedule(1), critic_state)
+    return model, normalizer, critic, critic_optimizer
+
+
+def _load_newest_batched(config: TrainConfig, ckpt: Path, trust_pickle: bool):
+    """(model, normalizer, critic state or None) of the newest checkpoint of an ippo/mappo run that loads (a
+    damaged one is reported and the older one used, as for the SB3 path)."""
+    folders = _checkpoints(ckpt.parent)
+    for folder in folders:
+        refuse_pickles(folder, trust_pickle)
+    spec = model_spec(config)
+    problems = []
+    for folder in folders:
+        try:
+            normalizer = read_statistics(folder, trust_pickle=trust_pickle) if config.normalize else None
+            model = load_model(folder / MODEL_FILE, spec, trust_pickle=trust_pickle)
+            model.num_timesteps = int(read_json(folder / "state.json")["num_timesteps"])
+            critic_state = _load_critic(folder) if config.algo == "mappo" else None
+        except PickleRefused:
+            raise
+        except RunError as exc:
+            problems.append(f"{folder.name}: {exc}")
+            continue
+        except (KeyError, TypeError, ValueError) as exc:
+            problems.append(f"{folder.name}: {type(exc).__name__}")
+            continue
+        if problems:
+            print(f"resuming from {folder} ({'; '.join(problems)}: damaged, skipped)", file=sys.stderr)
+        if normalizer is not None:
+            normalizer.training = True  # statistics are saved as they were used; training goes on updating them
+        return model, normalizer, critic_state
+    raise RunError(f"cannot resume {ckpt.parent}: no checkpoint loads ({'; '.join(problems)}); start it over")
+
+
+def _load_critic(folder: Path) -> dict[str, Any]:
+    """MAPPO's critic and its optimizer, through ``torch.load(weights_only=True)``: tensors and plain containers
+    only, nothing that runs code."""
+    path = folder / CRITIC_FILE
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except FileNotFoundError:
+        raise RunError(f"{path} is missing (a mappo run keeps its critic there)") from None
+    except Exception as exc:  # torch raises UnpicklingError (refused content) or RuntimeError (a damaged archive)
+        raise RunError(f"cannot load {path}: {type(exc).__name__}: {str(exc).splitlines()[0][:200]}") from None
+    if not isinstance(state, dict) or not {"critic", "optimizer"} <= set(state):
+        raise RunError(f"{path} is corrupt: it must hold 'critic' and 'optimizer'")
+    return state
+
+
 # ------------------------------------------------------------------------------------------------ run folders
 @contextlib.contextmanager
 def run_lock(out: Path) -> Iterator[None]:
@@ -508,6 +734,11 @@ def has_checkpoint(out: Path) -> bool:
     return bool(_checkpoints(out))
 
 
+def checkpoints(out: Path) -> list[Path]:
+    """The checkpoint folders of the run in ``out``, newest first."""
+    return _checkpoints(out)
+
+
 def _checkpoints(out: Path) -> list[Path]:
     """The run's checkpoint folders, newest first (the layout before step folders: one in ``checkpoints/``)."""
     ckpt = out / "checkpoints"
@@ -527,27 +758,33 @@ def _clear_unstarted(out: Path) -> None:
             shutil.rmtree(path) if path.is_dir() else path.unlink()
 
 
-def _save_files(m, config: TrainConfig, folder: Path) -> None:
-    # model first, then statistics, then the step count: a reader trusts state.json only when all exist
+def _save_files(m, config: TrainConfig, folder: Path, normalizer=None, critic_state=None) -> None:
+    """``normalizer``: the batched trainer's statistics (the SB3 path's are its model's VecNormalize);
+    ``critic_state``: MAPPO's critic and optimizer (:data:`CRITIC_FILE`)."""
+    # model first, then statistics and critic, then the step count: a reader trusts state.json only when all exist
     save_model(m, folder / MODEL_FILE)
     if config.normalize:
-        save_statistics(m.get_vec_normalize_env(), folder / STATISTICS_FILE)
+        save_statistics(normalizer if normalizer is not None else m.get_vec_normalize_env(), folder / STATISTICS_FILE)
+    if critic_state is not None:
+        buffer = io.BytesIO()
+        torch.save(critic_state, buffer)
+        write_bytes_atomically(folder / CRITIC_FILE, buffer.getvalue())
     write_json(folder / "state.json", {"num_timesteps": int(m.num_timesteps)})
 
 
-def _save_checkpoint(m, config: TrainConfig, ckpt: Path) -> None:
+def _save_checkpoint(m, config: TrainConfig, ckpt: Path, normalizer=None, critic_state=None) -> None:
     """A new ``step-<n>`` folder, written whole under a temporary name and renamed; then all but the newest
     :data:`KEEP_CHECKPOINTS` are removed."""
     name = f"step-{int(m.num_timesteps):012d}"
     tmp = ckpt / f".{name}.tmp"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
-    _save_files(m, config, tmp)
+    _save_files(m, config, tmp, normalizer, critic_state)
     shutil.rmtree(ckpt / name, ignore_errors=True)
     os.replace(tmp, ckpt / name)
     for old in _checkpoints(ckpt.parent)[KEEP_CHECKPOINTS:]:
         if old == ckpt:  # the single checkpoint of the old layout
-            for stale in (MODEL_FILE, STATISTICS_FILE, PICKLED_STATISTICS_FILE, "state.json"):
+            for stale in (MODEL_FILE, STATISTICS_FILE, PICKLED_STATISTICS_FILE, CRITIC_FILE, "state.json"):
                 (ckpt / stale).unlink(missing_ok=True)
         else:
             shutil.rmtree(old, ignore_errors=True)

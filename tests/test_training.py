@@ -7,6 +7,7 @@ import csv
 import json
 import math
 import os
+import shutil
 
 import numpy as np
 import pytest
@@ -179,7 +180,7 @@ def test_evaluate_accepts_a_trained_model_with_the_same_json(tmp_path):
     "spec,damage,message",
     [
         ("ppo:{run}", lambda run: (run / "model.zip").write_bytes(b"not a zip"), "cannot load"),
-        ("ppo:{run}", lambda run: (run / "model.zip").unlink(), "no model.zip"),
+        ("ppo:{run}", lambda run: [(run / "model.zip").unlink(), shutil.rmtree(run / "checkpoints")], "no checkpoint"),
         ("ppo:{run}", lambda run: (run / "config.json").write_text("{"), "corrupt"),
         ("ppo:{run}/missing", lambda run: None, "not a training run"),
         ("dqn:{run}", lambda run: None, "trained with ppo"),

@@ -115,6 +115,12 @@ class BatchedEnv:
         batch._adopt(list(envs), copy_axis, copy)
         return batch
 
+    @staticmethod
+    def check_memory(env: MrcommParallelEnv, n_copies: int, argument: str = "n_copies") -> None:
+        """Refuse, naming ``argument``, ``n_copies`` copies of ``env`` that together need more than its memory budget
+        (what the constructor checks; callers that build a batch later check before any work)."""
+        _check_batch_memory(env, int(n_copies), argument)
+
     def _adopt(self, envs: list[MrcommParallelEnv], copy_axis: bool, copy: bool) -> None:
         first = envs[0]
         self.copy = bool(copy)

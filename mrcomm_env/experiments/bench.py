@@ -15,6 +15,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict
 from typing import Any
 
+import numpy as np
 from tqdm.auto import tqdm
 
 from mrcomm_baselines import default_policy, make_policy
@@ -47,6 +48,8 @@ def train_section(
     progress: bool = True,
     slots: int = TRAIN_SLOTS,
     shipped: bool = False,
+    algo: str = "ppo",
+    copies: int | None = None,
 ) -> dict[str, Any]:
     """PPO agent-steps/s through the agent-slot VecEnv on every target and on mpe2's ``simple_spread_v3``, with
     the share of wall time spent stepping the envs (the goal: our envs train at least as fast as the reference).
@@ -61,7 +64,14 @@ def train_section(
     ``shipped``: also each env as its shipped training configuration runs it (:func:`shipped_training`: its env
     arguments, updated by ``params``, and its ``n_envs`` copies), in ``shipped[<id>]``, against the reference at
     about the same slot count. Every run trains the same PPO (:data:`BENCH_PPO`), MaskablePPO's configurations
-    too, so that the figures compare the envs' stepping."""
+    too, so that the figures compare the envs' stepping.
+
+    ``algo`` ``ippo`` or ``mappo``: each env trains with the batched trainer instead (:func:`batched_throughput`,
+    ``copies`` copies, by default :func:`bench_copies`), against the reference at ``slots`` (MPE2 + SB3 as a user
+    runs it); ``ratio_ceiling`` is then the trainer's own speed, its agent-steps over the wall time outside the
+    world's steps, against the same reference."""
+    if algo in BATCHED_BENCH_ALGORITHMS:
+        return _batched_train_section(targets, params, timesteps, progress, slots, shipped, algo, copies)
 
     def reference():
         from mpe2 import simple_spread_v3  # extra "bench"
@@ -100,6 +110,128 @@ def train_section(
             print(f"train  {env_id} as shipped ({n_envs} × {kwargs}): {_train_line(result)}, {_ratio_line(result)}")
     out["references"] = {str(k): v for k, v in sorted(references.items())}
     return out
+
+
+#: ``mrcomm bench --train --algo``: SB3's PPO through the agent-slot VecEnv, or the batched trainer
+BATCHED_BENCH_ALGORITHMS = ("ippo", "mappo")
+
+
+#: the batched trainer's settings in ``mrcomm bench --train --algo ippo|mappo``: copies for about 512 agent rows
+#: (16–256) and minibatches of 8,192 rows, with BENCH_PPO's 64 steps and 4 epochs. They measure what the trainer can
+#: do per agent-step; its learning defaults (``agents/batched_ppo.py`` ``DEFAULTS``: 128 rows, 2,048-row minibatches,
+#: 10 epochs) spend more on each agent-step to learn more from it (docs/performance.md has both)
+BENCH_BATCHED: dict[str, Any] = {"rows": 512, "batch_size": 8192}
+
+
+def bench_copies(n_agents: int, copies: int | None = None) -> int:
+    """The copies M of a batched bench run: ``copies``, else enough for ``BENCH_BATCHED["rows"]`` agent rows (16–256)."""
+    if copies is not None:
+        return copies
+    return int(min(256, max(16, -(-BENCH_BATCHED["rows"] // max(1, n_agents)))))
+
+
+def _batched_train_section(
+    targets: list[str],
+    params: dict,
+    timesteps: int,
+    progress: bool,
+    slots: int,
+    shipped: bool,
+    algo: str,
+    copies: int | None,
+) -> dict[str, Any]:
+    def reference():
+        from mpe2 import simple_spread_v3  # extra "bench"
+
+        return simple_spread_v3.parallel_env(N=3, continuous_actions=False)
+
+    reference_result = train_throughput([reference] * max(1, round(slots / 3)), timesteps)
+    print(f"train  reference simple_spread_v3: {_train_line(reference_result)}")
+    out: dict[str, Any] = {"timesteps": timesteps, "algo": algo, "reference": reference_result, "envs": {}}
+    runs: list[tuple[str, dict, str | None]] = [(env_id, dict(params), None) for env_id in targets]
+    if shipped:
+        out["shipped"] = {}
+        for env_id in targets:
+            _, env_kwargs, _ = shipped_training(env_id)
+            runs.append((env_id, {**env_kwargs, **params}, "shipped"))
+    for env_id, kwargs, where in tqdm(runs, desc=f"{algo} throughput", leave=False, disable=not progress):
+        m = bench_copies(make(env_id, **kwargs).n_agents, copies)
+        result = batched_throughput(env_id, kwargs, timesteps, algo, m)
+        result.update(_compared(result, reference_result))
+        label = f"{env_id} as shipped ({kwargs})" if where else env_id
+        (out["shipped"] if where else out["envs"])[env_id] = {**result, "env_kwargs": kwargs} if where else result
+        print(f"train  {label}: {_train_line(result)}, {_ratio_line(result)}")
+    out["references"] = {str(reference_result["slots"]): reference_result}
+    return out
+
+
+def batched_throughput(env_id: str, env_kwargs: dict, timesteps: int, algo: str, copies: int, seed: int = 0) -> dict:
+    """Agent-steps/s of the batched trainer (``agents/batched_ppo.py``) on ``copies`` copies, the share of wall time
+    in the world's steps, and the trainer's own speed outside them. One untimed rollout and update first: every
+    compiled kernel (the env's, torch's) is then warm, so a first run after a fresh install measures as the second.
+    The timed part is whole rollouts, at least ``timesteps`` agent-steps and at least three rollouts."""
+    import torch  # extra "train"
+    from stable_baselines3.common.logger import Logger  # extra "train"
+
+    from mrcomm_agents.batched_ppo import BatchedPPO, build_model, detached_normalizer, make_critic  # "train"
+    from mrcomm_agents.training import algorithm_class  # extra "train"
+    from mrcomm_env.core.batched import BatchedEnv
+
+    torch.set_num_threads(1)
+    probe = make(env_id, **env_kwargs)
+    agent = probe.possible_agents[0]
+    obs_space, act_space = probe.observation_space(agent), probe.action_space(agent)
+    settings = {
+        "n_steps": BENCH_PPO["n_steps"],
+        "n_epochs": BENCH_PPO["n_epochs"],
+        "batch_size": BENCH_BATCHED["batch_size"],
+    }
+    model = build_model(
+        algorithm_class(algo, probe), "MlpPolicy", BENCH_PPO["policy_kwargs"], obs_space, act_space, settings, seed
+    )
+    model.set_logger(Logger(folder=None, output_formats=[]))
+    critic = critic_optimizer = None
+    if algo == "mappo":
+        net_arch = BENCH_PPO["policy_kwargs"]["net_arch"]
+        obs_dim = int(np.prod(obs_space.shape or (1,)))
+        critic, critic_optimizer = make_critic(probe.n_agents, obs_dim, net_arch, model.lr_schedule(1))
+    probe.close()
+    batch = BatchedEnv(lambda: make(env_id, **env_kwargs), copies, copy=False)
+    trainer = BatchedPPO(
+        model, batch, detached_normalizer(obs_space.shape, model.gamma), seed, critic, critic_optimizer
+    )
+    per_rollout = trainer.steps * trainer.rows
+    trainer.learn(per_rollout)  # the warm-up rollout and update
+    rollouts = max(3, -(-timesteps // per_rollout))
+    in_step = [0.0]
+    step = batch.step
+
+    def timed_step(actions):
+        start = time.perf_counter()
+        try:
+            return step(actions)
+        finally:
+            in_step[0] += time.perf_counter() - start
+
+    batch.step = timed_step  # type: ignore[method-assign]
+    done = model.num_timesteps
+    start = time.perf_counter()
+    trainer.learn(done + rollouts * per_rollout)
+    wall = time.perf_counter() - start
+    batch.close()
+    steps = model.num_timesteps - done
+    return {
+        "algo": algo,
+        "agent_steps_per_s": steps / wall,
+        "env_step_share": in_step[0] / wall,
+        "ppo_agent_steps_per_s": steps / (wall - in_step[0]),
+        "agent_steps": steps,
+        "seconds": wall,
+        "slots": trainer.rows,
+        "copies": copies,
+        "minibatch": int(model.batch_size),
+        "update_threads": trainer.update_threads,
+    }
 
 
 def _compared(result: dict, reference: dict) -> dict[str, Any]:
@@ -160,16 +292,22 @@ def train_throughput(env_fns, timesteps: int, seed: int = 0) -> dict[str, Any]:
     model = PPO("MlpPolicy", venv, seed=seed, device="cpu", verbose=0, batch_size=batch, **BENCH_PPO)
     # a logger with no outputs: without one, SB3 makes an empty <tmp>/SB3-<time> folder on every learn()
     model.set_logger(Logger(folder=None, output_formats=[]))
+    # one untimed rollout first, so that compiled kernels (MapSync's world) are warm before timing: a first run
+    # after a fresh install then measures as the second
+    model.learn(total_timesteps=batch)
+    in_step[0] = 0.0
+    done = model.num_timesteps
     start = time.perf_counter()
-    model.learn(total_timesteps=timesteps)
+    model.learn(total_timesteps=timesteps, reset_num_timesteps=False)
     wall = time.perf_counter() - start
     venv.close()
+    steps = model.num_timesteps - done
     return {
-        "agent_steps_per_s": model.num_timesteps / wall,
+        "agent_steps_per_s": steps / wall,
         "env_step_share": in_step[0] / wall,
         # PPO's own speed: agent-steps over the wall time outside the env's stepping (see _compared)
-        "ppo_agent_steps_per_s": model.num_timesteps / (wall - in_step[0]),
-        "agent_steps": model.num_timesteps,
+        "ppo_agent_steps_per_s": steps / (wall - in_step[0]),
+        "agent_steps": steps,
         "seconds": wall,
         "slots": venv.num_envs,
     }

@@ -38,6 +38,7 @@ from mrcomm_env.experiments.io import (
     check_writable_file,
 )
 from mrcomm_env.experiments.learning_report import add_reproduce_learning_parser
+from mrcomm_env.experiments.race import add_race_parser
 from mrcomm_env.experiments.record import record_episode
 from mrcomm_env.experiments.reproductions import module as reproduction_module
 from mrcomm_env.experiments.reproductions import run_reproduction
@@ -265,7 +266,13 @@ def cmd_bench(args) -> int:
     results["extras"] = bench.extras_section(targets)
     if args.train or args.train_shipped:
         results["train"] = bench.train_section(
-            targets, params, args.train_timesteps, slots=args.train_slots, shipped=args.train_shipped
+            targets,
+            params,
+            args.train_timesteps,
+            slots=args.train_slots,
+            shipped=args.train_shipped,
+            algo=args.algo,
+            copies=args.train_copies,
         )
     if args.limits:
         results["limits"] = bench.limits_section(targets, args.seconds)
@@ -402,6 +409,20 @@ def build_parser() -> argparse.ArgumentParser:
         help="--train, and also each env as its shipped training configuration runs it (agents/configs: env "
         "arguments and n_envs), against the reference at the same slot count",
     )
+    p.add_argument(
+        "--algo",
+        choices=("ppo", *bench.BATCHED_BENCH_ALGORITHMS),
+        default="ppo",
+        help="--train's trainer: ppo (SB3 through the agent-slot VecEnv, the default) or the batched trainer's ippo "
+        "or mappo (agents/batched_ppo.py), each against MPE2 + SB3 at --train-slots",
+    )
+    p.add_argument(
+        "--train-copies",
+        type=positive_int,
+        default=None,
+        metavar="M",
+        help="--algo ippo/mappo: copies per world (default: about 512 agent rows, 16–256 copies)",
+    )
     p.add_argument("--limits", action="store_true", help="also steps/s and peak memory at every documented maximum")
     p.add_argument(
         "--batched",
@@ -426,6 +447,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_bench)
 
     add_train_parser(command)
+    add_race_parser(command)
     add_reproduce_learning_parser(command)
 
     p = command("docs", help="generate docs/envs/*.md from the live environments")

@@ -17,7 +17,7 @@ from mrcomm_env.registry import canonical_id, make
 
 
 def make_any_policy(env_id: str, name: str, trust_pickle: bool = False, **params):
-    """A scripted baseline by name, or a learned model: ``ppo:PATH``, ``maskable_ppo:PATH``, ``dqn:PATH``,
+    """A scripted baseline by name, or a learned model: ``ppo:PATH``, ``maskable_ppo:PATH``, ``dqn:PATH``, ``ippo:PATH``,
     ``pretrained``. Unknown names raise ``ValueError`` listing both kinds. ``trust_pickle``: a learned model's run
     may be one written before the formats that load without running code (``--trust-pickle``)."""
     if name in policy_names(env_id):
@@ -32,7 +32,7 @@ def make_any_policy(env_id: str, name: str, trust_pickle: bool = False, **params
         return load_policy(name, env_id, trust_pickle=trust_pickle, **params)
     raise ValueError(
         f"unknown policy {name!r} for {canonical_id(env_id)}; valid policies are: "
-        f"{', '.join(policy_names(env_id))}, pretrained, or ALGO:RUN_FOLDER with ALGO ppo, maskable_ppo or dqn"
+        f"{', '.join(policy_names(env_id))}, pretrained, or ALGO:RUN_FOLDER with ALGO ppo, maskable_ppo, dqn, ippo or mappo"
     )
 
 

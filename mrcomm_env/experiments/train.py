@@ -27,7 +27,11 @@ def add_train_parser(command) -> None:
     """``train``; ``command(name, **kw)`` adds a subcommand parser."""
     p = command("train", help="train one shared SB3 policy for every agent of an env")
     p.add_argument("env_id")
-    p.add_argument("--algo", default=None, help="ppo (default), maskable_ppo or dqn")
+    p.add_argument(
+        "--algo",
+        default=None,
+        help="ppo (default), maskable_ppo or dqn (SB3); ippo or mappo (the batched trainer, agents/batched_ppo.py)",
+    )
     p.add_argument("--timesteps", type=positive_int, default=None, help="agent-steps (default: the env's config)")
     p.add_argument("--seed", type=seed_type, default=None, help="training seed (default 0)")
     p.add_argument("--out", required=False, help="run folder (default runs/<Name>-<algo>-s<seed>)")

@@ -732,9 +732,6 @@ class RendezvousMappingEnv(MrcommParallelEnv):
     def _terminated(self) -> bool:
         return bool(self.info_fraction() >= 1.0 - 1e-9)
 
-    def _state(self) -> np.ndarray:
-        return self._observe().reshape(-1)
-
     def _metrics(self) -> dict[str, float]:
         c = self.cfg
         frac = self.info_fraction()

@@ -1,0 +1,378 @@
+"""The batched trainer (``mrcomm train --algo ippo|mappo``, ``agents/batched_ppo.py``): its advantages, inputs and
+masks against their definitions, that it learns, and that its runs keep every guarantee of ``mrcomm train``."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+import torch
+from sb3_contrib import MaskablePPO
+from stable_baselines3 import PPO
+from stable_baselines3.common.logger import Logger
+
+from mrcomm_agents import batched_ppo, training
+from mrcomm_agents.artifacts import STATISTICS_FILE, load_statistics
+from mrcomm_agents.batched_ppo import BatchedPPO, build_model, check_env, detached_normalizer, make_critic
+from mrcomm_agents.learned import LearnedPolicy
+from mrcomm_agents.training import CRITIC_FILE, TrainConfig, train
+from mrcomm_env.core.batched import BatchedEnv
+from mrcomm_env.experiments.cli import main
+from mrcomm_env.registry import make
+
+torch.set_num_threads(1)
+
+ENV = "ChannelAssociation-v0"
+ENV_KWARGS = {"n_robots": 3, "max_cycles": 10}
+N_AGENTS = 3
+COPIES = 4
+HYPER = {"n_steps": 8, "batch_size": 32, "n_epochs": 2}
+#: agent-steps of one rollout: T steps of every agent of every copy
+ROLLOUT = HYPER["n_steps"] * COPIES * N_AGENTS
+
+
+def config(timesteps: int, algo: str = "ippo", **kw) -> TrainConfig:
+    settings = dict(
+        env_id=ENV,
+        algo=algo,
+        timesteps=timesteps,
+        seed=3,
+        env_kwargs=dict(ENV_KWARGS),
+        hyperparams=dict(HYPER),
+        n_envs=COPIES,
+        net_arch=[16],
+        checkpoint_every=ROLLOUT,
+        eval_episodes=1,
+    )
+    settings.update(kw)
+    return TrainConfig(**settings)
+
+
+def trainer(env_id: str, env_kwargs: dict, copies: int, steps: int, normalize: bool = True, algo: str = "ippo"):
+    probe = make(env_id, **env_kwargs)
+    agent = probe.possible_agents[0]
+    obs_space, act_space = probe.observation_space(agent), probe.action_space(agent)
+    model = build_model(
+        training.algorithm_class(algo, probe), "MlpPolicy", {"net_arch": [16]}, obs_space, act_space,
+        {"n_steps": steps, "batch_size": 16, "n_epochs": 1}, 0,
+    )  # fmt: skip
+    model.set_logger(Logger(folder=None, output_formats=[]))
+    critic = optimizer = None
+    if algo == "mappo":
+        critic, optimizer = make_critic(probe.n_agents, obs_space.shape[0], [16], 1e-3)
+    batch = BatchedEnv(lambda: make(env_id, **env_kwargs), copies, copy=False)
+    normalizer = detached_normalizer(obs_space.shape, model.gamma) if normalize else None
+    return BatchedPPO(model, batch, normalizer, 0, critic, optimizer)
+
+
+# ------------------------------------------------------------------------------------------------ the algorithm
+def test_advantages_are_the_discounted_sums_of_td_residuals_within_each_episode():
+    """GAE's definition (Schulman et al. 2016, eq. 16): A_t = Σ_l (γλ)^l δ_{t+l}, the sum stopping where the episode
+    ends; δ_t = r_t + γ V(s_{t+1}) − V(s_t), with V(s_{t+1}) = 0 after a step that ended an episode. The trainer
+    computes it by the backward recursion; here it is the explicit sum, row by row."""
+    run = trainer(ENV, ENV_KWARGS, 2, 7, normalize=False)
+    rng = np.random.default_rng(5)
+    t, rows = run.buf_rewards.shape
+    run.buf_rewards[:] = rng.normal(size=(t, rows))
+    run.buf_values[:] = rng.normal(size=(t, rows))
+    run.buf_starts[:] = rng.random((t, rows)) < 0.25
+    run.next_starts = (rng.random(rows) < 0.25).astype(np.float32)
+    last_values = rng.normal(size=rows).astype(np.float32)
+    gamma, lam = 0.9, 0.8
+    run._advantages(last_values, gamma, lam)
+    starts = np.vstack([run.buf_starts, run.next_starts[None]])  # starts[k]: step k begins an episode
+    values = np.vstack([run.buf_values, last_values[None]]).astype(np.float64)
+    expected = np.zeros((t, rows))
+    for r in range(rows):
+        for s in range(t):
+            total, weight = 0.0, 1.0
+            for k in range(s, t):
+                continues = 0.0 if starts[k + 1, r] else 1.0
+                delta = run.buf_rewards[k, r] + gamma * values[k + 1, r] * continues - values[k, r]
+                total += weight * delta
+                if not continues:
+                    break
+                weight *= gamma * lam
+            expected[s, r] = total
+    # float32 arithmetic over at most 7 terms of size O(1): a relative error of a few float32 ulps
+    np.testing.assert_allclose(run.advantages, expected, rtol=1e-5, atol=1e-5)
+
+
+def test_observations_are_normalised_as_vecnormalize_does_up_to_float32_rounding():
+    run = trainer(ENV, ENV_KWARGS, 2, 4)
+    rng = np.random.default_rng(1)
+    d = run.obs_dim
+    run.normalizer.obs_rms.mean = rng.normal(size=d)
+    run.normalizer.obs_rms.var = rng.uniform(0.001, 4.0, size=d)
+    raw = rng.normal(scale=3.0, size=(50, d)).astype(np.float32)
+    ours = run._normalized(raw)
+    reference = run.normalizer.normalize_obs(raw).astype(np.float32)
+    assert ours.dtype == np.float32
+    assert np.abs(reference).max() == pytest.approx(10.0)  # some entries are clipped, at ±clip_obs
+    # |x| ≤ 10 after three float32 operations: at most about 3 · 10 · 2⁻²⁴ ≈ 2e-6 apart
+    np.testing.assert_allclose(ours, reference, rtol=0, atol=4e-6)
+
+
+def test_a_copy_cut_off_by_max_cycles_bootstraps_from_its_final_observation():
+    """SB3's rule for a time limit: the last reward of a truncated episode gets γ·V(final observation)."""
+    run = trainer("MapSync-v0", {"max_cycles": 2}, 3, 3, normalize=False)
+    seen = []
+    step = run.batch.step
+
+    def recording(actions):
+        result = step(actions)
+        seen.append((result.rewards.copy(), dict(result.final_observations), result.truncated.copy()))
+        return result
+
+    run.batch.step = recording
+    run.collect()
+    rewards, finals, truncated = seen[1]  # the second step ends every copy by the time limit
+    assert truncated.all() and sorted(finals) == [0, 1, 2]
+    final = np.concatenate([finals[i] for i in range(3)]).astype(np.float32)
+    with torch.no_grad():
+        values = run.policy.predict_values(torch.from_numpy(final)).flatten().numpy()
+    expected = rewards.reshape(-1) + run.model.gamma * values
+    np.testing.assert_allclose(run.buf_rewards[1], expected, rtol=1e-6, atol=1e-6)
+    assert (run.buf_starts[2] == 1).all()  # the step after it begins new episodes
+    np.testing.assert_allclose(run.buf_rewards[0], seen[0][0].reshape(-1), rtol=1e-6)  # no bootstrap elsewhere
+
+
+def test_masked_actions_come_from_the_feasible_ones_and_the_masks_are_the_envs():
+    run = trainer("RendezvousMapping-v0", {"max_cycles": 6, "n_vehicles": 2, "n_landmarks": 3, "k_candidates": 5}, 3, 5)
+    assert isinstance(run.model, MaskablePPO)
+    expected = np.concatenate([env.action_masks() for env in run.batch.envs])
+    np.testing.assert_array_equal(run.next_masks, expected)  # the info columns are env.action_masks()
+    run.collect()
+    assert run.buf_masks is not None and not run.buf_masks.all()  # some actions were infeasible
+    taken = run.buf_actions.astype(np.int64)
+    feasible = np.take_along_axis(run.buf_masks, taken[..., None], axis=2)
+    assert feasible.all()
+
+
+def test_mappo_critic_reads_each_copys_state_beside_the_agents_own_observation():
+    """The critic's state of each copy is that copy's ``env.state()``, and its value is the MLP of the concatenation
+    (state, own observation): its split first layer is that layer's linear map, computed without the concatenation."""
+    run = trainer("MapSync-v0", {}, 3, 2, normalize=False, algo="mappo")
+    critic = run.critic
+    obs = torch.from_numpy(run.next_obs)
+    states = critic.state_of(obs).numpy()
+    for copy, env in enumerate(run.batch.envs):
+        np.testing.assert_array_equal(states[copy], env.state())
+    n, d = run.n, run.obs_dim
+    concatenated = np.concatenate([np.repeat(states, n, axis=0), run.next_obs], axis=1)
+    weight = torch.cat([critic.state_layer.weight, critic.own_layer.weight], dim=1)
+    with torch.no_grad():
+        hidden = torch.from_numpy(concatenated) @ weight.T + critic.state_layer.bias
+        expected = critic.head(hidden).squeeze(-1).numpy()
+        values = critic(obs).numpy()
+    assert concatenated.shape[1] == n * d + d
+    # the same sums in another order: float32 rounding over N·D + D = 15 terms of size O(1)
+    np.testing.assert_allclose(values, expected, rtol=1e-5, atol=1e-6)
+
+
+def test_an_env_with_its_own_state_is_refused_for_mappo_only():
+    class OwnState(type(make("MapSync-v0"))):
+        def _state(self):
+            return np.zeros(3, dtype=np.float32)
+
+    env = OwnState()
+    check_env(env, "ippo")
+    with pytest.raises(ValueError, match="defines its own state"):
+        check_env(env, "mappo")
+
+
+def test_ippo_learns_mapsync_within_a_few_seconds(tmp_path):
+    """MapSync's default env: the held-out return of the trained policy beats the untrained one's by far (the
+    untrained policy syncs at random and pays for its bits)."""
+    run = train(
+        TrainConfig(env_id="MapSync-v0", algo="ippo", timesteps=65_536, seed=0, eval_episodes=2), tmp_path / "r",
+        progress=False,
+    )  # fmt: skip
+    with open(run / "progress.csv", newline="") as fh:
+        returns = [float(r["heldout/episode_return"]) for r in csv.DictReader(fh) if r["heldout/episode_return"]]
+    first, last = returns[0], returns[-1]
+    assert last > first + 0.5 * abs(first), returns
+
+
+# ------------------------------------------------------------------------------------------------ run folders
+def interrupt_after_updates(monkeypatch, count: int) -> None:
+    """Ctrl-C during the rollout after the ``count``-th update."""
+    updates = []
+    original = BatchedPPO.collect
+
+    def collect(self):
+        if len(updates) == count:
+            raise KeyboardInterrupt
+        updates.append(1)
+        return original(self)
+
+    monkeypatch.setattr(BatchedPPO, "collect", collect)
+
+
+def optimizer_steps(optimizer) -> int:
+    return int(max(float(s["step"]) for s in optimizer.state_dict()["state"].values()))
+
+
+@pytest.mark.parametrize("algo", ["ippo", "mappo"])
+def test_resume_after_ctrl_c_loses_neither_steps_nor_optimizers_nor_statistics(tmp_path, monkeypatch, algo):
+    rollouts = 4
+    target = rollouts * ROLLOUT
+    interrupt_after_updates(monkeypatch, 2)
+    with pytest.raises(KeyboardInterrupt):
+        train(config(target, algo), tmp_path / "run", progress=False)
+    monkeypatch.undo()
+    newest = training.checkpoints(tmp_path / "run")[0]
+    assert json.loads((newest / "state.json").read_text())["num_timesteps"] == 2 * ROLLOUT
+    assert (newest / CRITIC_FILE).exists() == (algo == "mappo")
+
+    train(None, tmp_path / "run", resume=True, progress=False)
+    model = LearnedPolicy(tmp_path / "run", ENV, algo).model
+    assert model.num_timesteps == target
+    # each epoch takes ⌈rows / minibatch⌉ optimizer steps; mappo draws whole copies' rows (N at a time), so its
+    # minibatch is ⌊32 / 3⌋ = 10 copies' rows and a rollout of 32 copies' rows takes 4 steps, ippo's 96 rows 3
+    blocks, per_batch = (ROLLOUT // N_AGENTS, HYPER["batch_size"] // N_AGENTS) if algo == "mappo" else (ROLLOUT, 32)
+    per_rollout = HYPER["n_epochs"] * -(-blocks // per_batch)
+    assert optimizer_steps(model.policy.optimizer) == rollouts * per_rollout
+    if algo == "mappo":
+        critic = torch.load(tmp_path / "run" / CRITIC_FILE, weights_only=True)
+        assert int(max(float(s["step"]) for s in critic["optimizer"]["state"].values())) == rollouts * per_rollout
+    # one observation per agent-step, plus the reset observations of the start and of the resumption
+    stats = load_statistics(tmp_path / "run" / STATISTICS_FILE)
+    assert stats.obs_rms.count == pytest.approx(target + 2 * COPIES * N_AGENTS, abs=1e-3)
+    with open(tmp_path / "run" / "progress.csv", newline="") as fh:
+        steps = [int(float(r["time/total_timesteps"])) for r in csv.DictReader(fh)]
+    assert steps == [0] + [ROLLOUT * (k + 1) for k in range(rollouts)] + [target]
+
+
+@pytest.mark.parametrize("algo", ["ppo", "ippo"])
+def test_an_interrupted_run_is_evaluated_with_its_newest_checkpoint_and_says_so(tmp_path, capsys, algo):
+    run = tmp_path / "run"
+    if algo == "ppo":
+        cfg = config(4 * 16 * N_AGENTS, "ppo", n_envs=1, hyperparams={"n_steps": 16, "batch_size": 24, "n_epochs": 1})
+        cfg.checkpoint_every = 16 * N_AGENTS
+    else:
+        cfg = config(4 * ROLLOUT)
+    train(cfg, run, progress=False)
+    (run / "model.zip").unlink()  # as a run stopped with Ctrl-C leaves it: checkpoints, no final model
+    (run / "done.json").unlink()
+    capsys.readouterr()
+    assert main(["evaluate", ENV, "--policy", f"{algo}:{run}", "--episodes", "1", "--json", str(tmp_path / "e.json"), "--quiet",
+                 *[x for k, v in ENV_KWARGS.items() for x in ("--param", f"{k}={v}")]]) == 0  # fmt: skip
+    err = capsys.readouterr().err
+    newest = training.checkpoints(run)[0].name
+    assert f"using its newest checkpoint, {newest}" in err
+    assert json.loads((tmp_path / "e.json").read_text())["policy"] == f"{algo}:{run}"
+
+
+def test_evaluate_takes_an_ippo_run_like_any_learned_policy(tmp_path):
+    run = train(config(2 * ROLLOUT), tmp_path / "run", progress=False)
+    policy = LearnedPolicy(run, ENV, "ippo")
+    assert isinstance(policy.model, PPO) and policy.model.num_timesteps == 2 * ROLLOUT
+    with pytest.raises(training.RunError, match="trained with ippo, not mappo"):
+        LearnedPolicy(run, ENV, "mappo")
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--config", "BAD"], "'n_steps' must be an integer ≥ 1, got 0"),
+        (["--param", "n_robots=3", "--grid", "n_envs=1000000"], "'n_envs' (1000000 copies) needs an estimated"),
+    ],
+)
+def test_bad_settings_are_refused_in_one_line_before_any_work(tmp_path, capsys, extra, message):
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"ippo": {"n_steps": 0}}))
+    extra = [str(bad) if x == "BAD" else x for x in extra]
+    assert main(["train", ENV, "--algo", "ippo", "--out", str(tmp_path / "run"), "--quiet", *extra]) != 0
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1 and message in err, err
+    assert not (tmp_path / "run" / "config.json").exists()
+
+
+def test_a_sweep_of_seeds_trains_ippo_runs_through_the_runner(tmp_path, capsys):
+    settings = tmp_path / "settings.json"
+    settings.write_text(json.dumps({"ippo": {**HYPER, "n_envs": COPIES, "net_arch": [16], "timesteps": ROLLOUT}}))
+    params = [x for k, v in ENV_KWARGS.items() for x in ("--param", f"{k}={v}")]
+    out = tmp_path / "sweep"
+    argv = ["train", ENV, "--algo", "ippo", "--config", str(settings), "--seeds", "0,1", "--out", str(out)]
+    assert main([*argv, "--quiet", "--eval-episodes", "1", *params]) == 0
+    with open(out / "summary.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(r["seed"]) for r in rows] == [0, 1]
+    for row in rows:
+        record = json.loads((out / row["run"] / "config.json").read_text())
+        assert record["algo"] == "ippo" and record["n_envs"] == COPIES
+
+
+def test_the_default_copies_aim_at_128_agent_rows_within_bounds():
+    assert training.default_config(ENV, "ippo") == {**batched_ppo.DEFAULTS}
+    cfg = TrainConfig(env_id=ENV, algo="ippo", env_kwargs=dict(ENV_KWARGS)).validate()
+    assert cfg.n_envs == 43  # ⌈128 / 3⌉ copies of 3 robots
+    assert batched_ppo.default_copies(1) == 128 and batched_ppo.default_copies(100) == 16  # the lower bound
+    assert TrainConfig(env_id=ENV, env_kwargs=dict(ENV_KWARGS)).validate().n_envs == 4  # SB3's as before
+
+
+# ------------------------------------------------------------------------------------------------ bench and race
+def test_the_bench_times_whole_rollouts_after_an_untimed_one():
+    from mrcomm_env.experiments.bench import batched_throughput
+
+    result = batched_throughput(ENV, ENV_KWARGS, 10, "mappo", 2)
+    rollout = 64 * 2 * N_AGENTS  # the bench's 64 steps per rollout, of every agent of both copies
+    assert result["agent_steps"] == 3 * rollout  # at least three rollouts, whole ones, the warm-up not counted
+    assert 0 < result["env_step_share"] < 1
+    assert result["ppo_agent_steps_per_s"] > result["agent_steps_per_s"] > 0
+    assert result["slots"] == 2 * N_AGENTS and result["copies"] == 2
+
+
+def test_race_refuses_a_warm_started_configuration_and_shares_the_problem_settings():
+    from mrcomm_env.experiments.race import race_configs
+
+    with pytest.raises(ValueError, match="starts from a clone"):
+        race_configs("MultiHop-v0")
+    sb3, batched, spec = race_configs("MapSync-v0")
+    shipped = training.default_config("MapSync-v0", "ppo")
+    assert sb3["algo"] == "ppo" and batched["algo"] == "ippo"
+    assert sb3["env_kwargs"] == batched["env_kwargs"] == shipped["env_kwargs"]
+    assert sb3["timesteps"] == shipped["timesteps"] and batched["timesteps"] == 2 * shipped["timesteps"]
+    assert sb3["eval_every"] == batched["eval_every"]  # evaluated at the same agent-steps
+    for key in ("learning_rate", "gamma", "gae_lambda", "ent_coef"):
+        assert batched["hyperparams"][key] == sb3["hyperparams"][key] == shipped[key]
+    for key in ("n_steps", "batch_size", "n_epochs"):  # batching: SB3's shipped, the trainer's defaults
+        assert sb3["hyperparams"][key] == shipped[key] and batched["hyperparams"][key] == batched_ppo.DEFAULTS[key]
+    TrainConfig(seed=0, **sb3).validate()
+    TrainConfig(seed=0, **batched).validate()
+
+
+def test_race_verdict_is_the_first_time_the_batched_trainer_reaches_sb3s_final_return():
+    from mrcomm_env.experiments.race import summarize
+
+    def points(seconds, returns):
+        return [{"agent_steps": 10.0 * k, "seconds": s, "return": r, "metric": 0.0, "bits": 1.0} for k, (s, r) in
+                enumerate(zip(seconds, returns))]  # fmt: skip
+
+    curves = {
+        "sb3": [points([0, 50, 100], [-9, -5, -3]), points([0, 60, 120], [-9, -4, -5])],  # final mean −4, 110 s
+        "ippo": [points([0, 10, 20, 30], [-9, -4.5, -3.9, -3]), points([0, 12, 24], [-9, -4, -2])],  # 20 s, 12 s
+    }
+    summary = summarize(curves, algo="ippo")
+    assert summary["target_return"] == -4.0
+    assert summary["ippo"]["seconds_to_target"] == [20, 12]
+    assert summary["share_of_sb3_time"] == pytest.approx(16 / 110)
+    assert summary["verdict"] == "met"
+    curves["ippo"][1] = points([0, 12], [-9, -8])  # one seed never gets there
+    assert summarize(curves, "ippo")["verdict"] == "not reached by every seed"
+
+
+@pytest.mark.parametrize("algo", ["ppo", "ippo"])
+def test_every_heldout_row_says_how_long_training_took_without_the_evaluations(tmp_path, algo):
+    hyper = {"n_steps": 16, "batch_size": 24, "n_epochs": 1} if algo == "ppo" else HYPER
+    run = train(config(6 * ROLLOUT, algo, hyperparams=hyper, eval_every=ROLLOUT), tmp_path / "run", progress=False)
+    with open(run / "progress.csv", newline="") as fh:
+        rows = [r for r in csv.DictReader(fh) if r.get("heldout/episode_return")]
+    seconds = [float(r["time/training_seconds"]) for r in rows]
+    assert len(rows) >= 4 and seconds[0] == 0.0
+    assert all(b >= a for a, b in zip(seconds, seconds[1:])) and seconds[-1] > 0  # never backwards
+    evaluating = [float(r["time/heldout_seconds"]) for r in rows]
+    assert all(b > a for a, b in zip(evaluating[1:], evaluating[2:]))  # every evaluation adds its own time
