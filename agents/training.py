@@ -45,6 +45,7 @@ from stable_baselines3.common.logger import CSVOutputFormat, Logger, make_output
 from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 from tqdm.auto import tqdm
 
+from mrcomm_agents import batched_ppo
 from mrcomm_agents.artifacts import (
     MODEL_FILE,
     PICKLED_STATISTICS_FILE,
@@ -73,12 +74,6 @@ from mrcomm_agents.batched_ppo import (
     detached_normalizer,
     make_critic,
     masks_actions,
-)
-from mrcomm_agents.batched_ppo import (
-    DEFAULTS as BATCHED_DEFAULTS,
-)
-from mrcomm_agents.batched_ppo import (
-    check_env as check_batched_env,
 )
 from mrcomm_agents.heldout import SECONDS_KEY, TRAINING_SECONDS_KEY, HeldOutEvaluation, record_heldout
 from mrcomm_agents.policies import CandidatePolicy
@@ -233,12 +228,12 @@ class TrainConfig:
 
     def _validate_batched(self, env) -> None:
         """ippo/mappo: the env's spaces (and for mappo its state), the copies' memory and the rollout's sizes."""
-        check_batched_env(env, self.algo)
+        batched_ppo.check_env(env, self.algo)
         if self.n_envs is None:
             self.n_envs = default_copies(env.n_agents)
         BatchedEnv.check_memory(env, int(self.n_envs or 1), "n_envs")  # the copies together, before any work
         for name in ("n_steps", "batch_size", "n_epochs"):
-            value = self.hyperparams.get(name, BATCHED_DEFAULTS[name])
+            value = self.hyperparams.get(name, batched_ppo.DEFAULTS[name])
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"argument '{name}' must be an integer ≥ 1, got {value!r}")
 
@@ -249,7 +244,7 @@ def default_config(env_id: str, algo: str = "ppo") -> dict[str, Any]:
     path = CONFIG_DIR / f"{short_name(env_id)}.json"
     shipped = json.loads(path.read_text()).get(algo, {}) if path.exists() else {}
     if algo in BATCHED_ALGORITHMS:
-        return {**BATCHED_DEFAULTS, **shipped}
+        return {**batched_ppo.DEFAULTS, **shipped}
     return shipped
 
 
@@ -277,7 +272,6 @@ def model_spec(config: TrainConfig, venv=None) -> ModelSpec:
     """What :func:`~mrcomm_agents.artifacts.load_model` rebuilds a model of this run from: the algorithm, the
     policy and the spaces of ``venv`` (the run's training VecEnv when resuming), else of an env made with the run's
     arguments."""
-    probe = None
     if venv is not None and config.policy == "mlp":  # nothing left to ask an env: the spaces are the VecEnv's
         policy, policy_kwargs = policy_choice(config)
         observation_space, action_space = venv.observation_space, venv.action_space
@@ -434,7 +428,7 @@ def train(
         if resume:
             config = _resumable(out, requested or {}, trust_pickle)
         else:
-            if (out / "done.json").exists() or _checkpoints(out):
+            if (out / "done.json").exists() or checkpoints(out):
                 raise RunError(f"{out} already holds a run; pass --resume to continue it or choose another --out")
             _clear_unstarted(out)  # a run that stopped before its first checkpoint starts over
         assert config is not None  # a new run was given one; a resumed run read its own
@@ -448,12 +442,8 @@ def _train_locked(
     torch.set_num_threads(1)
     if config.algo in BATCHED_ALGORITHMS:
         return _train_batched(config, out, resume, progress, teacher, trust_pickle)
-    ckpt = out / "checkpoints"
-    ckpt.mkdir(exist_ok=True)
+    ckpt = _open_run_folder(config, out, resume)
     cls = algorithm_class(config.algo)
-    if not resume:
-        record = {**asdict(config), "versions": package_versions(), "git_commit": git_commit()}
-        write_json(out / "config.json", record)
 
     venv = make_training_env(config, config.seed)
     if resume:
@@ -506,18 +496,26 @@ def _train_locked(
     return out
 
 
-def _train_batched(
-    config: TrainConfig, out: Path, resume: bool, progress: bool, teacher: Policy | None, trust_pickle: bool
-) -> Path:
-    """ippo/mappo: the same run folder, checkpoints, logs, held-out rows and interrupt handling as the SB3 path,
-    with :class:`~mrcomm_agents.batched_ppo.BatchedPPO` stepping ``n_envs`` copies as one world."""
+def _open_run_folder(config: TrainConfig, out: Path, resume: bool) -> Path:
+    """The run's checkpoint folder, made; a new run's ``config.json`` written first (with versions and commit)."""
     ckpt = out / "checkpoints"
     ckpt.mkdir(exist_ok=True)
     if not resume:
         record = {**asdict(config), "versions": package_versions(), "git_commit": git_commit()}
         write_json(out / "config.json", record)
+    return ckpt
+
+
+def _train_batched(
+    config: TrainConfig, out: Path, resume: bool, progress: bool, teacher: Policy | None, trust_pickle: bool
+) -> Path:
+    """ippo/mappo: the same run folder, checkpoints, logs, held-out rows and interrupt handling as the SB3 path,
+    with :class:`~mrcomm_agents.batched_ppo.BatchedPPO` stepping ``n_envs`` copies as one world."""
+    ckpt = _open_run_folder(config, out, resume)
     model, normalizer, critic, critic_optimizer = _batched_model(config, out, resume, teacher, trust_pickle)
     done_steps = int(model.num_timesteps)
+    if resume:
+        _cut_progress_log(out / "progress.csv", done_steps)
     batch = BatchedEnv(lambda: make(config.env_id, **config.env_kwargs), int(config.n_envs or 1), copy=False)
     # a resumed run continues on other episodes than those it trained on before the interruption
     trainer = BatchedPPO(model, batch, normalizer, config.seed + done_steps, critic, critic_optimizer)
@@ -603,10 +601,9 @@ def _batched_model(config: TrainConfig, out: Path, resume: bool, teacher: Policy
     observation_space, action_space = probe.observation_space(agent), probe.action_space(agent)
     critic_state = None
     if resume:
-        model, normalizer, critic_state = _load_newest_batched(config, out / "checkpoints", trust_pickle)
+        model, normalizer, critic_state = _load_newest_batched(config, out, trust_pickle)
         if config.freeze_normalization and normalizer is not None:
             normalizer.training = False
-        _cut_progress_log(out / "progress.csv", model.num_timesteps)
     else:
         policy, policy_kwargs = policy_choice(config, probe)
         model = build_model(
@@ -633,34 +630,20 @@ def _batched_model(config: TrainConfig, out: Path, resume: bool, teacher: Policy
     return model, normalizer, critic, critic_optimizer
 
 
-def _load_newest_batched(config: TrainConfig, ckpt: Path, trust_pickle: bool):
-    """(model, normalizer, critic state or None) of the newest checkpoint of an ippo/mappo run that loads (a
-    damaged one is reported and the older one used, as for the SB3 path)."""
-    folders = _checkpoints(ckpt.parent)
-    for folder in folders:
-        refuse_pickles(folder, trust_pickle)
+def _load_newest_batched(config: TrainConfig, out: Path, trust_pickle: bool):
+    """(model, normalizer, critic state or None) of an ippo/mappo run's newest checkpoint that loads."""
     spec = model_spec(config)
-    problems = []
-    for folder in folders:
-        try:
-            normalizer = read_statistics(folder, trust_pickle=trust_pickle) if config.normalize else None
-            model = load_model(folder / MODEL_FILE, spec, trust_pickle=trust_pickle)
-            model.num_timesteps = int(read_json(folder / "state.json")["num_timesteps"])
-            critic_state = _load_critic(folder) if config.algo == "mappo" else None
-        except PickleRefused:
-            raise
-        except RunError as exc:
-            problems.append(f"{folder.name}: {exc}")
-            continue
-        except (KeyError, TypeError, ValueError) as exc:
-            problems.append(f"{folder.name}: {type(exc).__name__}")
-            continue
-        if problems:
-            print(f"resuming from {folder} ({'; '.join(problems)}: damaged, skipped)", file=sys.stderr)
+
+    def load(folder: Path):
+        normalizer = read_statistics(folder, trust_pickle=trust_pickle) if config.normalize else None
+        model = load_model(folder / MODEL_FILE, spec, trust_pickle=trust_pickle)
+        model.num_timesteps = int(read_json(folder / "state.json")["num_timesteps"])
+        critic_state = _load_critic(folder) if config.algo == "mappo" else None
         if normalizer is not None:
-            normalizer.training = True  # statistics are saved as they were used; training goes on updating them
+            normalizer.training = True  # saved as they were used; training goes on updating them
         return model, normalizer, critic_state
-    raise RunError(f"cannot resume {ckpt.parent}: no checkpoint loads ({'; '.join(problems)}); start it over")
+
+    return _newest_loadable(out, trust_pickle, load)
 
 
 def _load_critic(folder: Path) -> dict[str, Any]:
@@ -711,7 +694,7 @@ def convert_run(out: Path, trust_pickle: bool = False) -> list[str]:
     if not (out / "config.json").exists():
         raise RunError(f"{out} is not a training run (no config.json)")
     with run_lock(out):
-        folders = [out, *_checkpoints(out)]
+        folders = [out, *checkpoints(out)]
         pickles = [f / PICKLED_STATISTICS_FILE for f in folders if (f / PICKLED_STATISTICS_FILE).exists()]
         if pickles and not trust_pickle:
             raise pickle_refusal(pickles[0], f" (and {len(pickles) - 1} more)" if len(pickles) > 1 else "")
@@ -731,15 +714,10 @@ def convert_run(out: Path, trust_pickle: bool = False) -> list[str]:
 
 def has_checkpoint(out: Path) -> bool:
     """Whether the run in ``out`` wrote a checkpoint (it can be resumed; without one it starts over)."""
-    return bool(_checkpoints(out))
+    return bool(checkpoints(out))
 
 
 def checkpoints(out: Path) -> list[Path]:
-    """The checkpoint folders of the run in ``out``, newest first."""
-    return _checkpoints(out)
-
-
-def _checkpoints(out: Path) -> list[Path]:
     """The run's checkpoint folders, newest first (the layout before step folders: one in ``checkpoints/``)."""
     ckpt = out / "checkpoints"
     found = sorted(ckpt.glob("step-*/state.json"), key=lambda p: p.parent.name, reverse=True)
@@ -782,7 +760,7 @@ def _save_checkpoint(m, config: TrainConfig, ckpt: Path, normalizer=None, critic
     _save_files(m, config, tmp, normalizer, critic_state)
     shutil.rmtree(ckpt / name, ignore_errors=True)
     os.replace(tmp, ckpt / name)
-    for old in _checkpoints(ckpt.parent)[KEEP_CHECKPOINTS:]:
+    for old in checkpoints(ckpt.parent)[KEEP_CHECKPOINTS:]:
         if old == ckpt:  # the single checkpoint of the old layout
             for stale in (MODEL_FILE, STATISTICS_FILE, PICKLED_STATISTICS_FILE, CRITIC_FILE, "state.json"):
                 (ckpt / stale).unlink(missing_ok=True)
@@ -791,19 +769,29 @@ def _save_checkpoint(m, config: TrainConfig, ckpt: Path, normalizer=None, critic
 
 
 def _load_newest_checkpoint(config: TrainConfig, ckpt: Path, venv, trust_pickle: bool = False):
-    """(model, venv) from the newest checkpoint that loads; a damaged one (a crash mid-write) is reported and the
-    older one used. A pickle (a run written before ``agents/artifacts.py``) is refused before anything is read,
+    """(model, venv) from the newest checkpoint that loads (see :func:`_newest_loadable`)."""
+    base = venv
+
+    def load(folder: Path):
+        env = read_statistics(folder, base, trust_pickle) if config.normalize else base
+        model = load_model(folder / MODEL_FILE, model_spec(config, base), env=env, trust_pickle=trust_pickle)
+        model.num_timesteps = int(read_json(folder / "state.json")["num_timesteps"])
+        return model, env
+
+    return _newest_loadable(ckpt.parent, trust_pickle, load)
+
+
+def _newest_loadable(out: Path, trust_pickle: bool, load):
+    """``load(folder)`` of the run's newest checkpoint that loads; a damaged one (a crash mid-write) is reported and
+    the older one used. A pickle (a run written before ``agents/artifacts.py``) is refused before anything is read,
     unless ``trust_pickle``; a file that asks to run code is refused outright, not skipped as damage."""
-    folders = _checkpoints(ckpt.parent)
+    folders = checkpoints(out)
     for folder in folders:
         refuse_pickles(folder, trust_pickle)
-    base = venv
     problems = []
     for folder in folders:
         try:
-            env = read_statistics(folder, base, trust_pickle) if config.normalize else base
-            model = load_model(folder / MODEL_FILE, model_spec(config, base), env=env, trust_pickle=trust_pickle)
-            model.num_timesteps = int(read_json(folder / "state.json")["num_timesteps"])
+            loaded = load(folder)
         except PickleRefused:
             raise
         except RunError as exc:
@@ -814,8 +802,8 @@ def _load_newest_checkpoint(config: TrainConfig, ckpt: Path, venv, trust_pickle:
             continue
         if problems:
             print(f"resuming from {folder} ({'; '.join(problems)}: damaged, skipped)", file=sys.stderr)
-        return model, env
-    raise RunError(f"cannot resume {ckpt.parent}: no checkpoint loads ({'; '.join(problems)}); start it over")
+        return loaded
+    raise RunError(f"cannot resume {out}: no checkpoint loads ({'; '.join(problems)}); start it over")
 
 
 def resumed_csv_output(filename: str):
@@ -854,7 +842,7 @@ def _resumable(out: Path, requested: dict[str, Any], trust_pickle: bool = False)
     config_path = out / "config.json"
     if not config_path.exists():
         raise RunError(f"cannot resume {out}: it holds no run (config.json is missing)")
-    for folder in _checkpoints(out):  # before anything of the run is read
+    for folder in checkpoints(out):  # before anything of the run is read
         refuse_pickles(folder, trust_pickle)
     try:
         record = read_json(config_path)
@@ -863,7 +851,7 @@ def _resumable(out: Path, requested: dict[str, Any], trust_pickle: bool = False)
     config = config_from_record(record)
     _check_agreement(config, requested, out)
     finished = (out / "done.json").exists()
-    if not _checkpoints(out):
+    if not checkpoints(out):
         raise RunError(
             f"nothing to resume in {out}: it stopped before its first checkpoint; run the same `mrcomm train` "
             "without --resume to start it over"

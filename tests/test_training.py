@@ -120,7 +120,7 @@ def test_resume_loses_neither_steps_nor_optimizer_nor_statistics(tmp_path, monke
         train(config(target), tmp_path / "run", progress=False)
     monkeypatch.undo()
     assert not (tmp_path / "run" / "done.json").exists()
-    newest = training._checkpoints(tmp_path / "run")[0]
+    newest = training.checkpoints(tmp_path / "run")[0]
     state = json.loads((newest / "state.json").read_text())
     assert 0 < state["num_timesteps"] < target
 
@@ -364,7 +364,7 @@ def test_two_checkpoints_are_kept_and_a_damaged_newest_one_is_skipped(tmp_path, 
     with pytest.raises(KeyboardInterrupt):
         train(config(6 * ROLLOUT), run, progress=False)
     monkeypatch.undo()
-    kept = training._checkpoints(run)
+    kept = training.checkpoints(run)
     assert len(kept) == training.KEEP_CHECKPOINTS
     (kept[0] / "model.zip").write_bytes(b"PK\x03\x04 cut short by a crash")
     train(None, run, resume=True, progress=False)

@@ -203,34 +203,49 @@ def batched_throughput(env_id: str, env_kwargs: dict, timesteps: int, algo: str,
     per_rollout = trainer.steps * trainer.rows
     trainer.learn(per_rollout)  # the warm-up rollout and update
     rollouts = max(3, -(-timesteps // per_rollout))
-    in_step = [0.0]
-    step = batch.step
-
-    def timed_step(actions):
-        start = time.perf_counter()
-        try:
-            return step(actions)
-        finally:
-            in_step[0] += time.perf_counter() - start
-
-    batch.step = timed_step  # type: ignore[method-assign]
+    in_world = Stopwatch()
+    batch.step = in_world.timing(batch.step)  # type: ignore[method-assign]
     done = model.num_timesteps
     start = time.perf_counter()
     trainer.learn(done + rollouts * per_rollout)
     wall = time.perf_counter() - start
     batch.close()
-    steps = model.num_timesteps - done
     return {
         "algo": algo,
-        "agent_steps_per_s": steps / wall,
-        "env_step_share": in_step[0] / wall,
-        "ppo_agent_steps_per_s": steps / (wall - in_step[0]),
-        "agent_steps": steps,
-        "seconds": wall,
-        "slots": trainer.rows,
+        **_throughput(model.num_timesteps - done, wall, in_world.seconds, trainer.rows),
         "copies": copies,
         "minibatch": int(model.batch_size),
         "update_threads": trainer.update_threads,
+    }
+
+
+class Stopwatch:
+    """The wall time spent inside the callables it wraps (the env's side of a training step)."""
+
+    def __init__(self) -> None:
+        self.seconds = 0.0
+
+    def timing(self, function):
+        def timed(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                self.seconds += time.perf_counter() - start
+
+        return timed
+
+
+def _throughput(steps: int, wall: float, in_env: float, slots: int) -> dict[str, Any]:
+    """A training run's speed: agent-steps/s, the share of wall time stepping the env(s), and the trainer's own
+    speed (agent-steps over the wall time outside the env's stepping; see _compared)."""
+    return {
+        "agent_steps_per_s": steps / wall,
+        "env_step_share": in_env / wall,
+        "ppo_agent_steps_per_s": steps / (wall - in_env),
+        "agent_steps": steps,
+        "seconds": wall,
+        "slots": slots,
     }
 
 
@@ -274,19 +289,10 @@ def train_throughput(env_fns, timesteps: int, seed: int = 0) -> dict[str, Any]:
 
     torch.set_num_threads(1)
     venv = AgentSlotVecEnv(env_fns)
-    in_step = [0.0]
-    step_wait = venv.step_wait
-
-    def timed_step_wait():
-        # the env's side of a PPO step: every copy stepped (one batch for mrcomm envs, env.step for the reference)
-        # and its results laid out as SB3's slots
-        start = time.perf_counter()
-        try:
-            return step_wait()
-        finally:
-            in_step[0] += time.perf_counter() - start
-
-    venv.step_wait = timed_step_wait
+    # the env's side of a PPO step: every copy stepped (one batch for mrcomm envs, env.step for the reference) and
+    # its results laid out as SB3's slots
+    in_env = Stopwatch()
+    venv.step_wait = in_env.timing(venv.step_wait)
     # one minibatch per epoch: the gradient work per agent-step is then the same whatever the slot count
     batch = BENCH_PPO["n_steps"] * venv.num_envs
     model = PPO("MlpPolicy", venv, seed=seed, device="cpu", verbose=0, batch_size=batch, **BENCH_PPO)
@@ -295,22 +301,13 @@ def train_throughput(env_fns, timesteps: int, seed: int = 0) -> dict[str, Any]:
     # one untimed rollout first, so that compiled kernels (MapSync's world) are warm before timing: a first run
     # after a fresh install then measures as the second
     model.learn(total_timesteps=batch)
-    in_step[0] = 0.0
+    in_env.seconds = 0.0
     done = model.num_timesteps
     start = time.perf_counter()
     model.learn(total_timesteps=timesteps, reset_num_timesteps=False)
     wall = time.perf_counter() - start
     venv.close()
-    steps = model.num_timesteps - done
-    return {
-        "agent_steps_per_s": steps / wall,
-        "env_step_share": in_step[0] / wall,
-        # PPO's own speed: agent-steps over the wall time outside the env's stepping (see _compared)
-        "ppo_agent_steps_per_s": steps / (wall - in_step[0]),
-        "agent_steps": steps,
-        "seconds": wall,
-        "slots": venv.num_envs,
-    }
+    return _throughput(model.num_timesteps - done, wall, in_env.seconds, venv.num_envs)
 
 
 def _train_line(result: dict) -> str:
