@@ -182,11 +182,9 @@ def make_critic(n_agents: int, obs_dim: int, net_arch: list[int], learning_rate:
 
 @dataclass
 class RolloutStats:
-    """What one rollout adds to the log."""
+    """What one rollout adds to the log: the seconds its world's steps took (``time/env_step_seconds``)."""
 
-    episodes: int = 0
     seconds_stepping: float = 0.0
-    seconds_acting: float = 0.0
 
 
 class BatchedPPO:
@@ -291,7 +289,6 @@ class BatchedPPO:
         torch.set_num_threads(1)
         env_actions_dtype = np.int64 if isinstance(self.action_space, (spaces.Discrete, spaces.MultiDiscrete)) else None
         for t in range(self.steps):
-            start = time.perf_counter()
             obs = self.next_obs
             self.buf_obs[t] = obs
             self.buf_starts[t] = self.next_starts
@@ -312,7 +309,6 @@ class BatchedPPO:
             acted = time.perf_counter()
             step = self.batch.step(env_actions)
             stats.seconds_stepping += time.perf_counter() - acted
-            stats.seconds_acting += acted - start
             raw_rewards = step.rewards.reshape(self.rows)
             ended_copies = step.ended
             ended_rows = np.repeat(ended_copies, self.n)
@@ -324,7 +320,6 @@ class BatchedPPO:
                 self.next_masks = self._mask_rows(step.infos)
             for i in np.flatnonzero(ended_copies).tolist():
                 self.episodes.append((float(self.episode_return[i]), int(self.episode_length[i])))
-                stats.episodes += 1
                 if self.next_masks is not None:
                     self.next_masks[i * self.n : (i + 1) * self.n] = np.stack(
                         [step.reset_infos[i][k].reshape(self.n) > 0.5 for k in self.masks], axis=1
