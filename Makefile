@@ -15,7 +15,7 @@ export MPLBACKEND := Agg
 
 EXTRAS := train,dev,bench,fast
 
-.PHONY: demo test fuzz docs-site docs-serve test-wheel install bench docs learn sweep lint format lock clean test-torchrl test-rllib test-benchmarl \
+.PHONY: demo test fuzz docs-site docs-serve test-wheel install bench bench-benchmarl docs learn sweep lint format lock clean test-torchrl test-rllib test-benchmarl \
 	test-ray
 
 # constraints.txt pins every package to the versions CI tested, so a new machine gets those
@@ -97,6 +97,11 @@ test-wheel: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/mrcomm bench
+
+# BenchMARL's collection on every task (docs/integrations.md): the batched env beside the older one-wrapper-per-copy
+# SerialEnv path and beside an env that costs nothing, on one torch thread; into results/bench-benchmarl.json
+bench-benchmarl: .venv-benchmarl/.installed
+	OMP_NUM_THREADS=1 .venv-benchmarl/bin/python -m mrcomm_env.experiments.benchmarl_bench
 
 docs: $(STAMP)
 	$(BIN)/mrcomm docs

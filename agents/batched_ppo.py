@@ -29,7 +29,7 @@ SB3's PPO steps a VecEnv of agent slots and pays Python per slot and per step, a
 **IPPO** (de Witt et al. 2020): every agent acts and is criticised on its own observation, one network shared by
 all (parameter sharing). **MAPPO** (Yu et al. 2022): the same actor; the critic is a separate network reading the
 env's global ``state()`` beside the agent's own observation (the agent-specific global state of Yu et al. §4).
-In every mrcomm env ``state()`` is every robot's observation concatenated (``MrcommParallelEnv._state``), so the
+In every mrcomm env ``state()`` is every robot's observation concatenated (``MrcommParallelEnv.state_is_joint_observation``), so the
 critic's input is built from the rollout's own observation rows, normalised with the same statistics; an env
 that defines another ``state()`` is refused for ``mappo`` at construction.
 """
@@ -50,7 +50,7 @@ from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecNormalize
 from torch import nn
 
-from mrcomm_env.core.base import MrcommParallelEnv
+from mrcomm_env.core.base import MrcommParallelEnv, mask_info_keys
 from mrcomm_env.core.batched import BatchedEnv
 
 #: the algorithms of this module (``mrcomm train --algo``)
@@ -75,16 +75,8 @@ def default_copies(n_agents: int) -> int:
     return int(min(hi, max(lo, -(-DEFAULT_ROWS // max(1, int(n_agents))))))
 
 
-#: info columns ``action_mask_0 …`` carry each agent's feasible actions (RendezvousMapping)
-MASK_PREFIX = "action_mask_"
 #: the episodes over which ``rollout/ep_rew_mean`` and ``ep_len_mean`` are averaged, as SB3's logger does
 EPISODE_WINDOW = 100
-
-
-def mask_keys(info_keys) -> list[str]:
-    """The info columns holding action masks, in action order (``action_mask_0``, ``action_mask_1``, …)."""
-    keys = [k for k in info_keys if k.startswith(MASK_PREFIX) and k[len(MASK_PREFIX) :].isdigit()]
-    return sorted(keys, key=lambda k: int(k[len(MASK_PREFIX) :]))
 
 
 def masks_actions(env: MrcommParallelEnv) -> bool:
@@ -104,10 +96,10 @@ def check_env(env: MrcommParallelEnv, algo: str) -> None:
         raise ValueError(
             f"{algo} needs Discrete, MultiBinary, MultiDiscrete or Box actions; {env.ENV_ID} has {act_space}"
         )
-    if algo == "mappo" and type(env)._state is not MrcommParallelEnv._state:
+    if algo == "mappo" and not env.state_is_joint_observation():
         raise ValueError(
-            f"mappo's critic reads state() as every robot's observation concatenated (MrcommParallelEnv._state); "
-            f"{type(env).__name__} defines its own state(): use ippo"
+            "mappo's critic reads state() as every robot's observation concatenated "
+            f"(MrcommParallelEnv.state_is_joint_observation); {type(env).__name__} defines its own state(): use ippo"
         )
 
 
@@ -228,7 +220,7 @@ class BatchedPPO:
         self.buf_starts = np.zeros((t, rows), dtype=np.float32)
         self.advantages = np.zeros((t, rows), dtype=np.float32)
         observations, infos = batch.reset(seed=int(seed))
-        self.masks = mask_keys(infos)
+        self.masks = mask_info_keys(infos)
         self.buf_masks = np.zeros((t, rows, len(self.masks)), dtype=bool) if self.masks else None
         self.next_masks = self._mask_rows(infos) if self.masks else None
         self.next_obs = self._observe(observations)

@@ -214,7 +214,7 @@ def test_the_copy_axis_world_and_the_copies_in_turn_step_alike():
         world.step(np.full((3, 8), 1.0))  # 1.0 is not an action of Discrete(2), as for the env
 
 
-#: static MultiHop scenes with the relative layout and the team reward: the copy-axis world of multihop/copy_axis.py
+#: static MultiHop scenes with the team reward, in either layout: the copy-axis world of multihop/copy_axis.py
 MULTIHOP_COPY_AXIS_CASES = [
     {"grid_side": 4, "slot_size": 3, "max_cycles": 20},
     {"grid_side": 5, "n_robots": 22, "slot_size": 2, "lam": 0.5, "max_cycles": 25},  # a partial last row; bit cost
@@ -222,6 +222,9 @@ MULTIHOP_COPY_AXIS_CASES = [
     # robots out of everyone's range: estimates never known, first arrivals tracked all episode; flooding (m = n)
     {"scene": "field", "n_robots": 9, "comm_range": 8.0, "arena_size": 60.0, "slot_size": 9, "max_cycles": 12},
     {"grid_side": 2, "slot_size": 1, "max_cycles": 5},
+    # v0's layout (BenchMARL's MultiHop task): Box priorities per robot index, ties and zeros among random draws
+    {"grid_side": 4, "slot_size": 3, "max_cycles": 20, "layout": "absolute"},
+    {"scene": "field", "n_robots": 9, "comm_range": 8.0, "arena_size": 60.0, "max_cycles": 12, "layout": "absolute"},
 ]
 
 
@@ -238,17 +241,19 @@ class ReferenceMultiHop(MultiHopEnv):
 def test_a_multihop_copy_axis_world_gives_each_copy_the_single_env_episodes(kwargs):
     env_id = "mrcomm/MultiHop-v0"
     batch = mrcomm_env.make_batched(env_id, 3, **kwargs)
-    assert batch.world is not None  # compiled backend (extra "fast"), static scene, relative layout, team reward
+    assert batch.world is not None  # compiled backend (extra "fast"), static scene, team reward
     horizon = 2 * kwargs["max_cycles"] + 3
     singles = _assert_copies_are_single_envs(batch, env_id, kwargs, horizon, lambda: ReferenceMultiHop(**kwargs))
     assert not singles[0]._world_eligible  # the reference, not the world of one copy
     batch.sync_copies()
     for copy, single in zip(batch.envs, singles):
         assert copy.step_count == single.step_count and copy.t == single.t and copy.agents == single.agents
-        for name in ("stamps", "first_known", "sent_stamp", "last_sent", "_ranked_known"):
+        for name in ("stamps", "first_known", "sent_stamp", "last_sent"):
             assert _bytes(getattr(copy, name)) == _bytes(getattr(single, name)), name
         assert _bytes(copy.ages()) == _bytes(single.ages())
-        assert _bytes(copy._candidates.astype(np.int64)) == _bytes(single._candidates.astype(np.int64))
+        if kwargs.get("layout", "relative") == "relative":  # the candidates' ranking is the relative layout's
+            assert _bytes(copy._ranked_known) == _bytes(single._ranked_known)
+            assert _bytes(copy._candidates.astype(np.int64)) == _bytes(single._candidates.astype(np.int64))
         mine, theirs = copy.metrics(), single.metrics()
         assert mine.keys() == theirs.keys()
         assert all(mine[k] == theirs[k] or (np.isnan(mine[k]) and np.isnan(theirs[k])) for k in mine), (mine, theirs)
@@ -256,7 +261,7 @@ def test_a_multihop_copy_axis_world_gives_each_copy_the_single_env_episodes(kwar
 
 @st.composite
 def _multihop_world_scenes(draw):
-    """MultiHop arguments its copy-axis world takes (a static grid or field, the relative layout, the team reward):
+    """MultiHop arguments its copy-axis world takes (a static grid or field, either layout, the team reward):
     grids with partial rows, fields with their own links, every slot size from no hop to flooding, bit costs."""
     common = {
         "alpha": draw(st.sampled_from([0.25, 1.0, 3.0])),
@@ -264,6 +269,7 @@ def _multihop_world_scenes(draw):
         "baud": draw(st.sampled_from([300.0, 3000.0])),
         "lam": draw(st.sampled_from([0.0, 0.7])),
         "max_cycles": draw(st.integers(1, 6)),
+        "layout": draw(st.sampled_from(["relative", "absolute"])),
     }
     if draw(st.booleans()):
         side = draw(st.integers(2, 6))
@@ -347,6 +353,58 @@ def test_the_multihop_world_refuses_what_the_env_refuses_and_steps_as_the_copies
         in_turn.step(bad)  # the env objects refuse it alike
     with pytest.raises(ValueError, match="'actions' must hold 0s and 1s"):
         world.step(np.full((2, 9, 8), "1"))
+
+
+def test_the_absolute_layout_world_ranks_priorities_as_the_protocol_with_ties_and_zeros():
+    """``frame_numba.priority_ranks`` against ``protocol.priority_ranking`` (numpy's stable sort of whole rows) on
+    priorities from four levels, so that most rows hold ties and withheld (0) robots, as random floats never do, and
+    with robots not yet held: each row it writes is the reference's row as far as a frame reads it (until the
+    (m − 1)-th robot held), by scans alone and past ``SCAN_PICKS`` by its sort."""
+    from mrcomm_env.multihop import frame_numba
+    from mrcomm_env.multihop.protocol import priority_ranking
+
+    rng = np.random.default_rng(3)
+    sorted_rows = 0
+    for n in (2, 3, 9, 40, 100):
+        for m in sorted({1, 2, 3, 7, n}):
+            priority = rng.choice([0.0, 0.25, 0.5, 1.0], size=(6, n, n))
+            stamps = np.where(rng.random((6, n, n)) < rng.choice([0.1, 0.9]), 0.0, -np.inf)
+            rank, count = np.zeros((6, n, n), dtype=np.int16), np.zeros((6, n), dtype=np.int64)
+            frame_numba.priority_ranks(priority, stamps, m, rank, count)
+            for c in range(6):
+                expected_rank, expected_count = priority_ranking(priority[c])
+                for i in range(n):
+                    written = rank[c, i, : count[c, i]]
+                    np.testing.assert_array_equal(written, expected_rank[i, : count[c, i]])
+                    held = int((stamps[c, i, written[1:]] > -np.inf).sum())
+                    assert count[c, i] == expected_count[i] or held == m - 1, (n, m, c, i)
+                    sorted_rows += count[c, i] > frame_numba.SCAN_PICKS + 1
+    assert sorted_rows > 0, "some rows must go past the scans into the sort"
+
+
+def test_the_absolute_layout_world_steps_as_the_copies_in_turn_and_refuses_what_the_env_refuses():
+    kwargs = {"grid_side": 3, "slot_size": 2, "max_cycles": 6, "layout": "absolute"}
+    make = lambda: mrcomm_env.make("MultiHop-v0", **kwargs)  # noqa: E731
+    world, in_turn = BatchedEnv(make, 2), BatchedEnv(make, 2, copy_axis=False)
+    assert world.world is not None and in_turn.world is None
+    assert _bytes(world.reset(seed=2)[0]) == _bytes(in_turn.reset(seed=2)[0])
+    rng = np.random.default_rng(4)
+    for _ in range(8):  # float64 priorities, tied and zero among them: both round them to the Box's float32 first
+        actions = rng.choice([0.0, 0.1, 0.3, 1.0 / 3.0, 1.0], size=(2, 9, 9))
+        a, b = world.step(actions), in_turn.step(actions)
+        assert _bytes(a.observations) == _bytes(b.observations) and _bytes(a.rewards) == _bytes(b.rewards)
+        assert all(_bytes(a.infos[k]) == _bytes(b.infos[k]) for k in b.infos)
+    bad = np.zeros((2, 9, 9))
+    bad[1, 4, 2] = 1.5
+    with pytest.raises(ValueError, match=r"action of robot_4 \(copy 1\) must be finite and within \[0, 1\]"):
+        world.step(bad)
+    with pytest.raises(ValueError, match=r"action of robot_4 must be finite and within \[0, 1\]"):
+        in_turn.step(bad)  # the env objects refuse it alike
+    bad[1, 4, 2] = np.nan
+    with pytest.raises(ValueError, match=r"robot_4 \(copy 1\) must be finite"):
+        world.step(bad)
+    with pytest.raises(ValueError, match="must be real arrays of shape"):
+        world.step(np.full((2, 9, 9), "1"))
 
 
 #: MapSync configurations its copy-axis world (mapsync/copy_axis.py) steps: links without a bit budget, always up.
@@ -641,3 +699,49 @@ def test_a_batch_holds_about_what_its_memory_estimate_says(env_id, n_copies, bac
     assert estimate_mb / 2 <= held_mb <= 2 * estimate_mb, (held_mb, estimate_mb)
     # while counting every copy at one env's peak would have been far above it
     assert n_copies * env.memory_estimate(env.cfg) / 2**20 > 2 * held_mb
+
+
+#: a world that steps the copies as arrays (MapSync's unlimited links) and one whose copies step in turn
+RESTART_CASES = [("MapSync-v0", {"max_cycles": 8}), ("AsyncCL-v0", {"n_robots": 3, "max_cycles": 8})]
+
+
+@pytest.mark.parametrize(("env_id", "kwargs"), RESTART_CASES, ids=lambda v: str(v))
+def test_restart_begins_new_episodes_of_the_named_copies_only(env_id, kwargs):
+    batch = BatchedEnv(lambda: mrcomm_env.make(env_id, **kwargs), 3)
+    singles = [mrcomm_env.make(env_id, **kwargs) for _ in range(3)]
+    batch.reset(seed=4)
+    agents = singles[0].possible_agents
+    for i, env in enumerate(singles):
+        env.reset(seed=4 + i)
+    rng = np.random.default_rng(1)
+
+    def step_all():
+        actions = sample_actions(batch.action_space, rng, (3, batch.n_agents))
+        out = batch.step(actions)
+        single_obs = [env.step(dict(zip(agents, actions[i])))[0] for i, env in enumerate(singles)]
+        return out, [np.stack([obs[a] for a in agents]) for obs in single_obs]
+
+    for _ in range(3):
+        step_all()
+    reset_infos = batch.restart([1])
+    first, first_infos = singles[1].reset()  # no seed: the copy's own stream goes on
+    assert list(reset_infos) == [1]
+    assert {k: v.tolist() for k, v in reset_infos[1].items()} == {
+        k: [first_infos[a][k] for a in agents] for k in first_infos[agents[0]]
+    }
+    assert _bytes(batch.observations[1]) == _bytes(np.stack([first[a] for a in agents]))
+    for _ in range(3):  # copy 1 is now three steps into its second episode, the others six into their first
+        out, single_obs = step_all()
+        for i, env in enumerate(singles):
+            assert _bytes(out.observations[i]) == _bytes(single_obs[i])
+            assert batch.bits_sent()[i] == env.bits_sent()
+    frame = batch.render_copy(1)
+    assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[-1] == 3
+
+
+def test_restart_and_observations_need_a_reset_first():
+    batch = BatchedEnv(lambda: mrcomm_env.make("MapSync-v0", max_cycles=4), 2)
+    with pytest.raises(RuntimeError, match="reset"):
+        batch.restart([0])
+    with pytest.raises(RuntimeError, match="reset"):
+        _ = batch.observations

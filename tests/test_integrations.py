@@ -18,6 +18,7 @@ from mrcomm_env.integrations import make_parallel_env, require
     ("module", "framework", "call", "extra"),
     [
         ("mrcomm_env.integrations.torchrl", "torchrl", lambda m: m.make_env("MapSync-v0"), "torchrl"),
+        ("mrcomm_env.integrations.torchrl", "torchrl", lambda m: m.make_batched_env("MapSync-v0", 2), "torchrl"),
         ("mrcomm_env.integrations.rllib", "ray", lambda m: m.register_all(), "rllib"),
         ("mrcomm_env.integrations.rllib", "ray", lambda m: m.env_creator("MapSync-v0"), "rllib"),
     ],

@@ -30,6 +30,16 @@ COPY_OVERHEAD_BYTES = 64.0 * 2**10
 #: the horizon argument was called ``max_steps`` before PettingZoo's name ``max_cycles`` was adopted
 DEPRECATED_HORIZON = "max_steps"
 
+#: info columns ``action_mask_0 … action_mask_{K-1}`` carry each agent's feasible actions (envs with
+#: ``action_masks()``): infos stay plain numbers (docs/architecture.md), and every adapter reads the mask from them
+MASK_INFO_PREFIX = "action_mask_"
+
+
+def mask_info_keys(info_keys) -> list[str]:
+    """The info columns holding action masks, in action order (``action_mask_0``, ``action_mask_1``, …)."""
+    keys = [k for k in info_keys if k.startswith(MASK_INFO_PREFIX) and k[len(MASK_INFO_PREFIX) :].isdigit()]
+    return sorted(keys, key=lambda k: int(k[len(MASK_INFO_PREFIX) :]))
+
 
 class MrcommParallelEnv(ParallelEnv):
     ENV_ID: ClassVar[str] = ""
@@ -164,6 +174,12 @@ class MrcommParallelEnv(ParallelEnv):
         candidate). None for a flat observation. Learned policies may use it to share weights across
         candidates (``agents/policies.py``)."""
         return None
+
+    @classmethod
+    def state_is_joint_observation(cls) -> bool:
+        """Whether ``state()`` is every robot's observation concatenated in agent order (the default): batched
+        trainers and adapters then build the state from the observations they already hold."""
+        return cls._state is MrcommParallelEnv._state
 
     def _state(self) -> np.ndarray:
         """The global state for centralised critics; by default every robot's observation, concatenated."""
@@ -363,12 +379,17 @@ class MrcommParallelEnv(ParallelEnv):
             return None
 
         if self.render_mode == "rgb_array":
-            return _render.to_rgb_array(self._render)
+            return self.rgb_frame()
         if not _render.has_display():
             _render.warn_no_display()
             return None
         self._figure = _render.show_human(self._render, self._figure, self.metadata.get("render_fps", 10))
         return None
+
+    def rgb_frame(self) -> np.ndarray:
+        """The frame ``render()`` returns in ``rgb_array`` mode, ``(H, W, 3)`` uint8, whatever ``render_mode`` is:
+        a batch of copies built without rendering draws one of them with it (``BatchedEnv.render_copy``)."""
+        return _render.to_rgb_array(self._render)
 
     def close(self) -> None:
         if self._figure is not None:

@@ -233,6 +233,35 @@ class BatchedEnv:
     def _returned(self, observations: np.ndarray) -> np.ndarray:
         return observations.copy() if self.copy else observations
 
+    def restart(self, copies: Sequence[int]) -> dict[int, dict[str, np.ndarray]]:
+        """Begin a new episode of each copy in ``copies`` only, each continuing its own random stream (what an
+        automatic reset does), while the other copies keep theirs: copy index → the new episode's info columns
+        (key → ``(N,)``). Their first observations are in :attr:`observations`."""
+        if self._observations is None:
+            raise RuntimeError("restart() called before reset(); call reset() first")
+        reset_infos = {}
+        for i in copies:
+            if self.world is not None:
+                self.world.store(i)  # the env object takes the copy's state, its generator's included, from the world
+            self._observations[i], reset_infos[i] = self.envs[i].reset_arrays()
+            if self.world is not None:
+                self.world.adopt(i)
+        return reset_infos
+
+    @property
+    def observations(self) -> np.ndarray:
+        """``(M, N, *obs_shape)``: what every agent of every copy acts on next (the batch's own buffer: read it, or copy
+        what you keep; the next ``step``, ``reset`` or ``restart`` overwrites it)."""
+        if self._observations is None:
+            raise RuntimeError("observations read before reset(); call reset() first")
+        return self._observations
+
+    def render_copy(self, index: int = 0) -> np.ndarray:
+        """Copy ``index`` drawn as ``render()`` draws in ``rgb_array`` mode (``(H, W, 3)`` uint8): a batch builds its
+        copies without rendering, so that every copy steps in the copy-axis world."""
+        self.sync_copies([index])
+        return self.envs[index].rgb_frame()
+
     # ----------------------------------------------------------------- the env objects of a copy-axis world
     def sync_copies(self, indices: Sequence[int] | None = None) -> None:
         """Write the copy-axis world's state into the env objects (before reading them: attributes, rendering,

@@ -20,9 +20,8 @@ from typing import Any
 import numpy as np
 from pettingzoo.utils.wrappers import BaseParallelWrapper
 
+from mrcomm_env.core.base import MASK_INFO_PREFIX
 from mrcomm_env.registry import canonical_id, make
-
-MASK_INFO_PREFIX = "action_mask_"
 
 
 def require(module: str, extra: str) -> ModuleType:

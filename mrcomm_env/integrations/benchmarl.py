@@ -10,7 +10,10 @@
                critic_model_config=MlpConfig.get_from_yaml(), seed=0, config=ExperimentConfig.get_from_yaml()).run()
 
 A task's config holds the env's own arguments; the yaml files in ``benchmarl_conf/`` (one per task) give the
-defaults. All robots form one group ``"robot"``; MAPPO's critic reads the env's global ``state()``; the action
+defaults. BenchMARL's ``*_n_envs_per_worker`` copies of a task run as one batched TorchRL env
+(``torchrl.make_batched_env``, ``batch_size=[n_envs]``), as VMAS tasks do, not as one wrapper per copy in a
+``SerialEnv``; ``MrcommSerialClass`` keeps that older path, which ``mrcomm_env.experiments.benchmarl_bench``
+times beside the batched one. All robots form one group ``"robot"``; MAPPO's critic reads the env's global ``state()``; the action
 mask (RendezvousMapping-v0) is handed to BenchMARL, whose policies then sample feasible actions only.
 
 BenchMARL 1.5 needs torchrl < 0.12: install the ``benchmarl`` extra in its own environment, not beside ``torchrl``.
@@ -21,7 +24,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from mrcomm_env.integrations import require
-from mrcomm_env.integrations.torchrl import make_env
+from mrcomm_env.integrations.torchrl import make_batched_env, make_env
 from mrcomm_env.registry import ENTRIES, canonical_id, make
 
 EXTRA = "benchmarl"
@@ -50,6 +53,7 @@ class MrcommClass(_common.TaskClass):
         # build the env once, now: a bad argument fails here with the env's own ValueError, not mid-experiment,
         # and the action space may depend on the config (MultiHop-v0's layout)
         env = make(self.env_id, **self.config)
+        self._max_cycles = int(env.cfg["max_cycles"])
         self._action_space = env.action_space(env.possible_agents[0])
         if not isinstance(self._action_space, (_spaces.Discrete, _spaces.Box)):
             raise ValueError(
@@ -62,11 +66,11 @@ class MrcommClass(_common.TaskClass):
         return ENV_ID_OF_TASK[self.name]
 
     def get_env_fun(self, num_envs, continuous_actions, seed, device):
-
         config = dict(self.config)
         env_id = self.env_id
-        # BenchMARL runs num_envs copies in a SerialEnv/ParallelEnv itself; each copy is one env
-        return lambda: make_env(env_id, device=device, seed=seed, render_mode="rgb_array", **config)
+        # num_envs copies as one env with batch_size=[num_envs]: BenchMARL then steps them in one call (as VMAS);
+        # copy i of the seed s is the PettingZoo env seeded s + i
+        return lambda: make_batched_env(env_id, num_envs, device=device, seed=seed, **config)
 
     def supports_continuous_actions(self) -> bool:
         return isinstance(self._action_space, _spaces.Box)
@@ -78,16 +82,17 @@ class MrcommClass(_common.TaskClass):
         return True  # every env has state() and state_space (docs/architecture.md)
 
     def has_render(self, env) -> bool:
-        return True  # render_mode="rgb_array": evaluation videos when the experiment asks for them
+        return True  # copy 0 drawn as an RGB array (the batched env's render()): evaluation videos when asked for
 
     def max_steps(self, env) -> int:
-        return int(env._env.unwrapped.cfg["max_cycles"])
+        return self._max_cycles
 
     def group_map(self, env):
         return env.group_map
 
+    # BenchMARL reads the specs of one copy: a batched env's without its copy axis (``*_unbatched``, as for VMAS)
     def _group_entries(self, env, keep: str):
-        spec = env.observation_spec.clone()
+        spec = env.full_observation_spec_unbatched.clone()
         for group in self.group_map(env):
             for key in list(spec[group].keys()):
                 if key != keep:
@@ -109,14 +114,24 @@ class MrcommClass(_common.TaskClass):
         return None if spec.is_empty() else spec
 
     def state_spec(self, env):
-        return _specs.Composite({"state": env.observation_spec["state"].clone()})
+        return _specs.Composite({"state": env.full_observation_spec_unbatched["state"].clone()})
 
     def action_spec(self, env):
-        return env.full_action_spec
+        return env.full_action_spec_unbatched
 
     @staticmethod
     def env_name() -> str:
         return "mrcomm"
+
+
+class MrcommSerialClass(MrcommClass):
+    """A task whose copies are one TorchRL ``PettingZooWrapper`` each, which BenchMARL runs in a ``SerialEnv``:
+    the path before the batched env, kept so that the collection bench can time both with one config."""
+
+    def get_env_fun(self, num_envs, continuous_actions, seed, device):
+        config = dict(self.config)
+        env_id = self.env_id
+        return lambda: make_env(env_id, device=device, seed=seed, render_mode="rgb_array", **config)
 
 
 class _MrcommTasks(_common.Task):

@@ -12,6 +12,8 @@ float per robot under ``("robot", "info", key)``; envs with action masks (Rendez
 
 from __future__ import annotations
 
+import importlib
+
 from mrcomm_env.integrations import make_parallel_env, require
 
 EXTRA = "torchrl"
@@ -41,4 +43,33 @@ def make_env(
         categorical_actions=categorical_actions,
         seed=seed,
         device=device,
+    )
+
+
+def make_batched_env(
+    env_id: str,
+    num_envs: int,
+    *,
+    device: str = "cpu",
+    seed: int | None = None,
+    categorical_actions: bool = True,
+    return_state: bool = True,
+    **env_kwargs,
+):
+    """``num_envs`` copies of ``env_id`` as one TorchRL ``EnvBase`` with ``batch_size=[num_envs]``, stepped in one
+    call (``mrcomm_env.integrations.torchrl_batched``): the keys of :func:`make_env` with a leading copy axis.
+
+    Copy i of a batch seeded s is the PettingZoo env seeded s + i, episode after episode.
+    """
+    require("torchrl.envs", EXTRA)
+    # the adapter module subclasses TorchRL's EnvBase, so it can only be imported once TorchRL is known present
+    batched = importlib.import_module("mrcomm_env.integrations.torchrl_batched")
+    return batched.BatchedTorchRLEnv(
+        env_id,
+        num_envs,
+        device=device,
+        seed=seed,
+        categorical_actions=categorical_actions,
+        return_state=return_state,
+        **env_kwargs,
     )

@@ -2,11 +2,12 @@
 
 What :class:`~mrcomm_env.core.batched.BatchedEnv` steps instead of M env objects when
 :meth:`MultiHopEnv.copy_axis_world` allows it: a static topology (the grid, or a field with ``speed`` 0) with the
-``relative`` layout and the team reward, on the compiled backend. The env itself runs such a frame in one compiled
+team reward, on the compiled backend, in either layout. The env itself runs such a frame in one compiled
 call (``frame_numba.send_frame``, which already takes a copy axis); here everything around it does too: the frame's
-candidate lists (:func:`~.frame_numba.selected_ranks`), the ages, the eq. (1)-weighted age and the per-hop
+lists (the ``relative`` layout's select bits, :func:`~.frame_numba.selected_ranks`; the ``absolute`` layout's
+priorities, :func:`~.frame_numba.priority_ranks`), the ages, the eq. (1)-weighted age and the per-hop
 statistics of the frame's end, the candidates' ranking and the observation
-(:func:`~.frame_numba.observe_candidates`). Every number is the env's, bit for bit: elementwise work is the env's
+(:func:`~.frame_numba.observe_candidates`, :func:`~.frame_numba.observe_indices`). Every number is the env's, bit for bit: elementwise work is the env's
 float64 operations in the same order, and every sum is numpy's pairwise sum over the same elements in the same
 order, either :func:`~mrcomm_env.core.sums_numba.numpy_sum` on a copy's scratch row or numpy's own row reduction of
 a C-ordered ``(M, K)`` array (which sums each row as numpy sums that row alone). ``tests/test_batched.py`` compares
@@ -47,6 +48,8 @@ class StaticFrameBatch:
         self.lam, self.capacity, self.age_unit = c.lam, first._capacity, first._age_unit
         self.max_cycles = c.max_cycles
         self.n_cand = n - 1
+        self.relative = c.layout == "relative"
+        self.act_shape = first.action_space(first.possible_agents[0]).shape
         # the hop buckets' flat pair indices, one after the other, and their bounds: a grid's links are the same in
         # every copy (one row for all), a static field's are each copy's own
         rows = 1 if c.scene == "grid" else m
@@ -101,7 +104,9 @@ class StaticFrameBatch:
         self.order[i] = env.tdma.order
         self.slot[i] = env.tdma.slot_of
         self.phase[i] = env._phase
-        self.dist[i] = env._dist
+        # a static scene's estimates are the true positions: the distances hold all episode (the relative layout
+        # keeps them from its last ranking; the absolute one computes them per observation)
+        self.dist[i] = env._dist if self.relative else env.estimated_distances()
         self.weights[i] = env._w
         self.weight_sum[i] = env._wsum
         if self.hop_flat.shape[0] > 1 or i == 0:
@@ -116,6 +121,8 @@ class StaticFrameBatch:
             self.nbr_idx = grown
         self.nbr_ptr[i] = ptr
         self.nbr_idx[i, : idx.size] = idx
+        if not self.relative:
+            return
         self.candidates[i] = env._candidates
         self.ranked_known[i] = env._ranked_known
         # the two fixed orders whose merge is the ranking (frame_numba.rerank_candidates)
@@ -145,10 +152,11 @@ class StaticFrameBatch:
         env.last_sent = self.last_sent[i].copy()
         env.t = float(self.t[i])
         env._all_known = not self.tracking[i]
-        env._candidates = self.candidates[i].astype(np.int64)
-        env._cand_flat = (env._candidates + np.arange(n)[:, None] * n).ravel()
-        env._ranked_known = self.ranked_known[i].copy()
-        env._dist = self.dist[i].copy()
+        if self.relative:
+            env._candidates = self.candidates[i].astype(np.int64)
+            env._cand_flat = (env._candidates + np.arange(n)[:, None] * n).ravel()
+            env._ranked_known = self.ranked_known[i].copy()
+            env._dist = self.dist[i].copy()
         env._ages = None  # the world keeps no ages: env.ages() computes them from these stamps and this clock
         env._frames = int(self.totals[i, 0])
         env._sum_age, env._sum_wage = float(self.totals[i, 1]), float(self.totals[i, 2])
@@ -172,12 +180,15 @@ class StaticFrameBatch:
 
     # ------------------------------------------------------------------ one frame of every copy
     def step(self, actions: np.ndarray):
-        """``actions`` ``(M, N, N − 1)`` select bits → observations ``(M, N, D)``, rewards ``(M, N)``, terminated
-        ``(M,)``, truncated ``(M,)`` and the info columns; copies that end are not reset here. The observations
-        are the world's own buffer, rewritten whole at the next step (``BatchedEnv`` copies it unless ``copy=False``)."""
-        selected = self._selected(actions)
+        """``actions`` ``(M, N, N − 1)`` select bits (``relative``) or ``(M, N, N)`` priorities (``absolute``) →
+        observations ``(M, N, D)``, rewards ``(M, N)``, terminated ``(M,)``, truncated ``(M,)`` and the info columns;
+        copies that end are not reset here. The observations are the world's own buffer, rewritten whole at the next
+        step (``BatchedEnv`` copies it unless ``copy=False``)."""
         m, n = self.n_copies, self.n
-        frame_numba.selected_ranks(self.candidates, selected, self.rank, self.count)
+        if self.relative:
+            frame_numba.selected_ranks(self.candidates, self._selected(actions), self.rank, self.count)
+        else:
+            frame_numba.priority_ranks(self._priorities(actions), self.stamps, self.slot_size, self.rank, self.count)
         # MultiHopEnv._step_world: the whole frame of every copy in one compiled call
         frame_numba.send_frame(
             self.stamps,
@@ -201,20 +212,34 @@ class StaticFrameBatch:
         reward = self._frame_end()
         self.step_count += 1
         truncated = self.step_count >= self.max_cycles
-        frame_numba.observe_candidates(
-            self.stamps,
-            self.sent_stamp,
-            self.t,
-            self.dist,
-            self.phase,
-            self.candidates,
-            self.slot,
-            self.slot_size,
-            self.frame_dur,
-            self.diag,
-            self.obs,
-            self.known_fraction,
-        )
+        if self.relative:
+            frame_numba.observe_candidates(
+                self.stamps,
+                self.sent_stamp,
+                self.t,
+                self.dist,
+                self.phase,
+                self.candidates,
+                self.slot,
+                self.slot_size,
+                self.frame_dur,
+                self.diag,
+                self.obs,
+                self.known_fraction,
+            )
+        else:
+            frame_numba.observe_indices(
+                self.stamps,
+                self.t,
+                self.dist,
+                self.phase,
+                self.slot,
+                self.slot_size,
+                self.frame_dur,
+                self.diag,
+                self.obs,
+                self.known_fraction,
+            )
         infos = {
             "bits_sent": self.step_bits.copy(),
             "mean_age": self.mean_age.copy(),
@@ -237,6 +262,24 @@ class StaticFrameBatch:
             )
         return actions != 0
 
+    def _priorities(self, actions: np.ndarray) -> np.ndarray:
+        """The priorities as float64, after the float32 of the env's Box (``MultiHopEnv._priorities`` of its checked
+        action), refusing what the env's Box check refuses: a non-real array, or entries not finite or outside
+        [0, 1]."""
+        if actions.dtype.kind not in "iuf" or actions.shape[2:] != self.act_shape:
+            raise ValueError(
+                f"argument 'actions' must be real arrays of shape {self.act_shape} per robot, got dtype {actions.dtype}"
+                f" and shape {actions.shape}"
+            )
+        priority = actions.astype(np.float32, copy=False)
+        ok = (np.isfinite(priority) & (priority >= 0.0) & (priority <= 1.0)).all(axis=2)
+        if not ok.all():
+            copy, robot = np.argwhere(~ok)[0].tolist()
+            raise ValueError(
+                f"action of robot_{robot} (copy {copy}) must be finite and within [0, 1], got {actions[copy, robot]!r}"
+            )
+        return priority.astype(np.float64)
+
     def _frame_end(self) -> np.ndarray:
         """``MultiHopEnv._frame_end`` of every copy (team reward): the time averages and per-hop ages
         (``frame_numba.close_frames``, which also ends the frame's slots), the candidates re-ranked where what a
@@ -254,7 +297,8 @@ class StaticFrameBatch:
             self.mean_age,
             self.wage,
         )
-        self._rank_candidates()
+        if self.relative:
+            self._rank_candidates()
         return -self.wage / self.age_unit - self.lam * self.step_bits.sum(axis=1) / self.capacity
 
     def _rank_candidates(self) -> None:

@@ -205,7 +205,7 @@ class MultiHopEnv(MrcommParallelEnv):
     MEMORY_FORMULA = (
         "8 MiB + 180·n² for n robots (`n_robots`, or `grid_side`² in the grid scene): every robot's estimate "
         "table, its candidate observation and the pairwise distances and links are n × n; a static scene with the "
-        "`relative` layout and the team reward on the compiled backend adds 24 MiB + 48·n² (it steps as the "
+        "team reward on the compiled backend adds 24 MiB + 48·n² (it steps as the "
         "copy-axis world of one copy: numba's kernels, and the world's rows beside the env's arrays)"
     )
     MEMORY_SHARED = 8.0 * 2**20  # the formula's constant term: working memory the copies of a batch share
@@ -236,11 +236,11 @@ class MultiHopEnv(MrcommParallelEnv):
 
     @classmethod
     def copy_axis_world(cls, cfg):
-        """A static topology (the grid, or a field with ``speed`` 0) with the ``relative`` layout and the team reward,
-        on the compiled backend, steps M copies as one batch of arrays (:mod:`.copy_axis`); other configurations
-        (moving robots, the coverage controller, v0's layout, the neighbourhood reward) step their copies in turn."""
+        """A static topology (the grid, or a field with ``speed`` 0) with the team reward, in either layout, on the
+        compiled backend, steps M copies as one batch of arrays (:mod:`.copy_axis`); other configurations (moving
+        robots, the coverage controller, the neighbourhood reward) step their copies in turn."""
         static = cfg.scene == "grid" or (cfg.scene == "field" and cfg.speed == 0)
-        if not static or cfg.layout != "relative" or cfg.reward_mode != "team" or not backend.compiled():
+        if not static or cfg.reward_mode != "team" or not backend.compiled():
             return None
         from mrcomm_env.multihop.copy_axis import StaticFrameBatch  # numba is imported with it
 
@@ -392,7 +392,7 @@ class MultiHopEnv(MrcommParallelEnv):
         self._ranked_known: np.ndarray | None = None
         if self._relative:
             self._rank_candidates()
-        # a static relative-layout team scene on the compiled backend steps as a copy-axis world of this one copy
+        # a static team scene on the compiled backend steps as a copy-axis world of this one copy
         # (copy_axis.py, the code a batch of M copies runs), built at the first step; the code below is the reference
         self._world_eligible = type(self).copy_axis_world(c) is not None
         self._world_obs: np.ndarray | None = None  # the observation and infos of the world's last frame

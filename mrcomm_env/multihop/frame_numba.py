@@ -105,6 +105,89 @@ def selected_ranks(candidates, selected, rank, count):
             count[c, i] = q
 
 
+#: picks by scanning a row for its best remaining robot before the rest of the row is sorted instead (each scan is
+#: O(n); a row whose robots are mostly not yet held needs many picks, early in an episode)
+SCAN_PICKS = 16
+
+
+@numba.njit(cache=True)
+def priority_ranks(priority, stamps, m, rank, count):
+    """The ``absolute`` layout's frame lists of every copy (``protocol.priority_ranking``), as far as
+    :func:`send_frame` reads them: each robot's own index, then the robots it gives a priority above 0, by
+    descending priority (ties: lower index first), up to the (m − 1)-th one it holds at the frame's start.
+
+    ``priority`` (M, n, n) float64 and ``stamps`` (M, n, n) at the frame's start; writes ``rank`` (M, n, n), of
+    whose rows the first ``count`` (M, n) entries are valid. The reference ranks every robot with priority above 0
+    (numpy's stable sort of the whole row); :func:`send_frame` reads a list until the sender holds ``m`` of its
+    entries at its slot, and a robot holds at its slot at least what it held at the frame's start, so it never
+    reads past the entries written here: every copy sends what the reference sends. The best remaining robot is
+    found by a scan (strictly greater, so a tie goes to the lower index); after ``SCAN_PICKS`` picks the rest of
+    the row is sorted with a stable merge sort of its positive entries in index order (a stable sort's order is
+    unique: the reference's)."""
+    n_copies, n, _ = priority.shape
+    taken = np.zeros(n, dtype=np.bool_)
+    index = np.empty(n, dtype=np.int64)
+    key = np.empty(n)
+    for c in range(n_copies):
+        for i in range(n):
+            rank[c, i, 0] = i
+            q, held = 1, 1
+            taken[:] = False
+            while held < m and q <= SCAN_PICKS:
+                best, best_p = -1, 0.0
+                for j in range(n):
+                    p = priority[c, i, j]
+                    if p > best_p and j != i and not taken[j]:
+                        best, best_p = j, p
+                if best < 0:
+                    break
+                taken[best] = True
+                rank[c, i, q] = best
+                q += 1
+                if stamps[c, i, best] > -np.inf:
+                    held += 1
+            if held < m and q > SCAN_PICKS:  # many robots not yet held: sort the rest of the row
+                k = 0
+                for j in range(n):
+                    if priority[c, i, j] > 0.0 and j != i and not taken[j]:
+                        index[k] = j
+                        key[k] = -priority[c, i, j]
+                        k += 1
+                order = np.argsort(key[:k], kind="mergesort")
+                for e in range(k):
+                    rank[c, i, q] = index[order[e]]
+                    q += 1
+            count[c, i] = q
+
+
+@numba.njit(cache=True)
+def observe_indices(stamps, t, dist, phase, slot, m, frame_dur, diag, out, known_fraction):
+    """The ``absolute`` observation of every copy (``MultiHopEnv._observe``), into ``out`` (M, n, 3n + 2) float32: by
+    robot index, the age ``a/(a + T_frame)`` (not held: 1), the distance over the diagonal (not held: 1) and the slot
+    phase; then my slot ``s_i/n`` and ``m/n``. The same float64 operations as the env's, rounded to float32 once.
+    ``known_fraction`` (M, n) float64: the fraction of the others each robot holds, the info of that name."""
+    n_copies, n, _ = stamps.shape
+    for c in range(n_copies):
+        now = t[c]
+        for i in range(n):
+            held = 0
+            for j in range(n):
+                s = stamps[c, i, j]
+                if s > -np.inf:
+                    if j != i:
+                        held += 1
+                    age = now - s
+                    out[c, i, j] = age / (age + frame_dur)
+                    out[c, i, n + j] = min(dist[c, i, j] / diag, 1.0)
+                else:
+                    out[c, i, j] = 1.0
+                    out[c, i, n + j] = 1.0
+                out[c, i, 2 * n + j] = phase[c, i, j]
+            out[c, i, 3 * n] = slot[c, i] / n
+            out[c, i, 3 * n + 1] = m / n
+            known_fraction[c, i] = held / (n - 1)
+
+
 @numba.njit(cache=True)
 def close_frames(stamps, t, first_known, tracking, weights, weight_sum, hop_flat, hop_bounds, totals, mean_age, wage):
     """The end of a frame of every copy (``MultiHopEnv._step_world`` after the slots, then ``_frame_end``): own

@@ -57,6 +57,7 @@ from gymnasium import spaces
 
 from mrcomm_env.core import BitLedger, MrcommParallelEnv, backend
 from mrcomm_env.core import render as rendering
+from mrcomm_env.core.base import MASK_INFO_PREFIX
 from mrcomm_env.core.config import Int, Param, Real
 from mrcomm_env.rendezvous import filters, protocol, theory, world
 
@@ -286,7 +287,7 @@ class RendezvousMappingEnv(MrcommParallelEnv):
         self._obs_space = spaces.Box(0.0, 1.0, shape=(self.obs_dim,), dtype=np.float32)
         self._act_space = spaces.Discrete(K + 2)
         self.ledger = BitLedger(n)
-        self._mask_keys = [f"action_mask_{i}" for i in range(K + 2)]
+        self._mask_keys = [f"{MASK_INFO_PREFIX}{i}" for i in range(K + 2)]
 
     # ----------------------------------------------------------------- episode
     def _reset_world(self) -> None:

@@ -4,6 +4,7 @@ frames, updating the policy."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import pytest
@@ -14,7 +15,9 @@ from benchmarl.experiment import Experiment, ExperimentConfig
 from benchmarl.models import MlpConfig
 
 import mrcomm_env
-from mrcomm_env.integrations.benchmarl import CONF_DIR, ENV_ID_OF_TASK, MrcommTask
+from mrcomm_env.experiments import benchmarl_bench
+from mrcomm_env.integrations.benchmarl import CONF_DIR, ENV_ID_OF_TASK, MrcommSerialClass, MrcommTask
+from mrcomm_env.integrations.torchrl_batched import BatchedTorchRLEnv
 from mrcomm_env.registry import env_class
 
 FRAMES_PER_BATCH = 100
@@ -59,7 +62,7 @@ def test_bad_env_argument_fails_when_the_task_is_made():
         MrcommTask.MAPSYNC.get_task({"n_robots": -1})
 
 
-def small_experiment(task, algorithm_config, tmp_path) -> Experiment:
+def small_experiment(task, algorithm_config, tmp_path, **settings) -> Experiment:
     config = ExperimentConfig.get_from_yaml()
     config.max_n_frames = N_BATCHES * FRAMES_PER_BATCH
     config.on_policy_collected_frames_per_batch = FRAMES_PER_BATCH
@@ -71,6 +74,8 @@ def small_experiment(task, algorithm_config, tmp_path) -> Experiment:
     config.loggers = []
     config.create_json = False
     config.save_folder = str(tmp_path)
+    for name, value in settings.items():
+        setattr(config, name, value)
     return Experiment(
         task=task,
         algorithm_config=algorithm_config,
@@ -99,3 +104,63 @@ def test_experiment_trains_on_every_task(task, algorithm, tmp_path):
     critic_reads_state = "state" in experiment.losses["robot"].critic_network.in_keys
     assert critic_reads_state == (algorithm is MappoConfig)
     assert math.isfinite(float(experiment.mean_return))
+
+
+@pytest.mark.parametrize("task", [MrcommTask.MAPSYNC, MrcommTask.RENDEZVOUS_MAPPING], ids=lambda t: t.name)
+def test_copies_run_as_one_batched_env_with_vectorised_evaluation(task, tmp_path):
+    # BenchMARL's n_envs_per_worker copies arrive as one env with that batch size (not a SerialEnv of wrappers), and
+    # its evaluation steps evaluation_episodes copies at once, rendering copy 0
+    experiment = small_experiment(
+        task.get_task({**task.get_from_yaml().config, **SHORT}),
+        IppoConfig.get_from_yaml(),
+        tmp_path,
+        evaluation=True,
+        evaluation_episodes=3,
+        evaluation_interval=FRAMES_PER_BATCH,
+        render=True,
+        create_json=True,  # BenchMARL evaluates only when something records it: here its marl-eval JSON
+    )
+    frames = []
+    experiment._on_evaluation_end = lambda rollouts: frames.append(len(rollouts))
+    assert experiment.test_env.batch_size == (3,)
+    env = experiment.env_func()
+    assert env.batch_size == (experiment.config.on_policy_n_envs_per_worker,)
+    assert isinstance(env.base_env, BatchedTorchRLEnv)
+    experiment.run()
+    assert frames == [3] * N_BATCHES, "one rollout per evaluation copy, after each batch"
+    assert math.isfinite(float(experiment.mean_return))
+    (report,) = tmp_path.rglob("*.json")
+    runs = json.loads(report.read_text())
+    (seed_run,) = [
+        seed
+        for tasks in runs.values()
+        for algos in tasks.values()
+        for seeds in algos.values()
+        for seed in seeds.values()
+    ]
+    evaluations = [seed_run[f"step_{i + 1}"]["return"] for i in range(N_BATCHES)]
+    assert all(len(returns) == 3 and all(math.isfinite(r) for r in returns) for returns in evaluations)
+    assert len(set(evaluations[0])) > 1, "the evaluation copies are seeded s + i: their episodes differ"
+
+
+def test_serial_path_is_one_wrapper_per_copy():
+    task = MrcommTask.MAPSYNC.get_task(SHORT)
+    serial = MrcommSerialClass(task.name, dict(task.config))
+    env = serial.get_env_fun(num_envs=2, continuous_actions=False, seed=0, device="cpu")()
+    assert env.batch_size == ()
+    assert serial.max_steps(env) == SHORT["max_cycles"]
+
+
+def test_collection_bench_times_both_paths_and_the_ceiling(tmp_path):
+    out = tmp_path / "bench.json"
+    assert (
+        benchmarl_bench.main(
+            ["--tasks", "MAPSYNC", "--num-envs", "2", "--frames-per-batch", "20", "--batches", "1", "--out", str(out)]
+        )
+        == 0
+    )
+    result = json.loads(out.read_text())["tasks"]["mrcomm/MapSync-v0"]
+    for path in ("serial", "batched", "ceiling"):
+        assert result[path]["frames"] == 20 and result[path]["frames_per_s"] > 0
+    assert result["ratio"] == pytest.approx(result["batched"]["frames_per_s"] / result["serial"]["frames_per_s"])
+    assert benchmarl_bench.main(["--num-envs", "0", "--out", str(out)]) == 2

@@ -16,7 +16,7 @@ from torchrl.modules import RandomPolicy
 
 import mrcomm_env
 from mrcomm_env.integrations import ActionMaskInInfos
-from mrcomm_env.integrations.torchrl import GROUP, make_env
+from mrcomm_env.integrations.torchrl import GROUP, make_batched_env, make_env
 
 ENV_IDS = mrcomm_env.env_ids()
 # short episodes, so a 2-batch collection crosses several resets on every env
@@ -137,3 +137,151 @@ def test_one_hot_actions_on_request():
 def test_unknown_env_id_names_the_valid_ids():
     with pytest.raises(ValueError, match="MapSync-v0"):
         make_env("NoSuchEnv-v0")
+
+
+# ----------------------------------------------------------------------------------- the batched env
+#: small teams, so that every env's whole episodes fit in a few seconds; MultiHop's 3×3 grid keeps MultiBinary actions
+BATCHED_ARGS = {"MultiHop-v0": {"grid_side": 3}, "mrcomm/MultiHop-v0": {"grid_side": 3}}
+
+
+def batched_args(env_id: str) -> dict:
+    return {**SHORT, **BATCHED_ARGS.get(env_id, {})}
+
+
+def single_copy_trajectory(env_id: str, kwargs: dict, seed: int, actions: np.ndarray):
+    """The PettingZoo env seeded ``seed`` stepped with ``actions`` (T, N, …), reset without a seed after each episode:
+    per step the observation acted on, the mask, the infos, then the next observation, rewards and end flags."""
+    env = mrcomm_env.make(env_id, **kwargs)
+    agents = env.possible_agents
+    observations, infos = env.reset(seed=seed)
+    out = []
+    for action in actions:
+        masks = env.action_masks() if hasattr(env, "action_masks") else None
+        before = (np.stack([observations[a] for a in agents]), masks, infos)
+        observations, rewards, terminated, truncated, step_infos = env.step(dict(zip(agents, action)))
+        ended = terminated[agents[0]] or truncated[agents[0]]
+        after = (
+            np.stack([observations[a] for a in agents]),
+            np.array([rewards[a] for a in agents]),
+            terminated[agents[0]],
+            truncated[agents[0]],
+            step_infos,
+        )
+        out.append((before, after))
+        infos = step_infos
+        if ended:
+            observations, infos = env.reset()
+    return out
+
+
+def assert_infos_equal(columns, infos, agents):
+    for key in columns.keys():
+        expected = np.array([infos[a][key] for a in agents], dtype=np.float32)
+        np.testing.assert_array_equal(columns[key].numpy(), expected, err_msg=key)
+
+
+def assert_copies_are_single_envs(env, data, env_id: str, kwargs: dict, seed: int) -> None:
+    """Every copy i of the rollout ``data`` equals the PettingZoo env seeded ``seed + i`` given the same actions."""
+    agents = mrcomm_env.make(env_id, **kwargs).possible_agents
+    for i in range(data.batch_size[0]):
+        copy = data[i]
+        expected = single_copy_trajectory(env_id, kwargs, seed + i, copy[GROUP, "action"].numpy())
+        for t, ((obs, masks, infos), (next_obs, rewards, terminated, truncated, next_infos)) in enumerate(expected):
+            step = copy[t]
+            np.testing.assert_array_equal(step[GROUP, "observation"].numpy(), obs, err_msg=f"copy {i} step {t}")
+            np.testing.assert_array_equal(step["state"].numpy(), obs.reshape(-1))
+            assert_infos_equal(step[GROUP, "info"], infos, agents)
+            if masks is not None:
+                np.testing.assert_array_equal(step[GROUP, "action_mask"].numpy(), masks)
+            nxt = step["next"]
+            np.testing.assert_array_equal(nxt[GROUP, "observation"].numpy(), next_obs)
+            np.testing.assert_array_equal(nxt[GROUP, "reward"].numpy()[:, 0], rewards.astype(np.float32))
+            assert bool(nxt["terminated"]) == terminated and bool(nxt["truncated"]) == truncated
+            assert bool(nxt["done"]) == (terminated or truncated)
+            assert nxt[GROUP, "done"].all() == (terminated or truncated)
+            assert_infos_equal(nxt[GROUP, "info"], next_infos, agents)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_batched_copy_i_is_the_pettingzoo_env_seeded_s_plus_i(env_id):
+    m, seed, steps = 3, 11, 3 * SHORT["max_cycles"] + 2  # three episodes and a bit: automatic resets in between
+    env = make_batched_env(env_id, m, seed=seed, **batched_args(env_id))
+    check_env_specs(env, seed=seed)  # set_seed(seed) again before its rollout, which reseeds every copy
+    env.set_seed(seed)
+    data = env.rollout(steps, RandomPolicy(env.full_action_spec), break_when_any_done=False)
+    assert data.batch_size == (m, steps)
+    assert_copies_are_single_envs(env, data, env_id, batched_args(env_id), seed)
+
+
+def test_batched_copies_that_end_apart_stay_single_envs():
+    # episodes that end by themselves at different steps: the rollout's resets name some copies and not others, and
+    # a copy whose next episode began at its last step must not be reset a second time
+    env_id, seed, steps = "RendezvousMapping-v0", 11, 120
+    kwargs = {"n_vehicles": 3, "n_landmarks": 4, "k_candidates": 5, "max_cycles": 40}
+    env = make_batched_env(env_id, 4, seed=seed, **kwargs)
+    data = env.rollout(steps, break_when_any_done=False)  # env.rand_action: feasible actions only
+    ends = [tuple(data["next", "done"][i, :, 0].nonzero().flatten().tolist()) for i in range(4)]
+    assert len(set(ends)) > 1 and all(len(e) >= 2 for e in ends), f"the copies must end apart, and often: {ends}"
+    assert_copies_are_single_envs(env, data, env_id, kwargs, seed)
+
+
+def test_batched_partial_reset_restarts_only_the_named_copy():
+    env_id, seed = "MapSync-v0", 5
+    env = make_batched_env(env_id, 3, seed=seed, max_cycles=8)
+    td = env.reset()
+    actions = [env.full_action_spec.rand() for _ in range(3)]
+    for action in actions:
+        td = env.step(td.update(action))
+        td = td["next"].exclude("reward", "done", "terminated", "truncated", (GROUP, "reward"))
+    held = td[GROUP, "observation"].clone()
+    flags = torch.tensor([[False], [True], [False]])
+    reset = env.reset(td.update({"_reset": flags}))
+    # copies 0 and 2 carry on untouched; copy 1 is its single env reset (no seed) after the same three steps
+    torch.testing.assert_close(reset[GROUP, "observation"][[0, 2]], held[[0, 2]], rtol=0, atol=0)
+    single = mrcomm_env.make(env_id, max_cycles=8)
+    single.reset(seed=seed + 1)
+    for action in actions:
+        single.step(dict(zip(single.possible_agents, action[GROUP, "action"][1].tolist())))
+    first, _ = single.reset()
+    np.testing.assert_array_equal(
+        reset[GROUP, "observation"][1].numpy(), np.stack([first[a] for a in single.possible_agents])
+    )
+    assert not reset["done"].any()
+
+
+def test_batched_collector_crosses_episodes_with_the_mask_in_the_action_spec():
+    kwargs = {"n_vehicles": 3, "n_landmarks": 4, "k_candidates": 5, **SHORT}
+    env = make_batched_env("RendezvousMapping-v0", 4, seed=2, **kwargs)
+    collector = Collector(env, RandomPolicy(env.full_action_spec), frames_per_batch=4 * 10, total_frames=4 * 20)
+    data = torch.cat([batch for batch in collector], dim=-1)
+    collector.shutdown()
+    assert data.batch_size == (4, 20)
+    assert data["next", "done"].sum() >= 4 * (20 // SHORT["max_cycles"])
+    assert torch.isfinite(data["next", GROUP, "reward"]).all()
+    # RandomPolicy samples from a clone of the spec it was given, so the live mask reaches env.rand_action only
+    data = env.rollout(20, break_when_any_done=False)
+    masks, taken = data[GROUP, "action_mask"], data[GROUP, "action"]
+    assert (~masks).any(), "the configuration must leave some slots empty, or the mask is not exercised"
+    assert masks.gather(-1, taken.unsqueeze(-1)).all()
+    assert (data["next", GROUP, "info", "action_feasible"] == 1).all()
+
+
+def test_batched_one_hot_actions_and_render():
+    env = make_batched_env("MapSync-v0", 2, categorical_actions=False, seed=0, **SHORT)
+    check_env_specs(env, seed=0)
+    n_actions = mrcomm_env.make("MapSync-v0").action_space("robot_0").n
+    assert env.full_action_spec[GROUP, "action"].shape == (2, 2, n_actions)
+    env.rollout(3)
+    frame = env.render()
+    assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[-1] == 3
+
+
+def test_batched_env_refuses_bad_arguments_at_construction():
+    with pytest.raises(ValueError, match="num_envs"):
+        make_batched_env("MapSync-v0", 0)
+    with pytest.raises(ValueError, match="n_robots"):
+        make_batched_env("MapSync-v0", 2, n_robots=-1)
+    with pytest.raises(ValueError, match="num_envs.*memory budget"):
+        make_batched_env("MapSync-v0", 10**9)
+    with pytest.raises(ValueError, match="MapSync-v0"):
+        make_batched_env("NoSuchEnv-v0", 2)
