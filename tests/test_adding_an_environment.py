@@ -32,6 +32,7 @@ from mrcomm_env.core.comm import BitLedger
 from mrcomm_env.core.config import Int, Param, Real
 from mrcomm_env.core.policy import LocalViews, Policy
 from mrcomm_env.registry import EnvEntry, env_ids, register, unregister
+from mrcomm_env.testing import DECLARED_CHECKS, GENERIC_CHECKS, check_env
 
 ENV_ID = "mrcomm/Gossip-v0"
 TOKEN_BITS = 32  #: a broadcast carries the sender's token and every token it has heard: 32 bits each
@@ -254,3 +255,8 @@ def test_the_baseline_finishes_and_silence_never_does():
     assert done["bits_sent"] == 6 * TOKEN_BITS + 6 * 6 * TOKEN_BITS
     silent = run_episode(GossipEnv(n_robots=6), Silent(), seed=3)
     assert silent["completion_step"] == -1 and silent["bits_sent"] == 0 and silent["known_fraction"] == 1 / 6
+
+
+def test_the_conformance_kit_passes_on_the_sixth_env():
+    # what docs/adding-an-environment.md tells a user to run on their own env, without our suite
+    assert check_env(GossipEnv) == [*GENERIC_CHECKS, *DECLARED_CHECKS]

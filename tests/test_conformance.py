@@ -1,11 +1,14 @@
 """Conformance suite: every registered environment × every configuration it documents.
 
 PettingZoo's own checkers run first; our own checks follow (full-episode determinism with infos,
-observation bounds, pickling, long random runs, bad input).
+observation bounds, pickling, long random runs, bad input). The checks users can run on their own env are the
+kit's (``mrcomm_env.testing``), called here per configuration; what only our suite checks (the AEC form, the
+registry, long runs, the fuzz) is written here.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import pickle
@@ -20,17 +23,17 @@ from hypothesis import strategies as st
 from pettingzoo.test import (
     api_test,
     max_cycles_test,
-    parallel_api_test,
-    parallel_seed_test,
     render_test,
     seed_test,
     state_test,
 )
 
 import mrcomm_env
+from mrcomm_env import testing
 from mrcomm_env.core.config import Bool, Choice, Int, Optional, Real, validate_config
 from mrcomm_env.core.memory import BUDGET_ARGUMENT, GIB
 from mrcomm_env.registry import env_class, env_ids, env_module
+from mrcomm_env.testing import flat_values, invalid_values, same
 
 ENV_IDS = env_ids()
 CASES = [
@@ -50,18 +53,9 @@ def short_config(env_id, name, steps=60):
     return cfg
 
 
-def flat_values(obj):
-    """Every number inside nested dicts/lists/arrays of an env's output."""
-    if isinstance(obj, dict):
-        for v in obj.values():
-            yield from flat_values(v)
-    elif isinstance(obj, (list, tuple)):
-        for v in obj:
-            yield from flat_values(v)
-    elif isinstance(obj, np.ndarray):
-        yield from obj.ravel().tolist()
-    else:
-        yield obj
+def factory(env_id, cfg):
+    """What the kit's checks take: the env's constructor with these arguments (a check may add others)."""
+    return functools.partial(mrcomm_env.make, env_id, **cfg)
 
 
 # ------------------------------------------------------------------------------------------------ registry
@@ -86,12 +80,12 @@ def test_unknown_id_lists_valid_ones():
 # ------------------------------------------------------------------------------------------------ PettingZoo checkers
 @pytest.mark.parametrize(("env_id", "name"), CASES)
 def test_parallel_api(env_id, name):
-    parallel_api_test(mrcomm_env.make(env_id, **short_config(env_id, name)), num_cycles=60)
+    testing.check_parallel_api(factory(env_id, short_config(env_id, name)), seed=0, steps=60)
 
 
 @pytest.mark.parametrize(("env_id", "name"), CASES)
 def test_parallel_seed(env_id, name):
-    parallel_seed_test(lambda: mrcomm_env.make(env_id, **short_config(env_id, name)), num_cycles=60)
+    testing.check_parallel_seed(factory(env_id, short_config(env_id, name)), seed=0, steps=60)
 
 
 @pytest.mark.parametrize(("env_id", "name"), CASES)
@@ -131,33 +125,17 @@ def test_render(env_id):
 
 # ------------------------------------------------------------------------------------------------ our own checks
 def rollout(env, seed, steps, action_seed=0):
-    """A seeded episode with seeded random actions: the list of every step's full output."""
-    trace = [env.reset(seed=seed)]
-    space = env.action_space(env.possible_agents[0])
-    space.seed(action_seed)
-    for _ in range(steps):
-        if not env.agents:
-            break
-        trace.append(env.step({a: space.sample() for a in env.agents}))
-    trace.append(env.metrics())
-    return trace
-
-
-def same(a, b) -> bool:
-    va, vb = list(flat_values(a)), list(flat_values(b))
-    return len(va) == len(vb) and all(x == y or (x != x and y != y) for x, y in zip(va, vb))
+    """A seeded episode with seeded random actions (the kit's): every step's full output, then the metrics."""
+    return [*testing.rollout(env, seed, steps, action_seed), env.metrics()]
 
 
 @pytest.mark.parametrize(("env_id", "name"), CASES)
 def test_full_episode_is_deterministic_step_by_step(env_id, name):
     cfg = short_config(env_id, name, steps=120)
+    testing.check_deterministic_episodes(factory(env_id, cfg), seed=11, steps=200)
+    testing.check_plain_infos(factory(env_id, cfg), seed=11, steps=200)
     t1 = rollout(mrcomm_env.make(env_id, **cfg), seed=11, steps=200)
-    t2 = rollout(mrcomm_env.make(env_id, **cfg), seed=11, steps=200)
-    assert len(t1) == len(t2)
-    for k, (s1, s2) in enumerate(zip(t1, t2)):
-        assert same(s1, s2), f"step {k} differs between two runs with the same seed"
-        if isinstance(s1, tuple) and len(s1) == 5:  # infos: same keys at every step as at reset
-            assert all(set(i) == set(t1[0][1][a]) for a, i in s1[4].items())
+    assert same(t1, rollout(mrcomm_env.make(env_id, **cfg), seed=11, steps=200))  # the metrics too
     t3 = rollout(mrcomm_env.make(env_id, **cfg), seed=12, steps=200)
     assert not all(same(x, y) for x, y in zip(t1, t3)), "a different seed gave the very same episode"
 
@@ -218,68 +196,19 @@ def test_ten_thousand_random_steps_stay_finite(env_id):
 
 
 # ------------------------------------------------------------------------------------------------ bad input
-def _invalid_values(validator):
-    if isinstance(validator, Optional):
-        return _invalid_values(validator.inner)
-    if isinstance(validator, Int):
-        bad = ["three", 2.5, True]
-        if validator.lo is not None:
-            bad.append(validator.lo - 1)
-        if validator.hi is not None:
-            bad.append(validator.hi + 1)
-        return bad
-    if isinstance(validator, Real):
-        bad = ["x", float("nan")]
-        if validator.lo is not None:
-            bad.append(validator.lo - 1.0)
-        if validator.hi is not None:
-            bad.append(validator.hi + 1.0)
-        return bad
-    if isinstance(validator, Choice):
-        return ["no-such-option"]
-    if isinstance(validator, Bool):
-        return ["yes"]
-    return []
-
-
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_invalid_arguments_raise_value_error_naming_them(env_id):
     cls = env_class(env_id)
-    with pytest.raises(ValueError, match="no_such_argument"):
-        mrcomm_env.make(env_id, no_such_argument=1)
-    checked = 0
-    for arg, spec in cls.PARAMS.items():
-        for bad in _invalid_values(spec.check):
-            with pytest.raises(ValueError, match=f"'{arg}'"):
-                mrcomm_env.make(env_id, **{arg: bad})
-            checked += 1
-    assert checked >= len(cls.PARAMS) // 2
+    testing.check_bad_arguments(factory(env_id, {}), seed=0, steps=0)
+    assert sum(len(invalid_values(spec.check)) for spec in cls.PARAMS.values()) >= len(cls.PARAMS) // 2
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_invalid_actions_and_agents_raise_value_error(env_id):
     env = mrcomm_env.make(env_id)
-    env.reset(seed=0)
-    space = env.action_space("robot_0")
-    good = {a: space.sample() for a in env.agents}
     with pytest.raises(ValueError, match="robot_"):
         env.observation_space("robot_99999")
-    with pytest.raises(ValueError):
-        env.step({**good, "robot_99999": space.sample()})
-    with pytest.raises(ValueError):
-        env.step({a: v for a, v in good.items() if a != "robot_0"})
-    if isinstance(space, spaces.MultiBinary):
-        bad_values = [np.full(space.shape, 2), np.zeros(space.shape[0] + 1, dtype=np.int8), 0.5]
-    elif isinstance(space, spaces.Discrete):
-        bad_values = [int(space.start + space.n), -1, 0.5]
-    elif hasattr(space, "high"):
-        bad_values = [space.high + 1.0, np.full(space.shape, np.nan, dtype=space.dtype), np.zeros(space.shape[0] + 1)]
-    else:
-        bad_values = []
-    for bad in bad_values:
-        with pytest.raises(ValueError, match="robot_0"):
-            env.step({**good, "robot_0": bad})
-    env.step(good)  # the env is still usable after rejected actions
+    testing.check_bad_actions(factory(env_id, {}), seed=0, steps=0)
 
 
 # ------------------------------------------------------------------------------------------------ property tests
