@@ -210,25 +210,22 @@ def invalid_values(validator) -> list:
     """Values a documented argument's validator must refuse: wrong types, and just past each end of its range."""
     if isinstance(validator, Optional):
         return invalid_values(validator.inner)
-    if isinstance(validator, Int):
-        bad: list = ["three", 2.5, True]
-        if validator.lo is not None:
-            bad.append(validator.lo - 1)
-        if validator.hi is not None:
-            bad.append(validator.hi + 1)
-        return bad
-    if isinstance(validator, RealRange):
-        bad = ["x", float("nan")]
-        if validator.lo is not None:
-            bad.append(validator.lo - 1.0)
-        if validator.hi is not None:
-            bad.append(validator.hi + 1.0)
+    if isinstance(validator, (Int, RealRange)):
+        integer = isinstance(validator, Int)
+        bad: list = ["three", 2.5, True] if integer else ["x", float("nan")]
+        one = 1 if integer else 1.0
+        bad += [end for end in (_shifted(validator.lo, -one), _shifted(validator.hi, one)) if end is not None]
         return bad
     if isinstance(validator, Choice):
         return ["no-such-option"]
     if isinstance(validator, Bool):
         return ["yes"]
     return []
+
+
+def _shifted(end, by):
+    """A range's end moved out of the range by ``by`` (None: no end)."""
+    return None if end is None else end + by
 
 
 def _raises_value_error(build: Callable[[], Any], naming: str, what: str) -> None:

@@ -13,8 +13,9 @@ A task's config holds the env's own arguments; the yaml files in ``benchmarl_con
 defaults. BenchMARL's ``*_n_envs_per_worker`` copies of a task run as one batched TorchRL env
 (``torchrl.make_batched_env``, ``batch_size=[n_envs]``), as VMAS tasks do, not as one wrapper per copy in a
 ``SerialEnv``; ``MrcommSerialClass`` keeps that older path, which ``mrcomm_env.experiments.benchmarl_bench``
-times beside the batched one. All robots form one group ``"robot"``; MAPPO's critic reads the env's global ``state()``; the action
-mask (RendezvousMapping-v0) is handed to BenchMARL, whose policies then sample feasible actions only.
+times beside the batched one. All robots form one group ``"robot"``; MAPPO's critic reads the env's global
+``state()``; the action mask (RendezvousMapping-v0) is handed to BenchMARL, whose policies then sample feasible
+actions only.
 
 BenchMARL 1.5 needs torchrl < 0.12: install the ``benchmarl`` extra in its own environment, not beside ``torchrl``.
 """

@@ -1,4 +1,6 @@
-"""TorchRL: ``make_env(env_id, **env_kwargs)`` → a ``torchrl.envs.PettingZooWrapper`` over one of our envs.
+"""TorchRL: ``make_env(env_id, **env_kwargs)`` → a ``torchrl.envs.PettingZooWrapper`` over one of our envs, and
+``make_batched_env(env_id, num_envs=M, **env_kwargs)`` → M copies as one ``EnvBase`` with ``batch_size=[M]``
+(``torchrl_batched.py``), which is what collectors and BenchMARL should step.
 
     from mrcomm_env.integrations.torchrl import make_env
     env = make_env("MapSync-v0", n_robots=3)          # TensorDict in, TensorDict out
@@ -46,30 +48,15 @@ def make_env(
     )
 
 
-def make_batched_env(
-    env_id: str,
-    num_envs: int,
-    *,
-    device: str = "cpu",
-    seed: int | None = None,
-    categorical_actions: bool = True,
-    return_state: bool = True,
-    **env_kwargs,
-):
+def make_batched_env(env_id: str, num_envs: int, **kwargs):
     """``num_envs`` copies of ``env_id`` as one TorchRL ``EnvBase`` with ``batch_size=[num_envs]``, stepped in one
-    call (``mrcomm_env.integrations.torchrl_batched``): the keys of :func:`make_env` with a leading copy axis.
+    call (``torchrl_batched.BatchedTorchRLEnv``): the keys of :func:`make_env` with a leading copy axis.
 
-    Copy i of a batch seeded s is the PettingZoo env seeded s + i, episode after episode.
+    ``kwargs``: ``device``, ``seed``, ``categorical_actions`` and ``return_state`` as for :func:`make_env`; every
+    other keyword goes to the env. Copy i of a batch seeded s is the PettingZoo env seeded s + i, episode after
+    episode.
     """
     require("torchrl.envs", EXTRA)
     # the adapter module subclasses TorchRL's EnvBase, so it can only be imported once TorchRL is known present
     batched = importlib.import_module("mrcomm_env.integrations.torchrl_batched")
-    return batched.BatchedTorchRLEnv(
-        env_id,
-        num_envs,
-        device=device,
-        seed=seed,
-        categorical_actions=categorical_actions,
-        return_state=return_state,
-        **env_kwargs,
-    )
+    return batched.BatchedTorchRLEnv(env_id, num_envs, **kwargs)

@@ -13,6 +13,7 @@ import yaml
 from benchmarl.algorithms import IppoConfig, MappoConfig
 from benchmarl.experiment import Experiment, ExperimentConfig
 from benchmarl.models import MlpConfig
+from torchrl.envs.utils import check_env_specs
 
 import mrcomm_env
 from mrcomm_env.experiments import benchmarl_bench
@@ -164,3 +165,14 @@ def test_collection_bench_times_both_paths_and_the_ceiling(tmp_path):
         assert result[path]["frames"] == 20 and result[path]["frames_per_s"] > 0
     assert result["ratio"] == pytest.approx(result["batched"]["frames_per_s"] / result["serial"]["frames_per_s"])
     assert benchmarl_bench.main(["--num-envs", "0", "--out", str(out)]) == 2
+
+
+@pytest.mark.parametrize("task", list(MrcommTask), ids=lambda t: t.name)
+def test_every_task_env_passes_check_env_specs_under_benchmarl_torchrl(task):
+    # BenchMARL pins an older torchrl (0.11) than the torchrl extra (0.14): the batched env's specs hold under both
+    config = {**task.get_from_yaml().config, **SHORT, **SMALL.get(task.name, {})}
+    env = task.get_task(config).get_env_fun(num_envs=3, continuous_actions=False, seed=0, device="cpu")()
+    assert env.batch_size == (3,)
+    check_env_specs(env, seed=0)
+    data = env.rollout(2 * SHORT["max_cycles"] + 1, break_when_any_done=False)
+    assert data["next", "done"].sum() >= 3 * 2  # every copy ended at least twice and went on
