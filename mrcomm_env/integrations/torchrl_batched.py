@@ -7,10 +7,11 @@ their copies in turn without TorchRL's per-copy wrapping.
 
 The keys and specs are those of :func:`mrcomm_env.integrations.torchrl.make_env` with a leading copy axis: group
 ``"robot"`` holds ``observation`` ``(M, N, obs_dim)``, ``action`` ``(M, N)`` (categorical; one-hot or binary
-vectors, or Box actions, with a trailing axis), ``reward`` ``(M, N, 1)``, ``done``/``terminated``/``truncated`` ``(M, N, 1)``, every
-info key ``("info", key)`` ``(M, N)`` float32 and, for envs with ``action_masks()``, ``action_mask`` ``(M, N, K)``,
-which also masks the action spec (so ``RandomPolicy`` and masked distributions pick feasible actions). The root
-holds ``done``/``terminated``/``truncated`` ``(M, 1)`` and ``state`` ``(M, state_dim)``.
+vectors, or Box actions, with a trailing axis), ``reward`` ``(M, N, 1)``, ``done``/``terminated``/``truncated``
+``(M, N, 1)``, every info key ``("info", key)`` ``(M, N)`` float32 and, for envs with ``action_masks()``,
+``action_mask`` ``(M, N, K)``, which also masks the action spec (so ``env.rand_action`` and masked distributions pick
+feasible actions; TorchRL's ``RandomPolicy`` samples from a clone of the spec it was given, without later masks).
+The root holds ``done``/``terminated``/``truncated`` ``(M, 1)`` and ``state`` ``(M, state_dim)``.
 
 **Episodes.** A copy whose episode ends reports its final step, as TorchRL wants. Its next episode has then
 already begun, drawn from the copy's own random stream (``BatchedEnv`` resets it at once); a reset that names the
