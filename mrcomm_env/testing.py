@@ -61,7 +61,7 @@ def check_env(make_env: Callable[..., Any], seed: int = 0, steps: int = STEPS) -
 
     :param make_env: a ``ParallelEnv`` class or factory; called without arguments for the generic checks, and with
         the env's keyword arguments for the checks its declarations drive.
-    :param seed: the episode seed of the checks (the second episode of a comparison uses ``seed + 1``).
+    :param seed: the episode seed of the checks (the determinism check runs it twice).
     :param steps: the most steps an episode of a check runs.
     :returns: the names of the checks that ran (all passed).
     :raises AssertionError: naming the first check that failed.
@@ -283,8 +283,8 @@ def check_documented_configs(make_env, seed: int, steps: int) -> None:
 
 
 def check_memory_budget(make_env, seed: int, steps: int) -> None:
-    cls = type(make_env())
-    cfg = make_env().cfg
+    env = make_env()
+    cls, cfg = type(env), env.cfg
     horizon = getattr(cls.PARAMS["max_cycles"].check, "hi", None) or LONG_HORIZON  # the longest documented
     short = cls.memory_estimate(validate_config(cls.PARAMS, {**cfg, "max_cycles": 1}))
     long = cls.memory_estimate(validate_config(cls.PARAMS, {**cfg, "max_cycles": horizon}))
