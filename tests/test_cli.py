@@ -11,8 +11,10 @@ import pytest
 
 from mrcomm_baselines import default_policy, policy_names
 from mrcomm_env.core.stats import mean_ci95
-from mrcomm_env.experiments import cli
-from mrcomm_env.experiments.cli import main, parse_params
+from mrcomm_env.experiments import bench
+from mrcomm_env.experiments.arguments import parse_params
+from mrcomm_env.experiments.cli import main
+from mrcomm_env.experiments.commands import evaluate, reproduce
 from mrcomm_env.registry import env_class, env_ids
 
 
@@ -230,7 +232,7 @@ def no_episode(monkeypatch):
 
     monkeypatch.setattr(evaluation, "run_episode", forbidden)
     monkeypatch.setattr(evaluation, "steps_per_second", forbidden)
-    monkeypatch.setattr(cli, "steps_per_second", forbidden)  # the command's own name for it
+    monkeypatch.setattr(bench, "steps_per_second", forbidden)  # the bench's own name for it
 
 
 @pytest.mark.parametrize("seed", ["-1", "1.5", "abc", "1e3"])
@@ -308,7 +310,7 @@ def test_unwritable_bench_out_is_reported_before_timing(blocked_dir, capsys, no_
 
 
 def test_unwritable_reproduce_out_is_reported_before_any_reproduction(blocked_dir, capsys, monkeypatch):
-    monkeypatch.setattr(cli, "run_reproduction", lambda *a, **k: pytest.fail("reproduction started"))
+    monkeypatch.setattr(reproduce, "run_reproduction", lambda *a, **k: pytest.fail("reproduction started"))
     assert main(["reproduce", env_ids()[0], "--tiny", "--out", str(blocked_dir)]) == 2
     line = _one_error_line(capsys.readouterr().err)
     assert "--out" in line and "not writable" in line
@@ -354,7 +356,7 @@ def test_failures_during_the_work_are_one_line(raised, code, words, monkeypatch,
     def fail(*args, **kwargs):
         raise raised
 
-    monkeypatch.setattr(cli, "evaluate", fail)
+    monkeypatch.setattr(evaluate, "evaluate", fail)
     assert main(_evaluate_argv()) == code
     assert words in _one_error_line(capsys.readouterr().err)
 

@@ -1,4 +1,5 @@
-"""The parts of ``mrcomm bench`` beyond env-steps/s: training throughput, documented limits, env-specific timings.
+"""What ``mrcomm bench`` measures: env-steps/s against MPE2's ``simple_spread_v3``, training throughput, documented
+limits, batches of copies, the sweep runner's backends, env-specific timings (``commands/bench.py`` is the command).
 
 Speed and memory goals are checked here, by measurement, never by timed unit tests.
 """
@@ -21,11 +22,89 @@ from tqdm.auto import tqdm
 from mrcomm_baselines import default_policy, make_policy
 from mrcomm_env.core import backend
 from mrcomm_env.core.memory import BUDGET_ARGUMENT, GIB
-from mrcomm_env.experiments.evaluation import run_episode
+from mrcomm_env.experiments.evaluation import run_episode, steps_per_second
 from mrcomm_env.experiments.limits import limit_configs, measure_batched, measure_limit
 from mrcomm_env.experiments.reproductions import module
 from mrcomm_env.experiments.sweep import Runner, Task, one_thread
 from mrcomm_env.registry import make
+
+#: what every env's speed is compared with
+BENCH_REFERENCE = "mpe2 simple_spread_v3 (N=3, discrete actions, random actions)"
+
+
+def median_of(measure, label: str, runs: int, warmup: float) -> tuple[float, float]:
+    """The medians of ``runs`` timed runs ``measure(k)`` → (env-steps/s, agent-steps/s), after one untimed run of
+    ``warmup`` seconds (0: none): caches, lazily built tables and compiled kernels are then loaded, as they are in
+    any run longer than a few seconds."""
+    if warmup > 0:
+        measure(-1, warmup)
+    samples = [measure(k) for k in tqdm(range(runs), desc=label, leave=False)]
+    return statistics.median(s[0] for s in samples), statistics.median(s[1] for s in samples)
+
+
+def reference_section(seconds: float, runs: int, warmup: float) -> dict[str, Any]:
+    """MPE2's ``simple_spread_v3`` with random actions: the reference every ratio of the bench divides by."""
+    from mpe2 import simple_spread_v3  # extra "bench"
+
+    env = simple_spread_v3.parallel_env(N=3, continuous_actions=False)
+    space = env.action_space(env.possible_agents[0])
+    space.seed(0)
+    eps, aps = median_of(
+        lambda k, s=seconds: steps_per_second(env, lambda obs: {a: space.sample() for a in obs}, s, seed=k % 10_000),
+        "simple_spread_v3",
+        runs,
+        warmup,
+    )
+    print(f"reference {BENCH_REFERENCE}: {eps:,.0f} env-steps/s, {aps:,.0f} agent-steps/s")
+    return {"name": BENCH_REFERENCE, "env_steps_per_s": eps, "agent_steps_per_s": aps}
+
+
+def speed_section(
+    targets: list[str], params: dict, reference: dict, seconds: float, runs: int, warmup: float
+) -> dict[str, Any]:
+    """Each env stepped by its paper's algorithm (the default baseline): env-steps/s and agent-steps/s, and their
+    ratio to ``reference``'s env-steps/s, per env step and per unit of the env's own time (``STEP_UNIT``)."""
+    out = {}
+    for env_id in targets:
+        env = make(env_id, **params)
+        policy_name = default_policy(env_id)
+        policy = make_policy(env_id, policy_name)
+        views = env.local_views()
+
+        def measure(k, s=seconds, env=env, policy=policy, views=views):
+            return steps_per_second(
+                env,
+                lambda obs: policy.act(obs, views),
+                s,
+                seed=k % 10_000,
+                on_reset=lambda seed: policy.reset(views, seed),
+            )
+
+        eps, aps = median_of(measure, env_id, runs, warmup)
+        ratio = eps / reference["env_steps_per_s"]
+        unit, per = env.STEP_UNIT[0], env.substeps_per_step()
+        out[env_id] = {
+            "policy": policy_name,
+            "params": params,
+            "n_agents": env.n_agents,
+            "env_steps_per_s": eps,
+            "agent_steps_per_s": aps,
+            "ratio_to_reference": ratio,
+            "unit": unit,
+            "units_per_env_step": per,
+            "units_per_s": eps * per,
+            "ratio_per_unit": eps * per / reference["env_steps_per_s"],
+        }
+        line = (
+            f"{env_id} [{policy_name}, N={env.n_agents}]: {eps:,.1f} env-steps/s, {aps:,.0f} agent-steps/s, "
+            f"ratio {ratio:.2f}"
+        )
+        if per != 1:  # e.g. one env step = one TDMA frame of N slots: compare slots with the reference's steps
+            line += f"; {eps * per:,.0f} {unit}s/s, ratio per {unit} {eps * per / reference['env_steps_per_s']:.2f}"
+        print(line)
+        env.close()
+    return out
+
 
 #: agent slots of ``mrcomm bench --train`` by default: 4 copies of the 3-agent reference, one copy of most of ours
 TRAIN_SLOTS = 12

@@ -14,6 +14,7 @@ import contextlib
 import csv
 import functools
 import json
+import math
 import os
 import tempfile
 from collections.abc import Iterator
@@ -30,6 +31,17 @@ def _umask() -> int:
     mask = os.umask(0o022)
     os.umask(mask)
     return mask
+
+
+def json_safe(obj: Any) -> Any:
+    """``obj`` with every non-finite float (NaN, ±inf) made None, so that it is written as strict JSON (null)."""
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, dict):
+        return {k: json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    return obj
 
 
 @contextlib.contextmanager

@@ -1,0 +1,80 @@
+"""``mrcomm evaluate``: a policy for K episodes, the mean ± 95 % CI of every metric."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from mrcomm_env.experiments.arguments import parse_params, positive_int, seed_type
+from mrcomm_env.experiments.evaluation import evaluate, limit_threads, make_any_policy
+from mrcomm_env.experiments.io import atomic_write_json, check_writable_dir, check_writable_file, json_safe
+from mrcomm_env.experiments.record import record_episode
+from mrcomm_env.registry import canonical_id, make, short_name
+
+
+def add_parser(command) -> None:
+    p = command("evaluate", help="run a policy for K episodes; mean ± 95%% CI of every metric")
+    p.add_argument("env_id")
+    p.add_argument("--policy", required=True)
+    p.add_argument("--episodes", type=positive_int, default=10)
+    p.add_argument("--seed", type=seed_type, default=0, help="seed of the first episode (integer ≥ 0)")
+    p.add_argument("--param", action="append", metavar="KEY=VALUE", help="environment argument (JSON value)")
+    p.add_argument("--policy-param", action="append", metavar="KEY=VALUE", help="policy parameter (JSON value)")
+    p.add_argument("--json", metavar="PATH")
+    p.add_argument("--video", metavar="DIR", help="also record the first episode into DIR/<Name>-<policy>.gif")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--trust-pickle",
+        action="store_true",
+        help="load a learned model's run written before the safe formats (it unpickles: only a run you made)",
+    )
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    limit_threads()
+    env_id = canonical_id(args.env_id)
+    params = parse_params(args.param)
+    policy_params = parse_params(args.policy_param, "--policy-param")
+    json_path = check_writable_file(args.json, "--json") if args.json else None
+    # everything a bad argument could break is built once before the first episode: the env with its
+    # params, the policy with its params, and the policy's reset against this env (e.g. a mode it needs)
+    policy = make_any_policy(env_id, args.policy, trust_pickle=args.trust_pickle, **policy_params)
+    trained_on = getattr(policy, "env_kwargs", None)
+    if trained_on is not None:
+        # a learned model acts in the setting it was trained in (its spaces depend on the env's arguments): the
+        # run's own env arguments are the default, and --param overrides them one by one
+        params = {**trained_on, **params}
+        print(f"learned model: its training setting with --param applied, {params}", file=sys.stderr)
+    probe = make(env_id, **params)
+    try:
+        probe.reset(seed=args.seed)
+        policy.reset(probe.local_views(), args.seed)
+    finally:
+        probe.close()
+    if args.video:
+        folder = check_writable_dir(args.video, "--video")
+        name = f"{short_name(env_id)}-{args.policy.replace(':', '_').replace('/', '_')}.gif"
+        video = record_episode(
+            env_id, [args.policy], args.seed, folder / name, params, policy_params, trust_pickle=args.trust_pickle
+        )
+        print(f"recorded the first episode: {video['path']}", file=sys.stderr)
+    metrics = evaluate(lambda: make(env_id, **params), policy, args.episodes, args.seed, progress=not args.quiet)
+    width = max(len(name) for name in metrics)
+    print(f"{env_id}  policy={args.policy}  episodes={args.episodes}  seed={args.seed}  params={params}")
+    for name, m in metrics.items():
+        print(f"  {name:<{width}}  {m['mean']:>14.6g} ± {m['ci95']:.3g}")
+    if json_path is not None:
+        record = {
+            "env": env_id,
+            "policy": args.policy,
+            "episodes": args.episodes,
+            "seed": args.seed,
+            "params": params,
+            "policy_params": policy_params,
+            "metrics": metrics,
+        }
+        # NaN (a metric undefined in an episode, e.g. a subgraph that never completed) becomes null: strict JSON
+        atomic_write_json(json_path, json_safe(record), indent=2, allow_nan=False)
+        print(f"wrote {json_path}")
+    return 0
