@@ -41,9 +41,12 @@ def mask_info_keys(info_keys) -> list[str]:
     return sorted(keys, key=lambda k: int(k[len(MASK_INFO_PREFIX) :]))
 
 
-class MrcommParallelEnv(ParallelEnv):
-    ENV_ID: ClassVar[str] = ""
-    DESCRIPTION: ClassVar[str] = ""
+class EnvSpec:
+    """What an environment declares, apart from its behaviour: its arguments, metrics, infos and local view, its
+    documented configurations and limits, its memory model and which configurations step as a copy-axis world.
+    Each env keeps its own in ``<env>/spec.py`` as a subclass of this, which the env class inherits before
+    :class:`MrcommParallelEnv`; ``mrcomm docs`` and the conformance checks read them through the env class."""
+
     PARAMS: ClassVar[dict[str, Param]] = {}
     METRICS: ClassVar[dict[str, str]] = {}
     #: metrics that are a time until something happens, reported as −1 or NaN while it has not: an evaluation
@@ -58,10 +61,6 @@ class MrcommParallelEnv(ParallelEnv):
     #: ``mrcomm bench --limits``): every range is a promise
     LIMIT_CONFIGS: ClassVar[dict[str, dict[str, Any]]] = {}
     VERSION_HISTORY: ClassVar[list[tuple[str, str]]] = []
-    #: what one env step stands for in the paper's own time unit, for the benchmark: an env whose step is a
-    #: whole TDMA frame sets ("slot", True) so that speed is also reported per slot (N slots per step)
-    STEP_UNIT: ClassVar[tuple[str, bool]] = ("step", False)
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
     #: the peak-memory estimate of :meth:`memory_estimate` written out for the env page (names are arguments)
     MEMORY_FORMULA: ClassVar[str] = ""
     #: the arguments the estimate grows with: the ones a refusal names
@@ -73,6 +72,39 @@ class MrcommParallelEnv(ParallelEnv):
     #: estimate (each must need well above the interpreter's noise, tens of MB, and fit the default budget)
     MEMORY_PROBES: ClassVar[dict[str, dict[str, Any]]] = {}
 
+    @classmethod
+    def memory_estimate(cls, cfg: Config) -> float:
+        """Estimated peak memory in bytes of one instance with the validated arguments ``cfg``: construction, reset
+        and steps, the interpreter excluded (``MEMORY_FORMULA`` says it in words). Construction refuses arguments
+        whose estimate is over ``memory_budget_gib``. Must not fail on any valid ``cfg`` (compute in floats)."""
+        raise NotImplementedError(f"{cls.__name__} must state its peak memory (memory_estimate, MEMORY_FORMULA)")
+
+    @classmethod
+    def batch_memory_estimate(cls, cfg: Config, n_copies: int) -> float:
+        """Estimated peak memory in bytes of ``n_copies`` instances stepped in turn (a ``BatchedEnv``): one instance,
+        plus for every further copy its own state (the estimate without ``MEMORY_SHARED``) and the Python objects of
+        an instance (:data:`COPY_OVERHEAD_BYTES`, measured)."""
+        one = float(cls.memory_estimate(cfg))
+        return one + (n_copies - 1) * (max(one - cls.MEMORY_SHARED, 0.0) + COPY_OVERHEAD_BYTES)
+
+    @classmethod
+    def copy_axis_world(cls, cfg: Config) -> Callable[[list[Any]], Any] | None:
+        """The class that steps M copies with these arguments as arrays with a leading copy axis, or None (a
+        :class:`~mrcomm_env.core.batched.BatchedEnv` then steps the copies in turn). It is built from the M reset
+        env copies and has ``adopt(i)`` (take copy i's freshly reset episode), ``store(i)`` (write copy i's state
+        back into its env), ``step(actions)`` (``step_arrays`` of every copy, without resets) and ``bits_sent()``;
+        optionally ``reset_copies(copies)`` and ``final_metrics(copies)``, to begin ended copies' next episodes and
+        compute the ended ones' metrics without the env objects."""
+        return None
+
+
+class MrcommParallelEnv(EnvSpec, ParallelEnv):
+    ENV_ID: ClassVar[str] = ""
+    DESCRIPTION: ClassVar[str] = ""
+    #: what one env step stands for in the paper's own time unit, for the benchmark: an env whose step is a
+    #: whole TDMA frame sets ("slot", True) so that speed is also reported per slot (N slots per step)
+    STEP_UNIT: ClassVar[tuple[str, bool]] = ("step", False)
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
     # set by _setup()
     n_agents: int
     #: every env accounts its bits in one BitLedger (set by _reset_world)
@@ -85,8 +117,9 @@ class MrcommParallelEnv(ParallelEnv):
 
     def __init_subclass__(cls, **kwargs: Any):
         super().__init_subclass__(**kwargs)
-        # every environment takes the memory budget (core/memory.py), declared once here
-        if "PARAMS" in cls.__dict__ and BUDGET_ARGUMENT not in cls.PARAMS:
+        # every environment takes the memory budget (core/memory.py), declared once here; PARAMS may come from a
+        # spec class the env inherits (``<env>/spec.py``), so it is read through the class, not its own __dict__
+        if BUDGET_ARGUMENT not in cls.PARAMS:
             cls.PARAMS = {**cls.PARAMS, BUDGET_ARGUMENT: MEMORY_BUDGET_PARAM}
 
     def __init__(self, render_mode: str | None = None, **kwargs: Any):
@@ -118,31 +151,6 @@ class MrcommParallelEnv(ParallelEnv):
         self._check_action = _action_checker(self._act_space)
 
     # ----------------------------------------------------------------- subclass interface
-    @classmethod
-    def memory_estimate(cls, cfg: Config) -> float:
-        """Estimated peak memory in bytes of one instance with the validated arguments ``cfg``: construction, reset
-        and steps, the interpreter excluded (``MEMORY_FORMULA`` says it in words). Construction refuses arguments
-        whose estimate is over ``memory_budget_gib``. Must not fail on any valid ``cfg`` (compute in floats)."""
-        raise NotImplementedError(f"{cls.__name__} must state its peak memory (memory_estimate, MEMORY_FORMULA)")
-
-    @classmethod
-    def batch_memory_estimate(cls, cfg: Config, n_copies: int) -> float:
-        """Estimated peak memory in bytes of ``n_copies`` instances stepped in turn (a ``BatchedEnv``): one instance,
-        plus for every further copy its own state (the estimate without ``MEMORY_SHARED``) and the Python objects of
-        an instance (:data:`COPY_OVERHEAD_BYTES`, measured)."""
-        one = float(cls.memory_estimate(cfg))
-        return one + (n_copies - 1) * (max(one - cls.MEMORY_SHARED, 0.0) + COPY_OVERHEAD_BYTES)
-
-    @classmethod
-    def copy_axis_world(cls, cfg: Config) -> Callable[[list[Any]], Any] | None:
-        """The class that steps M copies with these arguments as arrays with a leading copy axis, or None (a
-        :class:`~mrcomm_env.core.batched.BatchedEnv` then steps the copies in turn). It is built from the M reset
-        env copies and has ``adopt(i)`` (take copy i's freshly reset episode), ``store(i)`` (write copy i's state
-        back into its env), ``step(actions)`` (``step_arrays`` of every copy, without resets) and ``bits_sent()``;
-        optionally ``reset_copies(copies)`` and ``final_metrics(copies)``, to begin ended copies' next episodes and
-        compute the ended ones' metrics without the env objects."""
-        return None
-
     def _setup(self) -> None:
         raise NotImplementedError
 
