@@ -15,7 +15,7 @@ export MPLBACKEND := Agg
 
 EXTRAS := train,dev,bench,fast
 
-.PHONY: demo test fuzz docs-site docs-serve test-wheel install bench bench-benchmarl docs learn sweep lint format lock clean test-torchrl test-rllib test-benchmarl \
+.PHONY: demo test fuzz docs-site docs-serve test-wheel install bench bench-benchmarl benchmark benchmark-page docs learn sweep lint format lock clean test-torchrl test-rllib test-benchmarl \
 	test-ray
 
 # constraints.txt pins every package to the versions CI tested, so a new machine gets those
@@ -102,6 +102,18 @@ bench: $(STAMP)
 # SerialEnv path and beside an env that costs nothing, on one torch thread; into results/bench-benchmarl.json
 bench-benchmarl: .venv-benchmarl/.installed
 	OMP_NUM_THREADS=1 .venv-benchmarl/bin/python -m mrcomm_env.experiments.benchmarl_bench
+
+# BenchMARL's reference results (docs/benchmark.md): IPPO, MAPPO and IQL, 3 seeds, 1,000,000 frames a run, into
+# docs/benchmark/runs/ in .venv-benchmarl; runs only what has no record yet, so a killed or stopped benchmark
+# resumes where it was (a run cut short starts again). The plan's cost per run: docs/benchmark.md.
+# BENCHMARK_ARGS passes more, e.g. BENCHMARK_ARGS="--tasks MAPSYNC --jobs 2". Keep MULTIHOP at one job on 23 GB:
+# its IPPO run peaked at 14 GB (measured with /usr/bin/time, 36 robots).
+benchmark: .venv-benchmarl/.installed
+	OMP_NUM_THREADS=1 .venv-benchmarl/bin/python -m mrcomm_env.experiments.benchmarl_reference run $(BENCHMARK_ARGS)
+
+# docs/benchmark.md, its figures and docs/benchmark/marl-eval.json from the runs' committed files
+benchmark-page: .venv-benchmarl/.installed
+	MPLBACKEND=Agg .venv-benchmarl/bin/python -m mrcomm_env.experiments.benchmarl_reference page
 
 docs: $(STAMP)
 	$(BIN)/mrcomm docs

@@ -285,6 +285,14 @@ def test_bench_train_shipped_needs_a_shipped_configuration_before_timing(tmp_pat
     assert "has no learning configuration" in _one_error_line(capsys.readouterr().err)
 
 
+def test_the_comparison_reads_the_configs_the_trainer_reads():
+    # found without importing the agents package (BenchMARL's venv has no SB3), yet the trainer's own folder
+    from mrcomm_agents.training import CONFIG_DIR
+    from mrcomm_env.experiments.runs import agent_config_dir
+
+    assert agent_config_dir() == CONFIG_DIR and (CONFIG_DIR / "MapSync-v0.json").is_file()
+
+
 @pytest.fixture
 def blocked_dir(tmp_path):
     """A path nothing can be written under, whoever runs the test (root included): its parent is a file."""

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import importlib.util
 import json
 from pathlib import Path
 
@@ -19,11 +20,23 @@ from mrcomm_env.registry import canonical_id, short_name
 COMPARISON_KEY = "comparison"
 
 
+def agent_config_dir() -> Path:
+    """``agents/configs`` (``mrcomm_agents.training.CONFIG_DIR``), found without importing the agents package, whose
+    ``__init__`` imports SB3: the configs are data, read also where the "train" extra is not installed (BenchMARL's
+    venv)."""
+    spec = importlib.util.find_spec("mrcomm_agents")
+    if spec is None or not spec.submodule_search_locations:
+        raise ValueError("the learning configurations ship with the mrcomm_agents package, which is not installed")
+    return Path(next(iter(spec.submodule_search_locations))) / "configs"
+
+
 def comparison_spec(env_id: str) -> dict:
     """The env's comparison settings from ``agents/configs/<Name>-v0.json``: the cost argument swept (λ or the
     bit price), its values, the task metric and whether lower is better, the baselines, seeds and episodes."""
-    from mrcomm_agents.training import CONFIG_DIR  # extra "train"
-
+    try:
+        from mrcomm_agents.training import CONFIG_DIR  # extra "train"
+    except ImportError:  # no SB3 (BenchMARL's venv): the same folder, found without importing the agents package
+        CONFIG_DIR = agent_config_dir()
     path = CONFIG_DIR / f"{short_name(env_id)}.json"
     if not path.exists():
         raise ValueError(f"{canonical_id(env_id)} has no learning configuration ({path.name})")

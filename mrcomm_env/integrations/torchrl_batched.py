@@ -96,6 +96,8 @@ class BatchedTorchRLEnv(EnvBase):
         #: copies whose episode ended at the last step and whose next episode has begun, not yet handed out
         self._pending = np.zeros(num_envs, dtype=bool)
         self._infos: dict[str, np.ndarray] = {}
+        #: copy index → the metrics (``env.metrics()``) of the episodes that ended at the last step
+        self.last_final_metrics: dict[int, dict[str, float]] = {}
 
     # ------------------------------------------------------------------ specs
     def _make_specs(self, probe) -> None:
@@ -190,6 +192,7 @@ class BatchedTorchRLEnv(EnvBase):
         if isinstance(self.batch.action_space, spaces.Discrete) and not self.categorical_actions:
             action = action.to(torch.int64).argmax(-1)  # one-hot vectors (bool) to indices
         step = self.batch.step(action.detach().cpu().numpy())
+        self.last_final_metrics = step.final_metrics
         observations = step.observations.copy()
         infos = step.infos
         if step.final_observations:

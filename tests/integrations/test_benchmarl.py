@@ -16,7 +16,7 @@ from benchmarl.models import MlpConfig
 from torchrl.envs.utils import check_env_specs
 
 import mrcomm_env
-from mrcomm_env.experiments import benchmarl_bench
+from mrcomm_env.experiments import benchmarl_bench, benchmarl_reference
 from mrcomm_env.integrations.benchmarl import CONF_DIR, ENV_ID_OF_TASK, MrcommSerialClass, MrcommTask
 from mrcomm_env.integrations.torchrl_batched import BatchedTorchRLEnv
 from mrcomm_env.registry import env_class
@@ -45,7 +45,9 @@ def test_yaml_config_holds_env_arguments_only(task):
     assert loaded.config == config
     env = loaded.get_env_fun(num_envs=1, continuous_actions=False, seed=0, device="cpu")()
     assert loaded.max_steps(env) == config["max_cycles"]
-    assert loaded.group_map(env) == {"robot": list(mrcomm_env.make(ENV_ID_OF_TASK[task.name]).possible_agents)}
+    assert loaded.group_map(env) == {
+        "robot": list(mrcomm_env.make(ENV_ID_OF_TASK[task.name], **config).possible_agents)
+    }
     assert loaded.supports_discrete_actions() != loaded.supports_continuous_actions()
     assert list(loaded.state_spec(env).keys()) == ["state"]
     assert set(loaded.observation_spec(env)["robot"].keys()) == {"observation"}
@@ -176,3 +178,102 @@ def test_every_task_env_passes_check_env_specs_under_benchmarl_torchrl(task):
     check_env_specs(env, seed=0)
     data = env.rollout(2 * SHORT["max_cycles"] + 1, break_when_any_done=False)
     assert data["next", "done"].sum() >= 3 * 2  # every copy ended at least twice and went on
+
+
+# ------------------------------------------------------------------------------ the reference benchmark
+TINY_RUN = {"frames": 200, "frames_per_batch": 100, "num_envs": 4, "episodes": 2}
+
+
+def test_reference_benchmark_runs_resumes_and_writes_its_page(tmp_path, capsys):
+    out, page = tmp_path / "benchmark", tmp_path / "benchmark.md"
+    args = (["MAPSYNC"], ["ippo"], [0], *TINY_RUN.values())
+    assert benchmarl_reference.run_plan(out, *args) == [("MAPSYNC", "ippo", 0)]
+    record_path, json_path = benchmarl_reference.run_paths(out, "MAPSYNC", "ippo", 0)
+    record = json.loads(record_path.read_text())
+    assert record["frames"] == TINY_RUN["frames"] and record["iterations"] == 2
+    assert record["wall_seconds"] >= record["training_seconds"] > 0
+    assert {len(values) for values in record["heldout"].values()} == {TINY_RUN["episodes"]}
+    run = json.loads(json_path.read_text())["mrcomm"]["mapsync"]["ippo"]["seed_0"]
+    assert [run[k]["step_count"] for k in sorted(k for k in run if k.startswith("step_"))] == [100, 200]
+    assert not record_path.with_suffix(".scratch").exists()
+    references = json.loads((out / benchmarl_reference.REFERENCES).read_text())["MAPSYNC"]
+    assert references["metric"] == "disagreement" and set(references["policies"]) == {
+        "random",
+        "periodic_equality_then_bisection",
+    }
+
+    # a finished run is not run again; a run another process holds is left to it, and a killed one's scratch goes
+    assert benchmarl_reference.run_plan(out, *args) == []
+    held = benchmarl_reference.RunLock(benchmarl_reference.run_paths(out, "MAPSYNC", "ippo", 1)[0].with_suffix(".lock"))
+    assert held.acquire()
+    try:
+        assert benchmarl_reference.run_plan(out, ["MAPSYNC"], ["ippo"], [1], *TINY_RUN.values()) == []
+        assert "MAPSYNC ippo seed 1 is being run by pid" in capsys.readouterr().out
+    finally:
+        held.release()
+
+    tiny = ["--frames-per-batch", "100", "--num-envs", "4", "--episodes", "2", "--out", str(out)]
+    assert benchmarl_reference.main(["cost", "--tasks", "MAPSYNC", "--algorithms", "ippo", *tiny]) == 0
+    cost = json.loads((out / benchmarl_reference.COST).read_text())["MAPSYNC"]["ippo"]
+    assert cost["iteration_seconds"] == pytest.approx(cost["collection_seconds"] + cost["training_seconds"])
+    iterations = math.ceil(benchmarl_reference.FRAMES / 100)
+    projected = iterations * cost["iteration_seconds"] + benchmarl_reference.EVALUATIONS * cost["evaluation_seconds"]
+    assert cost["projected_run_hours"] == pytest.approx(projected / 3600)
+    assert not list(out.glob("*.scratch"))
+
+    assert benchmarl_reference.main(["page", "--out", str(out), "--page", str(page)]) == 0
+    text = page.read_text()
+    assert f"| mapsync | ippo | {cost['collection_seconds']:.1f} |" in text
+    assert f"| 2 | {2 * cost['projected_run_hours']:.1f} |" in text  # seeds 1 and 2 are left
+    assert "**Runs:** 1 of the plan's 42 have finished." in text
+    assert "| IPPO (BenchMARL) | 1 |" in text and "| IPPO | mapsync | 1 |" in text
+    assert (out / "profile.png").stat().st_size > 0 and (out / "curves.png").stat().st_size > 0
+    merged = json.loads((out / benchmarl_reference.MERGED).read_text())
+    assert merged["mrcomm"]["mapsync"]["ippo"]["seed_0"] == run
+
+
+def test_heldout_evaluation_plays_the_episodes_the_single_env_plays():
+    # a policy that never syncs, as BenchMARL's policy module would act, against the scripted `never` played by
+    # the single env on the same seeds: the same metric, bits and return (rewards pass through float32 on the
+    # TorchRL side: 2^-24 relative per reward, summed over 200 same-signed rewards, so 1e-6 relative is ample)
+    from mrcomm_baselines import make_policy
+    from mrcomm_env.experiments.evaluation import evaluate_policy
+
+    class NeverSyncs:
+        def policy(self, td):
+            td.set(("robot", "action"), torch.zeros(td["robot", "observation"].shape[:2], dtype=torch.int64))
+            return td
+
+    episodes = 3
+    ours = benchmarl_reference.evaluate_benchmarl_policy(NeverSyncs(), "MAPSYNC", episodes)
+    seeds = list(range(benchmarl_reference.HELDOUT_SEED, benchmarl_reference.HELDOUT_SEED + episodes))
+    spec = benchmarl_reference.paper_spec("mrcomm/MapSync-v0")
+    config = dict(MrcommTask.MAPSYNC.get_from_yaml().config)
+    theirs = evaluate_policy("mrcomm/MapSync-v0", config, make_policy("mrcomm/MapSync-v0", "never"), seeds, spec)
+    assert ours["metric"] == theirs["metric"] and ours["bits"] == theirs["bits"]
+    assert ours["return"] == pytest.approx(theirs["return"], rel=1e-6)
+
+
+def test_normalised_scores_put_random_at_zero_and_the_paper_at_one():
+    references = {
+        task: {"paper_policy": "paper", "policies": {"random": {"return": [-4.0, -2.0]}, "paper": {"return": [1.0]}}}
+        for task in ("A", "B")
+    }
+    records = [
+        {"task": task, "algorithm": "ippo", "seed": seed, "heldout": {"return": [value]}}
+        for task, seed, value in (("A", 0, -3.0), ("A", 1, 1.0), ("B", 0, 2.5), ("B", 1, -3.0))
+    ]
+    matrices, tasks = benchmarl_reference.score_matrices(records, references)
+    assert tasks == {"ippo": ["A", "B"]}
+    assert matrices["ippo"].tolist() == [[0.0, 1.375], [1.0, 0.0]]  # (seeds × tasks); random's mean is -3
+
+
+def test_reference_benchmark_refuses_bad_arguments_in_one_line(tmp_path, capsys):
+    assert (
+        benchmarl_reference.main(["run", "--frames", "100", "--frames-per-batch", "200", "--out", str(tmp_path)]) == 2
+    )
+    assert capsys.readouterr().err.strip() == "benchmark: argument '--frames' must be at least '--frames-per-batch'"
+    with pytest.raises(SystemExit) as exit_info:
+        benchmarl_reference.main(["run", "--jobs", "0"])
+    assert exit_info.value.code == 2
+    assert "argument '--jobs' must be an integer ≥ 1, got '0'" in capsys.readouterr().err

@@ -1,0 +1,808 @@
+"""Reference results on every mrcomm task from BenchMARL's own runner, and the page that shows them.
+
+    make benchmark         # runs what is missing of the plan into docs/benchmark/runs/ (resumable, one run at a time)
+    make benchmark-page    # docs/benchmark.md, its figures and the merged marl-eval JSON, from the runs' files
+    python -m mrcomm_env.experiments.benchmarl_reference run --tasks MAPSYNC --algorithms ippo --seeds 0 1 2
+
+**The plan.** IPPO and MAPPO on every task, IQL where the task acts in a Discrete space (every task but MultiHop,
+whose BenchMARL layout acts in a Box), seeds 0, 1 and 2, each run 1,000,000 frames (``FRAMES``; one frame: one step
+of one copy, all robots). The experiments are BenchMARL's ``Benchmark(...).get_experiments()`` with its default
+algorithm, MLP model and experiment configs, changed only where this module says (``experiment_config``): the
+budget, 100 copies per batch (``NUM_ENVS``, as one batched env of ``MrcommTask``; BenchMARL's default of 10 is sized
+for VMAS on a GPU), an evaluation every tenth of the budget on 10 episodes (``EVAL_EPISODES``), the csv logger and
+marl-eval's JSON, no rendering and no checkpoints.
+
+**Resuming.** ``Benchmark.run_sequential`` runs every experiment in one go and keeps nothing of a run it did not
+finish. Here each experiment of the benchmark runs on its own and, when it finishes, leaves two files in
+``runs/<task>/<algorithm>/``: BenchMARL's marl-eval JSON of the run, verbatim (``seed_<s>.marl-eval.json``), and
+this module's record of it (``seed_<s>.json``: frames, BenchMARL's and the wall clock's seconds, and the final
+policy's held-out evaluation). Both are written atomically, the record last, so a run counts as done only when both
+are whole; a run killed midway leaves only its scratch folder, which the next invocation removes before running it
+again from the start. Each run is locked while it runs (``seed_<s>.lock``), so processes started together
+(``--jobs``, or a second ``make benchmark``) share the plan without running a run twice.
+
+**Held-out evaluation.** BenchMARL's own evaluations (the curves) draw their episodes at random. The final policy of
+each run, and the two references (``random`` and the paper's algorithm, the env's default baseline), also play 10
+episodes seeded 100,000, 100,001, … (``HELDOUT_SEED``) that no run trained on: the return as BenchMARL counts it
+(the robots' mean reward, summed over the episode), the paper's metric (the learned-against-scripted comparison's,
+``agents/configs``) and the bits sent per robot. The normalised score is ``(return − random's) / (paper's −
+random's)``: 0 is ``random``, 1 the paper's algorithm.
+
+**The page.** rliable's interquartile mean of the normalised final scores across tasks and seeds, with stratified-
+bootstrap 95 % intervals, its performance profile, the sample-efficiency curves from BenchMARL's evaluations, the
+per-task table and the wall time of every run."""
+
+from __future__ import annotations
+
+import argparse
+import fcntl
+import json
+import math
+import multiprocessing
+import os
+import shutil
+import sys
+import time
+from collections.abc import Iterable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from mrcomm_baselines import default_policy, make_policy
+from mrcomm_env.core.stats import mean_ci95
+from mrcomm_env.experiments.evaluation import evaluate_policy
+from mrcomm_env.experiments.io import atomic_savefig, atomic_write_json, atomic_write_text
+from mrcomm_env.experiments.runs import comparison_spec
+from mrcomm_env.integrations import require
+from mrcomm_env.integrations.benchmarl import ENV_ID_OF_TASK, MrcommTask
+
+EXTRA = "benchmarl"
+torch = require("torch", EXTRA)
+_algorithms = require("benchmarl.algorithms", EXTRA)
+_benchmark = require("benchmarl.benchmark", EXTRA)
+_eval_results = require("benchmarl.eval_results", EXTRA)
+_experiment = require("benchmarl.experiment", EXTRA)
+_models = require("benchmarl.models", EXTRA)
+_envs = require("torchrl.envs", EXTRA)
+
+#: the algorithms of the plan: BenchMARL's configs by its own names
+ALGORITHMS = {"ippo": "IppoConfig", "mappo": "MappoConfig", "iql": "IqlConfig"}
+#: algorithms that need a Discrete action space
+DISCRETE_ONLY = ("iql",)
+SEEDS = (0, 1, 2)
+#: frames per run: the issue's 1,000,000
+FRAMES = 1_000_000
+#: copies stepped as one batched env, for collection and (``evaluation_episodes`` of them) for evaluation
+NUM_ENVS = 100
+#: BenchMARL's evaluations per run: after the first batch, then every tenth of the budget (the curves' points)
+EVALUATIONS = 10
+EVAL_EPISODES = 10
+#: the first held-out episode seed: above every seed a BenchMARL run or a tuning of ours drew
+HELDOUT_SEED = 100_000
+#: rliable's bootstrap repetitions and the seed of its generator (the page is the same on every machine)
+BOOTSTRAP_REPS = 2_000
+BOOTSTRAP_SEED = 0
+
+OUT = Path("docs/benchmark")
+PAGE = Path("docs/benchmark.md")
+RUNS = "runs"
+REFERENCES = "references.json"
+MERGED = "marl-eval.json"
+COST = "cost.json"
+
+
+# ---------------------------------------------------------------------------------------------------- the plan
+def algorithm_config(name: str):
+    return getattr(_algorithms, ALGORITHMS[name]).get_from_yaml()
+
+
+def plan(tasks: Sequence[str], algorithms: Sequence[str], seeds: Iterable[int]) -> list[tuple[str, str, int]]:
+    """(task, algorithm, seed) of every run: IQL only where the task's actions are Discrete."""
+    runs: list[tuple[str, str, int]] = []
+    for task in tasks:
+        discrete = MrcommTask[task].get_from_yaml().supports_discrete_actions()
+        for algorithm in algorithms:
+            if algorithm in DISCRETE_ONLY and not discrete:
+                continue
+            runs.extend((task, algorithm, int(seed)) for seed in seeds)
+    return runs
+
+
+def experiment_config(frames: int, frames_per_batch: int, num_envs: int, eval_episodes: int, folder: Path):
+    """BenchMARL's default experiment config with the budget and this module's changes (module docstring)."""
+    config = _experiment.ExperimentConfig.get_from_yaml()
+    config.max_n_frames = frames
+    for kind in ("on_policy", "off_policy"):
+        setattr(config, f"{kind}_collected_frames_per_batch", frames_per_batch)
+        setattr(config, f"{kind}_n_envs_per_worker", num_envs)
+    # evaluations at whole batches, about EVALUATIONS of them
+    config.evaluation_interval = frames_per_batch * max(1, round(frames / frames_per_batch / EVALUATIONS))
+    config.evaluation_episodes = eval_episodes
+    config.render = False
+    config.loggers = ["csv"]
+    config.create_json = True
+    config.checkpoint_interval = 0
+    config.checkpoint_at_end = False
+    config.save_folder = str(folder)
+    return config
+
+
+def the_experiment(task: str, algorithm: str, seed: int, config):
+    """The experiment of BenchMARL's ``Benchmark`` for one task, algorithm and seed (its MLP for policy and critic)."""
+    benchmark = _benchmark.Benchmark(
+        algorithm_configs=[algorithm_config(algorithm)],
+        tasks=[MrcommTask[task].get_from_yaml()],
+        seeds={seed},
+        experiment_config=config,
+        model_config=_models.MlpConfig.get_from_yaml(),
+        critic_model_config=_models.MlpConfig.get_from_yaml(),
+    )
+    return next(benchmark.get_experiments())
+
+
+# ---------------------------------------------------------------------------------------------------- evaluation
+def paper_spec(env_id: str) -> dict:
+    """The paper's metric as the learned-against-scripted comparison reads it (metric, direction, unfinished)."""
+    spec = comparison_spec(env_id)
+    return {key: spec[key] for key in ("metric", "lower_is_better", "unfinished", "bits_per") if key in spec}
+
+
+def evaluate_benchmarl_policy(experiment, task: str, episodes: int) -> dict[str, list[float]]:
+    """The experiment's final policy, acting deterministically, on the held-out episodes: per episode the return
+    (the robots' mean reward summed), the paper's metric and the bits per robot (``evaluate_policy``'s keys)."""
+    from mrcomm_env.integrations.torchrl_batched import GROUP, BatchedTorchRLEnv
+
+    yaml_task = MrcommTask[task].get_from_yaml()
+    env_id = ENV_ID_OF_TASK[task]
+    spec = paper_spec(env_id)
+    env = BatchedTorchRLEnv(env_id, episodes, seed=HELDOUT_SEED, **yaml_task.config)
+    probe = env.batch.envs[0]
+    returns = np.zeros(episodes)
+    steps = np.zeros(episodes, dtype=int)
+    finals: dict[int, dict[str, float]] = {}
+    td = env.reset()
+    with torch.no_grad(), _envs.set_exploration_type(_envs.ExplorationType.DETERMINISTIC):
+        while len(finals) < episodes:
+            td = experiment.policy(td)
+            td, next_td = env.step_and_maybe_reset(td)
+            running = np.array([i not in finals for i in range(episodes)])
+            rewards = td.get(("next", GROUP, "reward")).squeeze(-1).mean(-1).numpy()
+            returns[running] += rewards[running]
+            steps[running] += 1
+            for i, metrics in env.last_final_metrics.items():
+                finals.setdefault(i, metrics)
+            td = next_td
+    env.close()
+    out: dict[str, list[float]] = {"metric": [], "bits": [], "return": []}
+    for i in range(episodes):
+        value = float(finals[i][spec["metric"]])
+        if "unfinished" in spec and not value >= 0:
+            value = float(spec["unfinished"])
+        out["metric"].append(probe.counted_time(spec["metric"], value))
+        per = max(int(steps[i]), 1) if spec.get("bits_per", "step") == "step" else 1
+        out["bits"].append(float(finals[i]["bits_sent"]) / (env.n_agents * per))
+        out["return"].append(float(returns[i]))
+    return out
+
+
+def reference_results(task: str, episodes: int) -> dict[str, dict[str, list[float]]]:
+    """``random`` and the paper's algorithm on the held-out episodes of ``task``'s configuration."""
+    env_id = ENV_ID_OF_TASK[task]
+    config = dict(MrcommTask[task].get_from_yaml().config)
+    seeds = list(range(HELDOUT_SEED, HELDOUT_SEED + episodes))
+    spec = paper_spec(env_id)
+    return {
+        name: evaluate_policy(env_id, config, make_policy(env_id, name), seeds, spec)
+        for name in ("random", default_policy(env_id))
+    }
+
+
+# ---------------------------------------------------------------------------------------------------- running
+class RunLock:
+    """``flock`` on a file holding the holder's pid. ``acquire(wait=False)`` returns False while another process
+    holds it; the lock goes with the process, so a run killed with ``kill -9`` frees it."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.fd: int | None = None
+
+    def acquire(self, wait: bool = False) -> bool:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+        except BlockingIOError:
+            os.close(fd)
+            return False
+        os.ftruncate(fd, 0)
+        os.write(fd, str(os.getpid()).encode())
+        self.fd = fd
+        return True
+
+    def holder(self) -> str:
+        try:
+            return self.path.read_text().strip() or "?"
+        except OSError:
+            return "?"
+
+    def release(self) -> None:
+        if self.fd is not None:
+            os.close(self.fd)  # closing releases the flock; the file stays (unlinking it would race a waiter)
+            self.fd = None
+
+
+def _timer_rows(folder: Path, timer: str) -> list[float]:
+    """BenchMARL's ``timers/<timer>_time`` of each iteration that logged it (its csv logger's file)."""
+    rows = []
+    for path in folder.glob(f"**/scalars/timers_{timer}_time.csv"):
+        rows += [float(line.split(",")[1]) for line in path.read_text().splitlines() if "," in line]
+    return rows
+
+
+def _timer_total(folder: Path, timer: str) -> float:
+    """BenchMARL's ``timers/<timer>_time`` summed over the run's iterations."""
+    return float(sum(_timer_rows(folder, timer)))
+
+
+def run_paths(out: Path, task: str, algorithm: str, seed: int) -> tuple[Path, Path]:
+    """(record, marl-eval JSON) of one run."""
+    folder = out / RUNS / task.lower() / algorithm
+    return folder / f"seed_{seed}.json", folder / f"seed_{seed}.marl-eval.json"
+
+
+def run_one(
+    out: Path, task: str, algorithm: str, seed: int, frames: int, frames_per_batch: int, num_envs: int, episodes: int
+) -> dict:
+    """Run one experiment of the benchmark from the start in a scratch folder, evaluate its final policy on the
+    held-out episodes and keep its two files (module docstring); returns the record."""
+    record_path, json_path = run_paths(out, task, algorithm, seed)
+    scratch = record_path.with_suffix(".scratch")
+    shutil.rmtree(scratch, ignore_errors=True)  # what a killed attempt left
+    scratch.mkdir(parents=True)
+    config = experiment_config(frames, frames_per_batch, num_envs, episodes, scratch)
+    experiment = the_experiment(task, algorithm, seed, config)
+    start = time.perf_counter()
+    experiment.run()
+    wall = time.perf_counter() - start
+    marl_eval = json.loads((experiment.folder_name / f"{experiment.name}.json").read_text())
+    heldout = evaluate_benchmarl_policy(experiment, task, episodes)
+    record = {
+        "task": task,
+        "env_id": ENV_ID_OF_TASK[task],
+        "env_config": dict(MrcommTask[task].get_from_yaml().config),
+        "algorithm": algorithm,
+        "seed": seed,
+        "frames": int(experiment.total_frames),
+        "frames_per_batch": frames_per_batch,
+        "num_envs": num_envs,
+        "iterations": int(experiment.n_iters_performed),
+        "wall_seconds": wall,
+        "benchmarl_seconds": float(experiment.total_time),
+        **{f"{timer}_seconds": _timer_total(scratch, timer) for timer in ("collection", "training", "evaluation")},
+        "torch_threads": torch.get_num_threads(),
+        "heldout_seed": HELDOUT_SEED,
+        "heldout": heldout,
+    }
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(json_path, marl_eval, indent=1)
+    atomic_write_json(record_path, record, indent=1)  # last: the run counts as done from here
+    shutil.rmtree(scratch, ignore_errors=True)
+    return record
+
+
+def ensure_references(out: Path, tasks: Sequence[str], episodes: int) -> dict:
+    """``references.json``: ``random`` and the paper's algorithm on each task's held-out episodes, computed for the
+    tasks that lack them (one process at a time)."""
+    lock = RunLock(out / "references.lock")
+    lock.acquire(wait=True)
+    try:
+        path = out / REFERENCES
+        references = json.loads(path.read_text()) if path.exists() else {}
+        for task in tasks:
+            if task in references and references[task]["episodes"] == episodes:
+                continue
+            env_id = ENV_ID_OF_TASK[task]
+            references[task] = {
+                "episodes": episodes,
+                "heldout_seed": HELDOUT_SEED,
+                **paper_spec(env_id),
+                "paper_policy": default_policy(env_id),
+                "policies": reference_results(task, episodes),
+            }
+            atomic_write_json(path, references, indent=1)
+        return references
+    finally:
+        lock.release()
+
+
+def run_plan(
+    out: Path,
+    tasks: Sequence[str],
+    algorithms: Sequence[str],
+    seeds: Sequence[int],
+    frames: int,
+    frames_per_batch: int,
+    num_envs: int,
+    episodes: int,
+) -> list[tuple[str, str, int]]:
+    """Every run of the plan that has no record yet and that no other process is running, in order, after the
+    references; returns the runs made. Several processes may work through one plan at once (``--jobs``)."""
+    ensure_references(out, tasks, episodes)
+    made = []
+    todo = [run for run in plan(tasks, algorithms, seeds) if not run_paths(out, *run)[0].exists()]
+    for k, (task, algorithm, seed) in enumerate(todo):
+        record_path = run_paths(out, task, algorithm, seed)[0]
+        lock = RunLock(record_path.with_suffix(".lock"))
+        if not lock.acquire():
+            print(f"benchmark: {task} {algorithm} seed {seed} is being run by pid {lock.holder()}", flush=True)
+            continue
+        try:
+            if record_path.exists():  # another process finished it since the list was made
+                continue
+            print(f"benchmark: run {k + 1}/{len(todo)}: {task} {algorithm} seed {seed}", flush=True)
+            record = run_one(out, task, algorithm, seed, frames, frames_per_batch, num_envs, episodes)
+            print(
+                f"benchmark: {task} {algorithm} seed {seed}: {record['frames']:,} frames in"
+                f" {record['wall_seconds']:.0f} s, held-out return {np.mean(record['heldout']['return']):.4g}",
+                flush=True,
+            )
+            made.append((task, algorithm, seed))
+        finally:
+            lock.release()
+    return made
+
+
+def measure_cost(
+    out: Path, tasks: Sequence[str], algorithms: Sequence[str], frames_per_batch: int, num_envs: int, episodes: int
+) -> dict:
+    """What one run of each (task, algorithm) of the plan costs here: two iterations of the real experiment (its
+    configs, ``frames_per_batch`` and ``num_envs``), the second one's collection and training (the first warms the
+    compiled kernels), and BenchMARL's evaluation; projected to ``FRAMES`` frames with ``EVALUATIONS``
+    evaluations. Written to ``cost.json`` (the page's "What the plan costs")."""
+    cost: dict = {}
+    for task, algorithm, _ in plan(tasks, algorithms, [0]):
+        scratch = out / f"cost_{task.lower()}_{algorithm}.scratch"
+        shutil.rmtree(scratch, ignore_errors=True)
+        scratch.mkdir(parents=True)
+        config = experiment_config(2 * frames_per_batch, frames_per_batch, num_envs, episodes, scratch)
+        experiment = the_experiment(task, algorithm, 0, config)
+        start = time.perf_counter()
+        experiment.run()
+        wall = time.perf_counter() - start
+        timers = {timer: _timer_rows(scratch, timer) for timer in ("collection", "training", "evaluation")}
+        iteration = timers["collection"][-1] + timers["training"][-1]
+        evaluation = float(np.mean(timers["evaluation"]))
+        iterations = math.ceil(FRAMES / frames_per_batch)
+        cost.setdefault(task, {})[algorithm] = entry = {
+            "frames_per_batch": frames_per_batch,
+            "num_envs": num_envs,
+            "iteration_seconds": iteration,
+            "collection_seconds": timers["collection"][-1],
+            "training_seconds": timers["training"][-1],
+            "evaluation_seconds": evaluation,
+            "probe_wall_seconds": wall,
+            "projected_run_hours": (iterations * iteration + EVALUATIONS * evaluation) / 3600,
+            "torch_threads": torch.get_num_threads(),
+        }
+        _merge_cost(out, task, algorithm, entry)
+        shutil.rmtree(scratch, ignore_errors=True)
+        print(
+            f"benchmark cost: {task} {algorithm}: {iteration:.1f} s per iteration, "
+            f"{cost[task][algorithm]['projected_run_hours']:.2f} h per run of {FRAMES:,} frames",
+            flush=True,
+        )
+    return cost
+
+
+def _merge_cost(out: Path, task: str, algorithm: str, entry: dict) -> None:
+    """Add one measurement to ``cost.json``, under a lock: two ``cost`` processes may measure different tasks."""
+    lock = RunLock(out / "cost.lock")
+    lock.acquire(wait=True)
+    try:
+        path = out / COST
+        cost = json.loads(path.read_text()) if path.exists() else {}
+        cost.setdefault(task, {})[algorithm] = entry
+        atomic_write_json(path, cost, indent=1)
+    finally:
+        lock.release()
+
+
+def run_jobs(jobs: int, *args) -> list[tuple[str, str, int]]:
+    """``run_plan(*args)`` in ``jobs`` processes at once (one torch thread each), which share the plan's runs."""
+    if jobs == 1:
+        return run_plan(*args)
+    context = multiprocessing.get_context("spawn")  # a fresh interpreter each: no torch state forked
+    with ProcessPoolExecutor(jobs, mp_context=context, initializer=_one_thread) as pool:
+        futures = [pool.submit(run_plan, *args) for _ in range(jobs)]
+        return [run for future in futures for run in future.result()]
+
+
+def _one_thread() -> None:
+    os.environ["OMP_NUM_THREADS"] = "1"
+    torch.set_num_threads(1)
+
+
+# ---------------------------------------------------------------------------------------------------- the page
+def load_runs(out: Path) -> list[dict]:
+    """Every finished run's record, with its marl-eval JSON under ``"marl_eval"``."""
+    records = []
+    for record_path in sorted((out / RUNS).glob("*/*/seed_*[0-9].json")):
+        record = json.loads(record_path.read_text())
+        record["marl_eval"] = json.loads(record_path.with_suffix(".marl-eval.json").read_text())
+        records.append(record)
+    return records
+
+
+def normalised(value: float | np.ndarray, random_return: float, paper_return: float):
+    """0 at ``random``'s return, 1 at the paper's algorithm's."""
+    return (np.asarray(value, dtype=float) - random_return) / (paper_return - random_return)
+
+
+def reference_returns(references: dict, task: str) -> tuple[float, float]:
+    policies = references[task]["policies"]
+    paper = policies[references[task]["paper_policy"]]
+    return float(np.mean(policies["random"]["return"])), float(np.mean(paper["return"]))
+
+
+def curve(record: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(frames, mean evaluation return) of BenchMARL's evaluations in the run's marl-eval JSON."""
+    run = next(iter(next(iter(next(iter(record["marl_eval"].values())).values())).values()))
+    run = next(iter(run.values()))
+    steps = sorted((k for k in run if k.startswith("step_")), key=lambda k: int(k.split("_")[1]))
+    return (
+        np.array([run[k]["step_count"] for k in steps], dtype=float),
+        np.array([np.mean(run[k]["return"]) for k in steps], dtype=float),
+    )
+
+
+def score_matrices(records: list[dict], references: dict) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:
+    """algorithm → (seeds × tasks) normalised held-out final scores, over the tasks where it has every seed; and
+    algorithm → those tasks."""
+    by_algorithm: dict[str, dict[str, dict[int, float]]] = {}
+    for record in records:
+        random_return, paper_return = reference_returns(references, record["task"])
+        score = float(normalised(np.mean(record["heldout"]["return"]), random_return, paper_return))
+        by_algorithm.setdefault(record["algorithm"], {}).setdefault(record["task"], {})[record["seed"]] = score
+    matrices, tasks_of = {}, {}
+    for algorithm, per_task in by_algorithm.items():
+        n_seeds = min(len(seeds) for seeds in per_task.values())
+        tasks = sorted(per_task)
+        matrices[algorithm] = np.array([[per_task[t][s] for t in tasks] for s in sorted(per_task[tasks[0]])[:n_seeds]])
+        tasks_of[algorithm] = tasks
+    return matrices, tasks_of
+
+
+def _fmt(values: Sequence[float], digits: int = 4) -> str:
+    mean, half = mean_ci95(list(values))
+    if len(values) < 2 or not math.isfinite(half):
+        return f"{mean:.{digits}g}"
+    if len(set(values)) == 1:
+        return f"{mean:.{digits}g} ± 0"  # equal values: the interval is 0, not the rounding noise of its sum
+    return f"{mean:.{digits}g} ± {half:.2g}"
+
+
+def write_page(out: Path = OUT, page: Path = PAGE) -> Path:
+    """docs/benchmark.md, its figures (beside the runs) and the merged marl-eval JSON, from the runs' files."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+
+    records = load_runs(out)
+    references = json.loads((out / REFERENCES).read_text()) if (out / REFERENCES).exists() else {}
+    merged = _eval_results.load_and_merge_json_dicts(
+        [str(p) for p in sorted((out / RUNS).glob("*/*/seed_*.marl-eval.json"))]
+    )
+    atomic_write_json(out / MERGED, merged, indent=1)
+    figures_link = Path(os.path.relpath(out, page.parent))  # the figures sit beside the runs, linked from the page
+    lines = [
+        "# Reference results: BenchMARL on every task",
+        "",
+        "<!-- generated by `make benchmark-page` (mrcomm_env/experiments/benchmarl_reference.py); do not edit -->",
+        "",
+        _docstring_section(),
+        "",
+        "Rerun what is missing: `make benchmark`. Regenerate this page from the committed JSON: `make benchmark-page`.",
+        f"The runs' files are `{out}/{RUNS}/`; BenchMARL's marl-eval JSON of all of them, merged: `{out}/{MERGED}`.",
+        "",
+    ]
+    expected = plan(list(ENV_ID_OF_TASK), list(ALGORITHMS), SEEDS)
+    done = {(r["task"], r["algorithm"], r["seed"]) for r in records}
+    missing = [run for run in expected if run not in done]
+    lines += [f"**Runs:** {len(done)} of the plan's {len(expected)} have finished."]
+    if missing:
+        lines[-1] += (
+            f" Missing: {', '.join(f'{t.lower()}/{a}/seed {s}' for t, a, s in missing)}. Every figure below is over"
+            " the finished runs only."
+        )
+    lines += [""]
+    lines += _cost_section(out, done)
+    if records:
+        lines += _task_tables(records, references)
+        lines += _aggregate_section(records, references, out, figures_link)
+        lines += _curves_section(records, references, out, figures_link)
+        lines += _wall_time_table(records)
+    atomic_write_text(page, "\n".join(lines) + "\n")
+    return page
+
+
+def _cost_section(out: Path, done: set[tuple[str, str, int]]) -> list[str]:
+    """The plan's cost on this machine, from ``cost.json`` (``benchmarl_reference cost``), when it was measured."""
+    if not (out / COST).exists():
+        return []
+    cost = json.loads((out / COST).read_text())
+    lines = [
+        "## What the plan costs",
+        "",
+        f"Measured here by `python -m mrcomm_env.experiments.benchmarl_reference cost` (in `.venv-benchmarl`, one"
+        " torch thread, a second process measuring other tasks on the other core, as `--jobs 2` runs the plan):"
+        " two iterations of each run's experiment, the second one's collection and"
+        f" training, and BenchMARL's evaluation; projected to {FRAMES:,} frames and {EVALUATIONS} evaluations a"
+        " run. Training is BenchMARL's default update: on-policy, 45 passes over each 6,000-frame batch in minibatches"
+        " of 400 frames (675 optimizer steps); IQL, 1,000 optimizer steps of 128 frames per batch; a 256 × 256 MLP."
+        " A frame holds every robot, so the on-policy update's rows grow with the team.",
+        "",
+        "| task | algorithm | collection (s/iteration) | training (s/iteration) | evaluation (s) | hours per run"
+        " | runs left | hours left |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    total = 0.0
+    for task, per_algorithm in cost.items():
+        for algorithm, c in per_algorithm.items():
+            left = sum((task, algorithm, seed) not in done for seed in SEEDS)
+            total += left * c["projected_run_hours"]
+            lines.append(
+                f"| {task.lower()} | {algorithm} | {c['collection_seconds']:.1f} | {c['training_seconds']:.1f}"
+                f" | {c['evaluation_seconds']:.1f} | {c['projected_run_hours']:.2f} | {left}"
+                f" | {left * c['projected_run_hours']:.1f} |"
+            )
+    unmeasured = sorted(
+        {(t, a) for t, a, _ in plan(list(ENV_ID_OF_TASK), list(ALGORITHMS), SEEDS)}
+        - {(t, a) for t, per_algorithm in cost.items() for a in per_algorithm}
+    )
+    lines += [
+        "",
+        f"**Left to run: {total:.0f} hours** of one process on this machine for the runs measured above, about half"
+        " that with `--jobs 2` where memory allows.",
+    ]
+    if unmeasured:
+        lines[-1] += " Not measured yet: " + ", ".join(f"{t.lower()}/{a}" for t, a in unmeasured) + "."
+    lines += [""]
+    return lines
+
+
+def _tasks_and_algorithms(records: list[dict]) -> tuple[list[str], list[str]]:
+    tasks = sorted({r["task"] for r in records}, key=list(ENV_ID_OF_TASK).index)
+    return tasks, [a for a in ALGORITHMS if any(r["algorithm"] == a for r in records)]
+
+
+def _task_tables(records: list[dict], references: dict) -> list[str]:
+    lines = [
+        "## Per task",
+        "",
+        f"Held-out episodes (seeds from {HELDOUT_SEED:,}): the return as BenchMARL counts it, normalised (0 = `random`,"
+        " 1 = the paper's algorithm), the paper's metric and the bits per robot; mean ± 95 % interval over training"
+        " seeds (over episodes for the scripted rows). Wall time: one run on this machine (2 cores, one torch thread"
+        " per run), BenchMARL's evaluations included.",
+        "",
+    ]
+    tasks, algorithms = _tasks_and_algorithms(records)
+    for task in tasks:
+        ref = references[task]
+        random_return, paper_return = reference_returns(references, task)
+        arrow = "lower is better" if ref.get("lower_is_better") else "higher is better"
+        config = next(r for r in records if r["task"] == task)["env_config"]
+        lines += [
+            f"### {ENV_ID_OF_TASK[task]}",
+            "",
+            f"Config: `{json.dumps(config)}`. Paper metric: `{ref['metric']}` ({arrow}).",
+            "",
+            f"| policy | seeds | return | normalised | `{ref['metric']}` | bits per robot | frames | wall time per run |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- |",
+        ]
+        for name in ("random", ref["paper_policy"]):
+            values = ref["policies"][name]
+            label = f"`{name}`" + (" (paper)" if name == ref["paper_policy"] else "")
+            score = float(normalised(np.mean(values["return"]), random_return, paper_return))
+            lines.append(
+                f"| {label} | – | {_fmt(values['return'])} | {score:.3g} | {_fmt(values['metric'])}"
+                f" | {_fmt(values['bits'])} | – | – |"
+            )
+        for algorithm in algorithms:
+            runs = [r for r in records if r["task"] == task and r["algorithm"] == algorithm]
+            if not runs:
+                continue
+            returns = [float(np.mean(r["heldout"]["return"])) for r in runs]
+            scores = [float(normalised(v, random_return, paper_return)) for v in returns]
+            lines.append(
+                f"| {algorithm.upper()} (BenchMARL) | {len(runs)} | {_fmt(returns)} | {_fmt(scores, 3)}"
+                f" | {_fmt([float(np.mean(r['heldout']['metric'])) for r in runs])}"
+                f" | {_fmt([float(np.mean(r['heldout']['bits'])) for r in runs])}"
+                f" | {runs[0]['frames']:,} | {_fmt([r['wall_seconds'] / 60 for r in runs], 3)} min |"
+            )
+        runs = [r for r in records if r["task"] == task]
+        if len(runs) > 1 and all(r["heldout"] == runs[0]["heldout"] for r in runs):
+            lines += [
+                "",
+                f"All {len(runs)} runs' final policies play the {len(runs[0]['heldout']['return'])} held-out episodes"
+                " identically (the same return, metric and bits in every episode): whatever the algorithm and seed,"
+                " training ended at the same deterministic behaviour on them.",
+            ]
+        lines += [""]
+    return lines
+
+
+def _aggregate_section(records: list[dict], references: dict, out: Path, figures_link: Path) -> list[str]:
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+    from rliable import library as rly
+    from rliable import metrics as rly_metrics
+    from rliable import plot_utils
+
+    matrices, tasks_of = score_matrices(records, references)
+    rng = np.random.RandomState(BOOTSTRAP_SEED)
+    point, interval = rly.get_interval_estimates(
+        matrices, lambda scores: np.array([rly_metrics.aggregate_iqm(scores)]), reps=BOOTSTRAP_REPS, random_state=rng
+    )
+    lines = [
+        "## Across tasks",
+        "",
+        "rliable's interquartile mean (IQM) of the normalised held-out final scores over every run (seeds × tasks),"
+        f" with stratified-bootstrap 95 % intervals ({BOOTSTRAP_REPS:,} repetitions, seed {BOOTSTRAP_SEED}).",
+        "",
+        "| algorithm | tasks | runs | IQM | 95 % interval |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for algorithm, matrix in matrices.items():
+        low, high = interval[algorithm][:, 0]
+        lines.append(
+            f"| {algorithm.upper()} | {', '.join(t.lower() for t in tasks_of[algorithm])} | {matrix.size}"
+            f" | {point[algorithm][0]:.3g} | [{low:.3g}, {high:.3g}] |"
+        )
+    all_scores = np.concatenate([m.ravel() for m in matrices.values()])
+    taus = np.linspace(min(0.0, float(all_scores.min())), max(1.5, float(all_scores.max())), 101)
+    np.random.seed(BOOTSTRAP_SEED)  # create_performance_profile bootstraps with numpy's global generator
+    profiles, profile_cis = rly.create_performance_profile(matrices, taus, reps=BOOTSTRAP_REPS)
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    colors = dict(zip(profiles, plt.rcParams["axes.prop_cycle"].by_key()["color"]))
+    plot_utils.plot_performance_profiles(profiles, taus, performance_profile_cis=profile_cis, ax=ax, colors=colors)
+    ax.axvline(1.0, color="grey", lw=0.8, ls="--")
+    ax.legend(
+        handles=[Line2D([], [], color=colors[a], label=a.upper()) for a in profiles], loc="upper right", fontsize=9
+    )
+    fig.tight_layout()
+    atomic_savefig(fig, out / "profile.png", dpi=110)
+    plt.close(fig)
+    return lines + [
+        "",
+        "Performance profile: the fraction of runs whose normalised score exceeds τ (bands: 95 % bootstrap"
+        " intervals; dashed: the paper's algorithm).",
+        "",
+        f"![performance profile]({figures_link / 'profile.png'})",
+        "",
+    ]
+
+
+def _curves_section(records: list[dict], references: dict, out: Path, figures_link: Path) -> list[str]:
+    import matplotlib.pyplot as plt
+
+    tasks, algorithms = _tasks_and_algorithms(records)
+    fig, axes = plt.subplots(1, len(tasks), figsize=(3.2 * len(tasks), 3.0), squeeze=False)
+    for ax, task in zip(axes[0], tasks):
+        random_return, paper_return = reference_returns(references, task)
+        for algorithm in algorithms:
+            runs = [r for r in records if r["task"] == task and r["algorithm"] == algorithm]
+            if not runs:
+                continue
+            curves = [curve(r) for r in runs]
+            length = min(len(c[0]) for c in curves)
+            frames = curves[0][0][:length]
+            scores = np.array([normalised(c[1][:length], random_return, paper_return) for c in curves])
+            ax.plot(frames, scores.mean(0), label=algorithm.upper())
+            ax.fill_between(frames, scores.min(0), scores.max(0), alpha=0.2)
+        ax.axhline(1.0, color="grey", lw=0.8, ls="--")
+        ax.axhline(0.0, color="grey", lw=0.8, ls=":")
+        ax.set_title(ENV_ID_OF_TASK[task], fontsize=9)
+        ax.set_xlabel("frames")
+    axes[0][0].set_ylabel("normalised return")
+    axes[0][0].legend(fontsize=8)
+    fig.tight_layout()
+    atomic_savefig(fig, out / "curves.png", dpi=110)
+    plt.close(fig)
+    return [
+        "## Sample efficiency",
+        "",
+        "BenchMARL's own evaluations during training (random episodes, its `evaluation_episodes`), normalised by the"
+        " held-out references: the mean over seeds, the band from the lowest to the highest seed; dashed: the"
+        " paper's algorithm, dotted: `random`.",
+        "",
+        f"![sample-efficiency curves]({figures_link / 'curves.png'})",
+        "",
+    ]
+
+
+def _wall_time_table(records: list[dict]) -> list[str]:
+    lines = [
+        "## Wall time",
+        "",
+        "Seconds per run on this machine: the wall clock around `Experiment.run()`, and BenchMARL's own timers summed"
+        " over the run's iterations (collection, training, its evaluations).",
+        "",
+        "| task | algorithm | seed | frames | wall (s) | collection (s) | training (s) | evaluation (s) | frames/s |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for r in sorted(records, key=lambda r: (list(ENV_ID_OF_TASK).index(r["task"]), r["algorithm"], r["seed"])):
+        lines.append(
+            f"| {r['task'].lower()} | {r['algorithm']} | {r['seed']} | {r['frames']:,} | {r['wall_seconds']:.0f}"
+            f" | {r['collection_seconds']:.0f} | {r['training_seconds']:.0f} | {r['evaluation_seconds']:.0f}"
+            f" | {r['frames'] / r['wall_seconds']:,.0f} |"
+        )
+    return lines
+
+
+def _docstring_section() -> str:
+    """The module docstring's paragraphs on the plan, resuming and evaluation (what the page's numbers mean)."""
+    text = (__doc__ or "").split("\n\n", 2)[2]
+    return text.split("**The page.**")[0].strip().replace("``", "`")
+
+
+# ---------------------------------------------------------------------------------------------------- the CLI
+def _positive(name: str):
+    def parse(value: str) -> int:
+        try:
+            number = int(value)
+        except ValueError:
+            number = 0
+        if number < 1:
+            raise argparse.ArgumentTypeError(f"argument '--{name}' must be an integer ≥ 1, got {value!r}")
+        return number
+
+    return parse
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m mrcomm_env.experiments.benchmarl_reference", description=__doc__.split("\n")[0]
+    )
+    commands = parser.add_subparsers(dest="command", required=True)
+    run = commands.add_parser("run", help="run what is missing of the plan (resumable)")
+    run.add_argument("--tasks", nargs="+", default=list(ENV_ID_OF_TASK), choices=list(ENV_ID_OF_TASK))
+    run.add_argument("--algorithms", nargs="+", default=list(ALGORITHMS), choices=list(ALGORITHMS))
+    run.add_argument("--seeds", nargs="+", type=int, default=list(SEEDS))
+    run.add_argument("--frames", type=_positive("frames"), default=FRAMES, help=f"frames per run (default {FRAMES:,})")
+    run.add_argument("--frames-per-batch", type=_positive("frames-per-batch"), default=6_000)
+    run.add_argument("--num-envs", type=_positive("num-envs"), default=NUM_ENVS)
+    run.add_argument("--episodes", type=_positive("episodes"), default=EVAL_EPISODES)
+    run.add_argument("--jobs", type=_positive("jobs"), default=1, help="processes sharing the plan (default 1)")
+    run.add_argument("--out", type=Path, default=OUT)
+    cost = commands.add_parser("cost", help="time two iterations of each run of the plan and project its hours")
+    cost.add_argument("--tasks", nargs="+", default=list(ENV_ID_OF_TASK), choices=list(ENV_ID_OF_TASK))
+    cost.add_argument("--algorithms", nargs="+", default=list(ALGORITHMS), choices=list(ALGORITHMS))
+    cost.add_argument("--frames-per-batch", type=_positive("frames-per-batch"), default=6_000)
+    cost.add_argument("--num-envs", type=_positive("num-envs"), default=NUM_ENVS)
+    cost.add_argument("--episodes", type=_positive("episodes"), default=EVAL_EPISODES)
+    cost.add_argument("--out", type=Path, default=OUT)
+    page = commands.add_parser("page", help="write the page from the runs' files")
+    page.add_argument("--out", type=Path, default=OUT)
+    page.add_argument("--page", type=Path, default=PAGE)
+    args = parser.parse_args(argv)
+    try:
+        if args.command == "run":
+            if args.frames < args.frames_per_batch:
+                raise ValueError("argument '--frames' must be at least '--frames-per-batch'")
+            run_jobs(
+                args.jobs, args.out, args.tasks, args.algorithms, args.seeds, args.frames, args.frames_per_batch,
+                args.num_envs, args.episodes,
+            )  # fmt: skip
+        elif args.command == "cost":
+            measure_cost(args.out, args.tasks, args.algorithms, args.frames_per_batch, args.num_envs, args.episodes)
+        else:
+            print(f"wrote {write_page(args.out, args.page)}")
+    except (ValueError, RuntimeError, FileNotFoundError) as err:
+        print(f"benchmark: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
