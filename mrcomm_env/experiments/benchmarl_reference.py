@@ -143,9 +143,12 @@ def the_experiment(task: str, algorithm: str, seed: int, config):
 
 # ---------------------------------------------------------------------------------------------------- evaluation
 def paper_spec(env_id: str) -> dict:
-    """The paper's metric as the learned-against-scripted comparison reads it (metric, direction, unfinished)."""
+    """The paper's metric as the learned-against-scripted comparison reads it (its name, its direction, bits per step
+    or per episode)."""
     spec = comparison_spec(env_id)
-    return {key: spec[key] for key in ("metric", "lower_is_better", "unfinished", "bits_per") if key in spec}
+    # not the comparison's "unfinished" value: it is the comparison's own horizon (e.g. 40 steps), and a task's
+    # episodes may be longer; a time never reached counts as the episode's length (``counted_time``)
+    return {key: spec[key] for key in ("metric", "lower_is_better", "bits_per") if key in spec}
 
 
 def evaluate_benchmarl_policy(experiment, task: str, episodes: int) -> dict[str, list[float]]:
@@ -177,9 +180,9 @@ def evaluate_benchmarl_policy(experiment, task: str, episodes: int) -> dict[str,
     out: dict[str, list[float]] = {"metric": [], "bits": [], "return": []}
     for i in range(episodes):
         value = float(finals[i][spec["metric"]])
-        if "unfinished" in spec and not value >= 0:
-            value = float(spec["unfinished"])
-        out["metric"].append(probe.counted_time(spec["metric"], value))
+        if spec["metric"] in probe.UNREACHED_TIMES and not value >= 0:
+            value = float(steps[i])  # never reached: the episode's length, as counted_time counts it
+        out["metric"].append(value)
         per = max(int(steps[i]), 1) if spec.get("bits_per", "step") == "step" else 1
         out["bits"].append(float(finals[i]["bits_sent"]) / (env.n_agents * per))
         out["return"].append(float(returns[i]))

@@ -232,26 +232,37 @@ def test_reference_benchmark_runs_resumes_and_writes_its_page(tmp_path, capsys):
     assert merged["mrcomm"]["mapsync"]["ippo"]["seed_0"] == run
 
 
-def test_heldout_evaluation_plays_the_episodes_the_single_env_plays():
-    # a policy that never syncs, as BenchMARL's policy module would act, against the scripted `never` played by
-    # the single env on the same seeds: the same metric, bits and return (rewards pass through float32 on the
-    # TorchRL side: 2^-24 relative per reward, summed over 200 same-signed rewards, so 1e-6 relative is ample)
-    from mrcomm_baselines import make_policy
+@pytest.mark.parametrize("task", ["MAPSYNC", "CHANNEL_ASSOCIATION"])
+def test_heldout_evaluation_plays_the_episodes_the_single_env_plays(task):
+    # action 0 for every robot (MapSync: never sync; ChannelAssociation: never emit, so association never completes
+    # and the completion time counts as the episode's 100 steps), once as BenchMARL's policy module acts and once as
+    # a scripted policy in the single env, on the same seeds: the same metric, bits and return (rewards pass through
+    # float32 on the TorchRL side: 2^-24 relative per reward, summed over at most 200 rewards of one sign, so 1e-6
+    # relative is ample)
+    from mrcomm_env.core.policy import Policy
     from mrcomm_env.experiments.evaluation import evaluate_policy
 
-    class NeverSyncs:
+    class FirstAction:
         def policy(self, td):
             td.set(("robot", "action"), torch.zeros(td["robot", "observation"].shape[:2], dtype=torch.int64))
             return td
 
-    episodes = 3
-    ours = benchmarl_reference.evaluate_benchmarl_policy(NeverSyncs(), "MAPSYNC", episodes)
+    class FirstActionScripted(Policy):
+        name = "first_action"
+
+        def act(self, observations, views):
+            return dict.fromkeys(observations, 0)
+
+    env_id, episodes = ENV_ID_OF_TASK[task], 3
+    ours = benchmarl_reference.evaluate_benchmarl_policy(FirstAction(), task, episodes)
     seeds = list(range(benchmarl_reference.HELDOUT_SEED, benchmarl_reference.HELDOUT_SEED + episodes))
-    spec = benchmarl_reference.paper_spec("mrcomm/MapSync-v0")
-    config = dict(MrcommTask.MAPSYNC.get_from_yaml().config)
-    theirs = evaluate_policy("mrcomm/MapSync-v0", config, make_policy("mrcomm/MapSync-v0", "never"), seeds, spec)
+    spec = benchmarl_reference.paper_spec(env_id)
+    config = dict(MrcommTask[task].get_from_yaml().config)
+    theirs = evaluate_policy(env_id, config, FirstActionScripted(), seeds, spec)
     assert ours["metric"] == theirs["metric"] and ours["bits"] == theirs["bits"]
     assert ours["return"] == pytest.approx(theirs["return"], rel=1e-6)
+    if task == "CHANNEL_ASSOCIATION":
+        assert ours["metric"] == [float(config["max_cycles"])] * episodes  # never completed: the episode's length
 
 
 def test_normalised_scores_put_random_at_zero_and_the_paper_at_one():
