@@ -538,8 +538,8 @@ def _cost_section(out: Path, done: set[tuple[str, str, int]]) -> list[str]:
         "## What the plan costs",
         "",
         f"Measured here by `python -m mrcomm_env.experiments.benchmarl_reference cost` (in `.venv-benchmarl`, one"
-        " torch thread, a second process measuring other tasks on the other core, as `--jobs 2` runs the plan):"
-        " two iterations of each run's experiment, the second one's collection and"
+        " process with one torch thread, nothing else running): two iterations of each run's experiment, the second"
+        " one's collection and"
         f" training, and BenchMARL's evaluation; projected to {FRAMES:,} frames and {EVALUATIONS} evaluations a"
         " run. Training is BenchMARL's default update: on-policy, 45 passes over each 6,000-frame batch in minibatches"
         " of 400 frames (675 optimizer steps); IQL, 1,000 optimizer steps of 128 frames per batch; a 256 × 256 MLP."
