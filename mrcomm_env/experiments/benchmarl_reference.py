@@ -56,6 +56,7 @@ from mrcomm_env.experiments.io import atomic_savefig, atomic_write_json, atomic_
 from mrcomm_env.experiments.runs import comparison_spec
 from mrcomm_env.integrations import require
 from mrcomm_env.integrations.benchmarl import ENV_ID_OF_TASK, MrcommTask
+from mrcomm_env.integrations.torchrl_batched import GROUP, BatchedTorchRLEnv
 
 EXTRA = "benchmarl"
 torch = require("torch", EXTRA)
@@ -154,8 +155,6 @@ def paper_spec(env_id: str) -> dict:
 def evaluate_benchmarl_policy(experiment, task: str, episodes: int) -> dict[str, list[float]]:
     """The experiment's final policy, acting deterministically, on the held-out episodes: per episode the return
     (the robots' mean reward summed), the paper's metric and the bits per robot (``evaluate_policy``'s keys)."""
-    from mrcomm_env.integrations.torchrl_batched import GROUP, BatchedTorchRLEnv
-
     yaml_task = MrcommTask[task].get_from_yaml()
     env_id = ENV_ID_OF_TASK[task]
     spec = paper_spec(env_id)
