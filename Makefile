@@ -35,13 +35,13 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -n 2 --dist loadgroup --max-worker-restart=0 -q
 
 # wide random exploration, not in CI: 1,000 fresh Hypothesis examples per env of the conformance fuzz
-# (tests/test_conformance.py, profile `fuzz` in tests/conftest.py); each env's count of examples that ran, were
+# (tests/core/test_conformance.py, profile `fuzz` in tests/conftest.py); each env's count of examples that ran, were
 # over the memory budget or were refused is printed. The seed is printed first; replay a run with
 # `make fuzz FUZZ_SEED=<seed>`. About two minutes on one core.
 FUZZ_SEED ?= $(shell od -An -N4 -tu4 /dev/urandom | tr -d ' ')
 fuzz: $(STAMP)
 	@echo "make fuzz: hypothesis seed $(FUZZ_SEED) (replay with: make fuzz FUZZ_SEED=$(FUZZ_SEED))"
-	HYPOTHESIS_PROFILE=fuzz $(BIN)/python -m pytest tests/test_conformance.py -k test_random_valid_configurations_run \
+	HYPOTHESIS_PROFILE=fuzz $(BIN)/python -m pytest tests/core/test_conformance.py -k test_random_valid_configurations_run \
 	  -q -s -p no:cacheprovider --timeout 7200 --hypothesis-seed=$(FUZZ_SEED)
 
 # The MARL framework integrations, each in its own venv (.venv-torchrl, .venv-rllib, .venv-benchmarl) because

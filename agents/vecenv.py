@@ -229,7 +229,7 @@ class AgentSlotVecEnv(VecEnv):
 
     def _step_batch(self) -> VecEnvStepReturn:
         """``step_wait`` for mrcomm envs: every copy in one ``BatchedEnv.step``; the same transitions, infos and
-        automatic resets as the per-agent path below (``tests/test_vecenv.py`` compares them)."""
+        automatic resets as the per-agent path below (``tests/policies/test_vecenv.py`` compares them)."""
         assert self._actions is not None and self.batch is not None
         n = self.n_agents
         actions = self._actions.reshape(self.n_copies, n, *(self.action_space.shape or ()))

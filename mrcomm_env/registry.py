@@ -4,7 +4,7 @@ Each entry names, as module paths (nothing is imported here), the three pieces o
 layer: its versioned env shim (``mrcomm_env``), its scripted baselines (``baselines``) and its
 reproduction (``mrcomm_env.experiments.reproductions``). ``import mrcomm_env`` stays light, and the env
 layer never imports the layers above it: those resolve their own entries (``mrcomm_baselines.policy_module``,
-``mrcomm_env.experiments.reproductions.module``). ``tests/test_architecture.py`` compares the entries with
+``mrcomm_env.experiments.reproductions.module``). ``tests/experiments/test_architecture.py`` compares the entries with
 the files on disk.
 """
 

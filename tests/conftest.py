@@ -25,7 +25,7 @@ import matplotlib  # noqa: E402
 matplotlib.use("Agg")
 
 #: address space per test process: the interpreter with torch and numba maps about 1 GiB; the largest documented
-#: env (tests/test_limits.py) peaks under 2 GiB resident
+#: env (tests/core/test_limits.py) peaks under 2 GiB resident
 DEFAULT_CAP_GIB = 6.0
 CAP_VARIABLE = "MRCOMM_TEST_MEMORY_GIB"
 

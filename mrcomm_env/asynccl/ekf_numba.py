@@ -2,8 +2,8 @@
 
 Same functions, same arguments, same mathematics: the column step of §IV (eq. (1) propagation, one
 batch update with the range/bearing rows of eq. (2) in information form). ``ekf.py`` is the reference;
-``tests/test_asynccl_backends.py`` checks that both agree, kernel by kernel and over whole episodes,
-within the forward-error bound of the matrices they invert (``tests/numerics.py``; when that bound means
+``tests/asynccl/test_asynccl_backends.py`` checks that both agree, kernel by kernel and over whole episodes,
+within the forward-error bound of the matrices they invert (``tests/helpers/numerics.py``; when that bound means
 round-off: docs/architecture.md, "Compiled twins"). What differs is only how the arithmetic is organised,
 because at these sizes (3N = 15) the cost of numpy is its per-call overhead, not the arithmetic:
 
@@ -16,13 +16,13 @@ because at these sizes (3N = 15) the cost of numpy is its per-call overhead, not
   is not numerically positive definite falls back to the LU inverse;
 * independent sums (of the inverse, and of x = x⁻ + P b) run four at a time, each with its own terms in its own
   order, so each keeps its bits: at 3N = 15 a running sum's wait for its previous term set the pace, not the
-  arithmetic (``tests/test_asynccl_backends.py`` pins both to a one-sum-at-a-time loop in Python floats).
+  arithmetic (``tests/asynccl/test_asynccl_backends.py`` pins both to a one-sum-at-a-time loop in Python floats).
 
 ``restart_chains`` has no numpy twin: it is ``Estimators._restart_chains``'s loop (the numpy backend runs the loop)
 in one call, the same kernel calls filter by filter. ``recent_column`` goes one step further: the rest of
 ``Estimators._step_recent`` (those restarts, the extended estimates, each prior's odometry and held rows, and the
 column call) in one call: at N = 5 the restart call's marshalling took about 35 µs per step against 59 µs inside
-it, and the numpy between the two calls about as much again (``tests/test_asynccl_fastpath.py`` compares the bytes
+it, and the numpy between the two calls about as much again (``tests/asynccl/test_asynccl_fastpath.py`` compares the bytes
 of both with the loop's).
 """
 
@@ -52,7 +52,7 @@ def _inv_spd_into(Y, out, L):
     Each entry is one running sum, and a sum waits for its previous term: at 3N = 15 the three phases were bound
     by that latency, not by the arithmetic. So each phase runs four independent sums at once (four rows of L, four
     entries of a row of L⁻¹, four entries of Y⁻¹), each with its own terms in its own order (k ascending), which
-    gives every entry the bits of the one-sum-at-a-time loop (``tests/test_asynccl_backends.py`` compares them)
+    gives every entry the bits of the one-sum-at-a-time loop (``tests/asynccl/test_asynccl_backends.py`` compares them)
     in about two thirds of its time at 3N = 15 and half of it at 3N = 60 (a throwaway timing).
     """
     if not _cholesky_into(Y, L):  # not numerically positive definite: LU inverse, symmetrised like ``ekf.update``
@@ -557,7 +557,7 @@ def recent_column(
     x̂_{c|c}, c = ``c_r`` ≤ t-2 (their columns c+1 … t-1 as ``restart_chains`` runs them), those extending their
     previous estimate ``X_prev[src_e]``, ``P_prev[src_e]``, then those restarting at t-1 (the central prior).
     ``geometries``/``zs``: columns k0 … t (k0 = min(c_r)+1, or t without restarts); ``lins`` as ``restart_chains``'s.
-    The loop's very kernel calls on the same inputs, so the loop's numbers (``tests/test_asynccl_fastpath.py``)."""
+    The loop's very kernel calls on the same inputs, so the loop's numbers (``tests/asynccl/test_asynccl_fastpath.py``)."""
     c_r = np.array(c_r, dtype=np.int64)
     k0 = t - len(geometries) + 1
     cX, cP = central

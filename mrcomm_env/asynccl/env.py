@@ -20,7 +20,7 @@ step k comes from T_k^{j-} (eq. (4)–(5)). The discard rules of §III-A.3 / §I
 
 From its table every robot computes the **delayed centralized estimate** x̂_{c|c} at its complete
 frontier c — identical to a centralized EKF on all measurements (tested within the forward-error bound of
-the matrices the two filters invert, ``tests/numerics.py``) — and a **causal
+the matrices the two filters invert, ``tests/helpers/numerics.py``) — and a **causal
 estimate** of the whole team at the current step from what it holds (missing odometry replaced by the
 last available one, §IV). The reward trades the delay of eq. (7) (or the causal estimates' position
 error) against bits.

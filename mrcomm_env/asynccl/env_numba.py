@@ -7,7 +7,7 @@ the reductions add in numpy's order at these sizes (robot after robot: the reduc
 one), a heading is wrapped with Python's float modulo, which is ``np.remainder``'s rule, and a float32 entry is
 rounded once from float64, as numpy's assignment into a float32 array rounds it. The own-pose log scale is left to
 numpy (``np.log10``, whose vectorised loops may round otherwise than the C library's). Tests compare both with the
-numpy code bit for bit (``tests/test_asynccl.py``).
+numpy code bit for bit (``tests/asynccl/test_asynccl.py``).
 
 Used when ``core.backend.compiled()`` (docs/architecture.md).
 """

@@ -211,7 +211,7 @@ class AsyncCLSpec(EnvSpec):
         },
     }
 
-    #: configurations at the documented maxima (``tests/test_limits.py``, ``experiments/limits.py``)
+    #: configurations at the documented maxima (``tests/core/test_limits.py``, ``experiments/limits.py``)
     MEMORY_FORMULA = (
         "2 MiB + 4,100·N² (the (N, N) information tables and links) + 16·N·`max_history` (each robot's packet "
         "history) + with `estimation` 1,400·N⁴ (N = `n_robots`): every robot's EKF of the whole team, with the "

@@ -3,7 +3,7 @@ eq. (4)-(5) over all links, then the new complete frontiers, delay statistics (e
 
 Same inputs, same integer bookkeeping, same bit counts (sums of whole bits, exact in float64), written
 as loops over (sender j, receiver i, row v) instead of ~40 numpy calls on (N, N, N) arrays. The numpy
-method is the reference; ``tests/test_asynccl.py`` checks that both give identical tables and bits.
+method is the reference; ``tests/asynccl/test_asynccl.py`` checks that both give identical tables and bits.
 """
 
 from __future__ import annotations

@@ -57,7 +57,7 @@ class EnvSpec:
     #: every field returned by ``_local_view()`` is what robot i itself knows.
     LOCAL_VIEW: ClassVar[dict[str, str]] = {}
     DOCUMENTED_CONFIGS: ClassVar[dict[str, dict[str, Any]]] = {"default": {}}
-    #: configurations at the documented maxima of ``PARAMS`` (run by ``tests/test_limits.py`` and measured by
+    #: configurations at the documented maxima of ``PARAMS`` (run by ``tests/core/test_limits.py`` and measured by
     #: ``mrcomm bench --limits``): every range is a promise
     LIMIT_CONFIGS: ClassVar[dict[str, dict[str, Any]]] = {}
     VERSION_HISTORY: ClassVar[list[tuple[str, str]]] = []
@@ -68,7 +68,7 @@ class EnvSpec:
     #: the constant part of :meth:`memory_estimate` (bytes): a step's working memory and the like, which the copies of
     #: a batch, stepped in turn, need once (:meth:`batch_memory_estimate`)
     MEMORY_SHARED: ClassVar[float] = 0.0
-    #: three configurations of growing size at which ``tests/test_memory.py`` measures the peak against the
+    #: three configurations of growing size at which ``tests/core/test_memory.py`` measures the peak against the
     #: estimate (each must need well above the interpreter's noise, tens of MB, and fit the default budget)
     MEMORY_PROBES: ClassVar[dict[str, dict[str, Any]]] = {}
 

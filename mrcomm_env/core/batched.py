@@ -14,7 +14,7 @@ the observation its last step returned, ``final_metrics[i]`` the metrics of the 
 
 **Seeds.** ``reset(seed=s)`` seeds copy i with ``s + i`` (SB3's convention; a sequence gives one seed per
 copy); an automatic reset continues the copy's own random stream. Copy i of a batch seeded s is therefore
-the single env seeded ``s + i``, episode after episode, byte for byte (``tests/test_batched.py``).
+the single env seeded ``s + i``, episode after episode, byte for byte (``tests/core/test_batched.py``).
 
 **Two ways to step.** By default each copy runs the env's own ``reset_arrays``/``step_arrays``, which are
 its ``reset``/``step`` without the per-agent dictionaries: M Python objects stepped in turn. An env class

@@ -7,7 +7,7 @@ instance needs at its peak, as a short formula of its arguments (:meth:`MrcommPa
 shown on its ``docs/envs`` page), and construction refuses arguments whose estimate is over the budget with
 a ``ValueError`` naming the arguments, the estimate and the budget. The budget is the argument
 ``memory_budget_gib`` that every environment takes: :data:`DEFAULT_MEMORY_BUDGET_GIB` unless a user raises it
-on purpose. ``tests/test_memory.py`` holds each formula to the measured peak within a factor of 2.
+on purpose. ``tests/core/test_memory.py`` holds each formula to the measured peak within a factor of 2.
 
 The estimate counts what the environment itself allocates (its arrays and per-step temporaries), not the
 Python interpreter and the libraries it imports.

@@ -48,7 +48,7 @@ def numpy_sum(values, start, size):
     interleaved partial sums, longer ones split in two at a multiple of 8 and the halves' sums added). A kernel
     that must give numpy's sums sums its own scratch rows with it: MultiHop's copy-axis world a copy's ages,
     instead of writing (M, n, n) arrays for numpy to sum; MapSync the disagreement of its maps.
-    ``tests/test_batched.py`` compares it with ``ndarray.sum`` up to a million values.
+    ``tests/multihop/test_multihop_world.py`` compares it with ``ndarray.sum`` up to a million values.
 
     The halving is walked with an explicit stack: numba's on-disk cache of a self-recursive function crashed the
     process that loaded it (a segmentation fault on the second run)."""

@@ -132,7 +132,7 @@ def env_page(env_id: str) -> str:
         f"Construction refuses arguments whose estimate is over `memory_budget_gib` (default "
         f"{_fmt(cls.PARAMS['memory_budget_gib'].default)} GiB), naming "
         + ", ".join(f"`{arg}`" for arg in cls.MEMORY_ARGS)
-        + ". `tests/test_memory.py` holds the estimate to the measured peak within a factor of 2 at "
+        + ". `tests/core/test_memory.py` holds the estimate to the measured peak within a factor of 2 at "
         + ", ".join(f"{_cell(cfg)}" for cfg in cls.MEMORY_PROBES.values())
         + ".",
     ]

@@ -5,7 +5,7 @@
 The numpy reference spends its time in a few dozen small array operations per call (one call per round of
 Algorithm 1); this twin computes the same parities in one call: for every segment and index, the words of
 ``r_i`` restricted to the segment (from the materialised database, or Philox4x32-10 on demand exactly as
-:func:`philox.stream_words`), ANDed with each robot's map, popcount, parity. ``tests/test_mapsync.py``
+:func:`philox.stream_words`), ANDed with each robot's map, popcount, parity. ``tests/mapsync/test_mapsync.py``
 compares both kernel by kernel, bit for bit. Used when ``core.backend.compiled()`` (docs/architecture.md).
 
 The env's other hot loops have twins here too (the walk and sensing, the changing world, the disagreement, the

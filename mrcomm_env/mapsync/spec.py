@@ -128,7 +128,7 @@ class MapSyncSpec(EnvSpec):
         "busy": "1 while this robot is in a sync",
     }
 
-    #: configurations at the documented maxima (``tests/test_limits.py``, ``mrcomm bench --limits``)
+    #: configurations at the documented maxima (``tests/core/test_limits.py``, ``mrcomm bench --limits``)
     MEMORY_FORMULA = (
         "2 MiB + 450·n + 16·N·n for n = `grid_size`² cells and N = `n_robots` (the world and Protocol 1's per-cell "
         "work, every robot's map and stamps), + 90·n² with `explicit_database` (Protocol 1's 100n strings of n "

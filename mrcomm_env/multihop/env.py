@@ -285,7 +285,7 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
 
     def _step_one_copy(self, actions) -> float:
         """One frame as the copy-axis world of this one copy (the same numbers as the reference below, bit for bit:
-        ``tests/test_multihop.py`` compares whole episodes of both)."""
+        ``tests/multihop/test_multihop.py`` compares whole episodes of both)."""
         if self.__dict__.get("_one_copy") is None:
             from mrcomm_env.multihop.copy_axis import StaticFrameBatch  # numba is imported with it
 

@@ -6,7 +6,7 @@ one call, with the same rules in the same order (§2.1: every sender stamps its 
 time; it sends its own estimate and the first ``m − 1`` further candidates of its ranked list that it holds;
 each neighbour keeps the newer time stamp per robot; a first arrival is dated at the end of the slot). Every
 number it writes is the reference's, bit for bit: the clock is advanced by the same float additions, and
-the rest are copies and comparisons (``tests/test_multihop.py`` compares whole seeded episodes on both
+the rest are copies and comparisons (``tests/multihop/test_multihop.py`` compares whole seeded episodes on both
 backends). Only static topologies: while robots move, each slot's links and the robots' motion come
 first, and the reference runs.
 

@@ -185,7 +185,7 @@ class MultiHopSpec(EnvSpec):
 
     @classmethod
     def memory_estimate(cls, cfg) -> float:
-        # measured (tests/test_memory.py): about 180 bytes per robot pair, whatever the scene and slot size
+        # measured (tests/core/test_memory.py): about 180 bytes per robot pair, whatever the scene and slot size
         n = cls._robot_count(cfg)
         one = cls.MEMORY_SHARED + 180.0 * n * n
         if cls.copy_axis_world(cfg) is not None:  # the single env steps as the world of its one copy
@@ -193,12 +193,12 @@ class MultiHopSpec(EnvSpec):
         return one
 
     #: bytes per robot pair of each further copy in a copy-axis world (:mod:`.copy_axis`): its (n, n) arrays of the
-    #: frame, the ranking and the observation, beside its env object's (measured: ``tests/test_batched.py``)
+    #: frame, the ranking and the observation, beside its env object's (measured: ``tests/core/test_batched.py``)
     WORLD_BYTES_PER_PAIR = 160.0
 
     #: what stepping as the world of one copy adds to a single env: numba's kernels (once per process) and the
     #: world's rows that are not views of the env's arrays; tracemalloc measured 32, 40 and 51 MB more than the
-    #: numpy reference at n = 384, 768 and 1,024 (``tests/test_memory.py``)
+    #: numpy reference at n = 384, 768 and 1,024 (``tests/core/test_memory.py``)
     WORLD_SHARED = 24.0 * 2**20
 
     WORLD_ONE_COPY_PER_PAIR = 48.0
@@ -220,7 +220,7 @@ class MultiHopSpec(EnvSpec):
             return float(cfg.n_robots)
         return float(cfg.grid_side**2) if cfg.scene == "grid" else (9.0 if cfg.scene == "coverage" else 20.0)
 
-    #: configurations at the documented maxima (``tests/test_limits.py``, ``experiments/limits.py``)
+    #: configurations at the documented maxima (``tests/core/test_limits.py``, ``experiments/limits.py``)
     LIMIT_CONFIGS = {
         "max_grid_flooding": {"grid_side": 32, "slot_size": 1024},
         "max_field_moving": {

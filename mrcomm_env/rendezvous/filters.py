@@ -3,7 +3,7 @@
 **Filter.** Every landmark's 2-D position is held in information form, ``Y = Σ⁻¹`` and ``y = Σ⁻¹ μ``
 ([13], §III). Landmarks are static, so prediction is the identity, and an observation ``z = x + v``,
 ``v ~ N(0, R)`` adds ``Y += R⁻¹``, ``y += R⁻¹ z``. All landmarks of all holders are updated at once
-(numpy, ``(..., L, 2, 2)`` arrays); ``tests/test_rendezvous_mapping.py`` checks the result against
+(numpy, ``(..., L, 2, 2)`` arrays); ``tests/rendezvous_mapping/test_rendezvous_fusion.py`` checks the result against
 filterpy's ``InformationFilter`` on the same observations.
 
 **Fusion.** Information is additive, so a vehicle's map is the common prior plus the sum of the

@@ -132,7 +132,7 @@ class RendezvousMappingSpec(EnvSpec):
         "action_mask": "(K + 2,) bool: feasible actions",
     }
 
-    #: configurations at the documented maxima (``tests/test_limits.py``, ``mrcomm bench --limits``)
+    #: configurations at the documented maxima (``tests/core/test_limits.py``, ``mrcomm bench --limits``)
     MEMORY_FORMULA = (
         "18 MiB + 140·`n_vehicles`·`n_landmarks` (every vehicle's information map and utility row) + "
         "(10 + 92·`n_vehicles`)·⌊`t_window`·`obs_rate`⌋ (the observation instants of a window and each "
@@ -153,7 +153,7 @@ class RendezvousMappingSpec(EnvSpec):
 
     @classmethod
     def memory_estimate(cls, cfg) -> float:
-        # measured (tests/test_memory.py): ~140 B per vehicle × landmark, ~92 B per vehicle × observation instant;
+        # measured (tests/core/test_memory.py): ~140 B per vehicle × landmark, ~92 B per vehicle × observation instant;
         # the packet logs by their bound (filters.STORED_ENTRY_BYTES per entry, an entry per observation at most)
         instants = math.floor(cfg.t_window * cfg.obs_rate + 1e-9)
         n, landmarks = float(cfg.n_vehicles), float(cfg.n_landmarks)

@@ -23,15 +23,15 @@ from mrcomm_env.experiments.reproductions import run_reproduction
 from mrcomm_env.experiments.sweep import Runner, SweepError, Task, using
 
 TESTS = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(TESTS))  # sweep_tasks, the test helpers, in this process
-HELPERS = "sweep_tasks:"
+sys.path.insert(0, str(TESTS))  # helpers.sweep_tasks, the test helpers, in this process
+HELPERS = "helpers.sweep_tasks:"
 #: its reproduction writes no timings into its CSV/JSON files, so two runs can be compared byte for byte
 REPRODUCED = "mrcomm/AsyncCL-v0"
 
 
 @pytest.fixture(scope="module")
 def cluster_address():
-    # Ray's worker processes inherit the raylets' environment: sweep_tasks must import there too
+    # Ray's worker processes inherit the raylets' environment: helpers.sweep_tasks must import there too
     saved = os.environ.get("PYTHONPATH")
     os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(TESTS), saved]))
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})

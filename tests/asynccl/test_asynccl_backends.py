@@ -4,7 +4,7 @@
 exchange (checked exactly in ``test_asynccl.py``). Here: kernel by kernel on random problems (full and
 partial sensing graphs, shared and own priors, random row masks), then whole seeded episodes run once
 on each backend, step by step. Floating-point results are compared within bounds derived from the
-conditioning of the matrices the kernels invert (``tests/numerics.py``); tables, bits and delays exactly.
+conditioning of the matrices the kernels invert (``tests/helpers/numerics.py``); tables, bits and delays exactly.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 
 pytest.importorskip("numba")
 
-from numerics import (  # noqa: E402
+from helpers.numerics import (  # noqa: E402
     EPS,
     HEADINGS,
     ConditionLog,
@@ -330,7 +330,7 @@ def test_whole_episodes_agree_across_backends(seed, kw, monkeypatch):
     ref, m_ref = _episode(seed, kw, False, monkeypatch, log)
     T = kw["max_cycles"]
     assert len(fast) == len(ref) == T
-    # the episode bound (tests/numerics.py): 2·C·ops·ε·Σ_{k≤t} κ_k·scale, κ_k of the reference run's inversions
+    # the episode bound (tests/helpers/numerics.py): 2·C·ops·ε·Σ_{k≤t} κ_k·scale, κ_k of the reference run's inversions
     ops = _episode_ops(kw.get("n_robots", 5))
     conds = log.conds(T)  # κ_t of env step t (step 0 also holds column 0 of the reset)
     scale_x = max(np.linalg.norm(r[0], axis=1).max() for r in ref)
@@ -374,7 +374,7 @@ def test_backends_agree_where_the_filter_is_well_conditioned(initial_sigma, monk
     Near-noiseless range/bearing (σ_d = 0.1 %, σ_θ = 0.01°) makes the information matrices ill-conditioned in
     proportion to (initial_sigma / (σ·d))²: the prior alone fixes the team's rigid translation and rotation, the
     measurements fix its shape to σ·d. With the default 5 cm prior, ε·κ_k stays below 10⁻⁷ and the budget
-    β = 2·C·ops·ε·Σ_k κ_k (``tests/numerics.py``) near 10⁻⁴, below ``BETA_EQUIVALENT``: the backends agree within
+    β = 2·C·ops·ε·Σ_k κ_k (``tests/helpers/numerics.py``) near 10⁻⁴, below ``BETA_EQUIVALENT``: the backends agree within
     β·‖x‖ (measured: 2·10⁻¹⁰ m). With a 5 m prior (seed 9) the filter linearises at estimates metres off, its
     bearing residuals sit at ±π for some fifty steps and κ reaches 10¹³–10¹⁴ (ε·κ_k up to 2·10⁻²): β exceeds 1,
     so nothing is implied, and indeed the estimates of *one* backend whose prior mean moved by one ulp separate

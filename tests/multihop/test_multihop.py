@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from numerics import assert_close_conditioned, bit_identical, tolerance
+from helpers.numerics import assert_close_conditioned, bit_identical, tolerance
 
 from mrcomm_baselines.multihop import POLICIES
 from mrcomm_env.multihop import protocol as proto

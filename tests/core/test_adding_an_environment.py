@@ -191,8 +191,10 @@ def pytest_configure(config) -> None:
 
 
 # ------------------------------------------------------------------------------------------------ tests
-TESTS = Path(__file__).resolve().parent
-#: the suite's checks that every env gets, parametrized over the registry
+#: this folder: the suite's shared checks live here, and the subprocess imports this module from it as a plugin
+CORE = Path(__file__).resolve().parent
+REPO = CORE.parents[1]
+#: the suite's checks that every env gets, parametrized over the registry (in ``CORE``)
 SHARED_CHECKS = ["test_conformance.py", "test_actions_and_seeds.py", "test_limits.py", "test_memory.py"]
 
 
@@ -206,10 +208,10 @@ def gossip_registered():
 
 
 def test_the_suites_checks_run_on_a_registered_sixth_env():
-    run_env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(TESTS), os.environ.get("PYTHONPATH")]))}
+    run_env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(CORE), os.environ.get("PYTHONPATH")]))}
     command = [sys.executable, "-m", "pytest", "-p", __name__, "-q", "-p", "no:cacheprovider", "-n", "0"]
-    command += ["-k", "Gossip", "--timeout", "600", *(str(TESTS / name) for name in SHARED_CHECKS)]
-    result = subprocess.run(command, cwd=TESTS.parent, env=run_env, capture_output=True, text=True, timeout=900)
+    command += ["-k", "Gossip", "--timeout", "600", *(str(CORE / name) for name in SHARED_CHECKS)]
+    result = subprocess.run(command, cwd=REPO, env=run_env, capture_output=True, text=True, timeout=900)
     summary = result.stdout.strip().splitlines()[-1] if result.stdout.strip() else result.stderr[-2000:]
     assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-2000:]
     passed = int(summary.split(" passed")[0].split()[-1])

@@ -4,14 +4,14 @@
 ``Estimators._step_general`` runs the same column steps through ``_advance``. Here both are evaluated on the
 same state at every step of random-mode episodes and must agree (the chain then continues with the fast one).
 They batch the same column steps differently (shared priors broadcast or indexed, restarts split or fused), so
-they agree to the forward-error bound of ``tests/numerics.py`` for the matrices that step inverts.
+they agree to the forward-error bound of ``tests/helpers/numerics.py`` for the matrices that step inverts.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from numerics import HEADINGS, ConditionLog, assert_close_conditioned, tolerance
+from helpers.numerics import HEADINGS, ConditionLog, assert_close_conditioned, tolerance
 
 from mrcomm_env.asynccl import estimator as est_mod
 from mrcomm_env.asynccl_v0 import parallel_env

@@ -79,7 +79,7 @@ def _assert_estimate_near_the_peak(env_id, config, backend_name, monkeypatch):
 
 @pytest.mark.parametrize("env_id", env_ids())
 def test_documented_maxima_fit_the_default_budget(env_id):
-    """Each argument's documented maximum runs by default (tests/test_limits.py runs them): the budget only
+    """Each argument's documented maximum runs by default (tests/core/test_limits.py runs them): the budget only
     refuses combinations."""
     for name, config in limit_configs(env_id).items():
         if BUDGET_ARGUMENT not in config:

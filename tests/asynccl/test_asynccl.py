@@ -6,7 +6,7 @@ import copy
 
 import numpy as np
 import pytest
-from numerics import assert_close_conditioned, tolerance
+from helpers.numerics import assert_close_conditioned, tolerance
 
 from mrcomm_baselines import make_policy
 from mrcomm_env.asynccl import theory

@@ -239,7 +239,7 @@ def _strategy(validator):
     """Values of one argument: its cheap ``fuzz`` range plus the edges of its documented range.
 
     Integer upper bounds are sizes (robots, history, slots) whose cost grows with the value; they run, with
-    their memory measured, in tests/test_limits.py (each env's ``LIMIT_CONFIGS``) rather than here."""
+    their memory measured, in tests/core/test_limits.py (each env's ``LIMIT_CONFIGS``) rather than here."""
     if isinstance(validator, Optional):
         inner = _strategy(validator.inner)
         return None if inner is None else st.one_of(st.none(), inner)

@@ -201,7 +201,7 @@ def test_learning_page_is_current_with_its_recorded_tables_and_sweeps(tmp_path):
     # hyperparameter sweeps) with the live configs: re-rendering them must give the committed page
     import shutil
 
-    docs = Path(__file__).parents[1] / "docs"
+    docs = Path(__file__).parents[2] / "docs"
     shutil.copytree(docs / "learning", tmp_path / "learning")
     for fragment in (tmp_path / "learning").glob("*.md"):
         fragment.unlink()  # every section is rebuilt, none is copied
@@ -293,7 +293,7 @@ def test_a_shipped_models_card_agrees_with_the_learning_page(env_id):
     if "best_baseline" not in card:
         pytest.fail(f"{env_id}'s card predates the comparison's account (rerun reproduce-learning --export-pretrained)")
     spec = comparison_spec(env_id)
-    rows = read_rows(Path(__file__).parents[1] / "docs" / "learning" / f"{short_name(env_id)}.csv")
+    rows = read_rows(Path(__file__).parents[2] / "docs" / "learning" / f"{short_name(env_id)}.csv")
     setting = card["env_kwargs"][spec["cost_param"]] if spec.get("baselines_per_cost") else None
     best = comparison.best_baseline([r for r in rows if r["cost"] is None], setting, spec)
     assert best is not None and best["policy"] == card["best_baseline"]["policy"]

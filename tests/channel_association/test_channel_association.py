@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 import pytest
-from numerics import assert_close_conditioned, tolerance
+from helpers.numerics import assert_close_conditioned, tolerance
 
 from mrcomm_baselines.channel_association import POLICIES
 from mrcomm_env.channel_association import theory

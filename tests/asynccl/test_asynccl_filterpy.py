@@ -16,7 +16,7 @@ On the synthetic trajectory the reference runs on the packets the env's world dr
 measurements straight from the loader (``load_mrclam``, without the misreadings), so the replay is checked too.
 
 **Tolerance.** The two filters invert different matrices (filterpy: S = H P⁻ Hᵀ + R; the env: P⁻ and
-Y = P⁻⁻¹ + Hᵀ W H), so they agree to the accumulated forward-error bound of ``tests/numerics.py``:
+Y = P⁻⁻¹ + Hᵀ W H), so they agree to the accumulated forward-error bound of ``tests/helpers/numerics.py``:
 max |x̂_env − x̂_filterpy| ≤ 2·C·ops·ε·Σ_{j ≤ k} κ_j·‖x̂‖ with κ_j = κ(P⁻_j) + κ(S_j) + κ(P_j) taken from the
 reference's own matrices, C = 3 and ops = 3N + 2m (m = N(N − 1), every ordered pair) per step.
 """
@@ -28,7 +28,7 @@ import math
 import numpy as np
 import pytest
 from filterpy.kalman import ExtendedKalmanFilter
-from numerics import HEADINGS, assert_close_conditioned, condition, episode_tolerance
+from helpers.numerics import HEADINGS, assert_close_conditioned, condition, episode_tolerance
 
 from mrcomm_env.asynccl import mrclam
 from mrcomm_env.asynccl_v0 import parallel_env

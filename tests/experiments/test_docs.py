@@ -7,7 +7,7 @@ from PIL import Image
 
 from mrcomm_env.experiments.docs import expected_docs
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 DOCS = ROOT / "docs"
 
 

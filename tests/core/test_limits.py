@@ -14,7 +14,7 @@ import warnings
 
 import numpy as np
 import pytest
-from numerics import tolerance
+from helpers.numerics import tolerance
 
 import mrcomm_env
 from mrcomm_env.core.config import Int, Optional

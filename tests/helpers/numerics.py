@@ -46,7 +46,7 @@ With g_k ≤ 1 the errors add up::
 informative while β ≪ 1. When the linearisation is far from the truth (a metres-wide prior with near-noiseless
 range/bearing), g_k reaches 10–50 per step and κ 10¹³–10¹⁴: β then exceeds 1, the bound says nothing, and
 estimates of one backend with its prior mean moved by one ulp separate by metres just as the two backends do
-(``tests/test_asynccl_backends.py::test_backends_agree_where_the_filter_is_well_conditioned``).
+(``tests/asynccl/test_asynccl_backends.py::test_backends_agree_where_the_filter_is_well_conditioned``).
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ update with all range/bearing measurements of step k (R = diag((σ_d d)², σ_θ
 with the environment's batched information-form filter.
 
 The two filters invert different matrices (S = H P Hᵀ + R here; P⁻ and Y = P⁻⁻¹ + Hᵀ W H there), so they agree
-to the forward-error bound of ``tests/numerics.py`` accumulated over the chain of column steps, with κ_k the sum
+to the forward-error bound of ``tests/helpers/numerics.py`` accumulated over the chain of column steps, with κ_k the sum
 of the condition numbers of the three matrices of step k, computed here from the reference's P⁻, S and P.
 """
 
@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 import pytest
-from numerics import HEADINGS, assert_close_conditioned, condition, episode_tolerance
+from helpers.numerics import HEADINGS, assert_close_conditioned, condition, episode_tolerance
 
 from mrcomm_env.asynccl_v0 import parallel_env
 

@@ -11,8 +11,9 @@ import pytest
 
 from mrcomm_env.experiments.sweep import Runner, SweepError, Task, current, using
 
-sys.path.insert(0, str(Path(__file__).parent))  # sweep_tasks must import in spawned workers too
-FN = "sweep_tasks:"
+TESTS = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(TESTS))  # helpers.sweep_tasks must import in spawned workers too
+FN = "helpers.sweep_tasks:"
 
 
 def _tasks(n=5):
@@ -27,7 +28,7 @@ def test_results_come_back_in_task_order_and_as_plain_data():
 
 @pytest.mark.xdist_group("processes")
 def test_processes_give_exactly_the_serial_numbers(monkeypatch):
-    monkeypatch.setenv("PYTHONPATH", str(Path(__file__).parent))  # the spawned workers import sweep_tasks
+    monkeypatch.setenv("PYTHONPATH", str(TESTS))  # the spawned workers import helpers.sweep_tasks
     tasks = _tasks(6)
     assert Runner(workers=2, progress=False).map(tasks) == Runner(workers=1, progress=False).map(tasks)
 
@@ -116,7 +117,7 @@ def test_a_ray_task_refuses_to_run_on_a_node_with_other_code():
 
 @pytest.mark.xdist_group("processes")
 def test_a_using_block_keeps_one_pool_of_workers_for_all_its_sweeps(monkeypatch, tmp_path):
-    monkeypatch.setenv("PYTHONPATH", str(Path(__file__).parent))
+    monkeypatch.setenv("PYTHONPATH", str(TESTS))
     log = tmp_path / "pids.log"
     runner = Runner(workers=2, progress=False)
     with using(runner):
@@ -136,12 +137,12 @@ def test_workers_die_with_a_driver_killed_by_sigkill(tmp_path):
 
     log = tmp_path / "pids.txt"
     driver = (
-        f"import sys; sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+        f"import sys; sys.path.insert(0, {str(TESTS)!r})\n"
         "from mrcomm_env.experiments.sweep import Runner, Task\n"
-        "Runner(workers=2, progress=False).map([Task('sweep_tasks:record_pid_and_wait', "
+        "Runner(workers=2, progress=False).map([Task('helpers.sweep_tasks:record_pid_and_wait', "
         f"{{'log': {str(log)!r}, 'seconds': 120 + k}}) for k in range(2)])\n"
     )
-    env = {**os.environ, "PYTHONPATH": str(Path(__file__).parent)}
+    env = {**os.environ, "PYTHONPATH": str(TESTS)}
     proc = subprocess.Popen([sys.executable, "-c", driver], env=env)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and (not log.exists() or len(log.read_text().split()) < 2):

@@ -25,7 +25,7 @@ if sys.version_info >= (3, 11):
 else:  # the dev extra installs tomli there
     import tomli as tomllib
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 #: import name → folder
 FOLDERS = {"mrcomm_env": "mrcomm_env", "mrcomm_baselines": "baselines", "mrcomm_agents": "agents"}
 PACKAGES = tuple(FOLDERS)

@@ -1,5 +1,5 @@
-"""Task functions for tests/test_sweep.py: importable by name from a worker process (``tests`` is on the path
-of every pytest worker and, through the rootdir, of the spawned processes the runner starts)."""
+"""Task functions for tests/experiments/test_sweep.py and tests/integrations/test_ray.py: importable by name
+(``helpers.sweep_tasks:NAME``) from a worker process, whose ``PYTHONPATH`` those tests set to ``tests/``."""
 
 from __future__ import annotations
 

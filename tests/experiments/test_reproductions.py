@@ -68,7 +68,7 @@ def leftover_temporaries(root: Path) -> list[Path]:
 @pytest.mark.parametrize("env_id", list(ENTRIES))
 def test_reproduction_writes_every_promised_file(env_id, tmp_path, capsys):
     out = tmp_path / "results"
-    # serially: tests/test_reproduction_sweeps.py checks that worker processes write the same files
+    # serially: tests/experiments/test_reproduction_sweeps.py checks that worker processes write the same files
     assert main(["reproduce", env_id, "--tiny", "--workers", "1", "--out", str(out)]) == 0
     report_path = out / "REPORT.md"
     report = report_path.read_text()

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from numerics import assert_close_conditioned, tolerance
+from helpers.numerics import assert_close_conditioned, tolerance
 from scipy import stats
 
 from mrcomm_env.core import (
