@@ -336,11 +336,11 @@ class MrcommParallelEnv(EnvSpec, ParallelEnv):
         ``truncated`` (as :meth:`step` reports them for every agent: all agents end together) and the infos as
         columns, key → ``(N,)`` float64. Bad actions raise the same ``ValueError`` as :meth:`step`.
         """
-        observations, reward_array, terminated, truncated = self._step_arrays_without_infos(actions)
+        observations, reward_array, terminated, truncated = self.step_arrays_without_infos(actions)
         return observations, reward_array, terminated, truncated, self._info_columns_array()
 
-    def _step_arrays_without_infos(self, actions) -> tuple[np.ndarray, np.ndarray, bool, bool]:
-        """:meth:`step_arrays` without the infos, which the caller reads with ``_info_columns()`` (a batch copies
+    def step_arrays_without_infos(self, actions) -> tuple[np.ndarray, np.ndarray, bool, bool]:
+        """:meth:`step_arrays` without the infos, which the caller reads with ``info_columns()`` (a batch copies
         them straight into its own columns)."""
         if not self.agents:
             self._require_reset("step_arrays")
@@ -425,8 +425,9 @@ class MrcommParallelEnv(EnvSpec, ParallelEnv):
         obs = self._observe()
         return dict(zip(self.agents if agents is None else agents, obs))
 
-    def _info_columns(self) -> tuple[list[str], list[np.ndarray]]:
-        """The info keys and their float64 columns (N,), converted once per new ``_agent_infos()`` object."""
+    def info_columns(self) -> tuple[list[str], list[np.ndarray]]:
+        """The info keys and their float64 columns (N,), converted once per new ``_agent_infos()`` object. The
+        columns are the env's own, valid until its next step: a batch copies them into its (M, N) columns."""
         columns = self._agent_infos()
         # the last columns are kept referenced, so an unchanged object (see _agent_infos) is the same one
         if columns is not self.__dict__.get("_info_source"):
@@ -436,11 +437,11 @@ class MrcommParallelEnv(EnvSpec, ParallelEnv):
         return self._info_arrays
 
     def _info_columns_array(self) -> dict[str, np.ndarray]:
-        keys, arrays = self._info_columns()
+        keys, arrays = self.info_columns()
         return {key: column.copy() for key, column in zip(keys, arrays)}
 
     def _infos(self, agents: list[str] | None = None) -> dict[str, dict[str, float]]:
-        keys, arrays = self._info_columns()
+        keys, arrays = self.info_columns()
         if self._info_rows is None:
             self._info_rows = list(zip(*[column.tolist() for column in arrays]))
         # fresh dicts every step: wrappers (SB3's VecEnv, SuperSuit) add keys to the infos they receive

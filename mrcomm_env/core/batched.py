@@ -187,10 +187,10 @@ class BatchedEnv:
         infos: dict[str, np.ndarray] = {}
         result = BatchStep(observations, rewards, terminated, truncated, infos)
         for i, env in enumerate(self.envs):
-            obs, rewards[i], terminated[i], truncated[i] = env._step_arrays_without_infos(actions[i])
+            obs, rewards[i], terminated[i], truncated[i] = env.step_arrays_without_infos(actions[i])
             # step_arrays's info columns, copied straight into the batch's (M, N) columns (every copy has the
             # same keys): no per-copy copies to stack afterwards
-            keys, columns = env._info_columns()
+            keys, columns = env.info_columns()
             if not infos:
                 infos.update((key, np.empty((m, self.n_agents))) for key in keys)
             for key, column in zip(keys, columns):

@@ -34,15 +34,7 @@ from mrcomm_env.core import pcg64_numba
 from mrcomm_env.mapsync import kernels_numba, pinsketch, theory
 from mrcomm_env.mapsync import protocol as proto
 from mrcomm_env.mapsync.philox import DOMAIN_PARITY, SharedStrings, seed_key
-from mrcomm_env.mapsync.sessions import _STALE_ALL, ACTIONS, BISECTION, EQUALITY, FULL, SKETCH
-
-# the kernel's sync kinds are the actions that ask for them
-assert (kernels_numba._EQUALITY, kernels_numba._BISECTION, kernels_numba._FULL, kernels_numba._SKETCH) == (
-    EQUALITY,
-    BISECTION,
-    FULL,
-    SKETCH,
-)
+from mrcomm_env.mapsync.sessions import _STALE_ALL, ACTIONS, BISECTION, EQUALITY
 
 _COUNT_NAMES = ("syncs", "false_equal", "equality_tests", "detections", "aborted_syncs")  # the env's _counts
 

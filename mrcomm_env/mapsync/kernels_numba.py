@@ -22,6 +22,9 @@ from mrcomm_env.core.backend import configure_numba_cache
 from mrcomm_env.core.pcg64_numba import integers_fill, random_fill
 from mrcomm_env.core.sums_numba import numpy_sum
 
+# the sync kinds of ``settle_syncs`` are the actions that ask for them (numba reads them as constants)
+from mrcomm_env.mapsync.sessions import BISECTION, EQUALITY, FULL
+
 configure_numba_cache()  # before the @njit(cache=True) below: never cache into the package
 
 _M0 = np.uint64(0xD2511F53)
@@ -663,8 +666,6 @@ def equality_counter(x, y, database, use_database, k0, k1, domain, words_per_str
     return counter
 
 
-# the sync kinds of ``settle_syncs``: the actions that ask for them (``sessions.EQUALITY`` … ``sessions.SKETCH``)
-_EQUALITY, _BISECTION, _FULL, _SKETCH = 1, 2, 3, 4
 # columns of ``settle_syncs``'s counts: the env's ``_counts`` (in its order), then its merge and latency counters
 SYNCS, FALSE_EQUAL, EQUALITY_TESTS, DETECTIONS, ABORTED, CORRECTED, TO_CORRECT, LATENCY_SUM, LATENCY_COUNT = range(9)
 N_COUNTS = 9
@@ -686,16 +687,16 @@ def _settle_sync(
         if x[c] != y[c]:
             differ += 1
     synced = True
-    if kind == _EQUALITY or kind == _BISECTION:  # SyncSessions._verdict: Protocol 1's answer, both ends learn it
+    if kind == EQUALITY or kind == BISECTION:  # SyncSessions._verdict: Protocol 1's answer, both ends learn it
         counts[m, EQUALITY_TESTS] += 1
         if equal and differ > 0:
             counts[m, FALSE_EQUAL] += 1
         if not equal:
             counts[m, DETECTIONS] += 1
         last_test[m, a, b] = last_test[m, b, a] = 1 if equal else 0  # TEST_SAME, TEST_DIFFERENT
-        if kind == _EQUALITY:
+        if kind == EQUALITY:
             synced = equal
-    if kind != _EQUALITY:
+    if kind != EQUALITY:
         size = found.size
         right = 0
         if size:  # SyncSessions._merge: last-writer-wins (OR when nothing vanishes), Alice's row first
@@ -784,14 +785,14 @@ def _protocol(kind, x, y, state, pick_range, protocol1, nonce, sketch_key, sketc
     n = x.size
     database, use_database, key0, key1, domain, words, last_mask, p1_bits, k, res = protocol1
     sent = np.zeros(4, dtype=np.int64)
-    if kind == _EQUALITY:  # protocol.equality: its equal-maps shortcut gives the counter the kernel gives them, 0
+    if kind == EQUALITY:  # protocol.equality: its equal-maps shortcut gives the counter the kernel gives them, 0
         picks = np.empty(k, dtype=np.int64)
         integers_fill(state, 0, pick_range, picks)  # Alice's picks (protocol._alice_picks)
         counter = equality_counter(x, y, database, use_database, key0, key1, domain, words, last_mask, picks)
         sent[0], sent[1], sent[2], sent[3] = p1_bits, 1, 1, 1  # Proposition 1's bits, then the verdict bit
         return np.zeros(0, dtype=np.int64), counter == 0, sent, -1
     candidates, back, equal = n, np.int64(0), False
-    if kind == _BISECTION:  # protocol.bisection with step 4 fixed (its equal-maps shortcut computes the same)
+    if kind == BISECTION:  # protocol.bisection with step 4 fixed (its equal-maps shortcut computes the same)
         found, stats, rounds = bisection(
             x,
             y,
@@ -818,7 +819,7 @@ def _protocol(kind, x, y, state, pick_range, protocol1, nonce, sketch_key, sketc
                 sent[3] += 1
         equal, candidates = stats[5] == 0, stats[4]
     else:
-        if kind == _FULL:  # protocol.full
+        if kind == FULL:  # protocol.full
             found = np.nonzero(x != y)[0].astype(np.int64)
             alice, bob = n, 0
         else:  # protocol.sketch
@@ -943,7 +944,7 @@ def settle_syncs(
             lww,
             step_count[m],
         )
-        if sync_kind[s] == _BISECTION or (sync_kind[s] == _EQUALITY and not sync_equal[s]):
+        if sync_kind[s] == BISECTION or (sync_kind[s] == EQUALITY and not sync_equal[s]):
             for_caller += 1
     return for_caller
 

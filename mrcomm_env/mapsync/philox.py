@@ -105,7 +105,7 @@ class SharedStrings:
             raise ValueError(f"argument 'size' must be ≥ 1, got {size!r}")
         self.key = seed_key(seed)
         self.words_per_string = (self.n + 31) // 32
-        self._last_mask = np.uint32(
+        self.last_mask = np.uint32(
             (1 << (self.n - 32 * (self.words_per_string - 1))) - 1 if self.n % 32 else 0xFFFFFFFF
         )
         self.explicit = bool(explicit)
@@ -127,7 +127,7 @@ class SharedStrings:
         # zero the bits past n so that a string is exactly n bits long whichever way it is produced
         col = np.asarray(first_word).reshape(-1, 1) + np.arange(n_words)[None, :]
         if (col >= self.words_per_string - 1).any():
-            words = np.where(col == self.words_per_string - 1, words & self._last_mask, words)
+            words = np.where(col == self.words_per_string - 1, words & self.last_mask, words)
             words = np.where(col < self.words_per_string, words, np.uint32(0)).astype(np.uint32)
         return words
 

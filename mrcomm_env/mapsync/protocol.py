@@ -104,7 +104,7 @@ def _kernel_strings(strings) -> tuple:
         strings.key[1],
         DOMAIN_DATABASE,
         strings.words_per_string,
-        int(strings._last_mask),
+        int(strings.last_mask),
     )
 
 

@@ -490,7 +490,7 @@ def test_compiled_inner_products_equal_the_numpy_reference(n, cached):
         strings.key[1],
         0,
         strings.words_per_string,
-        int(strings._last_mask),
+        int(strings.last_mask),
         index,
         lo,
         hi,
