@@ -4,6 +4,7 @@ price of a bit, score them and every baseline on held-out episodes, apply the eq
 
 from __future__ import annotations
 
+import csv
 import json
 import shutil
 from pathlib import Path
@@ -148,11 +149,58 @@ def shipped_run(tasks: list[dict], baseline_rows: list[dict], spec: dict, episod
     }
 
 
+def curve_rows(tasks: list[dict], spec: dict) -> list[dict]:
+    """Every run's held-out evaluations against agent-steps (the ``heldout/`` columns of its progress.csv,
+    ``agents/heldout.py``). Where a step has two rows (the rollout's policy and, at the end, the final one), the
+    later one is kept. ``seconds``: the run's training wall time so far."""
+    metric, per = spec["metric"], spec.get("bits_per", "step")
+    rows = []
+    for task in tasks:
+        path = Path(task["out"]) / "progress.csv"
+        if not path.exists():
+            continue
+        points: dict[int, dict] = {}
+        with open(path, newline="") as fh:
+            for raw in csv.DictReader(fh):
+                value, bits = raw.get(f"heldout/{metric}"), raw.get(f"heldout/bits_per_agent_{per}")
+                if not value or not bits or not raw.get("time/total_timesteps"):
+                    continue
+                steps = int(float(raw["time/total_timesteps"]))
+                elapsed = raw.get("time/time_elapsed") or (points[max(points)]["seconds"] if points else 0.0)
+                points[steps] = {
+                    "cost": task["cost"],
+                    "seed": task["seed"],
+                    "agent_steps": steps,
+                    "metric": float(value),
+                    "bits": float(bits),
+                    "seconds": float(elapsed),
+                }
+        rows += [points[k] for k in sorted(points)]
+    return rows
+
+
+def rl_phase(points: list[dict], episodes: int | None, first_seed: int) -> dict | None:
+    """The held-out metric and bits at the start of a run's RL phase (agent-step 0: random weights, or the clone a
+    warm start made) and at its end, from the run's curve (:func:`curve_rows`, one run's points in order); None
+    without points. These are the run's own evaluations while training (``agents/heldout.py``: ``episodes``
+    episodes from ``first_seed``), not the card's comparison episodes."""
+    if not points:
+        return None
+    first, last = points[0], points[-1]
+    return {
+        "start": {"agent_steps": first["agent_steps"], "metric": first["metric"], "bits": first["bits"]},
+        "end": {"agent_steps": last["agent_steps"], "metric": last["metric"], "bits": last["bits"]},
+        "episodes": episodes,
+        "first_seed": first_seed,
+    }
+
+
 def export_pretrained(run: str | Path, env_id: str, shipped: dict | None = None) -> Path:
     """Copy a run's model, statistics and config into ``agents/pretrained/<Name>-v0/`` (shipped in the package;
     ``mrcomm evaluate ID --policy pretrained``). Checkpoints and logs stay behind: well under 1 MB. ``shipped``:
     the comparison's account of the run (:func:`shipped_run`), written into the card."""
     from mrcomm_agents.artifacts import MODEL_FILE, STATISTICS_FILE  # extra "train"
+    from mrcomm_agents.heldout import HELDOUT_SEEDS
     from mrcomm_agents.learned import pretrained_dir
 
     target = pretrained_dir(env_id)
@@ -162,14 +210,18 @@ def export_pretrained(run: str | Path, env_id: str, shipped: dict | None = None)
             tmp = target / f".{name}.tmp"
             shutil.copyfile(Path(run) / name, tmp)
             tmp.replace(target / name)
-    write_model_card(env_id, json.loads((target / "config.json").read_text()), shipped)
+    record = json.loads((target / "config.json").read_text())
+    spec = comparison_spec(env_id)
+    cost = record.get("env_kwargs", {}).get(spec["cost_param"])
+    points = curve_rows([{"out": str(run), "cost": cost, "seed": record.get("seed")}], spec)
+    write_model_card(env_id, record, shipped, rl_phase(points, record.get("eval_episodes"), HELDOUT_SEEDS))
     return target
 
 
-def write_model_card(env_id: str, record: dict, shipped: dict | None = None) -> Path:
+def write_model_card(env_id: str, record: dict, shipped: dict | None = None, phase: dict | None = None) -> Path:
     """``card.json`` beside a shipped model: what ``--policy pretrained`` and a reader need to know of it. The
     evaluation mode is the one the comparison chose the model with (``comparison.deterministic`` of
-    ``agents/configs/<Name>-v0.json``, deterministic by default)."""
+    ``agents/configs/<Name>-v0.json``, deterministic by default). ``phase``: :func:`rl_phase` of its run."""
     from mrcomm_agents.learned import CARD_NAME, pretrained_dir  # extra "train"
 
     try:
@@ -192,6 +244,8 @@ def write_model_card(env_id: str, record: dict, shipped: dict | None = None) -> 
     if shipped is not None:
         card["heldout"] = shipped["heldout"]
         card["best_baseline"] = shipped["best_baseline"]
+    if phase is not None:
+        card["rl_phase"] = phase
     path = pretrained_dir(env_id) / CARD_NAME
     atomic_write_text(path, json.dumps(card, indent=2) + "\n")
     return path

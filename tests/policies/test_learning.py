@@ -229,6 +229,30 @@ def test_every_shipped_model_has_a_card_that_agrees_with_it(env_id):
     )
 
 
+@pytest.mark.parametrize("env_id", SHIPPED)
+def test_every_card_gives_the_held_out_metric_at_the_start_and_the_end_of_its_rl_phase(env_id):
+    """The card's ``rl_phase`` is its run's first and last held-out evaluation as the recorded learning curves hold
+    them (``docs/learning/<Name>-curves.csv``): a card left over from another run, or one whose start is not
+    agent-step 0 (random weights or the warm start's clone), fails."""
+    from mrcomm_agents.heldout import HELDOUT_SEEDS
+    from mrcomm_agents.learned import model_card
+    from mrcomm_env.experiments.runs import comparison_spec
+
+    card = model_card(env_id)
+    spec = comparison_spec(env_id)
+    cost = float(card["env_kwargs"][spec["cost_param"]])
+    with open(Path(__file__).parents[2] / "docs" / "learning" / f"{short_name(env_id)}-curves.csv", newline="") as fh:
+        rows = [r for r in csv.DictReader(fh) if float(r["cost"]) == cost and int(r["seed"]) == card["seed"]]
+    assert rows, f"no recorded curve for the shipped run ({spec['cost_param']}={cost}, seed {card['seed']})"
+    phase = card["rl_phase"]
+    assert phase["start"]["agent_steps"] == 0 and phase["first_seed"] == HELDOUT_SEEDS
+    for end, row in (("start", rows[0]), ("end", rows[-1])):
+        assert phase[end]["agent_steps"] == int(row["agent_steps"])
+        assert math.isclose(phase[end]["metric"], float(row["metric"]), rel_tol=1e-12)
+        assert math.isclose(phase[end]["bits"], float(row["bits"]), rel_tol=1e-12)
+    assert phase["end"]["agent_steps"] >= card["agent_steps"]  # the last evaluation is the final policy's
+
+
 def test_multihop_pretrained_fills_a_slot_as_one_choice_of_at_most_m_minus_1():
     """The shipped MultiHop model draws its select bits as one subset (``candidate_subset``): never more than the
     slot holds, which independent select bits could not promise."""
