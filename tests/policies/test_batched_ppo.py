@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import zipfile
 
 import numpy as np
 import pytest
@@ -304,6 +305,27 @@ def test_a_sweep_of_seeds_trains_ippo_runs_through_the_runner(tmp_path, capsys):
     for row in rows:
         record = json.loads((out / row["run"] / "config.json").read_text())
         assert record["algo"] == "ippo" and record["n_envs"] == COPIES
+
+
+@pytest.mark.xdist_group("processes")
+def test_a_sweep_on_two_workers_trains_the_models_of_one_worker(tmp_path):
+    """A sweep's workers own one core each, yet train the bits ``--workers 1`` trains: the update keeps its two
+    torch threads (rounding depends on the thread count), and its threads wait passively instead of spinning
+    against the other worker's. Large enough (64 × 64 layers, 2,048-row minibatches) that the thread count
+    changes the bits of the update."""
+    settings = tmp_path / "settings.json"
+    hyper = {"n_steps": 16, "batch_size": 2048, "n_epochs": 2, "n_envs": 64, "net_arch": [64, 64]}
+    settings.write_text(json.dumps({"ippo": {**hyper, "timesteps": 2 * 16 * 64 * 2}}))
+    models = {}
+    for workers in (1, 2):
+        out = tmp_path / f"workers{workers}"
+        argv = ["train", "MapSync-v0", "--algo", "ippo", "--config", str(settings), "--seeds", "0,1", "--out", str(out)]
+        assert main([*argv, "--quiet", "--eval-episodes", "1", "--workers", str(workers)]) == 0
+        for run in sorted(out.glob("*/s*")):
+            with zipfile.ZipFile(run / "model.zip") as archive:
+                models[workers, run.name] = archive.read("policy.pth")
+    assert models[1, "s0"] != models[1, "s1"]  # the seeds train different models, so equality below means something
+    assert models[1, "s0"] == models[2, "s0"] and models[1, "s1"] == models[2, "s1"]
 
 
 def test_the_default_copies_aim_at_128_agent_rows_within_bounds():
