@@ -81,17 +81,18 @@ class CopyAxisWorld:
         self.filter.rngs = [env.np_random for env in envs]
         m = self.m
         # the env's constants of observation and reward (the same in every copy)
-        self.msg_bits = first._msg_bits_f
-        self.id_bits, self.n_static, self.clock = first._id_bits, first._n_static, first._clock
-        self.phase_col, self.clock_codes = first._phase_col, first._clock_codes
-        self.squash8, self.squash4 = first._squash8, first._squash4
-        self.static_obs = first._static_obs  # each robot's own ID bits and observer flag, written at every reset
+        constants = first.world_constants()
+        self.msg_bits = constants["msg_bits"]
+        self.id_bits, self.n_static, self.clock = constants["id_bits"], constants["n_static"], constants["clock"]
+        self.phase_col, self.clock_codes = constants["phase_col"], constants["clock_codes"]
+        self.squash8, self.squash4 = constants["squash8"], constants["squash4"]
+        self.static_obs = constants["static_obs"]  # each robot's own ID bits and observer flag, written at every reset
         self.max_cycles, self.cost = c.max_cycles, c.emission_cost
         self.individual = c.reward_mode == "individual"
         #: copies whose episode the world began itself (``reset_copies``) since their env object was last written
         self.restarted = np.zeros(self.m, dtype=bool)
         # the copies' state
-        self.obs = np.zeros((m, n, first._obs_dim), dtype=np.float32)
+        self.obs = np.zeros((m, n, constants["obs_dim"]), dtype=np.float32)
         self.step_count = np.zeros(m, dtype=np.int64)
         self.completion = np.full(m, -1, dtype=np.int64)
         self.step_bits = np.zeros((m, n))
@@ -120,23 +121,20 @@ class CopyAxisWorld:
         self.filter.copy_conflicts[i] = f.conflicts
         self.filter.rngs[i] = env.np_random  # reset(seed=…) replaces the generator
         self.restarted[i] = False
-        self.obs[i] = env._obs
-        self.emit[i] = env._emit
+        obs, emit, completion, stats = env.episode_arrays()
+        self.obs[i] = obs
+        self.emit[i] = emit
         self.step_count[i] = env.step_count
-        self.completion[i] = env._completion
+        self.completion[i] = completion
         self.step_bits[i] = env.ledger.step_bits
         self.total_bits[i] = env.ledger.total_bits
         self.messages[i] = env.ledger.messages
-        for column, value in zip(self.stats, env._stats):
+        for column, value in zip(self.stats, stats):
             column[i] = value
 
     def store(self, i: int) -> None:
         """Write copy ``i``'s rows into its env, which then holds the copy's episode as if it had stepped it."""
         env = self.envs[i]
-        if self.restarted[i]:  # the world began this episode: what the env's reset would have set
-            env.agents = list(env.possible_agents)
-            env._live = dict.fromkeys(env.agents)
-            self.restarted[i] = False
         scene = env.scene
         f, rows = scene.filter, self._rows(i)
         self._store_scene(i, scene)
@@ -145,18 +143,21 @@ class CopyAxisWorld:
         f.heard = self.filter.heard[:, rows].copy()
         f.t = self.filter.t
         f.conflicts = int(self.filter.copy_conflicts[i])
-        env._obs = self.obs[i].copy()
-        env._emit = self.emit[i].copy()
+        # the world began this episode (``restarted``): the env also takes what its reset would have set
+        env.load_episode(
+            self.obs[i].copy(),
+            self.emit[i].copy(),
+            int(self.completion[i]),
+            tuple(column[i].copy() for column in self.stats),
+            self.frac[i].copy(),
+            float(self.team_score[i]),
+            began=bool(self.restarted[i]),
+        )
+        self.restarted[i] = False
         env.step_count = int(self.step_count[i])
-        env._completion = int(self.completion[i])
         env.ledger.step_bits[:] = self.step_bits[i]
         env.ledger.total_bits[:] = self.total_bits[i]
         env.ledger.messages = int(self.messages[i])
-        env._stats = tuple(column[i].copy() for column in self.stats)
-        env._frac = self.frac[i].copy()
-        env._team_score = float(self.team_score[i])
-        env._stats_key = None
-        env._state_version += 1
         if self.completion[i] >= 0 or self.step_count[i] >= self.max_cycles:
             env.agents = []
 
@@ -328,7 +329,7 @@ class SlotFieldBatch(CopyAxisWorld):
                 vact[i] = self.vr[i] & emit[i] & (rng.random((n, n)) >= self.q)
             f.step(recv.reshape(-1, n), vact.reshape(-1, n), self.vr.reshape(-1, n), self.mobile)
         elif self.mobile or n_emit.any():  # a stationary copy without emissions steps to no change
-            lit = (emit @ f._pow[:n])[:, None]  # f.pack(emit) of every copy
+            lit = (emit @ f.powers[:n])[:, None]  # f.pack(emit) of every copy
             f.step(
                 (self.wr_packed & lit).reshape(-1),
                 (self.vr & emit[:, None, :]).reshape(-1, n),
@@ -365,7 +366,7 @@ class SlotFieldBatch(CopyAxisWorld):
         self.wr[copies] = w
         if not self.same_ranges:
             self.vr[copies] = d <= self.vrange
-        self.wr_packed[copies] = w @ f._pow[:n]
+        self.wr_packed[copies] = w @ f.powers[:n]
         rows = np.concatenate([np.arange(i * n, (i + 1) * n) for i in copies])
         # BitsetFilter.reset of the copies' rows; a still field then knows its neighbourhoods (init_known)
         f.C[rows] = 0
@@ -395,7 +396,7 @@ class SlotFieldBatch(CopyAxisWorld):
         selected entries), so that they round alike."""
         f, n = self.filter, self.n
         measured = np.arange(n) >= (self.n_stat if self.mobile else 0)  # the mobile robots (last), or every one
-        true_bits = f._pow[:n]
+        true_bits = f.powers[:n]
         out = []
         for i in copies:
             rows = self._rows(i)
@@ -439,7 +440,7 @@ class SlotFieldBatch(CopyAxisWorld):
             v = d <= self.vrange
             self.vr[:, first:] = v
             self.vr[:, :, first:] = v.transpose(0, 2, 1)
-        np.matmul(self.wr, self.filter._pow[: self.n], out=self.wr_packed)
+        np.matmul(self.wr, self.filter.powers[: self.n], out=self.wr_packed)
 
 
 class NeighborhoodBatch(CopyAxisWorld):

@@ -208,6 +208,41 @@ class ChannelAssociationEnv(ChannelAssociationSpec, MrcommParallelEnv):
         """Stationary robots come first, the mobile ones after them."""
         return self.scene.n_stat
 
+    # ------------------------------------------------------------------ its copy-axis world (copy_axis.py)
+    def world_constants(self) -> dict:
+        """The constants of the observation and the reward, the same in every copy of one configuration, that the
+        copy-axis world computes with: message bits, the ID code's bits and its clock, the static columns, the
+        squashing tables and the observation's width."""
+        return {
+            "msg_bits": self._msg_bits_f,
+            "id_bits": self._id_bits,
+            "n_static": self._n_static,
+            "clock": self._clock,
+            "phase_col": self._phase_col,
+            "clock_codes": self._clock_codes,
+            "squash8": self._squash8,
+            "squash4": self._squash4,
+            "static_obs": self._static_obs,
+            "obs_dim": self._obs_dim,
+        }
+
+    def episode_arrays(self) -> tuple:
+        """(observation ``(N, D)``, last emissions ``(N,)``, completion step or −1, per-robot i-state statistics) of
+        the episode as it stands: the env's own arrays, which a copy-axis world copies into its rows at a reset."""
+        return self._obs, self._emit, self._completion, self._stats
+
+    def load_episode(self, obs, emit, completion: int, stats: tuple, frac, team_score: float, began: bool) -> None:
+        """Take over an episode's state from a copy-axis world that stepped it (and began it, with ``began``), as
+        if this env had: the arguments are :meth:`episode_arrays`' plus the matched fractions and the team's
+        score. The caller writes the step count and the ledger, and ends the episode where it ended."""
+        if began:  # what reset() would have set
+            self.agents = list(self.possible_agents)
+            self._live = dict.fromkeys(self.agents)
+        self._obs, self._emit, self._completion, self._stats = obs, emit, int(completion), stats
+        self._frac, self._team_score = frac, float(team_score)
+        self._stats_key = None  # the statistics came from outside: recompute them when the filter next changes
+        self._state_version += 1
+
     # ------------------------------------------------------------------ step
     def _step_world(self, actions: list) -> float | np.ndarray:
         n = self.n_agents

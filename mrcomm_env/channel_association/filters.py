@@ -484,7 +484,8 @@ class BitsetFilter(FilterBase):
         super().__init__(drop_time, 0, extra_edges)
         self.shape = (batch, n_w, n_v)
         self._bits = np.arange(n_w, dtype=np.uint64)
-        self._pow = _POW2[:n_w]
+        #: 2^k of slot k: ``mask @ powers`` packs a (…, n_w) boolean mask into the bit sets the rows hold
+        self.powers = _POW2[:n_w]
         self._ones8, self._ones16 = np.ones(n_v, dtype=np.uint8), np.ones(n_v, dtype=np.uint16)
         self.reset()
 
@@ -503,7 +504,7 @@ class BitsetFilter(FilterBase):
 
     def pack(self, mask: np.ndarray) -> np.ndarray:
         """A (…, W) mask of wireless slots as the bit sets :meth:`step` takes natively (``pack_rows``)."""
-        return mask @ self._pow
+        return mask @ self.powers
 
     @property
     def E(self) -> np.ndarray:
@@ -525,7 +526,7 @@ class BitsetFilter(FilterBase):
         The arrays are tiny in the environment (N ≤ 64), so the cost is the number of numpy calls:
         the code keeps that low (one-call comparisons, tests that skip rare work). Invariant: the
         column of an untracked visual ID is 0."""
-        R = recv if recv.dtype == _U64 else recv @ self._pow
+        R = recv if recv.dtype == _U64 else recv @ self.powers
         C, vt = self.C, self.vt
         if lists:
             lost = np.greater(vt, v_in)  # tracked but out of range

@@ -33,8 +33,9 @@ import numpy as np
 from mrcomm_env.core import pcg64_numba
 from mrcomm_env.mapsync import kernels_numba, pinsketch, theory
 from mrcomm_env.mapsync import protocol as proto
+from mrcomm_env.mapsync.actions import ACTIONS, BISECTION, EQUALITY
 from mrcomm_env.mapsync.philox import DOMAIN_PARITY, SharedStrings, seed_key
-from mrcomm_env.mapsync.sessions import _STALE_ALL, ACTIONS, BISECTION, EQUALITY
+from mrcomm_env.mapsync.sessions import _STALE_ALL
 
 _COUNT_NAMES = ("syncs", "false_equal", "equality_tests", "detections", "aborted_syncs")  # the env's _counts
 

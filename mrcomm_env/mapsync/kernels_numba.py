@@ -23,7 +23,7 @@ from mrcomm_env.core.pcg64_numba import integers_fill, random_fill
 from mrcomm_env.core.sums_numba import numpy_sum
 
 # the sync kinds of ``settle_syncs`` are the actions that ask for them (numba reads them as constants)
-from mrcomm_env.mapsync.sessions import BISECTION, EQUALITY, FULL
+from mrcomm_env.mapsync.actions import BISECTION, EQUALITY, FULL
 
 configure_numba_cache()  # before the @njit(cache=True) below: never cache into the package
 

@@ -15,9 +15,8 @@ from typing import Any
 import numpy as np
 
 from mrcomm_env.mapsync import protocol as proto
+from mrcomm_env.mapsync.actions import ACTIONS, IDLE
 
-ACTIONS = ("idle", "equality", "bisection", "full", "sketch")
-IDLE, EQUALITY, BISECTION, FULL, SKETCH = range(5)
 #: detections kept in ``MapSyncEnv.detections`` (the most recent; ``metrics()["detections"]`` counts them all): a
 #: list of every one would grow with the episode without bound
 DETECTIONS_KEPT = 10_000
