@@ -45,7 +45,8 @@ class StaticFrameBatch:
         self.envs, self.n_copies, self.n = envs, m, n
         self.slot_size, self.slot_dur, self.frame_dur = first.m, first.slot_dur, first.frame_dur
         self.diag, self.bits = first.diag, c.bits_per_estimate
-        self.lam, self.capacity, self.age_unit = c.lam, first._capacity, first._age_unit
+        constants = first.world_constants()
+        self.lam, self.capacity, self.age_unit = c.lam, constants["capacity"], constants["age_unit"]
         self.max_cycles = c.max_cycles
         self.n_cand = n - 1
         self.relative = c.layout == "relative"
@@ -90,7 +91,7 @@ class StaticFrameBatch:
         self.mean_age = np.zeros((m, n))
         self.known_fraction = np.zeros((m, n))
         self.wage = np.zeros(m)
-        self.obs = np.zeros((m, n, first._obs_space.shape[0]), dtype=np.float32)
+        self.obs = np.zeros((m, n, constants["obs_dim"]), dtype=np.float32)
 
     # ------------------------------------------------------------------ copies in and out
     def adopt(self, i: int) -> None:
@@ -103,18 +104,19 @@ class StaticFrameBatch:
         self.adopt_counters(i)
         self.order[i] = env.tdma.order
         self.slot[i] = env.tdma.slot_of
-        self.phase[i] = env._phase
+        arrays = env.world_arrays()
+        self.phase[i] = arrays["phase"]
         # a static scene's estimates are the true positions: the distances hold all episode (the relative layout
         # keeps them from its last ranking; the absolute one computes them per observation)
-        self.dist[i] = env._dist if self.relative else env.estimated_distances()
-        self.weights[i] = env._w
-        self.weight_sum[i] = env._wsum
+        self.dist[i] = arrays["dist"] if self.relative else env.estimated_distances()
+        self.weights[i] = arrays["weights"]
+        self.weight_sum[i] = arrays["weight_sum"]
         if self.hop_flat.shape[0] > 1 or i == 0:
             row = min(i, self.hop_flat.shape[0] - 1)
-            buckets = [np.flatnonzero(mask.ravel()) for mask in env._hop_masks]
+            buckets = [np.flatnonzero(mask.ravel()) for mask in arrays["hop_masks"]]
             np.cumsum([idx.size for idx in buckets], out=self.hop_bounds[row, 1:])
             self.hop_flat[row, : self.hop_bounds[row, -1]] = np.concatenate(buckets)
-        ptr, idx = env._nbr_ptr[0], env._nbr_idx[0]
+        ptr, idx = arrays["nbr_ptr"], arrays["nbr_idx"]
         if idx.size > self.nbr_idx.shape[1]:  # a field's copies have their own links: room for the most
             grown = np.zeros((self.n_copies, idx.size), dtype=np.int64)
             grown[:, : self.nbr_idx.shape[1]] = self.nbr_idx
@@ -123,56 +125,52 @@ class StaticFrameBatch:
         self.nbr_idx[i, : idx.size] = idx
         if not self.relative:
             return
-        self.candidates[i] = env._candidates
-        self.ranked_known[i] = env._ranked_known
+        self.candidates[i] = arrays["candidates"]
+        self.ranked_known[i] = arrays["ranked_known"]
         # the two fixed orders whose merge is the ranking (frame_numba.rerank_candidates)
-        self.near_order[i] = np.argsort(env._dist / env.diag, axis=1, kind="stable")
-        self.slot_order[i] = np.argsort(2.0 + env._phase, axis=1, kind="stable")
+        self.near_order[i] = np.argsort(arrays["dist"] / env.diag, axis=1, kind="stable")
+        self.slot_order[i] = np.argsort(2.0 + arrays["phase"], axis=1, kind="stable")
 
     def adopt_counters(self, i: int) -> None:
         """Take copy ``i``'s clock, first-arrival flag, time averages, bits and step count from its env (what
         :meth:`adopt` takes besides the arrays; the env's world of one copy takes them before every frame)."""
         env = self.envs[i]
+        counters = env.world_counters()
         self.t[i] = env.t
-        self.tracking[i] = not env._all_known
-        self.totals[i, :3] = env._frames, env._sum_age, env._sum_wage
-        self.totals[i, 3 : 3 + N_HOP_BUCKETS] = env._max_age
-        self.totals[i, 3 + N_HOP_BUCKETS :] = env._sum_age_hop
-        self.step_bits[i] = env._step_bits
+        self.tracking[i] = not counters["all_known"]
+        self.totals[i, :3] = counters["frames"], counters["sum_age"], counters["sum_wage"]
+        self.totals[i, 3 : 3 + N_HOP_BUCKETS] = counters["max_age"]
+        self.totals[i, 3 + N_HOP_BUCKETS :] = counters["sum_age_hop"]
+        self.step_bits[i] = counters["step_bits"]
         self.total_bits[i] = env.ledger.total_bits
         self.messages[i] = env.ledger.messages
         self.step_count[i] = env.step_count
 
     def store(self, i: int) -> None:
         """Write copy ``i``'s rows into its env, which then holds the copy's episode as if it had stepped it."""
-        env, n = self.envs[i], self.n
+        env = self.envs[i]
         env.stamps = self.stamps[i].copy()
         env.first_known = self.first_known[i].copy()
         env.sent_stamp = self.sent_stamp[i].copy()
         env.last_sent = self.last_sent[i].copy()
         env.t = float(self.t[i])
-        env._all_known = not self.tracking[i]
-        if self.relative:
-            env._candidates = self.candidates[i].astype(np.int64)
-            env._cand_flat = (env._candidates + np.arange(n)[:, None] * n).ravel()
-            env._ranked_known = self.ranked_known[i].copy()
-            env._dist = self.dist[i].copy()
-        env._ages = None  # the world keeps no ages: env.ages() computes them from these stamps and this clock
-        env._frames = int(self.totals[i, 0])
-        env._sum_age, env._sum_wage = float(self.totals[i, 1]), float(self.totals[i, 2])
-        env._max_age = self.totals[i, 3 : 3 + N_HOP_BUCKETS].copy()
-        env._sum_age_hop = self.totals[i, 3 + N_HOP_BUCKETS :].copy()
-        env._step_bits = self.step_bits[i].copy()
+        ranking = (self.candidates[i], self.ranked_known[i].copy(), self.dist[i].copy()) if self.relative else None
+        counters = {
+            "all_known": not self.tracking[i],
+            "frames": self.totals[i, 0],
+            "sum_age": self.totals[i, 1],
+            "sum_wage": self.totals[i, 2],
+            "max_age": self.totals[i, 3 : 3 + N_HOP_BUCKETS].copy(),
+            "sum_age_hop": self.totals[i, 3 + N_HOP_BUCKETS :].copy(),
+            "step_bits": self.step_bits[i].copy(),
+        }
+        env.load_world_counters(counters, ranking)
         env.ledger.step_bits[:] = self.step_bits[i]
         env.ledger.total_bits[:] = self.total_bits[i]
         env.ledger.messages = int(self.messages[i])
         env.step_count = int(self.step_count[i])
-        env._state_version += 1
         if self.step_count[i] >= self.max_cycles:
             env.agents = []
-        # observe and report from the state just written (an env that steps alone later takes it into its own world
-        # of one copy: its arrays are no longer that world's rows)
-        env._world_obs = env._world_infos = None
 
     def bits_sent(self) -> np.ndarray:
         """``(M,)``: each copy's bits since its reset (``env.bits_sent()``)."""

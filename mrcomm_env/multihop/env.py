@@ -269,6 +269,66 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         self.ledger.record(self._step_bits, messages=n)
         return self._frame_end()
 
+    # ----------------------------------------------------------------- what its copy-axis world reads and writes
+    def world_constants(self) -> dict:
+        """Constants of one configuration that its copy-axis world (:mod:`.copy_axis`) computes with: the bits a
+        frame can carry, the reward's unit of age and the observation's width."""
+        obs_dim = int(np.prod(self._obs_space.shape or (1,)))  # a flat Box
+        return {"capacity": self._capacity, "age_unit": self._age_unit, "obs_dim": obs_dim}
+
+    def world_arrays(self) -> dict:
+        """The episode's fixed arrays and its ranking, which a copy-axis world copies into its rows at a reset:
+        slot phases, eq. (1)'s weights and their sum, the hop buckets' pair masks, the links (CSR pointer and
+        indices of the first frame) and, in the relative layout, the estimated distances of its last ranking, the
+        ranked candidates and whether each is held. The env's own arrays: copy what is kept."""
+        arrays = {
+            "phase": self._phase,
+            "weights": self._w,
+            "weight_sum": self._wsum,
+            "hop_masks": self._hop_masks,
+            "nbr_ptr": self._nbr_ptr[0],
+            "nbr_idx": self._nbr_idx[0],
+        }
+        if self.cfg.layout == "relative":  # the absolute layout ranks no candidates
+            arrays.update(dist=self._dist, candidates=self._candidates, ranked_known=self._ranked_known)
+        return arrays
+
+    def world_counters(self) -> dict:
+        """Whether every estimate has arrived (first arrivals are no longer tracked), the time averages (frames,
+        summed mean age and weighted mean age, per hop bucket the largest age and the summed mean age) and the
+        last frame's bits per robot."""
+        return {
+            "all_known": self._all_known,
+            "frames": self._frames,
+            "sum_age": self._sum_age,
+            "sum_wage": self._sum_wage,
+            "max_age": self._max_age,
+            "sum_age_hop": self._sum_age_hop,
+            "step_bits": self._step_bits,
+        }
+
+    def load_world_counters(self, counters: dict, ranking: tuple | None = None) -> None:
+        """Take over the :meth:`world_counters` (and, in the relative layout, ``ranking`` = the ranked candidates,
+        whether each is held, the estimated distances) of an episode a copy-axis world stepped, as if this env had:
+        what it observes and reports is computed from the state written here. The caller writes the stamps, the
+        clock, the ledger and the step count."""
+        n = self.n_agents
+        self._all_known = bool(counters["all_known"])
+        if ranking is not None:
+            candidates, ranked_known, dist = ranking
+            self._candidates = candidates.astype(np.int64)
+            self._cand_flat = (self._candidates + np.arange(n)[:, None] * n).ravel()
+            self._ranked_known, self._dist = ranked_known, dist
+        self._ages = None  # the world keeps no ages: ages() computes them from the stamps and the clock
+        self._frames = int(counters["frames"])
+        self._sum_age, self._sum_wage = float(counters["sum_age"]), float(counters["sum_wage"])
+        self._max_age, self._sum_age_hop = counters["max_age"], counters["sum_age_hop"]
+        self._step_bits = counters["step_bits"]
+        self._state_version += 1
+        # observe and report from the state just written (an env that steps alone later takes it into its own world
+        # of one copy: its arrays are no longer that world's rows)
+        self._world_obs = self._world_infos = None
+
     # ----------------------------------------------------------------- the world of one copy
     #: the env's arrays that are rows of its world of one copy (views), as :meth:`_bind_one_copy` binds them
     _WORLD_VIEWS = ("stamps", "first_known", "sent_stamp", "last_sent", "_ranked_known", "_candidates")
