@@ -35,7 +35,6 @@ from mrcomm_env.mapsync import kernels_numba, pinsketch, theory
 from mrcomm_env.mapsync import protocol as proto
 from mrcomm_env.mapsync.actions import ACTIONS, BISECTION, EQUALITY
 from mrcomm_env.mapsync.philox import DOMAIN_PARITY, SharedStrings, seed_key
-from mrcomm_env.mapsync.sessions import _STALE_ALL
 
 _COUNT_NAMES = ("syncs", "false_equal", "equality_tests", "detections", "aborted_syncs")  # the env's _counts
 
@@ -53,19 +52,21 @@ class UnlimitedLinkBatch:
         m, N, n = len(envs), first.n_agents, first.n
         self.envs, self.n_copies, self.n_agents, self.n = envs, m, N, n
         self.max_cycles = c.max_cycles
-        self.changing, self.lww = bool(first._changing), bool(first._lww)
+        constants = first.world_constants()
+        self.changing, self.lww = bool(constants["changing"]), bool(constants["lww"])
         self.appear_rate, self.vanish_rate, self.lam = float(c.appear_rate), float(c.vanish_rate), float(c.lam)
-        self.bit_scale, self.horizon = int(first._bit_scale), int(first._horizon)
-        self.neighbours, self.sensed, self.distinct = first._neighbour_table, first._sensed, first._sensed_distinct
-        self.pair_rows, self.pair_cols = (np.ascontiguousarray(p, dtype=np.int64) for p in first._pairs)
-        self.linked = np.ascontiguousarray(~first._eye)
+        self.bit_scale, self.horizon = int(constants["bit_scale"]), int(constants["horizon"])
+        self.neighbours, self.sensed = constants["neighbour_table"], constants["sensed"]
+        self.distinct = constants["sensed_distinct"]
+        self.pair_rows, self.pair_cols = (np.ascontiguousarray(p, dtype=np.int64) for p in constants["pairs"])
+        self.linked = np.ascontiguousarray(~constants["eye"])
         self.no_sessions = np.full(N, -1, dtype=np.int64)
         self.no_progress = np.zeros(N)
         # what the compiled protocols need: Protocol 1's shared strings (the same database seed in every copy) and
         # bits, the sketch's parity count, domain and field, Bob's way back for every count of found cells
-        self.stamp_bits = int(first._stamp_bits)
+        self.stamp_bits = int(constants["stamp_bits"])
         strings = SharedStrings(n, c.database_seed, explicit=c.explicit_database, cache=True)  # as the env's reset
-        self.protocol1 = (*proto._kernel_strings(strings), theory.protocol1_bits(n, c.k), int(c.k), int(c.res))
+        self.protocol1 = (*proto.kernel_strings(strings), theory.protocol1_bits(n, c.k), int(c.k), int(c.res))
         m_bits = pinsketch.field_bits(n)
         self.sketch_consts = (proto.sketch_verify_bits(n), DOMAIN_PARITY, m_bits)
         field = pinsketch.field(m_bits)
@@ -99,7 +100,7 @@ class UnlimitedLinkBatch:
         # each copy's generator (its env's, which it continues while the world steps) and session counter
         self.rng_state = np.zeros((m, pcg64_numba.STATE_WORDS), dtype=np.uint64)
         self.next_session = np.zeros(m, dtype=np.int64)
-        self.peer_order = np.ascontiguousarray(first._peer_order, dtype=np.int64)
+        self.peer_order = np.ascontiguousarray(constants["peer_order"], dtype=np.int64)
         self.pick_range = int(strings.size)  # Protocol 1's 100n strings
         # a step's syncs, at most one per two robots of every copy
         most = m * (N // 2)
@@ -108,7 +109,7 @@ class UnlimitedLinkBatch:
         self.sync_equal = np.zeros(most, dtype=bool)
         self.sync_candidates, self.sync_found = np.zeros(most, dtype=np.int64), np.zeros(most, dtype=np.int64)
         self.charged = np.zeros(m, dtype=bool)
-        self.obs = np.zeros((m, *first._obs_buf.shape), dtype=np.float32)
+        self.obs = np.zeros((m, *constants["obs_shape"]), dtype=np.float32)
         self.rewards = np.zeros((m, N))
 
     # ------------------------------------------------------------------ copies in and out
@@ -129,66 +130,63 @@ class UnlimitedLinkBatch:
         self.step_bits[i] = env.ledger.step_bits
         self.total_bits[i] = env.ledger.total_bits
         self.messages[i] = env.ledger.messages
-        self.counts[i, : len(_COUNT_NAMES)] = [env._counts[name] for name in _COUNT_NAMES]
-        self.counts[i, kernels_numba.CORRECTED] = env._corrected
-        self.counts[i, kernels_numba.TO_CORRECT] = env._to_correct
-        self.counts[i, kernels_numba.LATENCY_SUM] = env._latency_sum
-        self.counts[i, kernels_numba.LATENCY_COUNT] = env._latency_count
+        counters = env.world_counters()
+        self.counts[i, : len(_COUNT_NAMES)] = [counters["counts"][name] for name in _COUNT_NAMES]
+        self.counts[i, kernels_numba.CORRECTED] = counters["corrected"]
+        self.counts[i, kernels_numba.TO_CORRECT] = counters["to_correct"]
+        self.counts[i, kernels_numba.LATENCY_SUM] = counters["latency_sum"]
+        self.counts[i, kernels_numba.LATENCY_COUNT] = counters["latency_count"]
         self.recent[i] = env.recent_bits
-        self.recent_max[i] = env._recent_max
-        self.recent_any[i] = env._recent_any
-        env._update_disagreement()  # a state changed from outside may await its disagreement
+        self.recent_max[i] = counters["recent_max"]
+        self.recent_any[i] = counters["recent_any"]
         self.dirty[i] = False
-        self.column[i] = env._disagreement_column
-        self.mean[i] = env._disagreement_mean
-        self.errors[i] = env._errors
-        self.error_mean[i] = env._error_mean
-        self.sums[i] = env._sum_disagreement, env._sum_error
+        self.column[i] = counters["disagreement_column"]
+        self.mean[i] = counters["disagreement_mean"]
+        self.errors[i] = counters["errors"]
+        self.error_mean[i] = counters["error_mean"]
+        self.sums[i] = counters["sum_disagreement"], counters["sum_error"]
         self.step_count[i] = env.step_count
         self.sketch_keys[i] = seed_key(env.sketch_seed)
         pcg64_numba.state_of(env.np_random, self.rng_state[i])  # a reset with a seed makes a new generator
-        self.next_session[i] = env._next_session
+        self.next_session[i] = counters["next_session"]
 
     def store(self, i: int) -> None:
         """Write copy ``i``'s rows into its env, which then holds the copy's episode as if it had stepped it."""
         env = self.envs[i]
         env.maps = self.maps[i].copy()
         env.stamps = self.stamps[i].copy()
-        env._make_views()
         env.truth = self.truth[i].copy()
         env.pos = self.pos[i].copy()
         env.known = self.known[i].copy()
         env.new_cells = self.new_cells[i].copy()
         env.last_sync = self.last_sync[i].copy()
-        env._last_sync_peers = env.last_sync.take(env._peer_flat)
         env.last_test = self.last_test[i].copy()
         env.robot_syncs = self.robot_syncs[i].copy()
         env.ledger.step_bits[:] = self.step_bits[i]
         env.ledger.total_bits[:] = self.total_bits[i]
         env.ledger.messages = int(self.messages[i])
-        env._charged = bool(self.step_bits[i].any())
-        env._counts = {name: int(self.counts[i, k]) for k, name in enumerate(_COUNT_NAMES)}
-        env._corrected = int(self.counts[i, kernels_numba.CORRECTED])
-        env._to_correct = int(self.counts[i, kernels_numba.TO_CORRECT])
-        env._latency_sum = int(self.counts[i, kernels_numba.LATENCY_SUM])
-        env._latency_count = int(self.counts[i, kernels_numba.LATENCY_COUNT])
         env.recent_bits = self.recent[i].copy()
-        env._recent_max = float(self.recent_max[i])
-        env._recent_any = bool(self.recent_any[i])
-        env._dirty = False
-        env._disagreement_column = self.column[i].copy()
-        env._disagreement_mean = float(self.mean[i])
-        env._errors = self.errors[i].copy()
-        env._error_mean = float(self.error_mean[i])
-        env._sum_disagreement, env._sum_error = (float(v) for v in self.sums[i])
-        env.step_count = env._steps = int(self.step_count[i])
+        env.step_count = int(self.step_count[i])
         pcg64_numba.set_state(env.np_random, self.rng_state[i])
-        env._next_session = int(self.next_session[i])
-        env._state_version += 1
-        # the observation and infos are made anew from the state just written
-        env._events += 1
-        env._stale = _STALE_ALL
-        env._infos_key = None
+        counts = self.counts[i]
+        env.load_world_counters(
+            {
+                "counts": {name: int(counts[k]) for k, name in enumerate(_COUNT_NAMES)},
+                "corrected": counts[kernels_numba.CORRECTED],
+                "to_correct": counts[kernels_numba.TO_CORRECT],
+                "latency_sum": counts[kernels_numba.LATENCY_SUM],
+                "latency_count": counts[kernels_numba.LATENCY_COUNT],
+                "recent_max": self.recent_max[i],
+                "recent_any": self.recent_any[i],
+                "disagreement_column": self.column[i].copy(),
+                "disagreement_mean": self.mean[i],
+                "errors": self.errors[i].copy(),
+                "error_mean": self.error_mean[i],
+                "sum_disagreement": self.sums[i, 0],
+                "sum_error": self.sums[i, 1],
+                "next_session": self.next_session[i],
+            }
+        )
         if env.step_count >= self.max_cycles:
             env.agents = []
 

@@ -248,6 +248,72 @@ class MapSyncEnv(MapSyncSpec, WorldDynamics, SyncSessions, MrcommParallelEnv):
         self._move_and_sense(0, walk=False)
         self._update_disagreement()
 
+    # ----------------------------------------------------------------- what its copy-axis world reads and writes
+    def world_constants(self) -> dict:
+        """Constants of one configuration that its copy-axis world (:mod:`.copy_axis`) computes with: whether the
+        world changes and merges by last writer, the reward's bit scale, the horizon, the sensing tables, the robot
+        pairs, the link mask's diagonal, the stamp width, each robot's peers in order, the observation's shape."""
+        return {
+            "changing": self._changing,
+            "lww": self._lww,
+            "bit_scale": self._bit_scale,
+            "horizon": self._horizon,
+            "neighbour_table": self._neighbour_table,
+            "sensed": self._sensed,
+            "sensed_distinct": self._sensed_distinct,
+            "pairs": self._pairs,
+            "eye": self._eye,
+            "stamp_bits": self._stamp_bits,
+            "peer_order": self._peer_order,
+            "obs_shape": self._obs_buf.shape,
+        }
+
+    def world_counters(self) -> dict:
+        """The episode's counters and running statistics as they stand (the disagreement brought up to date
+        first): the metric counts, cells corrected and to correct, the sync latency's sum and count, the recent
+        bits' maximum and whether any, the disagreement column and mean, the errors and their mean, the episode's
+        summed disagreement and error, and the next session's number."""
+        self._update_disagreement()  # a state changed from outside may await its disagreement
+        return {
+            "counts": dict(self._counts),
+            "corrected": self._corrected,
+            "to_correct": self._to_correct,
+            "latency_sum": self._latency_sum,
+            "latency_count": self._latency_count,
+            "recent_max": self._recent_max,
+            "recent_any": self._recent_any,
+            "disagreement_column": self._disagreement_column,
+            "disagreement_mean": self._disagreement_mean,
+            "errors": self._errors,
+            "error_mean": self._error_mean,
+            "sum_disagreement": self._sum_disagreement,
+            "sum_error": self._sum_error,
+            "next_session": self._next_session,
+        }
+
+    def load_world_counters(self, counters: dict) -> None:
+        """Take over :meth:`world_counters` of an episode a copy-axis world stepped, as if this env had stepped it.
+        The caller has written the maps, stamps, world, positions, sync records, ledger, recent bits, step count
+        and generator; the observation and infos are made anew from that state."""
+        self._make_views()
+        self._last_sync_peers = self.last_sync.take(self._peer_flat)
+        self._charged = bool(self.ledger.step_bits.any())
+        self._counts = dict(counters["counts"])
+        self._corrected, self._to_correct = int(counters["corrected"]), int(counters["to_correct"])
+        self._latency_sum, self._latency_count = int(counters["latency_sum"]), int(counters["latency_count"])
+        self._recent_max, self._recent_any = float(counters["recent_max"]), bool(counters["recent_any"])
+        self._dirty = False
+        self._disagreement_column = counters["disagreement_column"]
+        self._disagreement_mean = float(counters["disagreement_mean"])
+        self._errors, self._error_mean = counters["errors"], float(counters["error_mean"])
+        self._sum_disagreement, self._sum_error = float(counters["sum_disagreement"]), float(counters["sum_error"])
+        self._steps = self.step_count
+        self._next_session = int(counters["next_session"])
+        self._state_version += 1
+        self._events += 1
+        self._stale = _STALE_ALL
+        self._infos_key = None
+
     # ----------------------------------------------------------------- dynamics
     def _step_world(self, actions: list) -> float:
         t = self.step_count

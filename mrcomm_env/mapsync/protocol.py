@@ -92,7 +92,7 @@ _FROM_BIT = np.array([(0xFFFFFFFF << b) & 0xFFFFFFFF for b in range(32)], dtype=
 _TO_BIT = np.array([0xFFFFFFFF >> (31 - b) for b in range(32)], dtype=np.uint32)  # bits ≤ b
 
 
-def _kernel_strings(strings) -> tuple:
+def kernel_strings(strings) -> tuple:
     """The shared strings as the compiled kernels take them: (database, use_database, key0, key1, domain,
     words_per_string, last_mask); a 1×1 dummy database when r_i are generated on demand."""
     use_db = strings.database is not None
@@ -125,7 +125,7 @@ def segment_inner_products(
 
         out = kernels_numba.inner_products(
             np.stack(maps),
-            *_kernel_strings(strings),
+            *kernel_strings(strings),
             index,
             lo,
             hi,
@@ -202,7 +202,7 @@ def equality(
         from mrcomm_env.mapsync import kernels_numba
 
         picks = _alice_picks(strings, 1, k, rng)[0]
-        database, use_database, key0, key1, domain, words, last_mask = _kernel_strings(strings)
+        database, use_database, key0, key1, domain, words, last_mask = kernel_strings(strings)
         x_plain, y_plain = np.ascontiguousarray(x, dtype=bool), np.ascontiguousarray(y, dtype=bool)
         counter = kernels_numba.equality_counter(
             x_plain, y_plain, database, use_database, key0, key1, domain, words, last_mask, picks
@@ -394,7 +394,7 @@ def _bisection_compiled(x, y, strings: SharedStrings, k: int, res: int, rng: np.
     found, stats, rounds = kernels_numba.bisection(
         x,
         y,
-        *_kernel_strings(strings),
+        *kernel_strings(strings),
         pool,
         k,
         res,

@@ -117,16 +117,12 @@ def test_policies_do_not_import_each_other(tmp_path, monkeypatch):
 # ------------------------------------------------------------------------- private attributes of others
 #: names with a leading underscore that their owners document as public (``os._exit``; a namedtuple's methods)
 PUBLIC_UNDERSCORED = {"_exit", "_asdict", "_replace", "_fields", "_make"}
-#: modules that still read or write other modules' private attributes, and how many times: MapSync's copy-axis
-#: world copying its env objects' state in and out (``adopt``/``store``; ChannelAssociation's and MultiHop's go
-#: through their env's public ``world_*`` and ``load_*`` methods) and the batched
-#: trainer driving SB3's PPO object without an env (its ``_setup_model``, ``_update_learning_rate``,
-#: ``_current_progress_remaining``) and torch's ``Distribution._validate_args``. A count may only go down, and
-#: then this record with it.
-RECORDED_PRIVATE_ACCESS = {
-    "agents/batched_ppo.py": 4,
-    "mrcomm_env/mapsync/copy_axis.py": 52,
-}
+#: modules that still read or write other modules' private attributes, and how many times: the batched trainer
+#: driving SB3's PPO object without an env (its ``_setup_model``, ``_update_learning_rate``,
+#: ``_current_progress_remaining``) and torch's ``Distribution._validate_args``. A count may only go down, and then
+#: this record with it. (The copy-axis worlds read and write their envs through the envs' public ``world_*`` and
+#: ``load_*`` methods.)
+RECORDED_PRIVATE_ACCESS = {"agents/batched_ppo.py": 4}
 
 
 def own_names(tree: ast.AST) -> set[str]:
