@@ -22,7 +22,8 @@ because at these sizes (3N = 15) the cost of numpy is its per-call overhead, not
 in one call, the same kernel calls filter by filter. ``recent_column`` goes one step further: the rest of
 ``Estimators._step_recent`` (those restarts, the extended estimates, each prior's odometry and held rows, and the
 column call) in one call: at N = 5 the restart call's marshalling took about 35 µs per step against 59 µs inside
-it, and the numpy between the two calls about as much again (``tests/asynccl/test_asynccl_fastpath.py`` compares the bytes
+it, and the numpy between the two calls about as much again (``tests/asynccl/test_asynccl_fastpath.py`` compares the
+bytes
 of both with the loop's).
 """
 
@@ -557,7 +558,8 @@ def recent_column(
     x̂_{c|c}, c = ``c_r`` ≤ t-2 (their columns c+1 … t-1 as ``restart_chains`` runs them), those extending their
     previous estimate ``X_prev[src_e]``, ``P_prev[src_e]``, then those restarting at t-1 (the central prior).
     ``geometries``/``zs``: columns k0 … t (k0 = min(c_r)+1, or t without restarts); ``lins`` as ``restart_chains``'s.
-    The loop's very kernel calls on the same inputs, so the loop's numbers (``tests/asynccl/test_asynccl_fastpath.py``)."""
+    The loop's very kernel calls on the same inputs, so the loop's numbers
+    (``tests/asynccl/test_asynccl_fastpath.py``)."""
     c_r = np.array(c_r, dtype=np.int64)
     k0 = t - len(geometries) + 1
     cX, cP = central

@@ -10,7 +10,8 @@ drivers feed the *same* filter classes the environment runs (:mod:`.filters`) wi
 * :class:`MobileField` — a §5.4 field in which only the measured (mobile) robots run Algorithm 2 on
   the edge-list filter, with k-d tree neighbour queries; the other robots just emit.
 
-``tests/channel_association/test_channel_association.py`` checks that these drivers reproduce the environment's i-states.
+``tests/channel_association/test_channel_association.py`` checks that these drivers reproduce the environment's
+i-states.
 """
 
 from __future__ import annotations

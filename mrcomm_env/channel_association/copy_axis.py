@@ -8,7 +8,8 @@ either reward (the team's, or each robot's own: ``reward_mode``), a §5 field of
 list operations run as :class:`BitsetFilter`'s own ``step`` on all copies at once; motion, ranges, sensing,
 observations, rewards and bits are the env's formulas with a copy axis (the scenes' ``step``, ``move_and_bounce``,
 ``ChannelAssociationEnv._step_world``/``_refresh``/``_observe``), kept in the same order so that every number is the
-same, bit for bit (``tests/channel_association/test_channel_association_world.py`` compares whole episodes of every copy with the single env).
+same, bit for bit (``tests/channel_association/test_channel_association_world.py`` compares whole episodes of every
+copy with the single env).
 
 Each copy keeps its env object: its own ``reset_arrays`` lays the scene out from its own generator, and
 :meth:`CopyAxisWorld.adopt` copies that episode's start into the copy's rows. Random draws during the episode

@@ -11,7 +11,8 @@ buffer of a 32-bit half (``has_uint32``, ``uinteger``). :func:`state_of` and :fu
 * :func:`integers_fill` is ``Generator.integers(low, high)`` (int64) for ``high − low − 1`` below 2^32 − 1: Lemire's
   bounded draw on 32-bit halves (``buffered_bounded_lemire_uint32``), whose unused half numpy keeps for the next one.
 
-``tests/core/test_pcg64.py`` compares them with numpy over interleaved draws of every kind, states included. Imported only by
+``tests/core/test_pcg64.py`` compares them with numpy over interleaved draws of every kind, states included. Imported
+only by
 compiled code (numba is optional).
 """
 

@@ -17,7 +17,8 @@ sync (``protocol.return_bits``: its ⌈log2 C(C, d)⌉ needs big integers) and l
 Each copy draws from its own generator, what the env draws and in its order (Alice's picks, the world's changes, the
 walk's keys): the world holds the generator's PCG64 state and draws with numpy's own algorithms, compiled
 (:mod:`~mrcomm_env.core.pcg64_numba`). Every number is the env's: the kernels' operations are the env's, in its
-order (``tests/mapsync/test_mapsync_world.py`` compares each copy with the single env over whole episodes, the generator's state
+order (``tests/mapsync/test_mapsync_world.py`` compares each copy with the single env over whole episodes, the
+generator's state
 included).
 
 Each copy keeps its env object: its ``reset_arrays`` begins the episode from its own generator,

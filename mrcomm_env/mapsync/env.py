@@ -48,7 +48,7 @@ from gymnasium import spaces
 from mrcomm_env.core import BitLedger, MrcommParallelEnv, backend
 from mrcomm_env.core import render as rendering
 from mrcomm_env.mapsync import world
-from mrcomm_env.mapsync.actions import ACTIONS, BISECTION, EQUALITY, FULL, IDLE, SKETCH  # noqa: F401 — part of this module's API
+from mrcomm_env.mapsync.actions import ACTIONS, BISECTION, EQUALITY, FULL, IDLE, SKETCH  # noqa: F401 (the module API)
 from mrcomm_env.mapsync.dynamics import WorldDynamics
 from mrcomm_env.mapsync.philox import SharedStrings
 from mrcomm_env.mapsync.sessions import (  # noqa: F401 — the action and test codes are part of this module's API

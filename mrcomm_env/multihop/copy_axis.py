@@ -10,7 +10,8 @@ statistics of the frame's end, the candidates' ranking and the observation
 (:func:`~.frame_numba.observe_candidates`, :func:`~.frame_numba.observe_indices`). Every number is the env's, bit
 for bit: elementwise work is the env's float64 operations in the same order, and every sum is numpy's pairwise sum
 over the same elements in the same order, either :func:`~mrcomm_env.core.sums_numba.numpy_sum` on a copy's scratch
-row or numpy's own row reduction of a C-ordered ``(M, K)`` array (which sums each row as numpy sums that row alone). ``tests/multihop/test_multihop_world.py`` compares
+row or numpy's own row reduction of a C-ordered ``(M, K)`` array (which sums each row as numpy sums that row alone).
+``tests/multihop/test_multihop_world.py`` compares
 every copy with the env's reference code over whole episodes. A single env of such a scene steps as this world of
 one copy (``MultiHopEnv._step_one_copy``): the batch's code at M = 1.
 

@@ -18,7 +18,8 @@ in the order it takes nodes of equal distance off the heap, and that order can m
 
 Without either, each node's distance exceeds its predecessor's and its predecessor is the unique first-found
 minimum, whatever the order among equal distances. The twin reports either case as *ambiguous* and the caller
-then runs the reference (exact grids and co-located groups meet case 1 often: ``tests/rendezvous_mapping/test_rendezvous_compiled.py``
+then runs the reference (exact grids and co-located groups meet case 1 often:
+``tests/rendezvous_mapping/test_rendezvous_compiled.py``
 checks that both branches agree with scipy and that both are taken).
 
 Used when ``core.backend.compiled()`` (docs/architecture.md).

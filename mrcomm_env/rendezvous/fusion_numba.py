@@ -6,7 +6,8 @@ On the 2–10 packets and 10 × 200 maps of a decision phase, numpy's per-call o
 vehicle's own packet, each fusion and the common map each take three ``np.add.at`` calls. The twins do the same
 additions in the same order (``np.add.at`` adds its rows one after another, in index order; the 2 × 2 blocks
 entry by entry) and the same closed-form inverse, operation for operation, so every map and mean is the
-reference's bit for bit (``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares them, and whole seeded episodes).
+reference's bit for bit (``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares them, and whole seeded
+episodes).
 
 Used when ``core.backend.compiled()`` (docs/architecture.md).
 """

@@ -5,7 +5,8 @@ interpreter round trips cost more than the arithmetic (about 150 µs a step for 
 step). This twin computes every entry with the reference's formulas in float64, in the same operations and order
 (``hypot`` is the C library's in both; nothing is contracted into fused multiply-adds), and rounds once to float32
 at the end, as the reference's ``astype`` does. The K nearest other vehicles are taken in the reference's stable
-order: distance, then vehicle id. ``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares whole seeded episodes on both
+order: distance, then vehicle id. ``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares whole seeded
+episodes on both
 backends, observations byte for byte.
 
 Used when ``core.backend.compiled()`` (docs/architecture.md).

@@ -14,7 +14,8 @@ then go on, each with :func:`partition_pass` (the clustering, eq. (6), l_c, eq. 
 call). l_c's eigenvector is numba's ``eigh`` (LAPACK's ``syevd`` through scipy, numpy's ``eigh`` runs the same
 routine through its own build): it gave the reference's eigenvector bit for bit on 20,000 random and grid
 clusters here, and l_c depends on it only through a 1e-9 relative tie tolerance, so two builds could disagree only
-on entries within round-off of that tolerance. ``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares Munkres, the eq. (8)
+on entries within round-off of that tolerance. ``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares
+Munkres, the eq. (8)
 signs, single passes, whole plans (also resumed from any pass) and whole seeded episodes on both backends.
 
 The phase's other per-step arrays: eq. (1)–(4)'s utility of one map per vehicle up to numpy's ``log1p``

@@ -9,7 +9,8 @@ two-sided tolerance test is a range of a sorted array), so it merges the legs' r
 drops a leg once its landmark has reached the floor. What it returns, the kept (vehicle, landmark) pairs in the
 reference's order, is what the reference keeps, and it never visits an observation it does not keep (no sort: its
 kernels compile in a fraction of the time numba's sorts take); the noise of each observation is drawn by the caller, in that
-order, as the reference draws it. ``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares whole seeded episodes on both
+order, as the reference draws it. ``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares whole seeded
+episodes on both
 backends, and this window alone on crowded, tied and out-of-reach windows.
 
 Used when ``core.backend.compiled()`` (docs/architecture.md).

@@ -374,7 +374,8 @@ def test_backends_agree_where_the_filter_is_well_conditioned(initial_sigma, monk
     Near-noiseless range/bearing (σ_d = 0.1 %, σ_θ = 0.01°) makes the information matrices ill-conditioned in
     proportion to (initial_sigma / (σ·d))²: the prior alone fixes the team's rigid translation and rotation, the
     measurements fix its shape to σ·d. With the default 5 cm prior, ε·κ_k stays below 10⁻⁷ and the budget
-    β = 2·C·ops·ε·Σ_k κ_k (``tests/helpers/numerics.py``) near 10⁻⁴, below ``BETA_EQUIVALENT``: the backends agree within
+    β = 2·C·ops·ε·Σ_k κ_k (``tests/helpers/numerics.py``) near 10⁻⁴, below ``BETA_EQUIVALENT``: the backends agree
+    within
     β·‖x‖ (measured: 2·10⁻¹⁰ m). With a 5 m prior (seed 9) the filter linearises at estimates metres off, its
     bearing residuals sit at ±π for some fifty steps and κ reaches 10¹³–10¹⁴ (ε·κ_k up to 2·10⁻²): β exceeds 1,
     so nothing is implied, and indeed the estimates of *one* backend whose prior mean moved by one ulp separate

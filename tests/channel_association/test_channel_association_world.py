@@ -15,7 +15,8 @@ from mrcomm_env.core.batched import BatchedEnv, sample_actions
 #: ChannelAssociation scenes that its copy-axis worlds (copy_axis.py) step: every branch of a step (ranges short
 #: of the arena where positions must matter). Mobile and
 #: stationary, a robot faster than the arena (the unfolded bounce), robots bouncing in one copy while the other
-#: copies' robots fly on (a reflection rounds: it must touch only the copies that hit a wall), §5.2's extra edges with missed receptions
+#: copies' robots fly on (a reflection rounds: it must touch only the copies that hit a wall), §5.2's extra edges with
+#: missed receptions
 #: (per-copy draws), premature drops (drop_time 2: conflicts), a crowded field, one robot alone with the
 #: emission cost. The episodes end by truncation, and stationary ones also by termination.
 COPY_AXIS_CASES = [
