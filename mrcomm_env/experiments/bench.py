@@ -111,13 +111,15 @@ TRAIN_SLOTS = 12
 
 
 def shipped_training(env_id: str) -> tuple[str, dict[str, Any], int]:
-    """The algorithm, env arguments and copies (``n_envs``) of the env's shipped training configuration, the one
-    ``mrcomm reproduce-learning`` trains (``agents/configs/<Name>-v0.json``)."""
-    from mrcomm_env.experiments.runs import comparison_spec  # reads agents/configs (extra "train")
+    """The algorithm, env arguments and copies (``n_envs``) of the env's shipped SB3 training configuration
+    (``agents/configs/<Name>-v0.json``: the one ``mrcomm reproduce-learning`` trains, or its ``ppo`` section where
+    that trains the batched trainer, :func:`~mrcomm_env.experiments.runs.sb3_algo`)."""
+    from mrcomm_env.experiments.runs import comparison_spec, sb3_algo  # reads agents/configs (extra "train")
 
     spec = comparison_spec(env_id)
-    block = spec["settings"].get(spec["algo"], {})
-    return spec["algo"], dict(block.get("env_kwargs", {})), int(block.get("n_envs", 1))
+    algo = sb3_algo(spec)
+    block = spec["settings"].get(algo, {})
+    return algo, dict(block.get("env_kwargs", {})), int(block.get("n_envs", 1))
 
 
 def train_section(

@@ -30,7 +30,7 @@ import numpy as np
 from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.arguments import positive_int
 from mrcomm_env.experiments.io import atomic_write_csv, atomic_write_json, atomic_write_text
-from mrcomm_env.experiments.runs import comparison_spec, run_folder
+from mrcomm_env.experiments.runs import comparison_spec, run_folder, sb3_algo
 from mrcomm_env.registry import canonical_id, short_name
 
 #: the shipped hyperparameters that define the problem rather than the trainer's batching: both trainers use them
@@ -65,7 +65,8 @@ def race_configs(env_id: str, algo: str = "ippo") -> tuple[dict[str, Any], dict[
     from mrcomm_agents.training import default_config, split_settings  # extra "train"
 
     spec = comparison_spec(env_id)
-    run, hyper = split_settings(default_config(env_id, spec["algo"]))
+    sb3_side = sb3_algo(spec)  # SB3's shipped settings, also where the comparison now trains the batched trainer
+    run, hyper = split_settings(default_config(env_id, sb3_side))
     if run.get("init_from"):
         raise ValueError(
             f"{canonical_id(env_id)}'s shipped configuration starts from a clone ({run['init_from']}): the clone, not the "
@@ -78,7 +79,7 @@ def race_configs(env_id: str, algo: str = "ippo") -> tuple[dict[str, Any], dict[
     common = {"env_id": canonical_id(env_id), "env_kwargs": env_kwargs, "eval_episodes": EVAL_EPISODES}
     sb3 = {
         **common,
-        "algo": spec["algo"],
+        "algo": sb3_side,
         "timesteps": timesteps,
         "eval_every": max(1, timesteps // EVALUATIONS),
         "hyperparams": hyper,

@@ -46,6 +46,18 @@ def comparison_spec(env_id: str) -> dict:
     return {"algo": "ppo", **spec[COMPARISON_KEY], "settings": spec}
 
 
+#: the batched trainer's algorithms (``mrcomm_agents.batched_ppo.BATCHED_ALGORITHMS``, named here so that this
+#: module reads agents/configs without importing SB3; a test holds the two equal)
+BATCHED_TRAINERS = ("ippo", "mappo")
+
+
+def sb3_algo(spec: dict) -> str:
+    """The algorithm of the env's shipped SB3 configuration (what ``mrcomm bench --train-shipped`` and
+    ``mrcomm race`` run on SB3's side): the comparison's, or ``ppo`` where the comparison trains the batched
+    trainer (its ``ppo`` section stays the SB3 path's settings)."""
+    return "ppo" if spec["algo"] in BATCHED_TRAINERS else spec["algo"]
+
+
 def run_folder(label: str, config: dict) -> str:
     """``<grid point>-<digest>/s<seed>``: the digest covers every setting of the run but its seed (env arguments,
     algorithm, hyperparameters, agent-steps, …) and the backend of the env's hot loops, so a rerun with any of

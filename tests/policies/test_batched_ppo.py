@@ -328,6 +328,12 @@ def test_a_sweep_on_two_workers_trains_the_models_of_one_worker(tmp_path):
     assert models[1, "s0"] == models[2, "s0"] and models[1, "s1"] == models[2, "s1"]
 
 
+def test_the_configs_reader_names_the_batched_trainers_as_the_trainer_does():
+    from mrcomm_env.experiments.runs import BATCHED_TRAINERS
+
+    assert BATCHED_TRAINERS == batched_ppo.BATCHED_ALGORITHMS
+
+
 def test_the_default_copies_aim_at_128_agent_rows_within_bounds():
     assert training.default_config(ENV, "ippo") == {**batched_ppo.DEFAULTS}
     cfg = TrainConfig(env_id=ENV, algo="ippo", env_kwargs=dict(ENV_KWARGS)).validate()
