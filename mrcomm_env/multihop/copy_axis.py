@@ -156,22 +156,26 @@ class StaticFrameBatch:
         env.last_sent = self.last_sent[i].copy()
         env.t = float(self.t[i])
         ranking = (self.candidates[i], self.ranked_known[i].copy(), self.dist[i].copy()) if self.relative else None
-        counters = {
-            "all_known": not self.tracking[i],
-            "frames": self.totals[i, 0],
-            "sum_age": self.totals[i, 1],
-            "sum_wage": self.totals[i, 2],
-            "max_age": self.totals[i, 3 : 3 + N_HOP_BUCKETS].copy(),
-            "sum_age_hop": self.totals[i, 3 + N_HOP_BUCKETS :].copy(),
-            "step_bits": self.step_bits[i].copy(),
-        }
-        env.load_world_counters(counters, ranking)
+        env.load_world_counters(self.counters(i), ranking)
         env.ledger.step_bits[:] = self.step_bits[i]
         env.ledger.total_bits[:] = self.total_bits[i]
         env.ledger.messages = int(self.messages[i])
         env.step_count = int(self.step_count[i])
         if self.step_count[i] >= self.max_cycles:
             env.agents = []
+
+    def counters(self, i: int) -> dict:
+        """Copy ``i``'s :meth:`MultiHopEnv.world_counters` as the world holds them (copies, not rows)."""
+        totals = self.totals[i]
+        return {
+            "all_known": not self.tracking[i],
+            "frames": totals[0],
+            "sum_age": totals[1],
+            "sum_wage": totals[2],
+            "max_age": totals[3 : 3 + N_HOP_BUCKETS].copy(),
+            "sum_age_hop": totals[3 + N_HOP_BUCKETS :].copy(),
+            "step_bits": self.step_bits[i].copy(),
+        }
 
     def bits_sent(self) -> np.ndarray:
         """``(M,)``: each copy's bits since its reset (``env.bits_sent()``)."""

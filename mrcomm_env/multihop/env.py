@@ -313,21 +313,25 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         what it observes and reports is computed from the state written here. The caller writes the stamps, the
         clock, the ledger and the step count."""
         n = self.n_agents
-        self._all_known = bool(counters["all_known"])
         if ranking is not None:
             candidates, ranked_known, dist = ranking
             self._candidates = candidates.astype(np.int64)
             self._cand_flat = (self._candidates + np.arange(n)[:, None] * n).ravel()
             self._ranked_known, self._dist = ranked_known, dist
+        self._take_counters(counters)
+        self._state_version += 1
+        # observe and report from the state just written (an env that steps alone later takes it into its own world
+        # of one copy: its arrays are no longer that world's rows)
+        self._world_obs = self._world_infos = None
+
+    def _take_counters(self, counters: dict) -> None:
+        """:meth:`world_counters` written back, as a copy-axis world hands them over (its ``counters``)."""
+        self._all_known = bool(counters["all_known"])
         self._ages = None  # the world keeps no ages: ages() computes them from the stamps and the clock
         self._frames = int(counters["frames"])
         self._sum_age, self._sum_wage = float(counters["sum_age"]), float(counters["sum_wage"])
         self._max_age, self._sum_age_hop = counters["max_age"], counters["sum_age_hop"]
         self._step_bits = counters["step_bits"]
-        self._state_version += 1
-        # observe and report from the state just written (an env that steps alone later takes it into its own world
-        # of one copy: its arrays are no longer that world's rows)
-        self._world_obs = self._world_infos = None
 
     # ----------------------------------------------------------------- the world of one copy
     #: the env's arrays that are rows of its world of one copy (views), as :meth:`_bind_one_copy` binds them
@@ -357,16 +361,11 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
             self._one_copy.adopt_counters(0)  # the clock, time averages and bits as the env holds them now
         world = self._one_copy
         obs, rewards, _, _, infos = world.step(np.asarray(actions)[None])
-        self.t, self._all_known = float(world.t[0]), not world.tracking[0]
-        totals = world.totals[0]
-        self._frames, self._sum_age, self._sum_wage = int(totals[0]), float(totals[1]), float(totals[2])
-        self._max_age = totals[3 : 3 + len(HOP_BUCKETS)].copy()
-        self._sum_age_hop = totals[3 + len(HOP_BUCKETS) :].copy()
-        self._step_bits = world.step_bits[0].copy()
+        self.t = float(world.t[0])
+        self._take_counters(world.counters(0))
         self.ledger.record(self._step_bits, messages=self.n_agents)
         self._world_obs = obs[0]
         self._world_infos = {key: column[0] for key, column in infos.items()}
-        self._ages = None  # not kept by the world: ages() computes them
         return float(rewards[0, 0])
 
     def ages(self) -> np.ndarray:
