@@ -316,6 +316,17 @@ class ChannelAssociationEnv(ChannelAssociationSpec, MrcommParallelEnv):
             "bits_sent": float(self.ledger.total_bits.sum()),
         }
 
+    def tracked_robots(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per observer, the robots behind the wireless IDs and behind the visual IDs its i-state links now (ground
+        truth, for bounds and tests): ``(observer, wireless robots, visual robots)``. On a perfect channel an edge
+        survives exactly while the two IDs' activities agree (Algorithm 1, lines 15–16), so the observer's i-state
+        is final once every visual robot's emission history differs from that of every other wireless robot."""
+        observer, h, s = self.filter.edges()
+        wireless, visual = self.scene.wireless_robot(h), self.scene.visual_robot(s)
+        return [
+            (int(o), np.unique(wireless[observer == o]), np.unique(visual[observer == o])) for o in np.unique(observer)
+        ]
+
     def associations(self, agent: str) -> dict[int, list[int]]:
         """What ``agent`` knows: its own visual label → candidate wireless IDs (one entry = matched)."""
         return self.scene.associations(self._index_of(agent))

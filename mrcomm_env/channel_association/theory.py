@@ -14,6 +14,9 @@ Stationary neighbourhood (§4), w wireless and v ≤ w visual IDs, every robot e
   multiset of (visible, invisible) class sizes matters. Used for w ≤ 8 (the paper's range) and to
   cross-check the closed form.
 * :func:`exact_fraction_matched` — exact E[fraction matched](t) = Σ_k C(t,k) p^k q^(t−k) (1 − p^k q^(t−k))^(w−1).
+* :func:`fewest_emissions` — the fewest message pairs with which *any* policy, even one that knows the layout,
+  makes every i-state of a stationary scene final within t steps: an integer program over the robots' t-step
+  emission patterns (the bound docs/learning.md holds the learned codes to).
 
 Mobile observer (§5), equal wireless and visual range r, speed d per step, density ρ (robots/area):
 
@@ -31,6 +34,8 @@ import math
 from functools import cache
 
 import numpy as np
+from scipy.optimize import Bounds, LinearConstraint, milp
+from scipy.sparse import csr_matrix
 
 
 # ====================================================================== stationary (§4)
@@ -84,6 +89,64 @@ def completion_pmf(w: int, v: int, t_max: int) -> np.ndarray:
     """Exact P(T = t) for t = 0 … t_max (p = ½)."""
     cdf = np.array([completion_cdf(w, v, t) for t in range(t_max + 1)])
     return np.diff(np.concatenate(([0.0], cdf)))
+
+
+def fewest_emissions(
+    tracked: list[tuple[int, np.ndarray, np.ndarray]], n_robots: int, steps: int
+) -> tuple[int, np.ndarray] | None:
+    """The fewest emissions (message pairs) that make every observer's i-state final within ``steps`` steps of a
+    perfect channel, and the emission patterns that achieve it (``(n_robots, steps)`` bool, a robot per row); None
+    when no patterns can (more robots must differ than 2^steps patterns allow).
+
+    ``tracked`` lists ``(observer, wireless robots, visual robots)`` as :meth:`ChannelAssociationEnv.tracked_robots`
+    gives it at the start of an episode. An edge survives exactly while its two IDs' activities agree (Algorithm 1,
+    lines 15–16), so an i-state is final after the ``steps`` steps exactly when each visual robot's pattern differs
+    from that of every other wireless robot of the same observer. Whatever a policy reads or adapts to, the patterns
+    it emits in an episode that ends by ``steps`` satisfy that, so this is a lower bound for every policy; a policy
+    that finishes earlier emitted a prefix, and padding it with silence changes neither distinctness nor cost.
+
+    The program: x[r, c] = 1 when robot r emits pattern c (one pattern each); per observer and pattern, at most one
+    robot of every group that must differ pairwise (its visual robots, alone and with each wireless-only robot) takes
+    it; minimise the emissions Σ popcount(c) x[r, c]. HiGHS solves it to a zero gap."""
+    if steps < 0 or n_robots < 1:
+        raise ValueError(f"need steps ≥ 0 and n_robots ≥ 1, got steps={steps}, n_robots={n_robots}")
+    k = 1 << steps
+    popcount = np.array([bin(c).count("1") for c in range(k)], dtype=np.float64)
+    groups = set()
+    for _, wireless, visual in tracked:
+        visual_set = {int(r) for r in visual}
+        groups.add(tuple(sorted(visual_set)))
+        groups.update(tuple(sorted(visual_set | {int(h)})) for h in wireless if int(h) not in visual_set)
+    groups = {g for g in groups if len(g) > 1}
+    if any(len(g) > k for g in groups):
+        return None
+    rows, cols = [], []
+    for i, group in enumerate(sorted(groups)):  # row i * k + c: the group's robots share pattern c at most once
+        members = np.asarray(group, dtype=np.int64)
+        for c in range(k):
+            rows.append(np.full(len(members), i * k + c))
+            cols.append(members * k + c)
+    variables = n_robots * k
+    one_pattern = csr_matrix(
+        (np.ones(variables), (np.repeat(np.arange(n_robots), k), np.arange(variables))), shape=(n_robots, variables)
+    )
+    constraints = [LinearConstraint(one_pattern, 1, 1)]
+    if groups:
+        r, c = np.concatenate(rows), np.concatenate(cols)
+        distinct = csr_matrix((np.ones(len(r)), (r, c)), shape=(len(groups) * k, variables))
+        constraints.append(LinearConstraint(distinct, -np.inf, 1))
+    result = milp(
+        np.tile(popcount, n_robots),
+        constraints=constraints,
+        integrality=np.ones(variables),
+        bounds=Bounds(0, 1),
+        options={"mip_rel_gap": 0.0},
+    )
+    if result.status != 0:
+        return None
+    chosen = result.x.reshape(n_robots, k).argmax(axis=1)
+    patterns = ((chosen[:, None] >> np.arange(steps)[None, :]) & 1).astype(bool)
+    return int(patterns.sum()), patterns
 
 
 def markov_completion_time(w: int, v: int, p: float = 0.5) -> float:

@@ -32,6 +32,11 @@ def within_bits(bits: float, baseline_bits: float) -> bool:
     return bits <= baseline_bits * (1.0 + BITS_SLACK) + 1e-9
 
 
+def heldout_seeds(spec: dict) -> list[int]:
+    """The comparison's episode seeds, which no training or tuning sees: ``eval_episodes`` from COMPARISON_SEEDS."""
+    return [COMPARISON_SEEDS + k for k in range(spec.get("eval_episodes", 10))]
+
+
 def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress: bool = True):
     """Train ``seeds`` policies per cost value, evaluate them and every baseline on held-out seeds, and return
     (rows, markdown). Rows: policy, cost, metric mean ± CI, bits per agent per step mean ± CI. The training runs
@@ -47,7 +52,7 @@ def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress
     if quick:
         timesteps = spec.get("quick_timesteps", max(timesteps // 10, 1))
     seeds = list(range(spec.get("seeds", 3)))
-    eval_seeds = [COMPARISON_SEEDS + k for k in range(spec.get("eval_episodes", 10))]
+    eval_seeds = heldout_seeds(spec)
     cost_param = spec["cost_param"]
     tasks = []
     for cost in spec["costs"]:

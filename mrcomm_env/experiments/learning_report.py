@@ -14,7 +14,16 @@ from matplotlib.figure import Figure
 
 from mrcomm_baselines import default_policy
 from mrcomm_env.core.stats import mean_ci95
-from mrcomm_env.experiments.comparison import beats, curve_rows, dominates, export_pretrained, reproduce_learning
+from mrcomm_env.experiments.bounds import bound_paragraph, bound_rows
+from mrcomm_env.experiments.comparison import (
+    beats,
+    best_baseline,
+    curve_rows,
+    dominates,
+    export_pretrained,
+    heldout_seeds,
+    reproduce_learning,
+)
 from mrcomm_env.experiments.evaluation import limit_threads
 from mrcomm_env.experiments.io import atomic_write_csv, atomic_write_text
 from mrcomm_env.experiments.runs import comparison_spec
@@ -142,8 +151,11 @@ def side_by_side(env_id: str, docs: Path | None) -> list[str]:
     ]
 
 
-def learning_section(env_id: str, rows: list[dict], spec: dict, figure: str, docs: Path | None = None) -> str:
-    """An env's section of docs/learning.md: the table, the figure and the verdicts the equal-bits rule gives."""
+def learning_section(
+    env_id: str, rows: list[dict], spec: dict, figure: str, docs: Path | None = None, bounds: list[dict] = ()
+) -> str:
+    """An env's section of docs/learning.md: the table, the figure and the verdicts the equal-bits rule gives, and
+    the ``bounds`` (:mod:`mrcomm_env.experiments.bounds`) as the table's last rows with what they rule out."""
     lower = bool(spec.get("lower_is_better"))
     learned = [r for r in rows if r["cost"] is not None]
     baselines = [r for r in rows if r["cost"] is None]
@@ -160,7 +172,7 @@ def learning_section(env_id: str, rows: list[dict], spec: dict, figure: str, doc
         f"| bits / agent / {spec.get('bits_per', 'step')} | n |",
         "| --- | --- | --- | --- | --- | --- |",
     ]
-    for r in rows:
+    for r in [*rows, *bounds]:
         cost = "—" if r["setting"] is None else f"{r['setting']:g}"
         iqm = "—"
         if r.get("metric_iqm") is not None:
@@ -204,6 +216,9 @@ def learning_section(env_id: str, rows: list[dict], spec: dict, figure: str, doc
         "",
         *verdicts,
     ]
+    best = best_baseline(baselines, None, spec)
+    for bound in bounds if best is not None and lower else ():
+        lines += ["", bound_paragraph(bound, best, learned, spec)]
     if spec.get("notes"):
         lines += ["", spec["notes"]]
     return "\n".join(lines) + "\n"
@@ -225,8 +240,9 @@ def cmd_reproduce_learning(args: argparse.Namespace) -> int:
             table = docs / "learning" / f"{name}.csv"
             if not table.exists():
                 continue
-            rows = read_rows(table)
-            section = learning_section(env_id, rows, comparison_spec(env_id), f"learning/{name}.png", docs)
+            rows, spec = read_rows(table), comparison_spec(env_id)
+            bounds = bound_rows(env_id, spec, heldout_seeds(spec))
+            section = learning_section(env_id, rows, spec, f"learning/{name}.png", docs, bounds)
             atomic_write_text(docs / "learning" / f"{name}.md", section + sweep_section(env_id, docs))
         print(f"wrote {write_learning_page(docs)}")
         return 0
@@ -241,7 +257,9 @@ def cmd_reproduce_learning(args: argparse.Namespace) -> int:
                 plot_curves(curves, spec, f"{env_id}: learning curves", docs / "learning" / f"{name}-curves.png")
             figure = docs / "learning" / f"{name}.png"
             plot_comparison(rows, spec, f"{env_id}: learned vs scripted at equal bits", figure)
-            section = learning_section(env_id, rows, spec, f"learning/{name}.png", docs) + sweep_section(env_id, docs)
+            bounds = bound_rows(env_id, spec, heldout_seeds(spec))
+            section = learning_section(env_id, rows, spec, f"learning/{name}.png", docs, bounds)
+            section += sweep_section(env_id, docs)
             # one fragment per env: rerunning one env keeps the others' sections in the page
             atomic_write_text(docs / "learning" / f"{name}.md", section)
             if args.export_pretrained:
