@@ -307,6 +307,12 @@ class InfoTables:
             self.disc = np.maximum(self.disc, _min(self.known, axis=1))
 
     # ------------------------------------------------------------------ views
+    def packet_bits(self, step: int) -> np.ndarray:
+        """Bits of every robot's packet M_step^j (N,), for a step still in the ring (the last ``history`` steps)."""
+        if not self.t - self.history <= step <= self.t:
+            raise ValueError(f"argument 'step' must be within the ring [{self.t - self.history}, {self.t}], got {step}")
+        return self.pkt_bits[:, (step + 1) % self.W].copy()
+
     def table_size(self) -> np.ndarray:
         """Packets each robot holds in its non-discarded columns."""
         return _sum(np.maximum(self.latest - self.disc[:, None], 0), axis=1)
