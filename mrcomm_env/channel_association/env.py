@@ -201,7 +201,11 @@ class ChannelAssociationEnv(ChannelAssociationSpec, MrcommParallelEnv):
 
     @property
     def vis_robot(self) -> np.ndarray:
-        return self.scene.vis_robot
+        """The robot behind each visual slot of the filter: the neighbourhood's own labelling, or every robot in
+        index order in a field, where slots are robots."""
+        if isinstance(self.scene, NeighborhoodScene):
+            return self.scene.vis_robot
+        return np.arange(self.n_agents)
 
     @property
     def _n_stat(self) -> int:

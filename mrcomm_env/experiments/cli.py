@@ -10,6 +10,7 @@ are all checked before the work starts, and every result file is written atomica
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from mrcomm_env.experiments.commands import bench, docs, evaluate, listing, record, reproduce
@@ -21,6 +22,7 @@ from mrcomm_env.experiments.train import add_train_parser
 EXIT_BAD_INPUT = 2
 EXIT_FAILURE = 1
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for a program stopped by Ctrl-C
+EXIT_PIPE_CLOSED = 141  # 128 + SIGPIPE, what a shell reports for `ls | head`'s ls
 
 #: each command's ``add_parser(command)``, in the order ``mrcomm --help`` lists them
 COMMANDS = (
@@ -80,12 +82,19 @@ def main(argv: list[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
         args.argv = argv  # the command as given, for the records a command writes (e.g. a sweep's)
         debug = args.debug
-        return args.func(args)
+        status = args.func(args)
+        sys.stdout.flush()  # a closed pipe shows here, inside the handlers below, not at the interpreter's exit
+        return status
     except KeyboardInterrupt:
         if debug:
             raise
         print("mrcomm: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except BrokenPipeError:  # the reader stopped (`mrcomm list | head`): nothing is wrong and nothing is printed
+        # the interpreter flushes stdout again at exit, into the closed pipe: send that to /dev/null (Python's
+        # documented recipe, "Note on SIGPIPE" in the signal module's docs)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_PIPE_CLOSED
     except (ValueError, OverflowError) as exc:  # bad input: argument, --param, seed, path, a value out of range
         if debug:
             raise

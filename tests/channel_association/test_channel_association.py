@@ -471,3 +471,18 @@ def test_the_first_id_column_is_the_bit_a_blink_code_sends_now(config):
         obs, *_ = env.step(from_obs)
         steps += 1
     assert steps >= env.unwrapped._id_bits  # every ID bit's phase was compared (the code then ends the episode)
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [{"scene": "neighborhood", "w": 8, "v": 5}, {"n_robots": 12, "mobile_fraction": 0.0}, {"n_robots": 300}],
+)
+def test_vis_robot_names_the_robot_behind_every_visual_slot(kwargs):
+    # at the start every visual slot has an edge to its own robot's wireless ID (the true edge), in every scene
+    env = ChannelAssociationEnv(**kwargs)
+    env.reset(seed=2)
+    observer, h, s = env.filter.edges()
+    robot_of_slot = env.vis_robot
+    true = env.scene.wireless_robot(h) == robot_of_slot[s]
+    for o in np.unique(observer):
+        assert set(s[(observer == o) & true]) == set(s[observer == o])

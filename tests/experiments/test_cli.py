@@ -97,6 +97,17 @@ def test_console_script_exit_code_on_unknown_id():
     assert proc.returncode != 0 and "valid ids are" in proc.stderr
 
 
+def test_a_reader_that_stops_early_gets_silence_and_the_shells_sigpipe_status():
+    # `mrcomm list | head -1`: the reader closes the pipe before the command writes
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "mrcomm_env.experiments.cli", "list"], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    proc.stdout.close()
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 141
+    assert err == b""
+
+
 def test_bench_writes_json_with_ratio(tmp_path):
     pytest.importorskip("mpe2")
     out = tmp_path / "bench.json"
