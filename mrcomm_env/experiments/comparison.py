@@ -204,7 +204,7 @@ def export_pretrained(run: str | Path, env_id: str, shipped: dict | None = None)
     """Copy a run's model, statistics and config into ``agents/pretrained/<Name>-v0/`` (shipped in the package;
     ``mrcomm evaluate ID --policy pretrained``). Checkpoints and logs stay behind: well under 1 MB. ``shipped``:
     the comparison's account of the run (:func:`shipped_run`), written into the card."""
-    from mrcomm_agents.artifacts import MODEL_FILE, STATISTICS_FILE  # extra "train"
+    from mrcomm_agents.artifacts import MODEL_FILE, STATISTICS_FILE, read_json  # extra "train"
     from mrcomm_agents.heldout import HELDOUT_SEEDS
     from mrcomm_agents.learned import pretrained_dir
 
@@ -216,6 +216,10 @@ def export_pretrained(run: str | Path, env_id: str, shipped: dict | None = None)
             shutil.copyfile(Path(run) / name, tmp)
             tmp.replace(target / name)
     record = json.loads((target / "config.json").read_text())
+    # the agent-steps the model was trained for, which a rollout's length rounds up from the budget ``timesteps``
+    state = Path(run) / "state.json"
+    if state.exists():
+        record = {**record, "trained_agent_steps": int(read_json(state)["num_timesteps"])}
     spec = comparison_spec(env_id)
     cost = record.get("env_kwargs", {}).get(spec["cost_param"])
     points = curve_rows([{"out": str(run), "cost": cost, "seed": record.get("seed")}], spec)
@@ -239,7 +243,7 @@ def write_model_card(env_id: str, record: dict, shipped: dict | None = None, pha
         "algo": record.get("algo"),
         "policy": record.get("policy", "mlp"),
         "seed": record.get("seed"),
-        "agent_steps": record.get("timesteps"),
+        "agent_steps": record.get("trained_agent_steps", record.get("timesteps")),
         "deterministic": bool(spec.get("deterministic", True)),
         "metric": spec.get("metric"),
         "reproduce": f"mrcomm reproduce-learning {short_name(env_id)} --export-pretrained",
