@@ -229,10 +229,8 @@ class BatchedPPO:
         self.episode_return = np.zeros(self.m)
         self.episode_length = np.zeros(self.m, dtype=np.int64)
         self.episodes: deque[tuple[float, int]] = deque(maxlen=EPISODE_WINDOW)
-        #: seconds since the last :meth:`learn` started, at its last rollout's row (``time/time_elapsed``), and when
-        #: it started (``time.perf_counter``; None before the first)
+        #: seconds since the last :meth:`learn` started, at its last rollout's row (``time/time_elapsed``)
         self.elapsed = 0.0
-        self.started: float | None = None
         #: agent-steps until which only the critic learns (``critic_warmup`` after a warm start)
         self.critic_warmup_until = 0
 
@@ -505,7 +503,6 @@ class BatchedPPO:
         evaluation); ``on_steps(n)`` reports progress."""
         model = self.model
         start_steps, started = model.num_timesteps, time.perf_counter()
-        self.started = started
         iteration = 0
         while model.num_timesteps < total_timesteps:
             if on_rollout_start is not None:

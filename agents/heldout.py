@@ -12,7 +12,8 @@ comparison uses (:data:`HELDOUT_SEEDS` on), with the policy as it is then, and r
 * ``episode_return``;
 
 and ``time/training_seconds``, the wall time training had taken when the evaluation started, the evaluations
-excluded (what ``mrcomm race`` compares trainers by), and ``time/heldout_seconds``, the seconds the evaluations took.
+excluded, over every session of a resumed run (:class:`TrainingClock`; what ``mrcomm race`` compares trainers by),
+and ``time/heldout_seconds``, the seconds this session's evaluations took.
 
 They reach ``progress.csv`` and TensorBoard with the rollout's own row (``tensorboard --logdir runs/``).
 """
@@ -103,6 +104,25 @@ def record_heldout(logger, model, venv, env_id: str, env_kwargs: dict, episodes:
     return time.perf_counter() - start
 
 
+class TrainingClock:
+    """Training's own wall time over a run's sessions: the seconds the sessions before a resume trained (``before``,
+    from the checkpoint resumed; :func:`mrcomm_agents.training` keeps it in ``state.json``), plus this session's
+    since :meth:`start`, without the held-out evaluations (``evaluating``, which the caller adds up)."""
+
+    def __init__(self, before: float = 0.0) -> None:
+        self.before = float(before)
+        self.started: float | None = None
+        self.evaluating = 0.0
+
+    def start(self) -> None:
+        self.started = time.perf_counter()
+
+    def seconds(self) -> float:
+        if self.started is None:
+            return self.before
+        return self.before + max(time.perf_counter() - self.started - self.evaluating, 0.0)
+
+
 class HeldOutEvaluation(BaseCallback):
     """When a new run starts (agent-step 0), when a rollout ends and ``every`` agent-steps have passed since the
     last time, and once more when training ends: see the module docstring.
@@ -110,12 +130,16 @@ class HeldOutEvaluation(BaseCallback):
     The evaluation draws no random number from the training: it saves and restores torch's global generator,
     which SB3 samples actions from, so a run with evaluation trains exactly as one without."""
 
-    def __init__(self, env_id: str, env_kwargs: dict, every: int, episodes: int, deterministic: bool):
+    def __init__(
+        self, env_id: str, env_kwargs: dict, every: int, episodes: int, deterministic: bool, clock: TrainingClock
+    ):
         super().__init__()
         self.env_id, self.env_kwargs = env_id, dict(env_kwargs)
         self.every, self.episodes, self.deterministic = int(every), int(episodes), bool(deterministic)
         #: seconds spent in held-out evaluations since training started (inside ``time/time_elapsed``)
         self.seconds = 0.0
+        #: training's own time, started by the caller when learning starts
+        self.clock = clock
         self.next_at = self.every
 
     def _on_training_start(self) -> None:
@@ -131,11 +155,12 @@ class HeldOutEvaluation(BaseCallback):
         self.logger.dump(self.num_timesteps)
 
     def _evaluate(self) -> None:
-        elapsed = (time.time_ns() - self.model.start_time) / 1e9 if self.num_timesteps else 0.0
-        self.logger.record(TRAINING_SECONDS_KEY, max(elapsed - self.seconds, 0.0))
-        self.seconds += record_heldout(
+        self.logger.record(TRAINING_SECONDS_KEY, self.clock.seconds() if self.num_timesteps else 0.0)
+        spent = record_heldout(
             self.logger, self.model, self.training_env, self.env_id, self.env_kwargs, self.episodes, self.deterministic
         )
+        self.seconds += spent
+        self.clock.evaluating += spent
         self.logger.record(SECONDS_KEY, self.seconds)
 
     def _on_step(self) -> bool:

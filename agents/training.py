@@ -31,7 +31,6 @@ import platform
 import shutil
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from importlib import metadata
@@ -75,7 +74,7 @@ from mrcomm_agents.batched_ppo import (
     make_critic,
     masks_actions,
 )
-from mrcomm_agents.heldout import SECONDS_KEY, TRAINING_SECONDS_KEY, HeldOutEvaluation, record_heldout
+from mrcomm_agents.heldout import SECONDS_KEY, TRAINING_SECONDS_KEY, HeldOutEvaluation, TrainingClock, record_heldout
 from mrcomm_agents.policies import CandidatePolicy
 from mrcomm_agents.vecenv import AgentSlotVecEnv
 from mrcomm_agents.warm_start import CriticWarmup, clone
@@ -446,8 +445,9 @@ def _train_locked(
     cls = algorithm_class(config.algo)
 
     venv = make_training_env(config, config.seed)
+    clock = TrainingClock()
     if resume:
-        model, venv = _load_newest_checkpoint(config, ckpt, venv, trust_pickle)
+        model, venv, clock.before = _load_newest_checkpoint(config, ckpt, venv, trust_pickle)
         done_steps = model.num_timesteps
         if config.freeze_normalization and isinstance(venv, VecNormalize):
             venv.training = False  # as the run left them (the checkpoint holds the clone's statistics)
@@ -469,18 +469,21 @@ def _train_locked(
     model.set_logger(Logger(str(out), [csv_log, make_output_format("tensorboard", str(out))]))
 
     def save(m) -> None:
-        _save_checkpoint(m, config, ckpt)
+        _save_checkpoint(m, config, ckpt, clock=clock)
 
     bar = _Progress(config.timesteps, done_steps, config.checkpoint_every, save, progress)
     callbacks: list[BaseCallback] = [bar.callback]
     if config.eval_episodes:
         every = config.eval_every or config.timesteps + 1
         callbacks.append(
-            HeldOutEvaluation(config.env_id, config.env_kwargs, every, config.eval_episodes, config.eval_deterministic)
+            HeldOutEvaluation(
+                config.env_id, config.env_kwargs, every, config.eval_episodes, config.eval_deterministic, clock
+            )
         )
     if config.critic_warmup:
         callbacks.append(CriticWarmup(config.critic_warmup))
     remaining = config.timesteps - done_steps
+    clock.start()
     try:
         model.learn(total_timesteps=remaining, callback=CallbackList(callbacks), reset_num_timesteps=not resume)
     except KeyboardInterrupt:
@@ -490,7 +493,7 @@ def _train_locked(
         save(model)
         raise
     save(model)
-    _save_files(model, config, out)
+    _save_files(model, config, out, clock=clock)
     write_json(out / "done.json", {"num_timesteps": int(model.num_timesteps)})
     venv.close()
     return out
@@ -512,7 +515,7 @@ def _train_batched(
     """ippo/mappo: the same run folder, checkpoints, logs, held-out rows and interrupt handling as the SB3 path,
     with :class:`~mrcomm_agents.batched_ppo.BatchedPPO` stepping ``n_envs`` copies as one world."""
     ckpt = _open_run_folder(config, out, resume)
-    model, normalizer, critic, critic_optimizer = _batched_model(config, out, resume, teacher, trust_pickle)
+    model, normalizer, critic, critic_optimizer, clock = _batched_model(config, out, resume, teacher, trust_pickle)
     done_steps = int(model.num_timesteps)
     if resume:
         _cut_progress_log(out / "progress.csv", done_steps)
@@ -524,7 +527,7 @@ def _train_batched(
     model.set_logger(Logger(str(out), [csv_log, make_output_format("tensorboard", str(out))]))
 
     def save() -> None:
-        _save_checkpoint(model, config, ckpt, normalizer, trainer.critic_state())
+        _save_checkpoint(model, config, ckpt, normalizer, trainer.critic_state(), clock)
 
     every = config.checkpoint_every
     next_save = [(done_steps // every + 1) * every]
@@ -537,10 +540,8 @@ def _train_batched(
     def heldout() -> None:
         if config.eval_episodes:
             # evaluations run inside learn()'s clock: training's own time is that clock minus them
-            started = trainer.started
-            since = 0.0 if started is None else time.perf_counter() - started
-            model.logger.record(TRAINING_SECONDS_KEY, max(since - evaluating[0], 0.0))
-            evaluating[0] += record_heldout(
+            model.logger.record(TRAINING_SECONDS_KEY, clock.seconds())
+            spent = record_heldout(
                 model.logger,
                 model,
                 normalizer,
@@ -549,6 +550,9 @@ def _train_batched(
                 config.eval_episodes,
                 config.eval_deterministic,
             )
+            evaluating[0] += spent
+            if clock.started is not None:
+                clock.evaluating += spent
             model.logger.record(SECONDS_KEY, evaluating[0])
 
     def on_rollout_start() -> None:
@@ -570,6 +574,7 @@ def _train_batched(
         model.logger.record("time/time_elapsed", 0.0)
         model.logger.dump(0)
     bar = tqdm(total=config.timesteps, initial=done_steps, desc="agent-steps", unit="step", disable=not progress)
+    clock.start()
     try:
         trainer.learn(config.timesteps, on_rollout_start, on_rollout_end, bar.update)
     except KeyboardInterrupt:
@@ -586,7 +591,7 @@ def _train_batched(
         model.logger.record("time/total_timesteps", model.num_timesteps)
         model.logger.record("time/time_elapsed", trainer.elapsed + evaluating[0] - before)
         model.logger.dump(model.num_timesteps)
-    _save_files(model, config, out, normalizer, trainer.critic_state())
+    _save_files(model, config, out, normalizer, trainer.critic_state(), clock)
     write_json(out / "done.json", {"num_timesteps": int(model.num_timesteps)})
     model.logger.close()
     batch.close()
@@ -594,14 +599,15 @@ def _train_batched(
 
 
 def _batched_model(config: TrainConfig, out: Path, resume: bool, teacher: Policy | None, trust_pickle: bool):
-    """(model, normalizer, critic, critic optimizer) of an ippo/mappo run: new (with the warm start, if any) or
-    from its newest checkpoint; the critic and its optimizer are None for ippo."""
+    """(model, normalizer, critic, critic optimizer, training clock) of an ippo/mappo run: new (with the warm start,
+    if any) or from its newest checkpoint; the critic and its optimizer are None for ippo."""
     probe = make(config.env_id, **config.env_kwargs)
     agent = probe.possible_agents[0]
     observation_space, action_space = probe.observation_space(agent), probe.action_space(agent)
     critic_state = None
+    clock = TrainingClock()
     if resume:
-        model, normalizer, critic_state = _load_newest_batched(config, out, trust_pickle)
+        model, normalizer, critic_state, clock.before = _load_newest_batched(config, out, trust_pickle)
         if config.freeze_normalization and normalizer is not None:
             normalizer.training = False
     else:
@@ -627,21 +633,22 @@ def _batched_model(config: TrainConfig, out: Path, resume: bool, teacher: Policy
     if config.algo == "mappo":
         obs_dim = int(np.prod(observation_space.shape or (1,)))
         critic, critic_optimizer = make_critic(n_agents, obs_dim, config.net_arch, model.lr_schedule(1), critic_state)
-    return model, normalizer, critic, critic_optimizer
+    return model, normalizer, critic, critic_optimizer, clock
 
 
 def _load_newest_batched(config: TrainConfig, out: Path, trust_pickle: bool):
-    """(model, normalizer, critic state or None) of an ippo/mappo run's newest checkpoint that loads."""
+    """(model, normalizer, critic state or None, training seconds) of an ippo/mappo run's newest checkpoint that
+    loads."""
     spec = model_spec(config)
 
     def load(folder: Path):
         normalizer = read_statistics(folder, trust_pickle=trust_pickle) if config.normalize else None
         model = load_model(folder / MODEL_FILE, spec, trust_pickle=trust_pickle)
-        model.num_timesteps = int(read_json(folder / "state.json")["num_timesteps"])
+        model.num_timesteps, seconds = read_state(folder)
         critic_state = _load_critic(folder) if config.algo == "mappo" else None
         if normalizer is not None:
             normalizer.training = True  # saved as they were used; training goes on updating them
-        return model, normalizer, critic_state
+        return model, normalizer, critic_state, seconds
 
     return _newest_loadable(out, trust_pickle, load)
 
@@ -736,9 +743,19 @@ def _clear_unstarted(out: Path) -> None:
             shutil.rmtree(path) if path.is_dir() else path.unlink()
 
 
-def _save_files(m, config: TrainConfig, folder: Path, normalizer=None, critic_state=None) -> None:
+def read_state(folder: Path) -> tuple[int, float]:
+    """(agent-steps, training seconds) of a saved model from its ``state.json``; 0 seconds for a folder written
+    before the seconds were kept."""
+    state = read_json(folder / "state.json")
+    return int(state["num_timesteps"]), float(state.get("training_seconds", 0.0))
+
+
+def _save_files(
+    m, config: TrainConfig, folder: Path, normalizer=None, critic_state=None, clock: TrainingClock | None = None
+) -> None:
     """``normalizer``: the batched trainer's statistics (the SB3 path's are its model's VecNormalize);
-    ``critic_state``: MAPPO's critic and optimizer (:data:`CRITIC_FILE`)."""
+    ``critic_state``: MAPPO's critic and optimizer (:data:`CRITIC_FILE`); ``clock``: training's own time so far,
+    kept so that a resumed run's ``time/training_seconds`` goes on from it."""
     # model first, then statistics and critic, then the step count: a reader trusts state.json only when all exist
     save_model(m, folder / MODEL_FILE)
     if config.normalize:
@@ -747,17 +764,22 @@ def _save_files(m, config: TrainConfig, folder: Path, normalizer=None, critic_st
         buffer = io.BytesIO()
         torch.save(critic_state, buffer)
         write_bytes_atomically(folder / CRITIC_FILE, buffer.getvalue())
-    write_json(folder / "state.json", {"num_timesteps": int(m.num_timesteps)})
+    state = {"num_timesteps": int(m.num_timesteps)}
+    if clock is not None:
+        state["training_seconds"] = clock.seconds()
+    write_json(folder / "state.json", state)
 
 
-def _save_checkpoint(m, config: TrainConfig, ckpt: Path, normalizer=None, critic_state=None) -> None:
+def _save_checkpoint(
+    m, config: TrainConfig, ckpt: Path, normalizer=None, critic_state=None, clock: TrainingClock | None = None
+) -> None:
     """A new ``step-<n>`` folder, written whole under a temporary name and renamed; then all but the newest
     :data:`KEEP_CHECKPOINTS` are removed."""
     name = f"step-{int(m.num_timesteps):012d}"
     tmp = ckpt / f".{name}.tmp"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
-    _save_files(m, config, tmp, normalizer, critic_state)
+    _save_files(m, config, tmp, normalizer, critic_state, clock)
     shutil.rmtree(ckpt / name, ignore_errors=True)
     os.replace(tmp, ckpt / name)
     for old in checkpoints(ckpt.parent)[KEEP_CHECKPOINTS:]:
@@ -769,14 +791,14 @@ def _save_checkpoint(m, config: TrainConfig, ckpt: Path, normalizer=None, critic
 
 
 def _load_newest_checkpoint(config: TrainConfig, ckpt: Path, venv, trust_pickle: bool = False):
-    """(model, venv) from the newest checkpoint that loads (see :func:`_newest_loadable`)."""
+    """(model, venv, training seconds) from the newest checkpoint that loads (see :func:`_newest_loadable`)."""
     base = venv
 
     def load(folder: Path):
         env = read_statistics(folder, base, trust_pickle) if config.normalize else base
         model = load_model(folder / MODEL_FILE, model_spec(config, base), env=env, trust_pickle=trust_pickle)
-        model.num_timesteps = int(read_json(folder / "state.json")["num_timesteps"])
-        return model, env
+        model.num_timesteps, seconds = read_state(folder)
+        return model, env, seconds
 
     return _newest_loadable(ckpt.parent, trust_pickle, load)
 

@@ -123,17 +123,17 @@ def fewest_emissions(
     rows, cols = [], []
     for i, group in enumerate(sorted(groups)):  # row i * k + c: the group's robots share pattern c at most once
         members = np.asarray(group, dtype=np.int64)
-        for c in range(k):
-            rows.append(np.full(len(members), i * k + c))
-            cols.append(members * k + c)
+        for pattern in range(k):
+            rows.append(np.full(len(members), i * k + pattern))
+            cols.append(members * k + pattern)
     variables = n_robots * k
     one_pattern = csr_matrix(
         (np.ones(variables), (np.repeat(np.arange(n_robots), k), np.arange(variables))), shape=(n_robots, variables)
     )
     constraints = [LinearConstraint(one_pattern, 1, 1)]
     if groups:
-        r, c = np.concatenate(rows), np.concatenate(cols)
-        distinct = csr_matrix((np.ones(len(r)), (r, c)), shape=(len(groups) * k, variables))
+        row, col = np.concatenate(rows), np.concatenate(cols)
+        distinct = csr_matrix((np.ones(len(row)), (row, col)), shape=(len(groups) * k, variables))
         constraints.append(LinearConstraint(distinct, -np.inf, 1))
     result = milp(
         np.tile(popcount, n_robots),

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -152,7 +153,7 @@ def side_by_side(env_id: str, docs: Path | None) -> list[str]:
 
 
 def learning_section(
-    env_id: str, rows: list[dict], spec: dict, figure: str, docs: Path | None = None, bounds: list[dict] = ()
+    env_id: str, rows: list[dict], spec: dict, figure: str, docs: Path | None = None, bounds: Sequence[dict] = ()
 ) -> str:
     """An env's section of docs/learning.md: the table, the figure and the verdicts the equal-bits rule gives, and
     the ``bounds`` (:mod:`mrcomm_env.experiments.bounds`) as the table's last rows with what they rule out."""
@@ -217,8 +218,9 @@ def learning_section(
         *verdicts,
     ]
     best = best_baseline(baselines, None, spec)
-    for bound in bounds if best is not None and lower else ():
-        lines += ["", bound_paragraph(bound, best, learned, spec)]
+    if best is not None and lower:  # the paragraph's margins are written for a metric where lower is better
+        for bound in bounds:
+            lines += ["", bound_paragraph(bound, best, learned, spec)]
     if spec.get("notes"):
         lines += ["", spec["notes"]]
     return "\n".join(lines) + "\n"

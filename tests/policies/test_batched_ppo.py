@@ -225,10 +225,17 @@ def test_resume_after_ctrl_c_loses_neither_steps_nor_optimizers_nor_statistics(t
         train(config(target, algo), tmp_path / "run", progress=False)
     monkeypatch.undo()
     newest = training.checkpoints(tmp_path / "run")[0]
-    assert json.loads((newest / "state.json").read_text())["num_timesteps"] == 2 * ROLLOUT
+    state = json.loads((newest / "state.json").read_text())
+    assert state["num_timesteps"] == 2 * ROLLOUT and state["training_seconds"] > 0
     assert (newest / CRITIC_FILE).exists() == (algo == "mappo")
+    # training's own time goes on from what the checkpoint kept (set far beyond this test's seconds to tell)
+    (newest / "state.json").write_text(json.dumps({**state, "training_seconds": 1_000.0}))
 
     train(None, tmp_path / "run", resume=True, progress=False)
+    with open(tmp_path / "run" / "progress.csv", newline="") as fh:
+        seconds = [float(r["time/training_seconds"]) for r in csv.DictReader(fh) if r.get("time/training_seconds")]
+    assert seconds[0] == 0.0 and 1_000.0 < seconds[-1] < 1_000.0 + 60.0
+    assert 1_000.0 < json.loads((tmp_path / "run" / "state.json").read_text())["training_seconds"] < 1_060.0
     model = LearnedPolicy(tmp_path / "run", ENV, algo).model
     assert model.num_timesteps == target
     # each epoch takes ⌈rows / minibatch⌉ optimizer steps; mappo draws whole copies' rows (N at a time), so its

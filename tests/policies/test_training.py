@@ -123,8 +123,11 @@ def test_resume_loses_neither_steps_nor_optimizer_nor_statistics(tmp_path, monke
     newest = training.checkpoints(tmp_path / "run")[0]
     state = json.loads((newest / "state.json").read_text())
     assert 0 < state["num_timesteps"] < target
+    # training's own time goes on from what the checkpoint kept (set far beyond this test's seconds to tell)
+    (newest / "state.json").write_text(json.dumps({**state, "training_seconds": 1_000.0}))
 
     train(None, tmp_path / "run", resume=True, progress=False)
+    assert 1_000.0 < json.loads((tmp_path / "run" / "state.json").read_text())["training_seconds"] < 1_060.0
     policy = LearnedPolicy(tmp_path / "run", ENV)
     model = policy.model
     assert model.num_timesteps == target
