@@ -106,7 +106,7 @@ def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress
             policy = make_policy(env_id, name, **params)
             kwargs = env_kwargs if cost is None else {**env_kwargs, cost_param: cost}
             result = evaluate_policy(env_id, kwargs, policy, eval_seeds, spec)
-            label = name + (" " + ", ".join(f"{k}={v}" for k, v in params.items()) if params else "")
+            label = baseline_label(name, params)
             row = comparison_row(label, None, result["metric"], result["bits"], len(eval_seeds))
             row["setting"] = cost
             rows.append(row)
@@ -116,6 +116,41 @@ def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress
     spec["shipped"] = shipped_run(tasks, [r for r in rows if r["cost"] is None], spec, len(eval_seeds))
     spec["best_run"] = spec["shipped"]["run"]
     return rows, spec
+
+
+def baseline_label(name: str, params: dict) -> str:
+    """A baseline's name in the comparison's table: ``name`` and its parameters (``periodic_sketch period=1``)."""
+    return name + (" " + ", ".join(f"{k}={v}" for k, v in params.items()) if params else "")
+
+
+def training_heldout(spec: dict) -> tuple[int, int]:
+    """(first seed, episodes) of the held-out evaluation the comparison's runs log while they train."""
+    from mrcomm_agents.heldout import HELDOUT_SEEDS  # extra "train"
+    from mrcomm_agents.training import TrainConfig
+
+    settings = spec["settings"].get(spec["algo"], {})
+    return HELDOUT_SEEDS, int(settings.get("eval_episodes", TrainConfig.eval_episodes))
+
+
+def baseline_on_training_heldout(env_id: str, spec: dict, label: str) -> dict:
+    """The baseline named ``label`` in the table, played on the episodes of the runs' own held-out evaluation (the
+    curves' episodes, not the comparison's): its mean metric and bits there."""
+    name, params = next((n, p) for n, p in spec["baselines"] if baseline_label(n, p) == label)
+    first, episodes = training_heldout(spec)
+    env_kwargs = spec["settings"].get(spec["algo"], {}).get("env_kwargs", {})
+    seeds = list(range(first, first + episodes))
+    result = evaluate_policy(env_id, env_kwargs, make_policy(env_id, name, **params), seeds, spec)
+    return {"policy": label, "metric": float(np.mean(result["metric"])), "bits": float(np.mean(result["bits"]))}
+
+
+def first_reach(points: list[dict], target: dict, lower_is_better: bool) -> dict | None:
+    """The first of a run's curve points (in agent-steps) whose metric is at least as good as ``target``'s with at most
+    5 % more bits (the comparison's slack), or None."""
+    for point in sorted(points, key=lambda p: p["agent_steps"]):
+        good = point["metric"] <= target["metric"] if lower_is_better else point["metric"] >= target["metric"]
+        if good and within_bits(point["bits"], target["bits"]):
+            return point
+    return None
 
 
 def best_baseline(baseline_rows: list[dict], setting, spec: dict) -> dict | None:

@@ -17,13 +17,16 @@ from mrcomm_baselines import default_policy
 from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.bounds import bound_paragraph, bound_rows
 from mrcomm_env.experiments.comparison import (
+    baseline_on_training_heldout,
     beats,
     best_baseline,
     curve_rows,
     dominates,
     export_pretrained,
+    first_reach,
     heldout_seeds,
     reproduce_learning,
+    training_heldout,
 )
 from mrcomm_env.experiments.evaluation import limit_threads
 from mrcomm_env.experiments.io import atomic_write_csv, atomic_write_text
@@ -137,6 +140,67 @@ def curves_paragraph(env_id: str, docs: Path | None) -> list[str]:
     ]
 
 
+def read_curves(env_id: str, docs: Path | None) -> list[dict]:
+    """The runs' held-out curves as ``reproduce-learning`` recorded them (``docs/learning/<Name>-v0-curves.csv``)."""
+    table = None if docs is None else docs / "learning" / f"{short_name(env_id)}-curves.csv"
+    if table is None or not table.exists():
+        return []
+    with open(table, newline="") as fh:
+        return [{k: float(v) for k, v in raw.items()} for raw in csv.DictReader(fh)]
+
+
+def from_random_weights(env_id: str, baselines: list[dict], spec: dict, docs: Path | None) -> list[str]:
+    """#42's from-scratch table: per run that starts from random weights, the agent-steps and wall seconds until its
+    held-out curve first reaches the best paper algorithm's metric at equal bits (that algorithm played on the curve's
+    own episodes), or what it reached at the end."""
+    settings = spec["settings"].get(spec["algo"], {})
+    if settings.get("init_from"):
+        return [
+            f"**From random weights.** The comparison's runs start from a clone of `{settings['init_from']}`, not from "
+            "random weights; what training from random weights reached is in the notes below."
+        ]
+    curves = read_curves(env_id, docs)
+    best = best_baseline(baselines, None, spec)
+    if not curves or best is None:
+        return []
+    lower = bool(spec.get("lower_is_better"))
+    target = baseline_on_training_heldout(env_id, spec, best["policy"])
+    first, episodes = training_heldout(spec)
+    per = spec.get("bits_per", "step")
+    lines = [
+        f"**From random weights** (#42's goal 3, read from the learning curves): the first held-out evaluation at "
+        f"which each run's {spec['metric']} is as good as `{best['policy']}`'s with at most 5 % more bits, both on the "
+        f"curves' own {episodes} episodes from seed {first:,} (where `{best['policy']}` scores "
+        f"{target['metric']:.4g} at {target['bits']:.4g} bits per agent per {per}); wall seconds include the "
+        "evaluations.",
+        "",
+        f"| {spec['cost_param']} | runs that reach it | first at agent-steps | after seconds | at the end: "
+        f"{spec['metric']}, bits (mean over the runs) |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+
+    def spread(values: list[float], fmt: str) -> str:
+        low, high = format(min(values), fmt), format(max(values), fmt)
+        return low if low == high else f"{low}–{high}"
+
+    for cost in sorted({r["cost"] for r in curves}):
+        seeds = sorted({r["seed"] for r in curves if r["cost"] == cost})
+        runs = [[r for r in curves if r["cost"] == cost and r["seed"] == seed] for seed in seeds]
+        hits = [hit for hit in (first_reach(points, target, lower) for points in runs) if hit is not None]
+        ends = [max(points, key=lambda p: p["agent_steps"]) for points in runs]
+        reached = (
+            f"{spread([h['agent_steps'] for h in hits], ',.0f')} | {spread([h['seconds'] for h in hits], '.1f')}"
+            if hits
+            else "— | —"
+        )
+        lines.append(
+            f"| {cost:g} | {len(hits)} of {len(runs)} | {reached} | {np.mean([e['metric'] for e in ends]):.4g}, "
+            f"{np.mean([e['bits'] for e in ends]):.4g} (after {spread([e['agent_steps'] for e in ends], ',.0f')} "
+            f"agent-steps, {spread([e['seconds'] for e in ends], '.0f')} s) |"
+        )
+    return lines
+
+
 def side_by_side(env_id: str, docs: Path | None) -> list[str]:
     """The recording of the shipped learned policy beside the paper's algorithm, where ``mrcomm docs`` made one
     (``docs/learning/<Name>-v0.gif``)."""
@@ -221,6 +285,9 @@ def learning_section(
     if best is not None and lower:  # the paragraph's margins are written for a metric where lower is better
         for bound in bounds:
             lines += ["", bound_paragraph(bound, best, learned, spec)]
+    scratch = from_random_weights(env_id, baselines, spec, docs)
+    if scratch:
+        lines += ["", *scratch]
     if spec.get("notes"):
         lines += ["", spec["notes"]]
     return "\n".join(lines) + "\n"

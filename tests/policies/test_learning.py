@@ -352,3 +352,15 @@ def test_export_writes_a_card_with_the_agent_steps_the_model_was_trained_for(tmp
     assert card["agent_steps"] == trained == 1_024
     assert card["rl_phase"]["end"]["agent_steps"] == trained
     assert {p.name for p in target.iterdir()} >= {"model.zip", "vecnormalize.json", "config.json", "card.json"}
+
+
+def test_a_curve_reaches_the_paper_at_its_metric_with_at_most_five_percent_more_bits():
+    def at(steps, metric, bits):
+        return {"agent_steps": steps, "metric": metric, "bits": bits, "seconds": steps / 100}
+
+    target = {"metric": 5.0, "bits": 10.0}
+    curve = [at(300, 5.0, 10.4), at(0, 9.0, 10.0), at(100, 5.0, 10.6), at(200, 4.0, 12.0)]
+    assert comparison.first_reach(curve, target, lower_is_better=True)["agent_steps"] == 300  # the first, in steps
+    assert comparison.first_reach(curve[1:], target, lower_is_better=True) is None  # too many bits, or too slow
+    higher = [at(0, 0.5, 10.0), at(50, 0.9, 9.0)]
+    assert comparison.first_reach(higher, {"metric": 0.8, "bits": 10.0}, lower_is_better=False)["agent_steps"] == 50
