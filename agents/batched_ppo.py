@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 import torch
 from gymnasium import spaces
+from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecNormalize
 from torch import nn
 
@@ -106,8 +107,6 @@ def check_env(env: MrcommParallelEnv, algo: str) -> None:
 def detached_normalizer(obs_shape: tuple[int, ...], gamma: float) -> VecNormalize:
     """SB3's ``VecNormalize`` settings and statistics (observations and returns) without a VecEnv under it: the
     batched trainer updates its statistics itself, and ``agents/artifacts.py`` saves it as any SB3 run's."""
-    from stable_baselines3.common.running_mean_std import RunningMeanStd
-
     normalizer = VecNormalize.__new__(VecNormalize)
     normalizer.__setstate__(
         {

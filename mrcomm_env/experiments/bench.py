@@ -25,6 +25,7 @@ from mrcomm_env.core.memory import BUDGET_ARGUMENT, GIB
 from mrcomm_env.experiments.evaluation import run_episode, steps_per_second
 from mrcomm_env.experiments.limits import limit_configs, measure_batched, measure_limit
 from mrcomm_env.experiments.reproductions import module
+from mrcomm_env.experiments.runs import comparison_spec, sb3_algo
 from mrcomm_env.experiments.sweep import Runner, Task, one_thread
 from mrcomm_env.registry import make
 
@@ -114,8 +115,6 @@ def shipped_training(env_id: str) -> tuple[str, dict[str, Any], int]:
     """The algorithm, env arguments and copies (``n_envs``) of the env's shipped SB3 training configuration
     (``agents/configs/<Name>-v0.json``: the one ``mrcomm reproduce-learning`` trains, or its ``ppo`` section where
     that trains the batched trainer, :func:`~mrcomm_env.experiments.runs.sb3_algo`)."""
-    from mrcomm_env.experiments.runs import comparison_spec, sb3_algo  # reads agents/configs (extra "train")
-
     spec = comparison_spec(env_id)
     algo = sb3_algo(spec)
     block = spec["settings"].get(algo, {})

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from mrcomm_env.core.batched import BatchedEnv, sample_actions
 from mrcomm_env.registry import entry, env_class
 
 #: the hook name; until ``MrcommParallelEnv`` declares it, a class without it has no documented maxima
@@ -182,9 +183,6 @@ def _run(job: dict[str, Any]) -> dict[str, Any]:
 
 
 def _run_batched(job: dict[str, Any]) -> dict[str, Any]:
-
-    from mrcomm_env.core.batched import BatchedEnv, sample_actions
-
     env_cls = importlib.import_module(job["env_module"]).parallel_env  # importing is not the batch's memory
     rss_before_mb = _current_rss_mb()
     start = time.perf_counter()

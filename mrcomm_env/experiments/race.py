@@ -26,9 +26,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from tqdm.auto import tqdm
 
 from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.arguments import positive_int
+from mrcomm_env.experiments.evaluation import limit_threads
 from mrcomm_env.experiments.io import atomic_write_csv, atomic_write_json, atomic_write_text
 from mrcomm_env.experiments.runs import comparison_spec, run_folder, sb3_algo
 from mrcomm_env.registry import canonical_id, short_name
@@ -157,8 +161,6 @@ def race(env_id: str, seeds: int, out: Path, algo: str = "ippo", progress: bool 
     """Train both trainers ``seeds`` times into ``out/<trainer>-<digest of its settings>/s<seed>`` (a finished run is
     reused) and write
     ``curves.csv``, ``race.json``, ``race.png`` and ``race.md`` into ``out``."""
-    from tqdm.auto import tqdm
-
     from mrcomm_agents.training import TrainConfig, train  # extra "train"
 
     sb3, batched, spec = race_configs(env_id, algo)
@@ -212,12 +214,9 @@ def race_table(summary: dict[str, Any], algo: str) -> str:
 
 
 def _plot(curves: dict[str, list[list[dict[str, float]]]], summary: dict[str, Any], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    fig = Figure(figsize=(6.4, 4.0))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
     for (name, runs), color in zip(curves.items(), ("tab:gray", "tab:blue")):
         for seed, points in enumerate(runs):
             ax.plot(
@@ -237,13 +236,10 @@ def _plot(curves: dict[str, list[list[dict[str, float]]]], summary: dict[str, An
     fig.tight_layout()
     tmp = path.with_name(f".{path.name}.tmp.png")
     fig.savefig(tmp, dpi=110)
-    plt.close(fig)
     tmp.replace(path)
 
 
 def cmd_race(args: argparse.Namespace) -> int:
-    from mrcomm_env.experiments.evaluation import limit_threads
-
     limit_threads()
     env_id = canonical_id(args.env_id)
     race_configs(env_id, args.algo)  # a configuration that cannot race is refused before any training

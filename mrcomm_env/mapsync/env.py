@@ -51,6 +51,7 @@ from mrcomm_env.mapsync import world
 from mrcomm_env.mapsync.actions import ACTIONS, BISECTION, EQUALITY, FULL, IDLE, SKETCH  # noqa: F401 (the module API)
 from mrcomm_env.mapsync.dynamics import WorldDynamics
 from mrcomm_env.mapsync.philox import SharedStrings
+from mrcomm_env.mapsync.protocol import compiled_kernels
 from mrcomm_env.mapsync.sessions import (  # noqa: F401 — the action and test codes are part of this module's API
     _STALE_ALL,
     _STALE_KNOWN,
@@ -67,13 +68,6 @@ from mrcomm_env.mapsync.sessions import (  # noqa: F401 — the action and test 
     SyncSessions,
 )
 from mrcomm_env.mapsync.spec import MapSyncSpec
-
-
-def _kernels():
-    """The compiled twins (``kernels_numba``), imported on first use: numba is optional."""
-    from mrcomm_env.mapsync import kernels_numba
-
-    return kernels_numba
 
 
 class MapSyncEnv(MapSyncSpec, WorldDynamics, SyncSessions, MrcommParallelEnv):
@@ -240,10 +234,10 @@ class MapSyncEnv(MapSyncSpec, WorldDynamics, SyncSessions, MrcommParallelEnv):
         self._dirty = True
         # the compiled twin of the walk and the sensing, or the numpy reference (docs/architecture.md)
         compiled = backend.compiled()
-        self._walk_and_sense = _kernels().walk_and_sense if compiled else None
-        self._observe_compiled = _kernels().observe if compiled else None
-        self._change_world_compiled = _kernels().change_world if compiled else None
-        self._disagreement_compiled = _kernels().disagreement if compiled else None
+        self._walk_and_sense = compiled_kernels().walk_and_sense if compiled else None
+        self._observe_compiled = compiled_kernels().observe if compiled else None
+        self._change_world_compiled = compiled_kernels().change_world if compiled else None
+        self._disagreement_compiled = compiled_kernels().disagreement if compiled else None
         self._no_progress = np.zeros(N)
         self._move_and_sense(0, walk=False)
         self._update_disagreement()

@@ -51,6 +51,13 @@ STEP4_RULES = ("fixed", "as_printed")
 SKETCH_VERIFY_SMALL = 8
 
 
+def compiled_kernels():
+    """The compiled twins (``kernels_numba``), imported on first use: numba is optional (``core.backend``)."""
+    from mrcomm_env.mapsync import kernels_numba
+
+    return kernels_numba
+
+
 def sketch_verify_bits(n: int) -> int:
     """Parity bits v of the sketch: from n = 1024 on, as many as keep one difference within 2 log2 n bits.
 
@@ -121,7 +128,7 @@ def segment_inner_products(
     hi = np.asarray(hi, dtype=np.int64)
     index = np.asarray(index, dtype=np.int64)
     if backend.compiled():
-        from mrcomm_env.mapsync import kernels_numba
+        kernels_numba = compiled_kernels()
 
         out = kernels_numba.inner_products(
             np.stack(maps),
@@ -199,7 +206,7 @@ def equality(
         return EqualityResult(True, 0, theory.protocol1_bits(n, k), 1)
     same_shape = np.shape(x) == np.shape(y) == (n,)  # the kernel indexes both maps without checks
     if step4 == "fixed" and same_shape and backend.compiled():  # protocol1_batch on the whole map in one call
-        from mrcomm_env.mapsync import kernels_numba
+        kernels_numba = compiled_kernels()
 
         picks = _alice_picks(strings, 1, k, rng)[0]
         database, use_database, key0, key1, domain, words, last_mask = kernel_strings(strings)
@@ -375,7 +382,8 @@ def _bisection_compiled(x, y, strings: SharedStrings, k: int, res: int, rng: np.
     picks would be drawn ahead.
     """
     from mrcomm_env.core import pcg64_numba
-    from mrcomm_env.mapsync import kernels_numba
+
+    kernels_numba = compiled_kernels()
 
     n = x.size
     pcg64 = isinstance(rng.bit_generator, np.random.PCG64)
@@ -434,7 +442,7 @@ def parity_strings(seed: int, nonce: int, n: int, count: int) -> np.ndarray:
     n_words = (n + 31) // 32
     index = np.array([(nonce * count + j) % (1 << 32) for j in range(count)], dtype=np.uint64)
     if backend.compiled():  # the same words from the compiled generator (~10× faster at these sizes)
-        from mrcomm_env.mapsync import kernels_numba
+        kernels_numba = compiled_kernels()
 
         k0, k1 = seed_key(seed)
         words = kernels_numba.stream_words(k0, k1, index, np.zeros(count, np.int64), n_words, DOMAIN_PARITY)
@@ -476,7 +484,7 @@ def sketch(
     m = pinsketch.field_bits(n)
     gf = pinsketch.field(m)
     if x.shape == y.shape == (n,) and backend.compiled():  # the steps below in one call, integer for integer
-        from mrcomm_env.mapsync import kernels_numba
+        kernels_numba = compiled_kernels()
 
         k0, k1 = seed_key(seed)
         found, stats = kernels_numba.sketch(

@@ -351,9 +351,7 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         """One frame as the copy-axis world of this one copy (the same numbers as the reference below, bit for bit:
         ``tests/multihop/test_multihop.py`` compares whole episodes of both)."""
         if self.__dict__.get("_one_copy") is None:
-            from mrcomm_env.multihop.copy_axis import StaticFrameBatch  # numba is imported with it
-
-            self._one_copy = StaticFrameBatch([self])
+            self._one_copy = type(self).copy_axis_world(self.cfg)([self])
             self._bind_one_copy()
         elif any(getattr(self, name) is not view for name, view in zip(self._WORLD_VIEWS, self._world_views)):
             self._bind_one_copy()  # an array replaced from outside (a batch writing a copy back, a user): take it in
