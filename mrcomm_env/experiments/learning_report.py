@@ -429,6 +429,10 @@ the column). Each shipped model is the best run within the bits of the best pape
 its card (`agents/pretrained/<Name>-v0/card.json`) gives its held-out metric and bits beside that algorithm's,
 and under `rl_phase` its run's own held-out evaluation at the start of the RL phase (agent-step 0: random
 weights, or the clone of a warm start) and at its end.
+Where an env has one, a **bound** row gives what no policy can pass on the same held-out episodes, computed from the
+live env (`mrcomm_env/experiments/bounds.py`), with what it rules out of beating the best paper algorithm by 10 %
+on the metric or by 20 % on bits; **from random weights** says when each run that starts from random weights first
+reaches that algorithm's metric at equal bits on its own held-out curve.
 While training, `progress.csv` and TensorBoard carry a held-out evaluation under `heldout/` (the env's metrics
 and bits per robot; `agents/heldout.py`). The scripted baselines see more than the learned policy where the env's
 page says so (`docs/envs/<Name>-v0.md`, column "global knowledge"), and their own per-robot memory: see
