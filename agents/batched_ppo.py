@@ -48,6 +48,7 @@ import numpy as np
 import torch
 from gymnasium import spaces
 from stable_baselines3.common.running_mean_std import RunningMeanStd
+from stable_baselines3.common.utils import update_learning_rate
 from stable_baselines3.common.vec_env import VecNormalize
 from torch import nn
 
@@ -382,9 +383,13 @@ class BatchedPPO:
         model, policy = self.model, self.policy
         torch.set_num_threads(self.update_threads)
         policy.set_training_mode(True)
-        model._current_progress_remaining = progress_remaining
+        model._current_progress_remaining = progress_remaining  # SB3 saves it with the model
+        # SB3's own learning-rate step (BaseAlgorithm._update_learning_rate) through its public pieces
+        learning_rate = model.lr_schedule(progress_remaining)
+        model.logger.record("train/learning_rate", learning_rate)
         optimizers = [policy.optimizer] + ([self.critic_optimizer] if self.critic_optimizer is not None else [])
-        model._update_learning_rate(optimizers)
+        for optimizer in optimizers:
+            update_learning_rate(optimizer, learning_rate)
         clip_range = float(model.clip_range(progress_remaining))
         clip_range_vf = None if model.clip_range_vf is None else float(model.clip_range_vf(progress_remaining))
         data = self._rollout_tensors()
