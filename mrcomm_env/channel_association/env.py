@@ -320,7 +320,7 @@ class ChannelAssociationEnv(ChannelAssociationSpec, MrcommParallelEnv):
             "bits_sent": float(self.ledger.total_bits.sum()),
         }
 
-    def tracked_robots(self) -> list[tuple[np.ndarray, np.ndarray]]:
+    def tracked_robots(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
         """Per observer, the robots behind the wireless IDs and behind the visual IDs its i-state links now (ground
         truth, for bounds and tests): ``(observer, wireless robots, visual robots)``. On a perfect channel an edge
         survives exactly while the two IDs' activities agree (Algorithm 1, lines 15–16), so the observer's i-state

@@ -150,9 +150,10 @@ def read_curves(env_id: str, docs: Path | None) -> list[dict]:
 
 
 def from_random_weights(env_id: str, baselines: list[dict], spec: dict, docs: Path | None) -> list[str]:
-    """#42's from-scratch table: per run that starts from random weights, the agent-steps and wall seconds until its
-    held-out curve first reaches the best paper algorithm's metric at equal bits (that algorithm played on the curve's
-    own episodes), or what it reached at the end."""
+    """#42's from-scratch table, per price of a bit: how many of the runs (which start from random weights) reach the
+    best paper algorithm's metric at equal bits on their held-out curves (that algorithm played on the curves' own
+    episodes), after how many agent-steps and wall seconds, and where the runs end; a sentence instead where the
+    runs start from a clone."""
     settings = spec["settings"].get(spec["algo"], {})
     if settings.get("init_from"):
         return [
