@@ -106,7 +106,7 @@ def record_heldout(logger, model, venv, env_id: str, env_kwargs: dict, episodes:
 
 class TrainingClock:
     """Training's own wall time over a run's sessions: the seconds the sessions before a resume trained (``before``,
-    from the checkpoint resumed; :func:`mrcomm_agents.training` keeps it in ``state.json``), plus this session's
+    from the checkpoint resumed; :mod:`mrcomm_agents.training` keeps it in ``state.json``), plus this session's
     since :meth:`start`, without the held-out evaluations (``evaluating``, which the caller adds up)."""
 
     def __init__(self, before: float = 0.0) -> None:
