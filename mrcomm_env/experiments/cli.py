@@ -13,11 +13,18 @@ import argparse
 import os
 import sys
 
-from mrcomm_env.experiments.commands import bench, docs, evaluate, listing, record, reproduce
-from mrcomm_env.experiments.learning_report import add_reproduce_learning_parser
-from mrcomm_env.experiments.race import add_race_parser
+from mrcomm_env.experiments.commands import (
+    bench,
+    docs,
+    evaluate,
+    listing,
+    race,
+    record,
+    reproduce,
+    reproduce_learning,
+    train,
+)
 from mrcomm_env.experiments.sweep import SweepError
-from mrcomm_env.experiments.train import add_train_parser
 
 EXIT_BAD_INPUT = 2
 EXIT_FAILURE = 1
@@ -31,9 +38,9 @@ COMMANDS = (
     record.add_parser,
     reproduce.add_parser,
     bench.add_parser,
-    add_train_parser,
-    add_race_parser,
-    add_reproduce_learning_parser,
+    train.add_parser,
+    race.add_parser,
+    reproduce_learning.add_parser,
     docs.add_parser,
 )
 

@@ -1,9 +1,8 @@
-"""docs/learning.md and ``mrcomm reproduce-learning``: per env, the comparison's table, its figure (task metric
+"""docs/learning.md, which ``mrcomm reproduce-learning`` writes (``commands/reproduce_learning.py``): per env, the comparison's table, its figure (task metric
 against bits) and the verdicts of the equal-bits rule, plus the recorded hyperparameter sweep."""
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 from collections.abc import Sequence
@@ -15,24 +14,17 @@ from matplotlib.figure import Figure
 
 from mrcomm_baselines import default_policy
 from mrcomm_env.core.stats import mean_ci95
-from mrcomm_env.experiments.bounds import bound_paragraph, bound_rows
+from mrcomm_env.experiments.bounds import bound_paragraph
 from mrcomm_env.experiments.comparison import (
     baseline_on_training_heldout,
     beats,
     best_baseline,
-    curve_rows,
     dominates,
-    export_pretrained,
     first_reach,
-    heldout_seeds,
-    reproduce_learning,
     training_heldout,
 )
-from mrcomm_env.experiments.evaluation import limit_threads
-from mrcomm_env.experiments.io import atomic_write_csv, atomic_write_text
-from mrcomm_env.experiments.runs import comparison_spec
-from mrcomm_env.experiments.sweep import add_runner_arguments, runner_from_args, using
-from mrcomm_env.registry import canonical_id, env_ids, short_name
+from mrcomm_env.experiments.io import atomic_write_text
+from mrcomm_env.registry import env_ids, short_name
 
 
 def plot_comparison(rows: list[dict], spec: dict, title: str, path: Path) -> None:
@@ -294,51 +286,6 @@ def learning_section(
     return "\n".join(lines) + "\n"
 
 
-def cmd_reproduce_learning(args: argparse.Namespace) -> int:
-    from mrcomm_agents.training import CONFIG_DIR  # extra "train"
-
-    limit_threads()
-    targets = [canonical_id(e) for e in args.env_ids] or [
-        e for e in env_ids() if (CONFIG_DIR / f"{short_name(e)}.json").exists()
-    ]
-    out = Path(args.out)
-    docs = Path(args.docs)
-    (docs / "learning").mkdir(parents=True, exist_ok=True)
-    if args.docs_only:  # re-render every section from its recorded table (e.g. after ``make sweep``)
-        for env_id in targets:
-            name = short_name(env_id)
-            table = docs / "learning" / f"{name}.csv"
-            if not table.exists():
-                continue
-            rows, spec = read_rows(table), comparison_spec(env_id)
-            bounds = bound_rows(env_id, spec, heldout_seeds(spec))
-            section = learning_section(env_id, rows, spec, f"learning/{name}.png", docs, bounds)
-            atomic_write_text(docs / "learning" / f"{name}.md", section + sweep_section(env_id, docs))
-        print(f"wrote {write_learning_page(docs)}")
-        return 0
-    with using(runner_from_args(args, progress=not args.quiet)):  # one set of workers for every env
-        for env_id in targets:
-            name = short_name(env_id)
-            rows, spec = reproduce_learning(env_id, out / name, quick=args.quick, progress=not args.quiet)
-            atomic_write_csv(docs / "learning" / f"{name}.csv", rows)
-            curves = curve_rows(spec["tasks"], spec)
-            if curves:
-                atomic_write_csv(docs / "learning" / f"{name}-curves.csv", curves)
-                plot_curves(curves, spec, f"{env_id}: learning curves", docs / "learning" / f"{name}-curves.png")
-            figure = docs / "learning" / f"{name}.png"
-            plot_comparison(rows, spec, f"{env_id}: learned vs scripted at equal bits", figure)
-            bounds = bound_rows(env_id, spec, heldout_seeds(spec))
-            section = learning_section(env_id, rows, spec, f"learning/{name}.png", docs, bounds)
-            section += sweep_section(env_id, docs)
-            # one fragment per env: rerunning one env keeps the others' sections in the page
-            atomic_write_text(docs / "learning" / f"{name}.md", section)
-            if args.export_pretrained:
-                print(f"shipped {spec['best_run']} as {export_pretrained(spec['best_run'], env_id, spec['shipped'])}")
-    page = write_learning_page(docs, quick=args.quick)
-    print(f"wrote {page}")
-    return 0
-
-
 def read_rows(path: Path) -> list[dict]:
     """The comparison rows as ``reproduce-learning`` wrote them to ``docs/learning/<Name>-v0.csv``."""
 
@@ -460,21 +407,3 @@ A learned policy sees only its observation. The scripted baselines read their ro
 | RendezvousMapping-v0 | `paper_protocol` | its group's fused map (landmark estimates, information, counts) and the positions it knows, to run §IV's planner; the last actions |
 | RendezvousMapping-v0 | `greedy`, `no_partition` | the candidate utilities of its local view |
 """
-
-
-def add_reproduce_learning_parser(command) -> None:
-    """``reproduce-learning``; ``command(name, **kw)`` adds a subcommand parser."""
-    p = command("reproduce-learning", help="learned policies against every baseline at equal bits")
-    p.add_argument("env_ids", nargs="*", help="default: every env with a learning configuration")
-    p.add_argument("--out", default="results/learning", help="training runs and evaluations")
-    p.add_argument("--docs", default="docs", help="where learning.md and its figures go")
-    p.add_argument("--quick", action="store_true", help="a tenth of the training budget (a smoke run)")
-    p.add_argument("--export-pretrained", action="store_true", help="ship each env's best run in agents/pretrained")
-    p.add_argument(
-        "--docs-only",
-        action="store_true",
-        help="no training: re-render learning.md from the recorded tables and sweeps",
-    )
-    p.add_argument("--quiet", action="store_true")
-    add_runner_arguments(p)
-    p.set_defaults(func=cmd_reproduce_learning)

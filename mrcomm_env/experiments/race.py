@@ -1,4 +1,4 @@
-"""``mrcomm race ID``: the same quality in less time? SB3 with an env's shipped settings against the batched trainer.
+"""``mrcomm race ID`` (its parser and run: ``commands/race.py``): the same quality in less time? SB3 with an env's shipped settings against the batched trainer.
 
 For each seed, both trainers train on the env's shipped configuration (``agents/configs/<Name>-v0.json``: its env
 arguments, agent-steps and problem-level hyperparameters γ, GAE λ, learning rate and entropy coefficient), with
@@ -19,7 +19,6 @@ takes the same time in both.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 from pathlib import Path
@@ -31,8 +30,6 @@ from matplotlib.figure import Figure
 from tqdm.auto import tqdm
 
 from mrcomm_env.core.stats import mean_ci95
-from mrcomm_env.experiments.arguments import positive_int
-from mrcomm_env.experiments.evaluation import limit_threads
 from mrcomm_env.experiments.io import atomic_write_csv, atomic_write_json, atomic_write_text
 from mrcomm_env.experiments.runs import comparison_spec, run_folder, sb3_algo
 from mrcomm_env.registry import canonical_id, short_name
@@ -47,19 +44,6 @@ GOAL_SHARE = 0.25
 #: the batched trainer's agent-steps, as a multiple of the shipped SB3 run's: its agent-steps are cheaper, and the
 #: race is in wall time, so it may use more of them (its defaults learn less per agent-step than SB3's settings)
 BATCHED_STEPS = 2
-
-
-def add_race_parser(command) -> None:
-    """``race``; ``command(name, **kw)`` adds a subcommand parser."""
-    p = command(
-        "race", help="SB3 with an env's shipped settings against the batched trainer: held-out metric by wall time"
-    )
-    p.add_argument("env_id")
-    p.add_argument("--algo", choices=("ippo", "mappo"), default="ippo", help="the batched trainer's algorithm")
-    p.add_argument("--seeds", type=positive_int, default=3, help="training seeds per trainer (0 … N−1)")
-    p.add_argument("--out", default=None, help="folder (default results/race/<Name>)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_race)
 
 
 def race_configs(env_id: str, algo: str = "ippo") -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
@@ -237,14 +221,3 @@ def _plot(curves: dict[str, list[list[dict[str, float]]]], summary: dict[str, An
     tmp = path.with_name(f".{path.name}.tmp.png")
     fig.savefig(tmp, dpi=110)
     tmp.replace(path)
-
-
-def cmd_race(args: argparse.Namespace) -> int:
-    limit_threads()
-    env_id = canonical_id(args.env_id)
-    race_configs(env_id, args.algo)  # a configuration that cannot race is refused before any training
-    out = Path(args.out or f"results/race/{short_name(env_id)}")
-    summary = race(env_id, args.seeds, out, args.algo, progress=not args.quiet)
-    print(race_table(summary, args.algo), end="")
-    print(f"wrote {out}/race.json, race.md, race.png, curves.csv")
-    return 0

@@ -1,5 +1,4 @@
-"""The ``mrcomm`` commands, one module each with its parser (``add_parser(command)``) and its run (``run(args)``).
-
-``mrcomm train`` and ``convert-run``, ``race`` and ``reproduce-learning`` keep theirs in the modules that do their
-work (``experiments/train.py``, ``race.py``, ``learning_report.py``); ``experiments/cli.py`` puts them together.
+"""The ``mrcomm`` commands, one module each with its parser (``add_parser(command)``) and its run (``run(args)``;
+``train`` also holds ``convert-run``). The work they start lives in the modules below them (``experiments/train.py``,
+``race.py``, ``comparison.py``, ``learning_report.py``, …); ``experiments/cli.py`` puts the parsers together.
 """
