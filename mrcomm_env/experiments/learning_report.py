@@ -99,14 +99,16 @@ def plot_curves(rows: list[dict], spec: dict, title: str, path: Path) -> None:
     tmp.replace(path)
 
 
+def spread(values: list[float], fmt: str) -> str:
+    """``low–high`` of ``values`` in format ``fmt``, or one number where both read the same."""
+    low, high = format(min(values), fmt), format(max(values), fmt)
+    return low if low == high else f"{low}–{high}"
+
+
 def curves_paragraph(env_id: str, docs: Path | None) -> list[str]:
     """The learning-curve figure and its budget, where ``reproduce-learning`` recorded the runs' curves."""
     name = short_name(env_id)
-    table = None if docs is None else docs / "learning" / f"{name}-curves.csv"
-    if table is None or not table.exists():
-        return []
-    with open(table, newline="") as fh:
-        rows = [{k: float(v) for k, v in raw.items()} for raw in csv.DictReader(fh)]
+    rows = read_curves(env_id, docs)
     if not rows:
         return []
     runs = {(r["cost"], r["seed"]) for r in rows}
@@ -114,17 +116,12 @@ def curves_paragraph(env_id: str, docs: Path | None) -> list[str]:
         run: max((r for r in rows if (r["cost"], r["seed"]) == run), key=lambda r: r["agent_steps"]) for run in runs
     }
     steps = sorted({int(r["agent_steps"]) for r in last.values()})
-    minutes = [r["seconds"] / 60 for r in last.values()]
-    spread = (
-        f"{min(minutes):.1f}"
-        if f"{min(minutes):.1f}" == f"{max(minutes):.1f}"
-        else f"{min(minutes):.1f}–{max(minutes):.1f}"
-    )
+    minutes = spread([r["seconds"] / 60 for r in last.values()], ".1f")
     return [
         f"![learning curves: held-out metric and bits against agent-steps](learning/{name}-curves.png)",
         "",
         f"_Learning curves: {len(runs)} runs ({len({r['seed'] for r in rows})} training seeds per price), "
-        f"{', '.join(f'{s:,}' for s in steps)} agent-steps each, {spread} minutes of PPO per run (after any warm "
+        f"{', '.join(f'{s:,}' for s in steps)} agent-steps each, {minutes} minutes of PPO per run (after any warm "
         "start; the curve starts at agent-step 0 with the policy PPO starts from); each point is the held-out "
         "evaluation logged while training "
         f"(`heldout/` in the run's progress.csv; recorded in `docs/learning/{name}-curves.csv`)._",
@@ -171,10 +168,6 @@ def from_random_weights(env_id: str, baselines: list[dict], spec: dict, docs: Pa
         f"{spec['metric']}, bits (mean over the runs) |",
         "| --- | --- | --- | --- | --- |",
     ]
-
-    def spread(values: list[float], fmt: str) -> str:
-        low, high = format(min(values), fmt), format(max(values), fmt)
-        return low if low == high else f"{low}–{high}"
 
     for cost in sorted({r["cost"] for r in curves}):
         seeds = sorted({r["seed"] for r in curves if r["cost"] == cost})
