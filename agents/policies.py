@@ -189,13 +189,33 @@ class SubsetDistribution(Distribution):
 class CandidatePolicy(ActorCriticPolicy):
     """SB3 actor-critic whose logits are the candidate scores themselves (no mixing layer after them); with
     ``subset`` the scores (and a "stop" score from the robot's own features) drive a :class:`SubsetDistribution`
-    over the layout's ``choose``."""
+    over the layout's ``choose``.
 
-    def __init__(self, *args, layout: dict, hidden: int = 64, context: bool = False, subset: bool = False, **kwargs):
+    ``stop_bias`` starts the "stop" score there instead of near 0. From random weights every score is near 0, so the
+    deterministic action (highest score first) stops at once in about one robot in ``candidates + 1`` and sends
+    only its own estimate, and that is the single most likely sampled set too; a bias of −3 starts the policy
+    filling its slot, as every paper algorithm does, and PPO can still learn to stop. It changes only the
+    initial weights: a warm start (DAgger) fits them anyway, and a saved model loads as saved."""
+
+    def __init__(
+        self,
+        *args,
+        layout: dict,
+        hidden: int = 64,
+        context: bool = False,
+        subset: bool = False,
+        stop_bias: float = 0.0,
+        **kwargs,
+    ):
         self.layout = dict(layout)
         self.hidden = hidden
         self.context = context
         self.subset = subset
+        if stop_bias and not subset:
+            raise ValueError("stop_bias applies to policy 'candidate_subset' only (the others have no 'stop' score)")
+        if not math.isfinite(stop_bias):
+            raise ValueError(f"stop_bias must be a finite number, got {stop_bias!r}")
+        self.stop_bias = float(stop_bias)
         if subset and not self.layout.get("choose"):
             raise ValueError("policy 'candidate_subset' needs an env whose observation_layout() gives 'choose'")
         super().__init__(*args, **kwargs)
@@ -227,11 +247,16 @@ class CandidatePolicy(ActorCriticPolicy):
         self.init_weights(self.mlp_extractor.scorer[-1], gain=0.01)
         if self.mlp_extractor.extra is not None:
             self.init_weights(self.mlp_extractor.extra[-1], gain=0.01)
+            if self.subset:
+                with torch.no_grad():  # the "stop" score is the extra head's last output
+                    self.mlp_extractor.extra[-1].bias[-1] = self.stop_bias
         self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
 
     def _get_constructor_parameters(self) -> dict:
         data = super()._get_constructor_parameters()
-        data.update(layout=self.layout, hidden=self.hidden, context=self.context, subset=self.subset)
+        data.update(
+            layout=self.layout, hidden=self.hidden, context=self.context, subset=self.subset, stop_bias=self.stop_bias
+        )
         return data
 
 

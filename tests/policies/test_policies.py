@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 import pytest
@@ -105,3 +106,46 @@ def test_a_subset_policy_trains_saves_loads_and_never_selects_more_than_the_slot
             assert all(int(np.sum(a)) <= kwargs["slot_size"] - 1 for a in actions.values())
             observations, *_ = env.step(actions)
         assert np.isfinite(run_episode(env, policy, 4)["weighted_mean_age"])
+
+
+def subset_policy(stop_bias: float, subset: bool = True):
+    """A fresh candidate policy over MultiHop's 3×3 grid (m = 3: choose 2 of 8 candidates)."""
+    from stable_baselines3.common.utils import ConstantSchedule
+
+    from mrcomm_agents.policies import CandidatePolicy
+    from mrcomm_env.registry import make
+
+    env = make("MultiHop-v0", grid_side=3, slot_size=3, max_cycles=6)
+    torch.manual_seed(0)
+    policy = CandidatePolicy(
+        env.observation_space(env.possible_agents[0]),
+        env.action_space(env.possible_agents[0]),
+        ConstantSchedule(3e-4),
+        layout=env.observation_layout(),
+        hidden=16,
+        context=True,
+        subset=subset,
+        stop_bias=stop_bias,
+    )
+    observations, _ = env.reset(seed=0)
+    return policy, torch.as_tensor(np.stack(list(observations.values())), dtype=torch.float32)
+
+
+def test_a_stop_bias_starts_random_weights_filling_the_slot():
+    unbiased, obs = subset_policy(0.0)
+    biased, _ = subset_policy(-3.0)
+    with torch.no_grad():
+        sent = biased._predict(obs, deterministic=True).sum(dim=1)
+        stop = biased.get_distribution(obs).logits  # the scores, "stop" last
+        base = unbiased.get_distribution(obs).logits
+    assert sent.tolist() == [2.0] * obs.shape[0]  # every robot fills its m − 1 = 2 relays
+    # the bias moves the "stop" score and nothing else
+    assert torch.allclose(stop[:, :-1], base[:, :-1]) and torch.allclose(stop[:, -1], base[:, -1] - 3.0)
+
+
+@pytest.mark.parametrize(
+    "stop_bias, subset, match", [(-3.0, False, "'candidate_subset' only"), (math.nan, True, "finite")]
+)
+def test_a_stop_bias_is_refused_where_it_means_nothing(stop_bias, subset, match):
+    with pytest.raises(ValueError, match=match):
+        subset_policy(stop_bias, subset=subset)
