@@ -132,12 +132,15 @@ def training_heldout(spec: dict) -> tuple[int, int]:
     return HELDOUT_SEEDS, int(settings.get("eval_episodes", TrainConfig.eval_episodes))
 
 
-def baseline_on_training_heldout(env_id: str, spec: dict, label: str) -> dict:
+def baseline_on_training_heldout(env_id: str, spec: dict, label: str, setting: float | None = None) -> dict:
     """The baseline named ``label`` in the table, played on the episodes of the runs' own held-out evaluation (the
-    curves' episodes, not the comparison's): its mean metric and bits there."""
+    curves' episodes, not the comparison's): its mean metric and bits there, with the cost argument at ``setting``
+    where the baselines are scored per setting."""
     name, params = next((n, p) for n, p in spec["baselines"] if baseline_label(n, p) == label)
     first, episodes = training_heldout(spec)
-    env_kwargs = spec["settings"].get(spec["algo"], {}).get("env_kwargs", {})
+    env_kwargs = dict(spec["settings"].get(spec["algo"], {}).get("env_kwargs", {}))
+    if setting is not None:
+        env_kwargs[spec["cost_param"]] = setting
     seeds = list(range(first, first + episodes))
     result = evaluate_policy(env_id, env_kwargs, make_policy(env_id, name, **params), seeds, spec)
     return {"policy": label, "metric": float(np.mean(result["metric"])), "bits": float(np.mean(result["bits"]))}

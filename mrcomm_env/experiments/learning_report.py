@@ -129,9 +129,11 @@ def curves_paragraph(env_id: str, docs: Path | None) -> list[str]:
     ]
 
 
-def read_curves(env_id: str, docs: Path | None) -> list[dict]:
-    """The runs' held-out curves as ``reproduce-learning`` recorded them (``docs/learning/<Name>-v0-curves.csv``)."""
-    table = None if docs is None else docs / "learning" / f"{short_name(env_id)}-curves.csv"
+def read_curves(env_id: str, docs: Path | None, kind: str = "curves") -> list[dict]:
+    """The runs' held-out curves as ``reproduce-learning`` recorded them: ``docs/learning/<Name>-v0-curves.csv`` (the
+    comparison's runs) or, with ``kind="scratch"``, ``<Name>-v0-scratch.csv`` (a run from random weights recorded with
+    ``--record-scratch``)."""
+    table = None if docs is None else docs / "learning" / f"{short_name(env_id)}-{kind}.csv"
     if table is None or not table.exists():
         return []
     with open(table, newline="") as fh:
@@ -141,35 +143,68 @@ def read_curves(env_id: str, docs: Path | None) -> list[dict]:
 def from_random_weights(env_id: str, baselines: list[dict], spec: dict, docs: Path | None) -> list[str]:
     """#42's from-scratch table, per price of a bit: how many of the runs (which start from random weights) reach the
     best paper algorithm's metric at equal bits on their held-out curves (that algorithm played on the curves' own
-    episodes), after how many agent-steps and wall seconds, and where the runs end; a sentence instead where the
-    runs start from a clone."""
+    episodes), after how many agent-steps and wall seconds, and where the runs end. Where the comparison's runs
+    start from a clone, the same table over the recorded run from random weights (the spec's ``scratch``: its
+    algorithm and the wall seconds it is cut at), or a sentence where none is recorded."""
     settings = spec["settings"].get(spec["algo"], {})
     if settings.get("init_from"):
-        return [
-            f"**From random weights.** The comparison's runs start from a clone of `{settings['init_from']}`, not from "
-            "random weights; what training from random weights reached is in the notes below."
-        ]
-    curves = read_curves(env_id, docs)
-    best = best_baseline(baselines, None, spec)
-    if not curves or best is None:
-        return []
+        scratch = spec.get("scratch")
+        curves = read_curves(env_id, docs, "scratch") if scratch else []
+        if not curves:
+            return [
+                f"**From random weights.** The comparison's runs start from a clone of `{settings['init_from']}`, not "
+                "from random weights; what training from random weights reached is in the notes below."
+            ]
+        limit = float(scratch["seconds"])
+        curves = [p for p in curves if p["seconds"] <= limit]
+        source = (
+            f"**From random weights** (#42's goal 3): the comparison's runs start from a clone of "
+            f"`{settings['init_from']}`, so this table reads one run from random weights instead, recorded with "
+            f"`mrcomm reproduce-learning {short_name(env_id)} --record-scratch RUN` from `mrcomm train "
+            f"{short_name(env_id)} --algo {scratch['algo']}` (the `{scratch['algo']}` section of "
+            f"`agents/configs/{short_name(env_id)}.json`, alone on the machine; read up to {limit:,.0f} s of training, "
+            f"and the recorded curve ends at {max((p['seconds'] for p in curves), default=0.0):,.0f} s). It lists the "
+            "first held-out evaluation"
+        )
+        return scratch_table(env_id, curves, baselines, spec, source)
+    source = "**From random weights** (#42's goal 3, read from the learning curves): the first held-out evaluation"
+    return scratch_table(env_id, read_curves(env_id, docs), baselines, spec, source)
+
+
+def scratch_table(env_id: str, curves: list[dict], baselines: list[dict], spec: dict, source: str) -> list[str]:
+    """The from-scratch table of :func:`from_random_weights` over ``curves``, after its opening ``source``: per price
+    of a bit, against the best paper algorithm (of that setting, where the baselines are scored per setting)."""
     lower = bool(spec.get("lower_is_better"))
-    target = baseline_on_training_heldout(env_id, spec, best["policy"])
+    per_setting = bool(spec.get("baselines_per_cost"))
     first, episodes = training_heldout(spec)
     per = spec.get("bits_per", "step")
+    targets = {}
+    for cost in sorted({r["cost"] for r in curves}):
+        best = best_baseline(baselines, cost if per_setting else None, spec)
+        if best is not None:
+            setting = cost if per_setting else None
+            targets[cost] = baseline_on_training_heldout(env_id, spec, best["policy"], setting)
+    if not targets:
+        return []
+    if per_setting:
+        scored = "; ".join(
+            f"at {spec['cost_param']} = {cost:g}, `{t['policy']}` scores {t['metric']:.4g} at {t['bits']:.4g} bits"
+            for cost, t in targets.items()
+        )
+        whose = "the best paper algorithm's of its setting"
+    else:
+        t = next(iter(targets.values()))
+        scored, whose = f"`{t['policy']}` scores {t['metric']:.4g} at {t['bits']:.4g} bits", f"`{t['policy']}`'s"
     lines = [
-        f"**From random weights** (#42's goal 3, read from the learning curves): the first held-out evaluation at "
-        f"which each run's {spec['metric']} is as good as `{best['policy']}`'s with at most 5 % more bits, both on the "
-        f"curves' own {episodes} episodes from seed {first:,} (where `{best['policy']}` scores "
-        f"{target['metric']:.4g} at {target['bits']:.4g} bits per agent per {per}); wall seconds include the "
-        "evaluations.",
+        f"{source} at which each run's {spec['metric']} is as good as {whose} with at most 5 % more bits, both on the "
+        f"curves' own {episodes} episodes from seed {first:,} (where {scored} per agent per {per}); wall seconds "
+        "include the evaluations.",
         "",
         f"| {spec['cost_param']} | runs that reach it | first at agent-steps | after seconds | at the end: "
         f"{spec['metric']}, bits (mean over the runs) |",
         "| --- | --- | --- | --- | --- |",
     ]
-
-    for cost in sorted({r["cost"] for r in curves}):
+    for cost, target in targets.items():
         seeds = sorted({r["seed"] for r in curves if r["cost"] == cost})
         runs = [[r for r in curves if r["cost"] == cost and r["seed"] == seed] for seed in seeds]
         hits = [hit for hit in (first_reach(points, target, lower) for points in runs) if hit is not None]
@@ -372,8 +407,11 @@ and under `rl_phase` its run's own held-out evaluation at the start of the RL ph
 weights, or the clone of a warm start) and at its end.
 Where an env has one, a **bound** row gives what no policy can pass on the same held-out episodes, computed from the
 live env (`mrcomm_env/experiments/bounds.py`), with what it rules out of beating the best paper algorithm by 10 %
-on the metric or by 20 % on bits; **from random weights** says when each run that starts from random weights first
-reaches that algorithm's metric at equal bits on its own held-out curve.
+on the metric or by 20 % on bits. A **reference** row (MultiHop's `oracle` and `heard`) is no bound but a policy
+with knowledge the learned policy's observation lacks, which shows whether the 10 % margin is there to be found.
+**From random weights** says when each run that starts from random weights first reaches that algorithm's metric
+at equal bits on its own held-out curve (where the comparison starts from a clone, one recorded run from random
+weights).
 While training, `progress.csv` and TensorBoard carry a held-out evaluation under `heldout/` (the env's metrics
 and bits per robot; `agents/heldout.py`). The scripted baselines see more than the learned policy where the env's
 page says so (`docs/envs/<Name>-v0.md`, column "global knowledge"), and their own per-robot memory: see

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 from mrcomm_env.experiments.bounds import bound_rows
@@ -20,7 +21,7 @@ from mrcomm_env.experiments.learning_report import (
 )
 from mrcomm_env.experiments.runs import comparison_spec
 from mrcomm_env.experiments.sweep import add_runner_arguments, runner_from_args, using
-from mrcomm_env.registry import canonical_id, env_ids, short_name
+from mrcomm_env.registry import canonical_id, env_ids, make, short_name
 
 
 def add_parser(command) -> None:
@@ -35,6 +36,12 @@ def add_parser(command) -> None:
         "--docs-only",
         action="store_true",
         help="no training: re-render learning.md from the recorded tables and sweeps",
+    )
+    p.add_argument(
+        "--record-scratch",
+        metavar="RUN",
+        help="record the held-out curve of RUN, a run from random weights, as the env's from-scratch table "
+        "(docs/learning/<Name>-v0-scratch.csv) and re-render its section; one env only",
     )
     p.add_argument("--quiet", action="store_true")
     add_runner_arguments(p)
@@ -51,7 +58,13 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     docs = Path(args.docs)
     (docs / "learning").mkdir(parents=True, exist_ok=True)
-    if args.docs_only:  # re-render every section from its recorded table (e.g. after ``make sweep``)
+    if args.record_scratch is not None:
+        if len(targets) != 1:
+            raise ValueError("--record-scratch takes one env id: the env of the run")
+        record_scratch(targets[0], Path(args.record_scratch), docs)
+    if (
+        args.docs_only or args.record_scratch is not None
+    ):  # re-render every section from its recorded table (e.g. after ``make sweep``)
         for env_id in targets:
             name = short_name(env_id)
             table = docs / "learning" / f"{name}.csv"
@@ -84,3 +97,28 @@ def run(args: argparse.Namespace) -> int:
     page = write_learning_page(docs, quick=args.quick)
     print(f"wrote {page}")
     return 0
+
+
+def record_scratch(env_id: str, run_dir: Path, docs: Path) -> Path:
+    """Write ``run_dir``'s held-out curve (a run from random weights of ``env_id``) as the env's from-scratch table's
+    source, ``docs/learning/<Name>-v0-scratch.csv``; the price of a bit is the run's value of the comparison's cost
+    argument (the env's default where the run did not set it)."""
+    config_path = run_dir / "config.json"
+    if not config_path.exists():
+        raise ValueError(f"--record-scratch: {run_dir} is not a run folder (it has no config.json)")
+    config = json.loads(config_path.read_text())
+    if canonical_id(config["env_id"]) != env_id:
+        raise ValueError(f"--record-scratch: {run_dir} trained {config['env_id']}, not {env_id}")
+    if config.get("init_from"):
+        raise ValueError(f"--record-scratch: {run_dir} starts from a clone ({config['init_from']}), not random weights")
+    spec = comparison_spec(env_id)
+    cost_param = spec["cost_param"]
+    probe = make(env_id, **config["env_kwargs"])
+    cost = float(getattr(probe.cfg, cost_param))
+    probe.close()
+    rows = curve_rows([{"out": run_dir, "cost": cost, "seed": config["seed"]}], spec)
+    if not rows:
+        raise ValueError(f"--record-scratch: {run_dir}/progress.csv has no held-out evaluation")
+    path = docs / "learning" / f"{short_name(env_id)}-scratch.csv"
+    atomic_write_csv(path, rows)
+    return path
