@@ -224,7 +224,8 @@ class HeardRule:
 
 def multihop_bound(env_id: str, env_kwargs: dict, seeds: list[int], spec: dict) -> list[dict]:
     """The flood's bound on the weighted age (its bits are those of slots as large as the robot count, which no
-    policy can send: they bound nothing) and the oracle's row, played in the env as every other row is."""
+    policy can send: they bound nothing) and the rows of the two references, played in the env as every other row
+    is."""
     env = make(env_id, **env_kwargs)
     flood, flood_bits = [], []
     for seed in seeds:

@@ -62,9 +62,8 @@ def run(args: argparse.Namespace) -> int:
         if len(targets) != 1:
             raise ValueError("--record-scratch takes one env id: the env of the run")
         record_scratch(targets[0], Path(args.record_scratch), docs)
-    if (
-        args.docs_only or args.record_scratch is not None
-    ):  # re-render every section from its recorded table (e.g. after ``make sweep``)
+    # no training: re-render every section from its recorded table (e.g. after ``make sweep`` or --record-scratch)
+    if args.docs_only or args.record_scratch is not None:
         for env_id in targets:
             name = short_name(env_id)
             table = docs / "learning" / f"{name}.csv"
