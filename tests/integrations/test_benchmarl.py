@@ -235,7 +235,7 @@ def test_reference_benchmark_runs_resumes_and_writes_its_page(tmp_path, capsys):
 @pytest.mark.parametrize("task", ["MAPSYNC", "CHANNEL_ASSOCIATION"])
 def test_heldout_evaluation_plays_the_episodes_the_single_env_plays(task):
     # action 0 for every robot (MapSync: never sync; ChannelAssociation: never emit, so association never completes
-    # and the completion time counts as the episode's 100 steps), once as BenchMARL's policy module acts and once as
+    # and the completion time counts as the episode's max_cycles), once as BenchMARL's policy module acts and once as
     # a scripted policy in the single env, on the same seeds: the same metric, bits and return (rewards pass through
     # float32 on the TorchRL side: 2^-24 relative per reward, summed over at most 200 rewards of one sign, so 1e-6
     # relative is ample)
