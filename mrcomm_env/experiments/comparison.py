@@ -115,7 +115,24 @@ def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress
     spec["tasks"] = [{"out": t["out"], "cost": t["cost"], "seed": t["seed"]} for t in tasks]
     spec["shipped"] = shipped_run(tasks, [r for r in rows if r["cost"] is None], spec, len(eval_seeds))
     spec["best_run"] = spec["shipped"]["run"]
+    if spec.get("scratch") and not quick:
+        spec["scratch_run"] = train_scratch_run(env_id, spec, out_dir)
     return rows, spec
+
+
+def train_scratch_run(env_id: str, spec: dict, out_dir: Path) -> str:
+    """Where the comparison starts from a clone: train the spec's run from random weights (its ``scratch`` names the
+    algorithm, whose section of the env's config gives every setting; seed 0), after the comparison's runs, as a
+    task of its own. Returns its folder, whose held-out curve is the env's from-scratch table."""
+    from mrcomm_agents.training import split_settings  # extra "train"
+
+    algo = spec["scratch"]["algo"]
+    run_settings, hyper = split_settings(spec["settings"][algo])
+    config = dict(env_id=env_id, algo=algo, seed=0, hyperparams=hyper, **run_settings)
+    out = str(out_dir / "scratch" / run_folder("scratch", config))
+    task = Task("mrcomm_env.experiments.runs:train_run", {"out": out, "config": config}, "from random weights")
+    run_tasks([task], desc=f"training {short_name(env_id)} from random weights")
+    return out
 
 
 def baseline_label(name: str, params: dict) -> str:

@@ -162,7 +162,8 @@ def from_random_weights(env_id: str, baselines: list[dict], spec: dict, docs: Pa
             f"`{settings['init_from']}`, so this table reads one run from random weights instead, recorded with "
             f"`mrcomm reproduce-learning {short_name(env_id)} --record-scratch RUN` from `mrcomm train "
             f"{short_name(env_id)} --algo {scratch['algo']}` (the `{scratch['algo']}` section of "
-            f"`agents/configs/{short_name(env_id)}.json`, alone on the machine; read up to {limit:,.0f} s of training, "
+            f"`agents/configs/{short_name(env_id)}.json`, seed 0; `mrcomm reproduce-learning` trains it after the "
+            f"comparison's runs; read up to {limit:,.0f} s of training, "
             f"and the recorded curve ends at {max((p['seconds'] for p in curves), default=0.0):,.0f} s). It lists the "
             "first held-out evaluation"
         )

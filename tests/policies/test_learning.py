@@ -426,3 +426,19 @@ def test_record_scratch_refuses_a_run_it_cannot_stand_for(tmp_path, capsys, conf
     assert main(["reproduce-learning", "MultiHop-v0", "--docs", str(tmp_path), "--record-scratch", str(run)]) != 0
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
+
+
+def test_reproduce_learning_trains_the_from_scratch_run_from_its_section(tmp_path, monkeypatch):
+    """Where the comparison starts from a clone, ``reproduce-learning`` also trains the spec's run from random weights,
+    with every setting of the section its ``scratch`` names (MultiHop: the ``ippo`` section, its stop bias included)."""
+    tasks = []
+    monkeypatch.setattr(comparison, "run_tasks", lambda batch, desc: tasks.extend(batch) or [None] * len(batch))
+    spec = comparison.comparison_spec("MultiHop-v0")
+    out = comparison.train_scratch_run("mrcomm/MultiHop-v0", spec, tmp_path)
+    (task,) = tasks
+    section = json.loads((CONFIG_DIR / "MultiHop-v0.json").read_text())[spec["scratch"]["algo"]]
+    config = task.kwargs["config"]
+    assert task.kwargs["out"] == out and out.startswith(str(tmp_path / "scratch"))
+    assert config["algo"] == "ippo" and config["seed"] == 0 and "init_from" not in config
+    assert config["timesteps"] == section["timesteps"] and config["env_kwargs"] == section["env_kwargs"]
+    assert config["hyperparams"]["policy_kwargs"] == section["policy_kwargs"]

@@ -80,6 +80,8 @@ def run(args: argparse.Namespace) -> int:
             name = short_name(env_id)
             rows, spec = reproduce_learning(env_id, out / name, quick=args.quick, progress=not args.quiet)
             atomic_write_csv(docs / "learning" / f"{name}.csv", rows)
+            if spec.get("scratch_run"):
+                record_scratch(env_id, Path(spec["scratch_run"]), docs)
             curves = curve_rows(spec["tasks"], spec)
             if curves:
                 atomic_write_csv(docs / "learning" / f"{name}-curves.csv", curves)
