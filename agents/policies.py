@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from typing import cast
 
 import torch
 from stable_baselines3.common.distributions import Distribution
@@ -244,12 +245,14 @@ class CandidatePolicy(ActorCriticPolicy):
         # the extractor's actor output already is one logit per action: SB3's linear action head would mix them
         self.action_net = nn.Identity()
         # small output weights, as SB3 gives its action head: the first policy is close to uniform
-        self.init_weights(self.mlp_extractor.scorer[-1], gain=0.01)
-        if self.mlp_extractor.extra is not None:
-            self.init_weights(self.mlp_extractor.extra[-1], gain=0.01)
+        extractor = cast(CandidateExtractor, self.mlp_extractor)
+        self.init_weights(extractor.scorer[-1], gain=0.01)
+        if extractor.extra is not None:
+            extra_out = cast(nn.Linear, extractor.extra[-1])
+            self.init_weights(extra_out, gain=0.01)
             if self.subset:
                 with torch.no_grad():  # the "stop" score is the extra head's last output
-                    self.mlp_extractor.extra[-1].bias[-1] = self.stop_bias
+                    extra_out.bias[-1] = self.stop_bias
         self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
 
     def _get_constructor_parameters(self) -> dict:

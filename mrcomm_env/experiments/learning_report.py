@@ -148,7 +148,7 @@ def from_random_weights(env_id: str, baselines: list[dict], spec: dict, docs: Pa
     algorithm and the wall seconds it is cut at), or a sentence where none is recorded."""
     settings = spec["settings"].get(spec["algo"], {})
     if settings.get("init_from"):
-        scratch = spec.get("scratch")
+        scratch: dict = spec.get("scratch") or {}
         curves = read_curves(env_id, docs, "scratch") if scratch else []
         if not curves:
             return [
