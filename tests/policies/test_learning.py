@@ -399,8 +399,8 @@ def test_a_run_from_random_weights_becomes_the_from_scratch_table_of_an_env_trai
     )
     docs = tmp_path / "docs"
     (docs / "learning").mkdir(parents=True)
-    for name in ("MultiHop-v0.csv",):  # the recorded comparison table the section re-renders from
-        (docs / "learning" / name).write_text((Path("docs/learning") / name).read_text())
+    table = Path("docs/learning/MultiHop-v0.csv")  # the recorded comparison table the section re-renders from
+    (docs / "learning" / table.name).write_text(table.read_text())
     assert main(["reproduce-learning", "MultiHop-v0", "--docs", str(docs), "--record-scratch", str(run)]) == 0
     with open(docs / "learning" / "MultiHop-v0-scratch.csv", newline="") as fh:
         recorded = list(csv.DictReader(fh))

@@ -135,7 +135,7 @@ def test_a_stop_bias_starts_random_weights_filling_the_slot():
     unbiased, obs = subset_policy(0.0)
     biased, _ = subset_policy(-3.0)
     with torch.no_grad():
-        sent = biased._predict(obs, deterministic=True).sum(dim=1)
+        sent = biased.predict(obs.numpy(), deterministic=True)[0].sum(axis=1)
         stop = biased.get_distribution(obs).logits  # the scores, "stop" last
         base = unbiased.get_distribution(obs).logits
     assert sent.tolist() == [2.0] * obs.shape[0]  # every robot fills its m − 1 = 2 relays
