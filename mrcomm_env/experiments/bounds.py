@@ -142,6 +142,19 @@ def multihop_flood_ages(env, frames: int) -> float:
     return total / max(frames, 1)
 
 
+def check_setting(env) -> None:
+    """MultiHop's references speak the ``relative`` layout (select bits over ranked candidates) on static links."""
+    if env.cfg.layout != "relative" or env.cfg.scene != "grid":
+        raise ValueError("MultiHop's references need the 'relative' layout on the static 'grid' scene")
+
+
+def select_bits(chosen: np.ndarray, views, observations: dict) -> dict:
+    """Each robot's chosen estimates (``chosen[i, j]``: robot i relays j) as the env's action: select bits over its
+    ranked candidates."""
+    selected = np.take_along_axis(chosen, views.team("candidates"), axis=1).astype(np.int8)
+    return {agent: selected[i] for i, agent in enumerate(observations)}
+
+
 class TableOracle:
     """A MultiHop schedule that knows every robot's table: at each frame it replays the frame in TDMA order and
     gives each sender the ``m − 1`` estimates whose eq. (1)-weighted freshness its receivers gain most, as they will
@@ -149,8 +162,7 @@ class TableOracle:
     choices are the env's own select bits over each robot's ranked candidates (the ``relative`` layout)."""
 
     def __init__(self, env) -> None:
-        if env.cfg.layout != "relative" or env.cfg.scene != "grid":
-            raise ValueError("TableOracle needs MultiHop's 'relative' layout on the static 'grid' scene")
+        check_setting(env)
         self.env = env
 
     def reset(self, views, seed) -> None:
@@ -177,9 +189,7 @@ class TableOracle:
                 stamps[r, sent] = np.maximum(stamps[r, sent], stamps[sender, sent])
                 known[r, sent] |= known[sender, sent]
             t += env.slot_dur
-        candidates = views.team("candidates")
-        selected = np.take_along_axis(chosen, candidates, axis=1).astype(np.int8)
-        return {agent: selected[i] for i, agent in enumerate(observations)}
+        return select_bits(chosen, views, observations)
 
 
 class HeardRule:
@@ -191,8 +201,7 @@ class HeardRule:
     reference, not a baseline. Static links, ``relative`` layout."""
 
     def __init__(self, env) -> None:
-        if env.cfg.layout != "relative" or env.cfg.scene != "grid":
-            raise ValueError("HeardRule needs MultiHop's 'relative' layout on the static 'grid' scene")
+        check_setting(env)
         self.env = env
         self.heard = np.zeros((0, 0, 0))
 
@@ -218,8 +227,7 @@ class HeardRule:
         top = np.argsort(-gain, axis=1, kind="stable")[:, : env.m - 1]
         rows = np.arange(env.n_agents)[:, None]
         chosen[rows, top] = gain[rows, top] > 0.0
-        selected = np.take_along_axis(chosen, views.team("candidates"), axis=1).astype(np.int8)
-        return {agent: selected[i] for i, agent in enumerate(observations)}
+        return select_bits(chosen, views, observations)
 
 
 def multihop_bound(env_id: str, env_kwargs: dict, seeds: list[int], spec: dict) -> list[dict]:
