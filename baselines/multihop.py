@@ -16,6 +16,10 @@ sent.
   robot last broadcast j (``s_ij`` = the stamp it sent then). An estimate whose stamp it already sent is
   held by every neighbour on a static lossless channel, so resending it is wasted room; ``f × gain`` is
   the importance-weighted age its neighbours shed. Estimates without gain only fill leftover room.
+* ``heard_aware`` — ours, with ``observe_heard``: rank by ``d^-α × Σ_k (t_ij − h_ikj)⁺``, importance times the
+  freshness robot i's neighbours k ≠ j lack beyond the freshest stamp ``h_ikj`` it heard k broadcast or broadcast
+  to k (the local view's ``heard``); ``age_aware``'s idea with each neighbour's table bounded from what the robot
+  heard instead of from its own broadcasts alone. Estimates no neighbour lacks are not sent.
 * ``random`` — uniform random priorities.
 """
 
@@ -116,6 +120,28 @@ class AgeAware(Policy):
         return _as_actions(views, _rank_priorities(order, n, _fill(f)), observations)
 
 
+class HeardAware(Policy):
+    """Ours, on an env with ``observe_heard`` (module docstring): what each neighbour lacks, from what the robot
+    heard; sends only estimates some neighbour lacks."""
+
+    name = "heard_aware"
+
+    def reset(self, views, seed=None):
+        super().reset(views, seed)
+        if views.team("heard").shape[1] == 0:
+            raise ValueError("policy 'heard_aware' needs MultiHop-v0 with observe_heard=True (its local view 'heard')")
+
+    def act(self, observations, views):
+        f, known = _importance(views)
+        heard = views.team("heard")
+        neighbour = np.isfinite(heard).any(axis=2)  # [i, k]: k was heard (every robot broadcasts its own estimate)
+        held = np.where(known, views.team("stamps"), 0.0)
+        lacking = np.maximum(held[:, None, :] - np.where(np.isfinite(heard), heard, 0.0), 0.0)
+        judged = neighbour[:, :, None] & ~np.eye(views.n_agents, dtype=bool)[None]  # k's own estimate is current
+        gain = f * np.where(judged, lacking, 0.0).sum(axis=1)
+        return _as_actions(views, np.where(known, gain, 0.0), observations)
+
+
 class Probabilistic(Policy):
     """Eq. (2): successive draws proportional to d^-α without replacement (Plackett–Luce = Gumbel-top-k)."""
 
@@ -161,5 +187,6 @@ POLICIES = {
     "no_hop": NoHop,
     "probabilistic": Probabilistic,
     "age_aware": AgeAware,
+    "heard_aware": HeardAware,
     "random": RandomPolicy,
 }

@@ -12,9 +12,9 @@ from the live env on the comparison's own held-out episodes, and shows how close
   row is measured as every other row is.
 * MultiHop-v0: the weighted age of slots that carry every estimate their sender holds (a lower bound on the metric
   only; more room per slot is not a policy's to take, so its bits bound nothing), and two references that are not
-  bounds: an **oracle** schedule that knows every robot's table (:class:`TableOracle`) and a rule that knows what it
-  heard its neighbours broadcast (:class:`HeardRule`): what a policy could reach with knowledge of its neighbours'
-  tables that its observation does not give.
+  bounds: an **oracle** schedule that knows every robot's table (:class:`TableOracle`) and the ``heard_aware``
+  baseline, which knows what each robot heard its neighbours broadcast (the env's ``observe_heard``): what a policy
+  could reach with knowledge of its neighbours' tables that the comparison's observation does not give.
 """
 
 from __future__ import annotations
@@ -192,44 +192,6 @@ class TableOracle:
         return select_bits(chosen, views, observations)
 
 
-class HeardRule:
-    """A MultiHop rule that knows what it heard: robot i keeps, for each neighbour k and estimate j, the freshest stamp
-    of j it heard k broadcast or broadcast to k itself (a lower bound on k's table, on a lossless broadcast channel),
-    and fills its slot with the ``m − 1`` estimates whose eq. (1)-weighted freshness beyond those bounds, summed over
-    its neighbours, is largest. It is ``age_aware``'s idea (resend only what a neighbour lacks) with the neighbours'
-    tables bounded from what the robot heard; the env's local view does not offer what it heard, so this is a
-    reference, not a baseline. Static links, ``relative`` layout."""
-
-    def __init__(self, env) -> None:
-        check_setting(env)
-        self.env = env
-        self.heard = np.zeros((0, 0, 0))
-
-    def reset(self, views, seed) -> None:
-        n = self.env.n_agents
-        self.heard = np.zeros((n, n, n))  # heard[i, k, j]: the freshest stamp of j robot i knows k holds (0: none)
-
-    def act(self, observations: dict, views) -> dict:
-        env = self.env
-        links = env.adj.astype(bool)
-        if env.t > 0:  # after a frame: what each robot heard its neighbours (and itself) broadcast in it
-            broadcast = np.where(env.last_sent, env.sent_stamp, 0.0)  # row k: the stamps k sent
-            reach = links[:, :, None]
-            self.heard = np.maximum(self.heard, np.where(reach, broadcast[None, :, :], 0.0))
-            self.heard = np.maximum(self.heard, np.where(reach, broadcast[:, None, :], 0.0))
-        weights = env.world_arrays()["weights"]
-        stamps = np.where(env.stamps > -np.inf, env.stamps, 0.0)
-        lacking = np.maximum(stamps[:, None, :] - self.heard, 0.0) * weights[None, :, :]
-        gain = np.where(links[:, :, None], lacking, 0.0).sum(axis=1)  # gain[i, j]: summed over i's neighbours
-        gain[env.stamps == -np.inf] = 0.0
-        np.fill_diagonal(gain, 0.0)
-        chosen = np.zeros_like(gain, dtype=bool)
-        top = np.argsort(-gain, axis=1, kind="stable")[:, : env.m - 1]
-        rows = np.arange(env.n_agents)[:, None]
-        chosen[rows, top] = gain[rows, top] > 0.0
-        return select_bits(chosen, views, observations)
-
-
 def multihop_bound(env_id: str, env_kwargs: dict, seeds: list[int], spec: dict) -> list[dict]:
     """The flood's bound on the weighted age (its bits are those of slots as large as the robot count, which no
     policy can send: they bound nothing) and the rows of the two references, played in the env as every other row
@@ -243,18 +205,23 @@ def multihop_bound(env_id: str, env_kwargs: dict, seeds: list[int], spec: dict) 
     label = "bound: every slot carries every estimate its sender holds (metric only; those bits no slot holds)"
     rows = [{**comparison_row(label, None, flood, flood_bits, len(seeds)), "setting": None, "bound": True}]
     rows[0]["bits_bound"] = False
+    # heard_aware plays the same episodes with what each robot heard in its local view (observe_heard changes what
+    # a robot is told, not the frames)
+    heard_env = make(env_id, **env_kwargs, observe_heard=True)
     references = {
-        "oracle: knows every robot's table, greedy per slot (not a bound)": TableOracle(env),
-        "heard: knows what it heard its neighbours broadcast (not in the observation; not a bound)": HeardRule(env),
+        "oracle: knows every robot's table, greedy per slot (not a bound)": (env, TableOracle(env)),
+        "heard_aware: knows what it heard its neighbours broadcast (`observe_heard`, not in the comparison's "
+        "observation; not a bound)": (heard_env, make_policy(env_id, "heard_aware")),
     }
-    for label, policy in references.items():
+    for label, (played, policy) in references.items():
         metric, bits = [], []
         for seed in seeds:
-            metrics = run_episode(env, policy, seed)
+            metrics = run_episode(played, policy, seed)
             metric.append(float(metrics[spec["metric"]]))
-            bits.append(bits_per_agent(env, metrics, spec.get("bits_per", "step")))
+            bits.append(bits_per_agent(played, metrics, spec.get("bits_per", "step")))
         rows.append({**comparison_row(label, None, metric, bits, len(seeds)), "setting": None, "oracle": True})
     env.close()
+    heard_env.close()
     return rows
 
 
@@ -318,7 +285,7 @@ def oracle_paragraph(reference: dict, best: dict, learned: list[dict], spec: dic
         f"{100 * (1 - reference['metric'] / best['metric']):.1f} % below `{best['policy']}`'s {best['metric']:.4g} at "
         f"{best['bits']:.4g} bits. #42's 10 % margin ({target:.4g} at no more than {slack_bits:.4g} bits) is "
         + (
-            f"reachable with `{name}`'s knowledge, which the learned policy's observation does not give."
+            f"reachable with `{name}`'s knowledge, which the comparison's observation does not give."
             if reaches
             else f"not reached by `{name}` either."
         )

@@ -4,9 +4,9 @@
 | --- | --- |
 | Agents | `n_robots` robots `robot_0 … robot_{N-1}` (grid: `grid_side²`, field: 20, coverage: 9 by default; at most 1024, 25 in the coverage scene) |
 | Actions | `layout="relative"` (default): `MultiBinary(N − 1)` per robot, one bit per *candidate*: the other robots ranked by my estimated distance to them (nearest first; estimates I do not hold last, by slot order after mine). The env sends my own estimate plus the first `slot_size − 1` selected candidates I hold at my slot; unselected ones are withheld, so a robot may send fewer than `m` and save bits. `layout="absolute"` (v0): `Box(0, 1, (N,))`, a priority per robot index (ties: lower index; 0 withholds) |
-| Observations | `relative`: `Box(0, 1, (5(N − 1) + 3,))`, per candidate rank: held (0/1), estimated distance over the arena diagonal, age `a/(a + T_frame)`, freshness gained since I last broadcast it `g/(g + T_frame)`, its slot position after mine; then my slot `s_i/N`, `m/N` and the fraction of robots I hold. `absolute` (v0): `Box(0, 1, (3N + 2,))` by robot index |
+| Observations | `relative`: `Box(0, 1, (5(N − 1) + 3,))`, per candidate rank: held (0/1), estimated distance over the arena diagonal, age `a/(a + T_frame)`, freshness gained since I last broadcast it `g/(g + T_frame)`, its slot position after mine (with `observe_heard`, a sixth: the freshness my neighbours lack of it, as far as what I heard them broadcast and broadcast to them tells, `(6(N − 1) + 3,)`); then my slot `s_i/N`, `m/N` and the fraction of robots I hold. `absolute` (v0): `Box(0, 1, (3N + 2,))` by robot index |
 | Reward | `−(Σ w_ij a_ij / Σ w_ij) / (10 T_frame) − lam · bits / (N m b)`: the importance-weighted age of information (eq. (1) weights `w_ij = d_ij^-α`) in units of ten frames, and the share of the slots' capacity used; `reward_mode="neighbourhood"` gives each robot the weighted age held by its neighbours (what its broadcast refreshes) and its own bits instead |
-| Arguments | `scene`, `n_robots`, `grid_side`, `slot_size`, `alpha`, `bits_per_estimate`, `baud`, `max_cycles`, `arena_size`, `comm_range`, `speed`, `max_speed`, `control_gain` |
+| Arguments | `scene`, `n_robots`, `grid_side`, `slot_size`, `alpha`, `bits_per_estimate`, `baud`, `max_cycles`, `arena_size`, `comm_range`, `speed`, `max_speed`, `control_gain`, `layout`, `lam`, `reward_mode`, `observe_heard` |
 
 Every robot knows its own current state and keeps a list of the others' estimates, each with the time
 stamp at which it was valid; at the start it knows only its own (unknown = "infinite", §2.1). TDMA gives
@@ -65,9 +65,9 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
     def copy_axis_world(cls, cfg):
         """A static topology (the grid, or a field with ``speed`` 0) with the team reward, in either layout, on the
         compiled backend, steps M copies as one batch of arrays (:mod:`.copy_axis`); other configurations (moving
-        robots, the coverage controller, the neighbourhood reward) step their copies in turn."""
+        robots, the coverage controller, the neighbourhood reward, ``observe_heard``) step their copies in turn."""
         static = cfg.scene == "grid" or (cfg.scene == "field" and cfg.speed == 0)
-        if not static or cfg.reward_mode != "team" or not backend.compiled():
+        if not static or cfg.reward_mode != "team" or cfg.observe_heard or not backend.compiled():
             return None
         from mrcomm_env.multihop.copy_axis import StaticFrameBatch  # numba is imported with it
 
@@ -111,8 +111,16 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
             self._cost_points = cov.sample_points(self.side, 40)
             self._ctrl_points = cov.sample_points(self.side, 30)
         self._relative = c.layout == "relative"
+        if c.observe_heard and (not self._relative or self._moving):
+            raise ValueError(
+                "argument 'observe_heard' needs the 'relative' layout on static links (scene 'grid', or 'field' with "
+                f"speed 0): what a robot heard bounds its neighbours' tables only while the links hold; got layout "
+                f"{c.layout!r}, scene {c.scene!r}, speed {c.speed!r}"
+            )
+        #: per candidate: RELATIVE_FEATURES, and with ``observe_heard`` the freshness its neighbours lack
+        self._features = RELATIVE_FEATURES + int(c.observe_heard)
         if self._relative:
-            self._obs_space = spaces.Box(0.0, 1.0, shape=(RELATIVE_FEATURES * (n - 1) + 3,), dtype=np.float32)
+            self._obs_space = spaces.Box(0.0, 1.0, shape=(self._features * (n - 1) + 3,), dtype=np.float32)
             self._act_space = spaces.MultiBinary(n - 1)
         else:
             self._obs_space = spaces.Box(0.0, 1.0, shape=(3 * n + 2,), dtype=np.float32)
@@ -150,6 +158,8 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         self._all_known = False
         self.last_sent = np.zeros((n, n), dtype=bool)
         self.sent_stamp = np.full((n, n), -self.frame_dur)  # never sent: as if sent one frame before start
+        # heard[i, k, j]: the freshest stamp of j robot i heard k broadcast, or broadcast to k (observe_heard)
+        self.heard = np.full((n, n, n), proto.UNKNOWN) if c.observe_heard else None
         self.ledger.reset()
         self._step_bits = np.zeros(n)
         self._frames = 0
@@ -384,7 +394,7 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         # choose: the env sends at most m − 1 selected candidates besides the robot's own estimate
         return {
             "candidates": self.n_agents - 1,
-            "features": RELATIVE_FEATURES,
+            "features": self._features,
             "globals": 3,
             "extra_actions": 0,
             "choose": self.m - 1,
@@ -464,6 +474,8 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
                 sel = ages[mask]
                 self._max_age[k] = max(self._max_age[k], float(sel.max()))
                 self._sum_age_hop[k] += float(sel.mean())
+        if self.heard is not None:
+            self._hear()
         if self._relative:
             self._rank_candidates()
         age_unit = self._age_unit
@@ -475,6 +487,33 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         deg = self.adj.sum(axis=1)
         near = np.where(deg > 0, (self.adj @ own) / np.maximum(deg, 1), own)
         return -near / age_unit - self.cfg.lam * self._step_bits / bit_unit
+
+    def _hear(self) -> None:
+        """What each robot heard this frame (``observe_heard``): on a lossless broadcast channel over static links,
+        robot i heard every neighbour k broadcast, and k heard i, so k holds at least the stamps either sent."""
+        sent = np.where(self.last_sent, self.sent_stamp, proto.UNKNOWN)  # row k: the stamps k broadcast this frame
+        either = np.maximum(sent[None, :, :], sent[:, None, :])  # [i, k, j]: k's or i's broadcast of j
+        np.copyto(either, proto.UNKNOWN, where=~(self.adj[:, :, None] > 0))  # only neighbours hear each other
+        np.maximum(self.heard, either, out=self.heard)
+
+    def neighbour_lack(self) -> np.ndarray:
+        """(n, n) ``observe_heard``'s feature: for robot i and estimate j, the mean over i's neighbours k ≠ j of the
+        freshness of i's estimate of j beyond the freshest stamp i knows k holds, ``g/(g + T_frame)`` (1 where i
+        never heard that k holds j; 0 where i holds no estimate of j, or has no neighbour but j). A neighbour's own
+        estimate is always current, so k = j lacks nothing. Two n³ temporaries at most (the memory model)."""
+        n = self.n_agents
+        held = self.stamps > proto.UNKNOWN
+        stamps = np.where(held, self.stamps, 0.0)  # an estimate i does not hold lacks nothing (zeroed below)
+        share = stamps[:, None, :] - self.heard  # [i, k, j]: freshness beyond what k is known to hold; inf: never
+        np.maximum(share, 0.0, out=share)
+        with np.errstate(invalid="ignore"):  # inf / inf where never heard: taken as 1 below
+            np.divide(share, share + self.frame_dur, out=share)
+        share[np.isnan(share)] = 1.0
+        judged = (self.adj[:, :, None] > 0) & ~np.eye(n, dtype=bool)[None, :, :]  # [i, k, j]: k a neighbour, k ≠ j
+        share *= judged
+        count = judged.sum(axis=1)
+        lack = share.sum(axis=1) / np.maximum(count, 1)
+        return np.where(held & (count > 0), lack, 0.0)
 
     # ----------------------------------------------------------------- views
     def estimated_distances(self) -> np.ndarray:
@@ -492,6 +531,7 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
             "candidates": self._candidates.astype(np.int64, copy=False)
             if self._relative
             else np.zeros((self.n_agents, 0), dtype=np.int64),
+            "heard": np.zeros((self.n_agents, 0, self.n_agents)) if self.heard is None else self.heard,
         }
 
     def _observe(self) -> np.ndarray:
@@ -510,10 +550,13 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         # freshness gained since this robot last broadcast each estimate: what resending it would add
         gain = np.where(known, np.maximum(self.stamps - self.sent_stamp, 0.0), 0.0)
         gain_n = gain / (gain + self.frame_dur)
-        out = np.empty((n, RELATIVE_FEATURES * (n - 1) + 3), dtype=np.float32)
-        ranked = out[:, : RELATIVE_FEATURES * (n - 1)].reshape(n, n - 1, RELATIVE_FEATURES)
+        features = (known, dist_n, age_n, gain_n, self._phase)
+        if self.heard is not None:
+            features += (self.neighbour_lack(),)
+        out = np.empty((n, self._features * (n - 1) + 3), dtype=np.float32)
+        ranked = out[:, : self._features * (n - 1)].reshape(n, n - 1, self._features)
         flat = self._cand_flat
-        for k, feature in enumerate((known, dist_n, age_n, gain_n, self._phase)):
+        for k, feature in enumerate(features):
             ranked[:, :, k] = feature.reshape(-1)[flat].reshape(n, n - 1)
         out[:, -3] = slot / n
         out[:, -2] = self.m / n

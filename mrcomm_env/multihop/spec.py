@@ -5,7 +5,7 @@ inherits them from :class:`MultiHopSpec`; ``mrcomm docs`` reads them from there.
 from __future__ import annotations
 
 from mrcomm_env.core.base import COPY_OVERHEAD_BYTES, EnvSpec
-from mrcomm_env.core.config import Choice, Int, Optional, Param, Real
+from mrcomm_env.core.config import Bool, Choice, Int, Optional, Param, Real
 from mrcomm_env.multihop import protocol as proto
 
 SUBGRAPHS = (2, 4, 6, 8)
@@ -100,6 +100,14 @@ class MultiHopSpec(EnvSpec):
             "λ: reward cost of the share of slot capacity used (bits / (N m b) per frame)",
             Real(lo=0.0, hi=100.0, fuzz=(0.0, 2.0)),
         ),
+        "observe_heard": Param(
+            False,
+            "`relative` layout on static links (the grid, or a field with `speed` 0) only: add to each candidate "
+            "what the robot heard, the freshness its neighbours lack of that estimate as far as the broadcasts it "
+            "heard and sent tell (a sixth feature per candidate; the robot keeps an n × n table per robot, so the "
+            "memory grows as n³)",
+            Bool(),
+        ),
         "reward_mode": Param(
             "team",
             "`team`: one team reward; `neighbourhood`: each robot gets the weighted age "
@@ -148,6 +156,8 @@ class MultiHopSpec(EnvSpec):
         "slot": "this robot's slot index within the frame",
         "slot_size": "m: estimates per slot (the same for every robot)",
         "candidates": "(N − 1,) robot index at each candidate rank of the `relative` layout (this frame)",
+        "heard": "(N, N) with `observe_heard`: row k, the freshest stamp of each estimate this robot heard "
+        "neighbour k broadcast or broadcast to k itself (a lower bound on k's table; −inf: none); (0, N) without it",
     }
 
     DOCUMENTED_CONFIGS = {
@@ -164,23 +174,26 @@ class MultiHopSpec(EnvSpec):
             "lam": 0.5,
             "reward_mode": "neighbourhood",
         },
+        "heard": {"grid_side": 6, "slot_size": 4, "max_cycles": 60, "observe_heard": True},
     }
 
     MEMORY_FORMULA = (
         "8 MiB + 180·n² for n robots (`n_robots`, or `grid_side`² in the grid scene): every robot's estimate "
         "table, its candidate observation and the pairwise distances and links are n × n; a static scene with the "
         "team reward on the compiled backend adds 24 MiB + 48·n² (it steps as the "
-        "copy-axis world of one copy: numba's kernels, and the world's rows beside the env's arrays)"
+        "copy-axis world of one copy: numba's kernels, and the world's rows beside the env's arrays); "
+        "`observe_heard` adds 28·n³ (each robot's n × n table of what it heard and the frame's two n³ temporaries)"
     )
 
     MEMORY_SHARED = 8.0 * 2**20  # the formula's constant term: working memory the copies of a batch share
 
-    MEMORY_ARGS = ("n_robots", "grid_side")
+    MEMORY_ARGS = ("n_robots", "grid_side", "observe_heard")
 
     MEMORY_PROBES = {
         "field_384": {"scene": "field", "n_robots": 384, "max_cycles": 3},
         "field_768": {"scene": "field", "n_robots": 768, "max_cycles": 3},
         "grid_32x32": {"grid_side": 32, "max_cycles": 3},
+        "heard_16x16": {"grid_side": 16, "observe_heard": True, "max_cycles": 3},
     }
 
     @classmethod
@@ -190,6 +203,8 @@ class MultiHopSpec(EnvSpec):
         one = cls.MEMORY_SHARED + 180.0 * n * n
         if cls.copy_axis_world(cfg) is not None:  # the single env steps as the world of its one copy
             one += cls.WORLD_SHARED + cls.WORLD_ONE_COPY_PER_PAIR * n * n
+        if cfg.observe_heard:
+            one += 28.0 * n**3
         return one
 
     #: bytes per robot pair of each further copy in a copy-axis world (:mod:`.copy_axis`): its (n, n) arrays of the
