@@ -118,8 +118,9 @@ benchmark-page: .venv-benchmarl/.installed
 docs: $(STAMP)
 	$(BIN)/mrcomm docs
 
-# learned policies against every baseline at equal bits: trains 5 seeds per cost value and env (about 70 minutes
-# on two cores: ChannelAssociation 22, MultiHop 18, AsyncCL 13, MapSync 12, RendezvousMapping 5), then
+# learned policies against every baseline at equal bits: trains 5 seeds per cost value and env (about 3 hours on two
+# cores: MultiHop 105 minutes for its five runs from random weights, ChannelAssociation 22, RendezvousMapping 5 plus
+# its 16-minute run from random weights, AsyncCL 13, MapSync 12), then
 # regenerates docs/learning.md with its curves (add --export-pretrained to ship the best runs); reruns skip the
 # runs already done
 learn: $(STAMP)

@@ -408,7 +408,7 @@ and under `rl_phase` its run's own held-out evaluation at the start of the RL ph
 weights, or the clone of a warm start) and at its end.
 Where an env has one, a **bound** row gives what no policy can pass on the same held-out episodes, computed from the
 live env (`mrcomm_env/experiments/bounds.py`), with what it rules out of beating the best paper algorithm by 10 %
-on the metric or by 20 % on bits. A **reference** row (MultiHop's `oracle` and `heard_aware`) is no bound but a policy
+on the metric or by 20 % on bits. A **reference** row (MultiHop's `oracle`) is no bound but a policy
 with knowledge the learned policy's observation lacks, which shows whether the 10 % margin is there to be found.
 **From random weights** says when each run that starts from random weights first reaches that algorithm's metric
 at equal bits on its own held-out curve (where the comparison starts from a clone, one recorded run from random

@@ -475,7 +475,7 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
                 self._max_age[k] = max(self._max_age[k], float(sel.max()))
                 self._sum_age_hop[k] += float(sel.mean())
         if self.heard is not None:
-            self._hear()
+            self._hear(self.heard)
         if self._relative:
             self._rank_candidates()
         age_unit = self._age_unit
@@ -488,19 +488,22 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         near = np.where(deg > 0, (self.adj @ own) / np.maximum(deg, 1), own)
         return -near / age_unit - self.cfg.lam * self._step_bits / bit_unit
 
-    def _hear(self) -> None:
-        """What each robot heard this frame (``observe_heard``): on a lossless broadcast channel over static links,
-        robot i heard every neighbour k broadcast, and k heard i, so k holds at least the stamps either sent."""
+    def _hear(self, heard: np.ndarray) -> None:
+        """What each robot heard this frame, into ``heard`` (``observe_heard``): on a lossless broadcast channel over
+        static links, robot i heard every neighbour k broadcast, and k heard i, so k holds at least the stamps either
+        sent."""
         sent = np.where(self.last_sent, self.sent_stamp, proto.UNKNOWN)  # row k: the stamps k broadcast this frame
         either = np.maximum(sent[None, :, :], sent[:, None, :])  # [i, k, j]: k's or i's broadcast of j
         np.copyto(either, proto.UNKNOWN, where=~(self.adj[:, :, None] > 0))  # only neighbours hear each other
-        np.maximum(self.heard, either, out=self.heard)
+        np.maximum(heard, either, out=heard)
 
     def neighbour_lack(self) -> np.ndarray:
         """(n, n) ``observe_heard``'s feature: for robot i and estimate j, the mean over i's neighbours k ≠ j of the
         freshness of i's estimate of j beyond the freshest stamp i knows k holds, ``g/(g + T_frame)`` (1 where i
         never heard that k holds j; 0 where i holds no estimate of j, or has no neighbour but j). A neighbour's own
         estimate is always current, so k = j lacks nothing. Two n³ temporaries at most (the memory model)."""
+        if self.heard is None:
+            raise ValueError("neighbour_lack() needs the env built with observe_heard=True")
         n = self.n_agents
         held = self.stamps > proto.UNKNOWN
         stamps = np.where(held, self.stamps, 0.0)  # an estimate i does not hold lacks nothing (zeroed below)
@@ -550,9 +553,9 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         # freshness gained since this robot last broadcast each estimate: what resending it would add
         gain = np.where(known, np.maximum(self.stamps - self.sent_stamp, 0.0), 0.0)
         gain_n = gain / (gain + self.frame_dur)
-        features = (known, dist_n, age_n, gain_n, self._phase)
+        features = [known, dist_n, age_n, gain_n, self._phase]
         if self.heard is not None:
-            features += (self.neighbour_lack(),)
+            features.append(self.neighbour_lack())
         out = np.empty((n, self._features * (n - 1) + 3), dtype=np.float32)
         ranked = out[:, : self._features * (n - 1)].reshape(n, n - 1, self._features)
         flat = self._cand_flat

@@ -67,6 +67,9 @@ def test_paragraphs_say_what_a_metric_bound_and_an_oracle_show():
     text = bound_paragraph(oracle, best, learned, spec)
     assert "reachable with `oracle`'s knowledge" in text
     assert "13 % of the way" in text  # (46 - 44) / (46 - 31)
+    behind = [{**learned[0], "metric": 47.0}]  # worse than age_aware: no share of the way, and no negative one
+    text = bound_paragraph(oracle, best, behind, spec)
+    assert "reaches 47: not below `age_aware`'s 46" in text and "of the way" not in text
     slow = {**oracle, "metric": 43.0}
     assert "not reached by `oracle` either" in bound_paragraph(slow, best, learned, spec)
     costly = {**oracle, "bits": 900.0}

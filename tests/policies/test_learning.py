@@ -367,78 +367,92 @@ def test_a_curve_reaches_the_paper_at_its_metric_with_at_most_five_percent_more_
 
 
 def fake_scratch_run(folder: Path, env_kwargs: dict, points: list[tuple[int, float, float, float]], **config) -> Path:
-    """A run folder as ``mrcomm train`` leaves it, with only what ``--record-scratch`` reads: its config and the
-    held-out rows of its progress.csv (agent-steps, wall seconds, weighted age, bits per robot per frame)."""
+    """A RendezvousMapping run folder as ``mrcomm train`` leaves it, with only what ``--record-scratch`` reads: its
+    config and the held-out rows of its progress.csv (agent-steps, wall seconds, phases to half the information,
+    bits per vehicle per phase)."""
     folder.mkdir(parents=True)
-    settings = {"env_id": "mrcomm/MultiHop-v0", "algo": "ippo", "seed": 4, "env_kwargs": env_kwargs, "init_from": None}
+    settings = {
+        "env_id": "mrcomm/RendezvousMapping-v0",
+        "algo": "ippo",
+        "seed": 4,
+        "env_kwargs": env_kwargs,
+        "init_from": None,
+    }
     (folder / "config.json").write_text(json.dumps({**settings, **config}))
     with open(folder / "progress.csv", "w", newline="") as fh:
         writer = csv.writer(fh)
         writer.writerow(
-            ["time/total_timesteps", "time/time_elapsed", "heldout/weighted_mean_age", "heldout/bits_per_agent_step"]
+            [
+                "time/total_timesteps",
+                "time/time_elapsed",
+                "heldout/iterations_to_half_info",
+                "heldout/bits_per_agent_step",
+            ]
         )
         writer.writerows(points)
     return folder
 
 
 def test_a_run_from_random_weights_becomes_the_from_scratch_table_of_an_env_trained_from_a_clone(tmp_path, capsys):
-    """MultiHop's comparison starts from a clone; ``--record-scratch`` gives its table a run from random weights,
-    read up to the spec's one hour. ``age_aware`` scores about 46 s at 759 bits on the curves' episodes, so the run
-    below first reaches it at 3,000 agent-steps (its 2,000-step point sends 6 % more bits) and its last point inside
-    the hour is the one at 5,000 (the 7,000-step point comes after 3,600 s)."""
+    """RendezvousMapping's comparison starts from a clone; ``--record-scratch`` gives its table a run from random
+    weights, read up to the spec's one hour. ``paper_protocol`` needs 12 phases at about 61,500 bits on the curves'
+    episodes at d_comms = 1000 m, so the run below first reaches it at 3,000 agent-steps (its 2,000-step point sends
+    7 % more bits) and its last point inside the hour is the one at 5,000 (the 7,000-step point comes after 3,600 s)."""
     run = fake_scratch_run(
         tmp_path / "run",
-        {"grid_side": 6, "slot_size": 4, "max_cycles": 60, "lam": 0.5},
+        {"max_cycles": 60, "d_comms": 1000.0},
         [
-            (0, 0.0, 160.0, 758.0),
-            (2000, 900.0, 20.0, 805.0),
-            (3000, 1800.0, 30.0, 700.0),
-            (5000, 3500.0, 35.0, 600.0),
-            (7000, 3700.0, 10.0, 500.0),
+            (0, 0.0, 60.0, 60000.0),
+            (2000, 900.0, 11.0, 66000.0),
+            (3000, 1800.0, 12.0, 61000.0),
+            (5000, 3500.0, 13.0, 60000.0),
+            (7000, 3700.0, 10.0, 50000.0),
         ],
     )
     docs = tmp_path / "docs"
     (docs / "learning").mkdir(parents=True)
-    table = Path("docs/learning/MultiHop-v0.csv")  # the recorded comparison table the section re-renders from
+    table = Path("docs/learning/RendezvousMapping-v0.csv")  # the recorded comparison table the section re-renders from
     (docs / "learning" / table.name).write_text(table.read_text())
-    assert main(["reproduce-learning", "MultiHop-v0", "--docs", str(docs), "--record-scratch", str(run)]) == 0
-    with open(docs / "learning" / "MultiHop-v0-scratch.csv", newline="") as fh:
+    command = ["reproduce-learning", "RendezvousMapping-v0", "--docs", str(docs), "--record-scratch", str(run)]
+    assert main(command) == 0
+    with open(docs / "learning" / "RendezvousMapping-v0-scratch.csv", newline="") as fh:
         recorded = list(csv.DictReader(fh))
     assert [(float(r["cost"]), int(r["agent_steps"]), float(r["metric"])) for r in recorded][:2] == [
-        (0.5, 0, 160.0),
-        (0.5, 2000, 20.0),
+        (1000.0, 0, 60.0),
+        (1000.0, 2000, 11.0),
     ]
-    section = (docs / "learning" / "MultiHop-v0.md").read_text()
-    row = next(line for line in section.splitlines() if line.startswith("| 0.5 |"))
-    assert row.startswith("| 0.5 | 1 of 1 | 3,000 | 1800.0 | 35, 600 (after 5,000 agent-steps, 3500 s) |")
+    section = (docs / "learning" / "RendezvousMapping-v0.md").read_text()
+    row = next(line for line in section.splitlines() if line.startswith("| 1000 |"))
+    assert row.startswith("| 1000 | 1 of 1 | 3,000 | 1800.0 | 13, 6e+04 (after 5,000 agent-steps, 3500 s) |")
     assert "read up to 3,600 s of training, and the recorded curve ends at 3,500 s" in section
 
 
 @pytest.mark.parametrize(
     "config, message",
     [
-        ({"init_from": "baseline:age_aware"}, "starts from a clone"),
-        ({"env_id": "mrcomm/MapSync-v0"}, "not mrcomm/MultiHop-v0"),
+        ({"init_from": "baseline:paper_protocol"}, "starts from a clone"),
+        ({"env_id": "mrcomm/MapSync-v0"}, "not mrcomm/RendezvousMapping-v0"),
     ],
 )
 def test_record_scratch_refuses_a_run_it_cannot_stand_for(tmp_path, capsys, config, message):
-    run = fake_scratch_run(tmp_path / "run", {}, [(0, 0.0, 160.0, 758.0)], **config)
-    assert main(["reproduce-learning", "MultiHop-v0", "--docs", str(tmp_path), "--record-scratch", str(run)]) != 0
+    run = fake_scratch_run(tmp_path / "run", {}, [(0, 0.0, 60.0, 60000.0)], **config)
+    command = ["reproduce-learning", "RendezvousMapping-v0", "--docs", str(tmp_path), "--record-scratch", str(run)]
+    assert main(command) != 0
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
 
 
 def test_reproduce_learning_trains_the_from_scratch_run_from_its_section(tmp_path, monkeypatch):
     """Where the comparison starts from a clone, ``reproduce-learning`` also trains the spec's run from random weights,
-    with every setting of the section its ``scratch`` names (MultiHop: the ``ippo`` section, its stop bias included)."""
+    with every setting of the section its ``scratch`` names (RendezvousMapping: the ``ippo`` section)."""
     tasks = []
     monkeypatch.setattr(comparison, "run_tasks", lambda batch, desc: tasks.extend(batch) or [None] * len(batch))
-    spec = comparison.comparison_spec("MultiHop-v0")
-    out = comparison.train_scratch_run("mrcomm/MultiHop-v0", spec, tmp_path)
+    spec = comparison.comparison_spec("RendezvousMapping-v0")
+    out = comparison.train_scratch_run("mrcomm/RendezvousMapping-v0", spec, tmp_path)
     (task,) = tasks
-    section = json.loads((CONFIG_DIR / "MultiHop-v0.json").read_text())[spec["scratch"]["algo"]]
+    section = json.loads((CONFIG_DIR / "RendezvousMapping-v0.json").read_text())[spec["scratch"]["algo"]]
     config = task.kwargs["config"]
     assert task.kwargs["out"] == out and out.startswith(str(tmp_path / "scratch"))
     assert config["algo"] == "ippo" and config["seed"] == 0 and "init_from" not in config
     assert config["timesteps"] == section["timesteps"] and config["env_kwargs"] == section["env_kwargs"]
-    assert config["hyperparams"]["policy_kwargs"] == section["policy_kwargs"]
+    assert all(config["hyperparams"][key] == section[key] for key in ("learning_rate", "n_steps", "gamma", "ent_coef"))
