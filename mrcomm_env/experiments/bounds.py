@@ -11,8 +11,8 @@ from the live env on the comparison's own held-out episodes, and shows how close
   integer program over the layout, which a policy does not even see). The bound's code is played in the env, so its
   row is measured as every other row is.
 * MultiHop-v0: the weighted age of slots that carry every estimate their sender holds (a lower bound on the metric
-  only; more room per slot is not a policy's to take, so its bits bound nothing), and two references that are not
-  bounds: an **oracle** schedule that knows every robot's table (:class:`TableOracle`): what a policy could reach
+  only; more room per slot is not a policy's to take, so its bits bound nothing), and a reference that is no
+  bound: an **oracle** schedule that knows every robot's table (:class:`TableOracle`), what a policy could reach
   with knowledge of its neighbours' tables beyond what it heard (the comparison's ``observe_heard``).
 """
 
