@@ -160,6 +160,9 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         self.sent_stamp = np.full((n, n), -self.frame_dur)  # never sent: as if sent one frame before start
         # heard[i, k, j]: the freshest stamp of j robot i heard k broadcast, or broadcast to k (observe_heard)
         self.heard = np.full((n, n, n), proto.UNKNOWN) if c.observe_heard else None
+        if c.observe_heard:  # static links: which neighbours k ≠ j judge each estimate j, once per episode
+            self._judged = (self.adj[:, :, None] > 0) & ~self._eye[None, :, :]  # [i, k, j]
+            self._judged_count = self._judged.sum(axis=1)
         self.ledger.reset()
         self._step_bits = np.zeros(n)
         self._frames = 0
@@ -504,7 +507,6 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         estimate is always current, so k = j lacks nothing. Two n³ temporaries at most (the memory model)."""
         if self.heard is None:
             raise ValueError("neighbour_lack() needs the env built with observe_heard=True")
-        n = self.n_agents
         held = self.stamps > proto.UNKNOWN
         stamps = np.where(held, self.stamps, 0.0)  # an estimate i does not hold lacks nothing (zeroed below)
         share = stamps[:, None, :] - self.heard  # [i, k, j]: freshness beyond what k is known to hold; inf: never
@@ -512,9 +514,8 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         with np.errstate(invalid="ignore"):  # inf / inf where never heard: taken as 1 below
             np.divide(share, share + self.frame_dur, out=share)
         share[np.isnan(share)] = 1.0
-        judged = (self.adj[:, :, None] > 0) & ~np.eye(n, dtype=bool)[None, :, :]  # [i, k, j]: k a neighbour, k ≠ j
-        share *= judged
-        count = judged.sum(axis=1)
+        share *= self._judged  # [i, k, j]: k a neighbour of i, k ≠ j
+        count = self._judged_count
         lack = share.sum(axis=1) / np.maximum(count, 1)
         return np.where(held & (count > 0), lack, 0.0)
 
