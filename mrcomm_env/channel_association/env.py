@@ -60,6 +60,7 @@ import math
 
 import numpy as np
 from gymnasium import spaces
+from matplotlib.patches import Circle
 
 from mrcomm_env.channel_association.copy_axis import NeighborhoodBatch, SlotFieldBatch
 from mrcomm_env.channel_association.filters import BITSET_MAX_W
@@ -354,8 +355,6 @@ class ChannelAssociationEnv(ChannelAssociationSpec, MrcommParallelEnv):
                 color="tab:brown",
             )
         r = self.scene.render_radius
-        from matplotlib.patches import Circle  # on first render (mrcomm_env/core/render.py)
-
         ax.add_patch(Circle(pos[0], r, fill=False, color="tab:blue"))
         ax.set_aspect("equal")
         ax.set_title(f"{self.ENV_ID} step {self.step_count}  matched {self._team_score:.2f}")

@@ -1,7 +1,8 @@
 """Rendering through matplotlib: ``rgb_array`` on the Agg canvas, ``human`` through pyplot.
 
-Matplotlib is imported on first render, not with the env: it would add about a quarter of a second to every
-process that only steps envs (sweep workers, training).
+matplotlib is a required dependency and is imported with the env (about a quarter of a second, once per process).
+Importing pyplot does not choose a GUI backend: matplotlib resolves its backend when the first pyplot figure is
+made, which only ``human`` mode does.
 """
 
 from __future__ import annotations
@@ -11,7 +12,12 @@ import textwrap
 import warnings
 from collections.abc import Callable
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import LineCollection
+from matplotlib.figure import Figure
 
 #: the smallest title font (points) :func:`fit_title` shrinks to before it wraps onto another line
 MIN_TITLE_POINTS = 8.0
@@ -19,9 +25,6 @@ MIN_TITLE_POINTS = 8.0
 
 def to_rgb_array(draw: Callable, size_inches: tuple[float, float] = (5.0, 5.0), dpi: int = 80) -> np.ndarray:
     """Draw onto a fresh Agg figure and return its pixels as an ``(H, W, 3)`` uint8 array."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg  # on first render: see the module's docstring
-    from matplotlib.figure import Figure
-
     fig = Figure(figsize=size_inches, dpi=dpi)
     canvas = FigureCanvasAgg(fig)
     ax = fig.add_subplot(1, 1, 1)
@@ -81,8 +84,6 @@ def draw_link_bits(ax, points: np.ndarray, pairs: np.ndarray, bits: np.ndarray) 
 
     ``points``: (N, 2) positions; ``pairs``: (K, 2) robot indices; ``bits``: (K,) bits over each link this step.
     Links that carried nothing are left to the env's own drawing; the busiest ``MAX_LINK_LABELS`` are labelled."""
-    from matplotlib.collections import LineCollection  # on first render: see the module's docstring
-
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     bits = np.asarray(bits, dtype=float).reshape(-1)
     used = bits > 0
@@ -113,8 +114,6 @@ def draw_link_bits(ax, points: np.ndarray, pairs: np.ndarray, bits: np.ndarray) 
 
 def has_display() -> bool:
     """Whether ``human`` mode can open a window: an interactive matplotlib backend with a display to use."""
-    import matplotlib
-
     backend = matplotlib.get_backend().lower()
     if backend in ("agg", "pdf", "ps", "svg", "cairo", "template") or backend.startswith("module://matplotlib_inline"):
         return backend.startswith("module://matplotlib_inline")  # a notebook shows figures itself
@@ -141,8 +140,6 @@ def warn_no_display() -> None:
 
 def show_human(draw: Callable, figure, fps: float):
     """Redraw the window of ``figure`` (created on first use) and let the GUI loop run."""
-    import matplotlib.pyplot as plt  # pyplot chooses a GUI backend: only in human mode
-
     if figure is None:
         figure = plt.figure(figsize=(5.0, 5.0))
     figure.clf()
@@ -155,6 +152,4 @@ def show_human(draw: Callable, figure, fps: float):
 
 
 def close(figure) -> None:
-    import matplotlib.pyplot as plt  # only a human-mode window is closed here
-
     plt.close(figure)

@@ -47,7 +47,13 @@ from collections.abc import Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.lines import Line2D
+from rliable import library as rly
+from rliable import metrics as rly_metrics
+from rliable import plot_utils
 
 from mrcomm_baselines import default_policy, make_policy
 from mrcomm_env.core.stats import mean_ci95
@@ -486,8 +492,6 @@ def _fmt(values: Sequence[float], digits: int = 4) -> str:
 
 def write_page(out: Path = OUT, page: Path = PAGE) -> Path:
     """docs/benchmark.md, its figures (beside the runs) and the merged marl-eval JSON, from the runs' files."""
-    import matplotlib
-
     matplotlib.use("Agg")
 
     records = load_runs(out)
@@ -635,12 +639,6 @@ def _task_tables(records: list[dict], references: dict) -> list[str]:
 
 
 def _aggregate_section(records: list[dict], references: dict, out: Path, figures_link: Path) -> list[str]:
-    import matplotlib.pyplot as plt
-    from matplotlib.lines import Line2D
-    from rliable import library as rly
-    from rliable import metrics as rly_metrics
-    from rliable import plot_utils
-
     matrices, tasks_of = score_matrices(records, references)
     rng = np.random.RandomState(BOOTSTRAP_SEED)
     point, interval = rly.get_interval_estimates(
@@ -686,8 +684,6 @@ def _aggregate_section(records: list[dict], references: dict, out: Path, figures
 
 
 def _curves_section(records: list[dict], references: dict, out: Path, figures_link: Path) -> list[str]:
-    import matplotlib.pyplot as plt
-
     tasks, algorithms = _tasks_and_algorithms(records)
     fig, axes = plt.subplots(1, len(tasks), figsize=(3.2 * len(tasks), 3.0), squeeze=False)
     for ax, task in zip(axes[0], tasks):

@@ -1,19 +1,26 @@
 """The learned-against-scripted comparison at equal bits (``mrcomm reproduce-learning``): train policies at each
 price of a bit, score them and every baseline on held-out episodes, apply the equal-bits rule (``dominates``,
-``beats``) and ship the best run with its model card."""
+``beats``) and ship the best run with its model card. Needs the "train" extra (it imports the agents); the CLI
+imports it when ``reproduce-learning`` runs."""
 
 from __future__ import annotations
 
 import csv
 import json
+import math
 import shutil
 from pathlib import Path
 
 import numpy as np
+from scipy import stats
 from tqdm.auto import tqdm
 
+from mrcomm_agents.artifacts import MODEL_FILE, STATISTICS_FILE, read_json
+from mrcomm_agents.heldout import HELDOUT_SEEDS
+from mrcomm_agents.learned import CARD_NAME, pretrained_dir
+from mrcomm_agents.training import TrainConfig, split_settings
 from mrcomm_baselines import make_policy
-from mrcomm_env.core.stats import iqm_ci95, mean_ci95
+from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.evaluation import evaluate_policy
 from mrcomm_env.experiments.io import atomic_write_text
 from mrcomm_env.experiments.runs import comparison_spec, run_folder
@@ -32,6 +39,36 @@ def within_bits(bits: float, baseline_bits: float) -> bool:
     return bits <= baseline_bits * (1.0 + BITS_SLACK) + 1e-9
 
 
+#: bootstrap resamples and their seed: the interval is a function of the values alone, so a rerun gives the same
+#: page (rliable uses 50,000 resamples for its figures; 10,000 moves these intervals by well under 1 %)
+BOOTSTRAP_RESAMPLES = 10_000
+BOOTSTRAP_SEED = 0
+
+
+def iqm_ci95(values) -> tuple[float, float, float]:
+    """Interquartile mean and its 95 % percentile-bootstrap interval over runs, as rliable defines them
+    (Agarwal et al., "Deep RL at the edge of the statistical precipice", NeurIPS 2021): the IQM is the 25 %
+    trimmed mean (``rliable.metrics.aggregate_iqm`` is ``scipy.stats.trim_mean(scores, 0.25)``) and, with one
+    task, rliable's stratified bootstrap resamples the runs of that task, which is scipy's percentile bootstrap.
+    Returns (iqm, low, high); with fewer than 2 finite values the interval is the point itself."""
+    x = np.asarray(values, dtype=np.float64)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return math.nan, math.nan, math.nan
+    iqm = float(stats.trim_mean(x, 0.25))
+    if x.size < 2 or np.all(x == x[0]):
+        return iqm, iqm, iqm
+    result = stats.bootstrap(
+        (x,),
+        lambda sample, axis=-1: stats.trim_mean(sample, 0.25, axis=axis),
+        n_resamples=BOOTSTRAP_RESAMPLES,
+        method="percentile",
+        confidence_level=0.95,
+        random_state=np.random.default_rng(BOOTSTRAP_SEED),
+    )
+    return iqm, float(result.confidence_interval.low), float(result.confidence_interval.high)
+
+
 def heldout_seeds(spec: dict) -> list[int]:
     """The comparison's episode seeds, which no training or tuning sees: ``eval_episodes`` from COMPARISON_SEEDS."""
     return [COMPARISON_SEEDS + k for k in range(spec.get("eval_episodes", 10))]
@@ -41,8 +78,6 @@ def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress
     """Train ``seeds`` policies per cost value, evaluate them and every baseline on held-out seeds, and return
     (rows, markdown). Rows: policy, cost, metric mean ± CI, bits per agent per step mean ± CI. The training runs
     (each scored on the held-out seeds where it ran) go through the sweep runner the caller chose."""
-    from mrcomm_agents.training import split_settings  # extra "train"
-
     env_id = canonical_id(env_id)
     spec = comparison_spec(env_id)
     algo = spec["algo"]
@@ -76,7 +111,7 @@ def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress
             )
     sweep = [
         Task(
-            "mrcomm_env.experiments.runs:train_and_evaluate",
+            "mrcomm_env.experiments.train:train_and_evaluate",
             {"out": task["out"], "config": task["config"], "eval_seeds": eval_seeds},
             f"{cost_param}={task['cost']} s{task['seed']}",
         )
@@ -124,13 +159,11 @@ def train_scratch_run(env_id: str, spec: dict, out_dir: Path) -> str:
     """Where the comparison starts from a clone: train the spec's run from random weights (its ``scratch`` names the
     algorithm, whose section of the env's config gives every setting; seed 0), after the comparison's runs, as a
     task of its own. Returns its folder, whose held-out curve is the env's from-scratch table."""
-    from mrcomm_agents.training import split_settings  # extra "train"
-
     algo = spec["scratch"]["algo"]
     run_settings, hyper = split_settings(spec["settings"][algo])
     config = dict(env_id=env_id, algo=algo, seed=0, hyperparams=hyper, **run_settings)
     out = str(out_dir / "scratch" / run_folder("scratch", config))
-    task = Task("mrcomm_env.experiments.runs:train_run", {"out": out, "config": config}, "from random weights")
+    task = Task("mrcomm_env.experiments.train:train_run", {"out": out, "config": config}, "from random weights")
     run_tasks([task], desc=f"training {short_name(env_id)} from random weights")
     return out
 
@@ -142,9 +175,6 @@ def baseline_label(name: str, params: dict) -> str:
 
 def training_heldout(spec: dict) -> tuple[int, int]:
     """(first seed, episodes) of the held-out evaluation the comparison's runs log while they train."""
-    from mrcomm_agents.heldout import HELDOUT_SEEDS  # extra "train"
-    from mrcomm_agents.training import TrainConfig
-
     settings = spec["settings"].get(spec["algo"], {})
     return HELDOUT_SEEDS, int(settings.get("eval_episodes", TrainConfig.eval_episodes))
 
@@ -259,10 +289,6 @@ def export_pretrained(run: str | Path, env_id: str, shipped: dict | None = None)
     """Copy a run's model, statistics and config into ``agents/pretrained/<Name>-v0/`` (shipped in the package;
     ``mrcomm evaluate ID --policy pretrained``). Checkpoints and logs stay behind: well under 1 MB. ``shipped``:
     the comparison's account of the run (:func:`shipped_run`), written into the card."""
-    from mrcomm_agents.artifacts import MODEL_FILE, STATISTICS_FILE, read_json  # extra "train"
-    from mrcomm_agents.heldout import HELDOUT_SEEDS
-    from mrcomm_agents.learned import pretrained_dir
-
     target = pretrained_dir(env_id)
     target.mkdir(parents=True, exist_ok=True)
     for name in (MODEL_FILE, STATISTICS_FILE, "config.json"):
@@ -286,8 +312,6 @@ def write_model_card(env_id: str, record: dict, shipped: dict | None = None, pha
     """``card.json`` beside a shipped model: what ``--policy pretrained`` and a reader need to know of it. The
     evaluation mode is the one the comparison chose the model with (``comparison.deterministic`` of
     ``agents/configs/<Name>-v0.json``, deterministic by default). ``phase``: :func:`rl_phase` of its run."""
-    from mrcomm_agents.learned import CARD_NAME, pretrained_dir  # extra "train"
-
     try:
         spec = comparison_spec(env_id)
     except ValueError:

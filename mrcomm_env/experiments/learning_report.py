@@ -12,6 +12,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from mrcomm_agents.training import default_config
 from mrcomm_baselines import default_policy
 from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.bounds import bound_paragraph
@@ -19,12 +20,14 @@ from mrcomm_env.experiments.comparison import (
     baseline_on_training_heldout,
     beats,
     best_baseline,
+    curve_rows,
     dominates,
     first_reach,
     training_heldout,
 )
-from mrcomm_env.experiments.io import atomic_write_text
-from mrcomm_env.registry import env_ids, short_name
+from mrcomm_env.experiments.io import atomic_write_csv, atomic_write_text
+from mrcomm_env.experiments.runs import comparison_spec
+from mrcomm_env.registry import canonical_id, env_ids, make, short_name
 
 
 def plot_comparison(rows: list[dict], spec: dict, title: str, path: Path) -> None:
@@ -382,8 +385,6 @@ def sweep_section(env_id: str, docs: Path) -> str:
         ret = np.mean([float(r["final_train_return"]) for r in group])
         minutes = np.mean([float(r["seconds"]) for r in group]) / 60
         lines.append(f"| {' | '.join(values)} | {m:.4g} ± {h:.2g} | {bits:.4g} | {ret:.4g} | {minutes:.1f} |")
-    from mrcomm_agents.training import default_config  # extra "train"
-
     settings = default_config(env_id, meta.get("algo", "ppo"))
     chosen = ", ".join(f"`{k}={json.dumps(settings.get(k, settings.get('env_kwargs', {}).get(k)))}`" for k in keys)
     lines += ["", f"`agents/configs/{name}.json` trains with {chosen}."]
@@ -401,7 +402,7 @@ bit in the reward (the cost argument) is swept; each value is trained with sever
 policy is evaluated on held-out episode seeds (deterministically unless the env's section says otherwise). A
 learned point's interval is over training seeds; a baseline's over episodes. Beside a learned point's mean, the
 column "IQM" gives rliable's interquartile mean over its training seeds with a 95 % percentile-bootstrap
-interval (`mrcomm_env/core/stats.py`: with 3 seeds the IQM is the mean; "—" where the recorded table predates
+interval (`mrcomm_env/experiments/comparison.py`: with 3 seeds the IQM is the mean; "—" where the recorded table predates
 the column). Each shipped model is the best run within the bits of the best paper algorithm of its setting;
 its card (`agents/pretrained/<Name>-v0/card.json`) gives its held-out metric and bits beside that algorithm's,
 and under `rl_phase` its run's own held-out evaluation at the start of the RL phase (agent-step 0: random
@@ -439,3 +440,28 @@ A learned policy sees only its observation. The scripted baselines read their ro
 | RendezvousMapping-v0 | `paper_protocol` | its group's fused map (landmark estimates, information, counts) and the positions it knows, to run §IV's planner; the last actions |
 | RendezvousMapping-v0 | `greedy`, `no_partition` | the candidate utilities of its local view |
 """
+
+
+def record_scratch(env_id: str, run_dir: Path, docs: Path) -> Path:
+    """Write ``run_dir``'s held-out curve (a run from random weights of ``env_id``) as the env's from-scratch table's
+    source, ``docs/learning/<Name>-v0-scratch.csv``; the price of a bit is the run's value of the comparison's cost
+    argument (the env's default where the run did not set it)."""
+    config_path = run_dir / "config.json"
+    if not config_path.exists():
+        raise ValueError(f"--record-scratch: {run_dir} is not a run folder (it has no config.json)")
+    config = json.loads(config_path.read_text())
+    if canonical_id(config["env_id"]) != env_id:
+        raise ValueError(f"--record-scratch: {run_dir} trained {config['env_id']}, not {env_id}")
+    if config.get("init_from"):
+        raise ValueError(f"--record-scratch: {run_dir} starts from a clone ({config['init_from']}), not random weights")
+    spec = comparison_spec(env_id)
+    cost_param = spec["cost_param"]
+    probe = make(env_id, **config["env_kwargs"])
+    cost = float(getattr(probe.cfg, cost_param))
+    probe.close()
+    rows = curve_rows([{"out": run_dir, "cost": cost, "seed": config["seed"]}], spec)
+    if not rows:
+        raise ValueError(f"--record-scratch: {run_dir}/progress.csv has no held-out evaluation")
+    path = docs / "learning" / f"{short_name(env_id)}-scratch.csv"
+    atomic_write_csv(path, rows)
+    return path

@@ -14,7 +14,7 @@ disagreement than a trained one, at seven times its bits). The comparison's task
 beside it. The verdict: the wall time the batched trainer needs to first reach SB3's final held-out return (the
 mean over seeds), against SB3's whole wall time; the goal is at most a quarter. A shipped configuration that starts from a
 clone of a paper algorithm (``init_from``) is refused: its clone, not the trainer, sets its quality, and the clone
-takes the same time in both.
+takes the same time in both. Needs the "train" extra; the CLI imports this module when ``race`` runs.
 """
 
 from __future__ import annotations
@@ -29,6 +29,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from tqdm.auto import tqdm
 
+from mrcomm_agents.batched_ppo import DEFAULTS
+from mrcomm_agents.training import TrainConfig, default_config, split_settings, train
 from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.io import atomic_write_csv, atomic_write_json, atomic_write_text
 from mrcomm_env.experiments.runs import comparison_spec, run_folder, sb3_algo
@@ -49,9 +51,6 @@ BATCHED_STEPS = 2
 def race_configs(env_id: str, algo: str = "ippo") -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
     """(SB3 run settings, batched run settings, the comparison's spec) of ``env_id``'s shipped configuration, as
     ``TrainConfig`` arguments without the seed."""
-    from mrcomm_agents.batched_ppo import DEFAULTS  # extra "train"
-    from mrcomm_agents.training import default_config, split_settings  # extra "train"
-
     spec = comparison_spec(env_id)
     sb3_side = sb3_algo(spec)  # SB3's shipped settings, also where the comparison now trains the batched trainer
     run, hyper = split_settings(default_config(env_id, sb3_side))
@@ -145,8 +144,6 @@ def race(env_id: str, seeds: int, out: Path, algo: str = "ippo", progress: bool 
     """Train both trainers ``seeds`` times into ``out/<trainer>-<digest of its settings>/s<seed>`` (a finished run is
     reused) and write
     ``curves.csv``, ``race.json``, ``race.png`` and ``race.md`` into ``out``."""
-    from mrcomm_agents.training import TrainConfig, train  # extra "train"
-
     sb3, batched, spec = race_configs(env_id, algo)
     metric, lower = spec["metric"], bool(spec.get("lower_is_better"))
     bits_key = "bits_per_agent_episode" if spec.get("bits_per") == "episode" else "bits_per_agent_step"

@@ -1,10 +1,9 @@
-"""Training runs as sweep tasks: where a run's folder is, training it (or resuming it), and scoring it on
-held-out episodes. ``mrcomm train --seeds/--grid`` (``train.py``) and the learned-against-scripted comparison
-(``comparison.py``) both send these tasks through the sweep runner."""
+"""What every training run shares, read without the "train" extra: the env's learning configuration
+(``agents/configs``), a run's folder name and the scripted teacher of a warm start. Training a run as a sweep task
+is :mod:`mrcomm_env.experiments.train`'s (it needs the extra)."""
 
 from __future__ import annotations
 
-import csv
 import hashlib
 import importlib.util
 import json
@@ -13,7 +12,6 @@ from pathlib import Path
 from mrcomm_baselines import make_policy, policy_names
 from mrcomm_env.core import backend
 from mrcomm_env.core.policy import Policy
-from mrcomm_env.experiments.evaluation import evaluate_policy, limit_threads
 from mrcomm_env.registry import canonical_id, short_name
 
 #: the section of ``agents/configs/<Name>-v0.json`` that sets up the comparison with the baselines
@@ -33,11 +31,7 @@ def agent_config_dir() -> Path:
 def comparison_spec(env_id: str) -> dict:
     """The env's comparison settings from ``agents/configs/<Name>-v0.json``: the cost argument swept (λ or the
     bit price), its values, the task metric and whether lower is better, the baselines, seeds and episodes."""
-    try:
-        from mrcomm_agents.training import CONFIG_DIR  # extra "train"
-    except ImportError:  # no SB3 (BenchMARL's venv): the same folder, found without importing the agents package
-        CONFIG_DIR = agent_config_dir()
-    path = CONFIG_DIR / f"{short_name(env_id)}.json"
+    path = agent_config_dir() / f"{short_name(env_id)}.json"
     if not path.exists():
         raise ValueError(f"{canonical_id(env_id)} has no learning configuration ({path.name})")
     spec = json.loads(path.read_text())
@@ -79,49 +73,3 @@ def teacher_for(env_id: str, init_from: str | None) -> Policy | None:
             f"got {init_from!r}"
         )
     return make_policy(env_id, name)
-
-
-def train_run(out: str, config: dict) -> str:
-    """Train one run into ``out`` (a process of its own: one torch thread). A finished run is skipped, a
-    checkpointed one resumed, one never checkpointed starts over."""
-    from mrcomm_agents.training import TrainConfig, has_checkpoint, train  # extra "train"
-
-    limit_threads()
-    folder = Path(out)
-    if (folder / "done.json").exists():
-        return out  # a rerun skips what is done (the folder's name holds every setting: run_folder)
-    if has_checkpoint(folder):
-        train(None, folder, resume=True, progress=False)
-    else:
-        teacher = teacher_for(config["env_id"], config.get("init_from"))
-        train(TrainConfig(**config), folder, progress=False, teacher=teacher)
-    return out
-
-
-def training_summary(run: Path) -> dict:
-    """The last logged mean training return and the run's length, from SB3's ``progress.csv``."""
-    with open(run / "progress.csv") as fh:
-        rows = list(csv.DictReader(fh))
-    returns = [float(r["rollout/ep_rew_mean"]) for r in rows if r.get("rollout/ep_rew_mean")]
-    last = rows[-1] if rows else {}
-    return {
-        "timesteps": int(float(last.get("time/total_timesteps") or 0)),
-        "seconds": float(last.get("time/time_elapsed") or 0.0),
-        "final_train_return": returns[-1] if returns else float("nan"),
-    }
-
-
-def train_and_evaluate(out: str, config: dict, eval_seeds: list[int]) -> dict:
-    """A sweep task: train one run into ``out`` (resumed, or skipped when finished) and score it on ``eval_seeds``
-    with the env's comparison metric, bits and return. Returns JSON data only, so any backend can carry it."""
-    from mrcomm_agents.learned import LearnedPolicy  # extra "train"
-
-    train_run(out, config)
-    summary = training_summary(Path(out))
-    try:
-        spec = comparison_spec(config["env_id"])
-    except ValueError:  # no comparison section: score by the return alone
-        spec = {"metric": "episode_return", "deterministic": True}
-    policy = LearnedPolicy(out, config["env_id"], config.get("algo"), deterministic=spec.get("deterministic", True))
-    evaluation = evaluate_policy(config["env_id"], config.get("env_kwargs", {}), policy, eval_seeds, spec)
-    return {"run": out, "training": summary, "evaluation": evaluation}

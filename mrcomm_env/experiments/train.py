@@ -1,8 +1,13 @@
-"""The sweeps of ``mrcomm train`` (its parser and run: ``commands/train.py``): runs over seeds and a grid of settings
-(``--seeds``, ``--grid``) as sweep tasks, ranked by their held-out score."""
+"""Training runs as sweep tasks, and the sweeps of ``mrcomm train`` (its parser and run: ``commands/train.py``).
+
+A task trains one run (or resumes it, or skips it when finished) and scores it on held-out episodes; ``mrcomm train
+--seeds/--grid`` sends one per grid point and seed through the sweep runner and ranks the grid points by their
+held-out score, and the learned-against-scripted comparison (``comparison.py``) sends its runs the same way. Needs
+the "train" extra (it imports the agents); the CLI imports it when a command trains."""
 
 from __future__ import annotations
 
+import csv
 import importlib
 import inspect
 import itertools
@@ -13,17 +18,18 @@ from pathlib import Path
 
 import numpy as np
 
+from mrcomm_agents.learned import LearnedPolicy
+from mrcomm_agents.training import ALGORITHMS, RUN_KEYS, TrainConfig, has_checkpoint, train
 from mrcomm_env.core.stats import mean_ci95
+from mrcomm_env.experiments.evaluation import evaluate_policy, limit_threads
 from mrcomm_env.experiments.io import atomic_write_csv, atomic_write_text
-from mrcomm_env.experiments.runs import comparison_spec, run_folder
+from mrcomm_env.experiments.runs import comparison_spec, run_folder, teacher_for
 from mrcomm_env.experiments.sweep import Task, runner_from_args
 
 
 def grid_setting(algo: str, key: str) -> str:
     """Where a --grid key goes: ``"run"`` (TrainConfig's own settings), ``"hyper"`` (the algorithm's constructor)
     or ``"env"`` (an environment argument, checked by the env itself)."""
-    from mrcomm_agents.training import ALGORITHMS, RUN_KEYS  # extra "train"
-
     if key in (*RUN_KEYS, "timesteps"):
         return "run"
     module, name = ALGORITHMS[algo]
@@ -36,8 +42,6 @@ def grid_setting(algo: str, key: str) -> str:
 def sweep_configs(base: dict, seeds: list[int], grid: dict[str, list]) -> list[tuple[str, dict, dict]]:
     """One (folder, TrainConfig arguments, grid point) per combination of the grid's values and per seed, in a
     fixed order: the grid's keys as given, each key's values as given, then the seeds."""
-    from mrcomm_agents.training import TrainConfig  # extra "train"
-
     places = {key: grid_setting(base["algo"], key) for key in grid}
     out = []
     for values in itertools.product(*grid.values()):
@@ -103,7 +107,7 @@ def train_sweep(base: dict, seeds: list[int], grid: dict[str, list], out: Path, 
     eval_seeds = [20_000 + k for k in range(args.eval_episodes)]
     tasks = [
         Task(
-            "mrcomm_env.experiments.runs:train_and_evaluate",
+            "mrcomm_env.experiments.train:train_and_evaluate",
             {"out": str(out / name), "config": config, "eval_seeds": eval_seeds},
             name,
         )
@@ -131,3 +135,45 @@ def train_sweep(base: dict, seeds: list[int], grid: dict[str, list], out: Path, 
     atomic_write_text(out / "sweep.json", json.dumps(record, indent=2) + "\n")
     print(f"wrote {out / 'summary.csv'} and {out / 'sweep.json'}")
     return 0
+
+
+def train_run(out: str, config: dict) -> str:
+    """Train one run into ``out`` (a process of its own: one torch thread). A finished run is skipped, a
+    checkpointed one resumed, one never checkpointed starts over."""
+    limit_threads()
+    folder = Path(out)
+    if (folder / "done.json").exists():
+        return out  # a rerun skips what is done (the folder's name holds every setting: run_folder)
+    if has_checkpoint(folder):
+        train(None, folder, resume=True, progress=False)
+    else:
+        teacher = teacher_for(config["env_id"], config.get("init_from"))
+        train(TrainConfig(**config), folder, progress=False, teacher=teacher)
+    return out
+
+
+def training_summary(run: Path) -> dict:
+    """The last logged mean training return and the run's length, from SB3's ``progress.csv``."""
+    with open(run / "progress.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    returns = [float(r["rollout/ep_rew_mean"]) for r in rows if r.get("rollout/ep_rew_mean")]
+    last = rows[-1] if rows else {}
+    return {
+        "timesteps": int(float(last.get("time/total_timesteps") or 0)),
+        "seconds": float(last.get("time/time_elapsed") or 0.0),
+        "final_train_return": returns[-1] if returns else float("nan"),
+    }
+
+
+def train_and_evaluate(out: str, config: dict, eval_seeds: list[int]) -> dict:
+    """A sweep task: train one run into ``out`` (resumed, or skipped when finished) and score it on ``eval_seeds``
+    with the env's comparison metric, bits and return. Returns JSON data only, so any backend can carry it."""
+    train_run(out, config)
+    summary = training_summary(Path(out))
+    try:
+        spec = comparison_spec(config["env_id"])
+    except ValueError:  # no comparison section: score by the return alone
+        spec = {"metric": "episode_return", "deterministic": True}
+    policy = LearnedPolicy(out, config["env_id"], config.get("algo"), deterministic=spec.get("deterministic", True))
+    evaluation = evaluate_policy(config["env_id"], config.get("env_kwargs", {}), policy, eval_seeds, spec)
+    return {"run": out, "training": summary, "evaluation": evaluation}

@@ -34,6 +34,8 @@ import math
 
 import numpy as np
 from gymnasium import spaces
+from matplotlib.collections import LineCollection
+from matplotlib.colors import LogNorm
 from scipy.sparse.csgraph import shortest_path
 
 from mrcomm_env.core import BitLedger, MrcommParallelEnv, TDMASchedule, backend, disk_links, grid_links
@@ -614,9 +616,6 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
 
     def _render(self, ax) -> None:
         p = self.pos
-        from matplotlib.collections import LineCollection  # on first render (mrcomm_env/core/render.py)
-        from matplotlib.colors import LogNorm
-
         ii, jj = np.nonzero(np.triu(self.adj))
         ax.add_collection(LineCollection(np.stack([p[ii], p[jj]], axis=1), colors="0.8", linewidths=0.6, zorder=1))
         # a slot's broadcast crosses every link of its sender: the bits over a link are both ends' broadcasts

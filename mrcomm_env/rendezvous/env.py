@@ -54,6 +54,7 @@ from types import SimpleNamespace
 
 import numpy as np
 from gymnasium import spaces
+from matplotlib.collections import LineCollection
 
 from mrcomm_env.core import BitLedger, MrcommParallelEnv, backend
 from mrcomm_env.core import render as rendering
@@ -574,8 +575,6 @@ class RendezvousMappingEnv(RendezvousMappingSpec, MrcommParallelEnv):
         }
 
     def _render(self, ax) -> None:
-        from matplotlib.collections import LineCollection  # on first render (mrcomm_env/core/render.py)
-
         lm = self.landmarks
         est = self._estimates[0]
         if math.isfinite(self.cfg.d_comms) and self.cfg.d_comms > 0:

@@ -165,7 +165,7 @@ def test_local_views_are_read_only_and_follow_every_step_and_reset():
 
 
 def test_iqm_is_the_quarter_trimmed_mean_with_a_reproducible_bootstrap_interval():
-    from mrcomm_env.core.stats import iqm_ci95
+    from mrcomm_env.experiments.comparison import iqm_ci95
 
     # 5 runs: a quarter of 5 rounds down to 1 run cut at each end, so the IQM is the mean of 2, 3, 4 = 3, and the
     # outlier 100 moves it not at all

@@ -277,3 +277,121 @@ def test_the_circle_check_catches_a_circle(tmp_path, monkeypatch):
     (package / "b.py").write_text("def f():\n    from mrcomm_env.thing.a import g\n")  # inside a function too
     (package / "c.py").write_text("from mrcomm_env.thing import a\n")
     assert import_cycles(sorted(package.glob("*.py"))) == [["mrcomm_env.thing.a", "mrcomm_env.thing.b"]]
+
+
+# ------------------------------------------------------------------------------ imports inside functions
+#: at most this many imports inside functions in the package (#44)
+MAX_INNER_IMPORTS = 40
+#: the inner imports that are not for an optional extra, each with why it stays inside its function
+INNER_IMPORT_EXCEPTIONS = {
+    ("mrcomm_env/registry.py", "mrcomm_env.core.batched"): "`import mrcomm_env` imports no env code (the registry)",
+}
+
+
+def optional_modules() -> set[str]:
+    """The import names of the packages only an optional extra installs (pyproject.toml), the tooling extras (dev,
+    docs) left out: ``stable-baselines3>=2.9,<3`` → ``stable_baselines3``, ``ray[rllib]==2.60.0`` → ``ray``."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+
+    def import_name(requirement: str) -> str:
+        name = requirement.split(";")[0]
+        for mark in "[<>=!~ ":
+            name = name.split(mark)[0]
+        return name.strip().lower().replace("-", "_")
+
+    required = {import_name(r) for r in project["dependencies"]}
+    extras = {k: v for k, v in project["optional-dependencies"].items() if k not in ("dev", "docs")}
+    return {import_name(r) for reqs in extras.values() for r in reqs} - required
+
+
+def inner_imports(path: Path) -> list[tuple[int, str, tuple[str, ...]]]:
+    """(line, module, names) of every import inside a function of ``path`` (nested functions once)."""
+    tree = ast.parse(path.read_text(), str(path))
+    found = {}
+    for function in ast.walk(tree):
+        if isinstance(function, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            for node in ast.walk(function):
+                if isinstance(node, ast.Import):
+                    for alias in node.names:
+                        found[(node.lineno, alias.name)] = ()
+                elif isinstance(node, ast.ImportFrom) and not node.level:
+                    found[(node.lineno, node.module or "")] = tuple(alias.name for alias in node.names)
+    return [(line, module, names) for (line, module), names in sorted(found.items())]
+
+
+def top_level_imports(path: Path) -> set[str]:
+    """The modules ``path`` imports when it is imported (its module body, ``if TYPE_CHECKING`` blocks left out),
+    ``from package import module`` as the module."""
+    tree = ast.parse(path.read_text(), str(path))
+    out: set[str] = set()
+    body = list(tree.body)
+    while body:
+        node = body.pop(0)
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            continue
+        if isinstance(node, (ast.If, ast.Try)):
+            body += (
+                node.body
+                + node.orelse
+                + getattr(node, "finalbody", [])
+                + [s for h in getattr(node, "handlers", []) for s in h.body]
+            )
+        elif isinstance(node, ast.Import):
+            out |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            out |= {node.module, *(f"{node.module}.{alias.name}" for alias in node.names)}
+    return out
+
+
+def needs_optional(module: str, optional: set[str], files: dict[str, Path], seen: set[str] | None = None) -> bool:
+    """Whether importing ``module`` imports a package of an optional extra: itself, or one of ours that imports one
+    when it is imported (following our modules' top-level imports)."""
+    if module.split(".")[0] in optional:
+        return True
+    seen = set() if seen is None else seen
+    if module in seen or module not in files:
+        return False
+    seen.add(module)
+    return any(needs_optional(m, optional, files, seen) for m in top_level_imports(files[module]))
+
+
+def inner_import_report(paths: list[Path]) -> tuple[int, list[str]]:
+    """(how many imports inside functions, those not for an optional extra nor excepted)."""
+    optional = optional_modules()
+    files = {module_name(p): p for p in source_files()} | {module_name(p): p for p in paths}
+    count, bad = 0, []
+    for path in paths:
+        relative = str(path.relative_to(ROOT))
+        for line, module, names in inner_imports(path):
+            count += 1
+            targets = [f"{module}.{n}" for n in names if f"{module}.{n}" in files] or [module]
+            if (relative, module) in INNER_IMPORT_EXCEPTIONS:
+                continue
+            if not all(needs_optional(t, optional, files) for t in targets):
+                bad.append(f"{relative}:{line} imports {module} {names or ''} inside a function")
+    return count, bad
+
+
+def test_imports_inside_functions_are_few_and_each_for_an_optional_extra():
+    count, bad = inner_import_report(source_files())
+    assert bad == [], "import these at the top of their modules (a required dependency, or our own code)"
+    assert count <= MAX_INNER_IMPORTS, f"{count} imports inside functions, more than {MAX_INNER_IMPORTS}"
+
+
+def test_the_inner_import_check_knows_an_extra_from_a_required_package(tmp_path, monkeypatch):
+    monkeypatch.setitem(globals(), "ROOT", tmp_path)
+    (tmp_path / "pyproject.toml").write_text((Path(__file__).resolve().parents[2] / "pyproject.toml").read_text())
+    package = tmp_path / "mrcomm_env" / "thing"
+    package.mkdir(parents=True)
+    (package / "__init__.py").write_text("")
+    (package / "twin.py").write_text("import numba\n")  # one of ours that needs the "fast" extra
+    (package / "plain.py").write_text("import numpy\n")
+    (package / "uses.py").write_text(
+        "def a():\n    import torch\n"  # an extra's package: fine
+        "def b():\n    from mrcomm_env.thing import twin\n"  # ours, needing an extra: fine
+        "def c():\n    import scipy.stats\n"  # required: reported
+        "def d():\n    from mrcomm_env.thing import plain\n"  # ours, needing nothing optional: reported
+    )
+    count, bad = inner_import_report(sorted(package.glob("*.py")))
+    assert count == 4
+    assert [entry.split(" ")[0] for entry in bad] == ["mrcomm_env/thing/uses.py:6", "mrcomm_env/thing/uses.py:8"]

@@ -290,7 +290,7 @@ def test_bench_checks_every_param_before_timing(tmp_path, capsys, no_episode):
 
 
 def test_bench_train_shipped_needs_a_shipped_configuration_before_timing(tmp_path, capsys, monkeypatch, no_episode):
-    monkeypatch.setattr("mrcomm_agents.training.CONFIG_DIR", tmp_path)  # no agents/configs here
+    monkeypatch.setattr("mrcomm_env.experiments.runs.agent_config_dir", lambda: tmp_path)  # no agents/configs here
     argv = ["bench", "MapSync-v0", "--train-shipped", "--runs", "1", "--out", str(tmp_path / "b.json")]
     assert main(argv) == 2
     assert "has no learning configuration" in _one_error_line(capsys.readouterr().err)
@@ -417,7 +417,7 @@ def test_json_is_written_atomically(tmp_path, monkeypatch, capsys):
 def test_bench_train_measures_ppo_without_leaving_sb3_folders_in_tmp(tmp_path, monkeypatch):
     import tempfile
 
-    from mrcomm_env.experiments.bench import train_throughput
+    from mrcomm_env.experiments.bench_train import train_throughput
     from mrcomm_env.registry import make
 
     monkeypatch.delenv("SB3_LOGDIR", raising=False)  # as a user runs it (the suite points SB3 elsewhere)

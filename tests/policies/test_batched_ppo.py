@@ -351,7 +351,7 @@ def test_the_default_copies_aim_at_128_agent_rows_within_bounds():
 
 # ------------------------------------------------------------------------------------------------ bench and race
 def test_the_bench_times_whole_rollouts_after_an_untimed_one():
-    from mrcomm_env.experiments.bench import batched_throughput
+    from mrcomm_env.experiments.bench_train import batched_throughput
 
     result = batched_throughput(ENV, ENV_KWARGS, 10, "mappo", 2)
     rollout = 64 * 2 * N_AGENTS  # the bench's 64 steps per rollout, of every agent of both copies

@@ -58,7 +58,7 @@ def test_beats_needs_a_margin_beyond_the_intervals(learned, baseline, expected):
 def test_one_collapsed_seed_does_not_buy_a_match_through_a_wide_t_interval():
     """Five seeds, one collapsed (AsyncCL at a high bit price): the t-interval of the mean is wide enough to call a
     delay 12 times the baseline's "not worse"; the bootstrap interval of the IQM is not."""
-    from mrcomm_env.core.stats import iqm_ci95
+    from mrcomm_env.experiments.comparison import iqm_ci95
 
     seeds = [1.9, 2.0, 2.1, 2.2, 70.0]
     learned = comparison.comparison_row("learned (ppo)", 0.5, seeds, [1474.0] * 5, 5)
@@ -113,6 +113,7 @@ def test_reproduce_learning_end_to_end_on_a_tiny_budget(tmp_path, monkeypatch):
     config_dir.mkdir()
     (config_dir / "ChannelAssociation-v0.json").write_text(json.dumps(tiny))
     monkeypatch.setattr("mrcomm_agents.training.CONFIG_DIR", config_dir)
+    monkeypatch.setattr("mrcomm_env.experiments.runs.agent_config_dir", lambda: config_dir)
     monkeypatch.setattr("mrcomm_agents.learned.PRETRAINED_DIR", tmp_path / "pretrained")
     docs = tmp_path / "docs"
     code = main(

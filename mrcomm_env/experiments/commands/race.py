@@ -8,7 +8,6 @@ from pathlib import Path
 
 from mrcomm_env.experiments.arguments import positive_int
 from mrcomm_env.experiments.evaluation import limit_threads
-from mrcomm_env.experiments.race import race, race_configs, race_table
 from mrcomm_env.registry import canonical_id, short_name
 
 
@@ -26,6 +25,8 @@ def add_parser(command) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mrcomm_env.experiments.race import race, race_configs, race_table  # the "train" extra: it trains
+
     limit_threads()
     env_id = canonical_id(args.env_id)
     race_configs(env_id, args.algo)  # a configuration that cannot race is refused before any training

@@ -4,24 +4,13 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
-from mrcomm_env.experiments.bounds import bound_rows
-from mrcomm_env.experiments.comparison import curve_rows, export_pretrained, heldout_seeds, reproduce_learning
 from mrcomm_env.experiments.evaluation import limit_threads
 from mrcomm_env.experiments.io import atomic_write_csv, atomic_write_text
-from mrcomm_env.experiments.learning_report import (
-    learning_section,
-    plot_comparison,
-    plot_curves,
-    read_rows,
-    sweep_section,
-    write_learning_page,
-)
-from mrcomm_env.experiments.runs import comparison_spec
+from mrcomm_env.experiments.runs import agent_config_dir, comparison_spec
 from mrcomm_env.experiments.sweep import add_runner_arguments, runner_from_args, using
-from mrcomm_env.registry import canonical_id, env_ids, make, short_name
+from mrcomm_env.registry import canonical_id, env_ids, short_name
 
 
 def add_parser(command) -> None:
@@ -49,11 +38,12 @@ def add_parser(command) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mrcomm_agents.training import CONFIG_DIR  # extra "train"
+    # the "train" extra: the comparison trains, and the page reads the shipped models' cards
+    from mrcomm_env.experiments import bounds, comparison, learning_report
 
     limit_threads()
     targets = [canonical_id(e) for e in args.env_ids] or [
-        e for e in env_ids() if (CONFIG_DIR / f"{short_name(e)}.json").exists()
+        e for e in env_ids() if (agent_config_dir() / f"{short_name(e)}.json").exists()
     ]
     out = Path(args.out)
     docs = Path(args.docs)
@@ -61,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     if args.record_scratch is not None:
         if len(targets) != 1:
             raise ValueError("--record-scratch takes one env id: the env of the run")
-        record_scratch(targets[0], Path(args.record_scratch), docs)
+        learning_report.record_scratch(targets[0], Path(args.record_scratch), docs)
     # no training: re-render every section from its recorded table (e.g. after ``make sweep`` or --record-scratch)
     if args.docs_only or args.record_scratch is not None:
         for env_id in targets:
@@ -69,57 +59,36 @@ def run(args: argparse.Namespace) -> int:
             table = docs / "learning" / f"{name}.csv"
             if not table.exists():
                 continue
-            rows, spec = read_rows(table), comparison_spec(env_id)
-            bounds = bound_rows(env_id, spec, heldout_seeds(spec))
-            section = learning_section(env_id, rows, spec, f"learning/{name}.png", docs, bounds)
-            atomic_write_text(docs / "learning" / f"{name}.md", section + sweep_section(env_id, docs))
-        print(f"wrote {write_learning_page(docs)}")
+            rows, spec = learning_report.read_rows(table), comparison_spec(env_id)
+            bound_table = bounds.bound_rows(env_id, spec, comparison.heldout_seeds(spec))
+            section = learning_report.learning_section(env_id, rows, spec, f"learning/{name}.png", docs, bound_table)
+            atomic_write_text(docs / "learning" / f"{name}.md", section + learning_report.sweep_section(env_id, docs))
+        print(f"wrote {learning_report.write_learning_page(docs)}")
         return 0
     with using(runner_from_args(args, progress=not args.quiet)):  # one set of workers for every env
         for env_id in targets:
             name = short_name(env_id)
-            rows, spec = reproduce_learning(env_id, out / name, quick=args.quick, progress=not args.quiet)
+            rows, spec = comparison.reproduce_learning(env_id, out / name, quick=args.quick, progress=not args.quiet)
             atomic_write_csv(docs / "learning" / f"{name}.csv", rows)
             if spec.get("scratch_run"):
-                record_scratch(env_id, Path(spec["scratch_run"]), docs)
-            curves = curve_rows(spec["tasks"], spec)
+                learning_report.record_scratch(env_id, Path(spec["scratch_run"]), docs)
+            curves = comparison.curve_rows(spec["tasks"], spec)
             if curves:
                 atomic_write_csv(docs / "learning" / f"{name}-curves.csv", curves)
-                plot_curves(curves, spec, f"{env_id}: learning curves", docs / "learning" / f"{name}-curves.png")
+                learning_report.plot_curves(
+                    curves, spec, f"{env_id}: learning curves", docs / "learning" / f"{name}-curves.png"
+                )
             figure = docs / "learning" / f"{name}.png"
-            plot_comparison(rows, spec, f"{env_id}: learned vs scripted at equal bits", figure)
-            bounds = bound_rows(env_id, spec, heldout_seeds(spec))
-            section = learning_section(env_id, rows, spec, f"learning/{name}.png", docs, bounds)
-            section += sweep_section(env_id, docs)
+            learning_report.plot_comparison(rows, spec, f"{env_id}: learned vs scripted at equal bits", figure)
+            bound_table = bounds.bound_rows(env_id, spec, comparison.heldout_seeds(spec))
+            section = learning_report.learning_section(env_id, rows, spec, f"learning/{name}.png", docs, bound_table)
+            section += learning_report.sweep_section(env_id, docs)
             # one fragment per env: rerunning one env keeps the others' sections in the page
             atomic_write_text(docs / "learning" / f"{name}.md", section)
             if args.export_pretrained:
-                print(f"shipped {spec['best_run']} as {export_pretrained(spec['best_run'], env_id, spec['shipped'])}")
-    page = write_learning_page(docs, quick=args.quick)
+                print(
+                    f"shipped {spec['best_run']} as {comparison.export_pretrained(spec['best_run'], env_id, spec['shipped'])}"
+                )
+    page = learning_report.write_learning_page(docs, quick=args.quick)
     print(f"wrote {page}")
     return 0
-
-
-def record_scratch(env_id: str, run_dir: Path, docs: Path) -> Path:
-    """Write ``run_dir``'s held-out curve (a run from random weights of ``env_id``) as the env's from-scratch table's
-    source, ``docs/learning/<Name>-v0-scratch.csv``; the price of a bit is the run's value of the comparison's cost
-    argument (the env's default where the run did not set it)."""
-    config_path = run_dir / "config.json"
-    if not config_path.exists():
-        raise ValueError(f"--record-scratch: {run_dir} is not a run folder (it has no config.json)")
-    config = json.loads(config_path.read_text())
-    if canonical_id(config["env_id"]) != env_id:
-        raise ValueError(f"--record-scratch: {run_dir} trained {config['env_id']}, not {env_id}")
-    if config.get("init_from"):
-        raise ValueError(f"--record-scratch: {run_dir} starts from a clone ({config['init_from']}), not random weights")
-    spec = comparison_spec(env_id)
-    cost_param = spec["cost_param"]
-    probe = make(env_id, **config["env_kwargs"])
-    cost = float(getattr(probe.cfg, cost_param))
-    probe.close()
-    rows = curve_rows([{"out": run_dir, "cost": cost, "seed": config["seed"]}], spec)
-    if not rows:
-        raise ValueError(f"--record-scratch: {run_dir}/progress.csv has no held-out evaluation")
-    path = docs / "learning" / f"{short_name(env_id)}-scratch.csv"
-    atomic_write_csv(path, rows)
-    return path

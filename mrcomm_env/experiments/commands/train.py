@@ -12,7 +12,6 @@ from mrcomm_env.experiments.arguments import parse_params, positive_int, seed_ty
 from mrcomm_env.experiments.evaluation import limit_threads
 from mrcomm_env.experiments.runs import teacher_for
 from mrcomm_env.experiments.sweep import add_runner_arguments
-from mrcomm_env.experiments.train import train_sweep
 from mrcomm_env.registry import canonical_id, short_name
 
 
@@ -127,6 +126,7 @@ def parse_grid(pairs: list[str] | None) -> dict[str, list]:
 
 def run(args: argparse.Namespace) -> int:
     from mrcomm_agents.training import TrainConfig, default_config, load_config_file, split_settings, train  # "train"
+    from mrcomm_env.experiments.train import train_sweep  # the "train" extra, as above
 
     limit_threads()
     env_id = canonical_id(args.env_id)
