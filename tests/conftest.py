@@ -75,3 +75,32 @@ def sb3_logs_in_the_suites_temporary_folder(tmp_path_factory):
         os.environ.pop("SB3_LOGDIR", None)
     else:
         os.environ["SB3_LOGDIR"] = previous
+
+
+#: what the package ships beside its code, which no test may write (a test once patched a name the exporter no
+#: longer read and shipped its tiny model as MapSync's)
+SHIPPED_DATA = [
+    os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "agents", folder)
+    for folder in ("pretrained", "configs")
+]
+
+
+def shipped_files() -> dict[str, tuple[int, int]]:
+    """(modification time, size) of every file under :data:`SHIPPED_DATA`."""
+    found = {}
+    for root in SHIPPED_DATA:
+        for folder, _, names in os.walk(root):
+            for name in names:
+                path = os.path.join(folder, name)
+                status = os.stat(path)
+                found[path] = (status.st_mtime_ns, status.st_size)
+    return found
+
+
+@pytest.fixture(autouse=True)
+def no_test_writes_the_shipped_models():
+    before = shipped_files()
+    yield
+    after = shipped_files()
+    changed = sorted(path for path in before.keys() | after.keys() if before.get(path) != after.get(path))
+    assert not changed, f"this test wrote into the package's shipped data: {changed}"

@@ -346,7 +346,7 @@ def test_export_writes_a_card_with_the_agent_steps_the_model_was_trained_for(tmp
         eval_episodes=1,
     )
     run = train(config, tmp_path / "run", progress=False)
-    monkeypatch.setattr(learned, "pretrained_dir", lambda env_id: tmp_path / "shipped")
+    monkeypatch.setattr(learned, "PRETRAINED_DIR", tmp_path / "shipped")  # the root every reader of it joins
     target = comparison.export_pretrained(run, "MapSync-v0")
     card = json.loads((target / "card.json").read_text())
     trained = json.loads((run / "state.json").read_text())["num_timesteps"]

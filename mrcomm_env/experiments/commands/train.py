@@ -157,13 +157,14 @@ def run(args: argparse.Namespace) -> int:
     timesteps = args.timesteps if args.timesteps is not None else run.pop("timesteps", 200_000)
     run.pop("timesteps", None)
     if args.init_from is not None:
-        teacher_for(env_id, args.init_from)  # a bad name is reported before any work
         run["init_from"] = args.init_from
+    # the warm start's teacher, found once (the configuration's or --init-from's): a bad name is reported before any work
+    teacher = teacher_for(env_id, run.get("init_from"))
     base = dict(env_id=env_id, algo=args.algo, timesteps=timesteps, env_kwargs=env_kwargs, hyperparams=hyper, **run)
     if args.seeds is not None or args.grid:
         default_out = f"runs/{short_name(env_id)}-{args.algo}-sweep"
         return train_sweep(base, args.seeds or [args.seed], parse_grid(args.grid), Path(args.out or default_out), args)
     config = TrainConfig(seed=args.seed, **base)
-    train(config, out, progress=not args.quiet, teacher=teacher_for(env_id, config.init_from))
+    train(config, out, progress=not args.quiet, teacher=teacher)
     print(f"wrote {out}/model.zip, {out}/config.json, {out}/progress.csv")
     return 0
