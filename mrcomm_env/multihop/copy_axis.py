@@ -1,13 +1,16 @@
 """M copies of a static MultiHop scene stepped as arrays with a leading copy axis (the copy-axis world).
 
 What :class:`~mrcomm_env.core.batched.BatchedEnv` steps instead of M env objects when
-:meth:`MultiHopEnv.copy_axis_world` allows it: a static topology (the grid, or a field with ``speed`` 0) with the
-team reward, on the compiled backend, in either layout. The env itself runs such a frame in one compiled
-call (``frame_numba.send_frame``, which already takes a copy axis); here everything around it does too: the frame's
+:meth:`MultiHopEnv.copy_axis_world` allows it: a static topology (the grid, or a field with ``speed`` 0) on the
+compiled backend, in either layout, with either reward and with or without ``observe_heard``. The frame is one
+compiled call over every copy (``frame_numba.send_frame``); here everything around it is too: the frame's
 lists (the ``relative`` layout's select bits, :func:`~.frame_numba.selected_ranks`; the ``absolute`` layout's
 priorities, :func:`~.frame_numba.priority_ranks`), the ages, the eq. (1)-weighted age and the per-hop
 statistics of the frame's end, the candidates' ranking and the observation
-(:func:`~.frame_numba.observe_candidates`, :func:`~.frame_numba.observe_indices`). Every number is the env's, bit
+(:func:`~.frame_numba.observe_candidates`, :func:`~.frame_numba.observe_indices`). The ``neighbourhood`` reward and
+what each robot heard (``observe_heard``: its table and its sixth candidate feature) are the protocol's own functions
+(:func:`~.protocol.neighbourhood_staleness`, :func:`~.protocol.hear`, :func:`~.protocol.neighbour_lack`), which the
+env calls too, applied copy by copy. Every number is the env's, bit
 for bit: elementwise work is the env's float64 operations in the same order, and every sum is numpy's pairwise sum
 over the same elements in the same order, either :func:`~mrcomm_env.core.sums_numba.numpy_sum` on a copy's scratch
 row or numpy's own row reduction of a C-ordered ``(M, K)`` array (which sums each row as numpy sums that row alone).
@@ -26,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from mrcomm_env.multihop import frame_numba
+from mrcomm_env.multihop import protocol as proto
 from mrcomm_env.multihop.protocol import HOP_BUCKETS
 
 N_HOP_BUCKETS = len(HOP_BUCKETS)
@@ -93,6 +97,18 @@ class StaticFrameBatch:
         self.known_fraction = np.zeros((m, n))
         self.wage = np.zeros(m)
         self.obs = np.zeros((m, n, constants["obs_dim"]), dtype=np.float32)
+        self.features = constants["features"]  # per candidate (relative layout)
+        # the neighbourhood reward and observe_heard read the links; observe_heard keeps what each robot heard
+        self.neighbourhood = c.reward_mode == "neighbourhood"
+        self.bit_unit = self.slot_size * self.bits
+        self.adj = np.zeros(pair, dtype=bool)  # the env's links (core.comm: boolean)
+        self.heard: np.ndarray | None = None
+        if c.observe_heard:
+            self.heard = np.empty((m, n, n, n))
+            self.judged = np.zeros((m, n, n, n), dtype=bool)
+            self.judged_count = np.zeros(pair, dtype=np.int64)
+            # the compiled observation's five features per candidate, before the sixth joins them
+            self.obs_five = np.zeros((m, n, (constants["features"] - 1) * self.n_cand + 3), dtype=np.float32)
 
     # ------------------------------------------------------------------ copies in and out
     def adopt(self, i: int) -> None:
@@ -112,6 +128,11 @@ class StaticFrameBatch:
         self.dist[i] = arrays["dist"] if self.relative else env.estimated_distances()
         self.weights[i] = arrays["weights"]
         self.weight_sum[i] = arrays["weight_sum"]
+        self.adj[i] = arrays["adj"]
+        if self.heard is not None:
+            self.heard[i] = arrays["heard"]
+            self.judged[i] = arrays["judged"]
+            self.judged_count[i] = arrays["judged_count"]
         if self.hop_flat.shape[0] > 1 or i == 0:
             row = min(i, self.hop_flat.shape[0] - 1)
             buckets = [np.flatnonzero(mask.ravel()) for mask in arrays["hop_masks"]]
@@ -154,6 +175,8 @@ class StaticFrameBatch:
         env.first_known = self.first_known[i].copy()
         env.sent_stamp = self.sent_stamp[i].copy()
         env.last_sent = self.last_sent[i].copy()
+        if self.heard is not None:
+            env.heard = self.heard[i].copy()
         env.t = float(self.t[i])
         ranking = (self.candidates[i], self.ranked_known[i].copy(), self.dist[i].copy()) if self.relative else None
         env.load_world_counters(self.counters(i), ranking)
@@ -212,7 +235,7 @@ class StaticFrameBatch:
         np.multiply(self.sent, self.bits, out=self.step_bits)  # BitLedger.record
         self.total_bits += self.step_bits
         self.messages += n
-        reward = self._frame_end()
+        rewards = self._frame_end()
         self.step_count += 1
         truncated = self.step_count >= self.max_cycles
         if self.relative:
@@ -227,9 +250,11 @@ class StaticFrameBatch:
                 self.slot_size,
                 self.frame_dur,
                 self.diag,
-                self.obs,
+                self.obs if self.heard is None else self.obs_five,
                 self.known_fraction,
             )
+            if self.heard is not None:
+                self._observe_heard(self.heard)
         else:
             frame_numba.observe_indices(
                 self.stamps,
@@ -249,8 +274,20 @@ class StaticFrameBatch:
             "known_fraction": self.known_fraction.copy(),
             "slot": self.slot.astype(np.float64),
         }
-        rewards = np.repeat(reward[:, None], n, axis=1)
         return self.obs, rewards, np.zeros(m, dtype=bool), truncated, infos
+
+    def _observe_heard(self, heard: np.ndarray) -> None:
+        """``observe_heard``'s observation (``MultiHopEnv._observe``): the compiled features of each candidate, then
+        the freshness the robot's neighbours lack of it (:func:`~.protocol.neighbour_lack`), then the three robot-level
+        features."""
+        m, n, cand, f = self.n_copies, self.n, self.n_cand, self.features
+        ranked = np.empty((m, n, cand, f), dtype=np.float32)
+        ranked[..., : f - 1] = self.obs_five[:, :, : (f - 1) * cand].reshape(m, n, cand, f - 1)
+        for i in range(m):
+            lack = proto.neighbour_lack(self.stamps[i], heard[i], self.judged[i], self.judged_count[i], self.frame_dur)
+            ranked[i, :, :, f - 1] = np.take_along_axis(lack, self.candidates[i].astype(np.int64), axis=1)
+        self.obs[:, :, : f * cand] = ranked.reshape(m, n, f * cand)
+        self.obs[:, :, -3:] = self.obs_five[:, :, -3:]
 
     def _selected(self, actions: np.ndarray) -> np.ndarray:
         """The select bits as bool, refusing what the env's MultiBinary check refuses (any real 0s and 1s pass)."""
@@ -284,9 +321,9 @@ class StaticFrameBatch:
         return priority.astype(np.float64)
 
     def _frame_end(self) -> np.ndarray:
-        """``MultiHopEnv._frame_end`` of every copy (team reward): the time averages and per-hop ages
-        (``frame_numba.close_frames``, which also ends the frame's slots), the candidates re-ranked where what a
-        copy's robots hold changed, and the reward (M,)."""
+        """``MultiHopEnv._frame_end`` of every copy: the time averages and per-hop ages (``frame_numba.close_frames``,
+        which also ends the frame's slots), what each robot heard (``observe_heard``), the candidates re-ranked where
+        what a copy's robots hold changed, and the rewards (M, N)."""
         frame_numba.close_frames(
             self.stamps,
             self.t,
@@ -300,9 +337,21 @@ class StaticFrameBatch:
             self.mean_age,
             self.wage,
         )
+        if self.heard is not None:
+            for i in range(self.n_copies):
+                proto.hear(self.heard[i], self.last_sent[i], self.sent_stamp[i], self.adj[i])
         if self.relative:
             self._rank_candidates()
-        return -self.wage / self.age_unit - self.lam * self.step_bits.sum(axis=1) / self.capacity
+        if not self.neighbourhood:
+            team = -self.wage / self.age_unit - self.lam * self.step_bits.sum(axis=1) / self.capacity
+            return np.repeat(team[:, None], self.n, axis=1)
+        # each robot: the weighted age its neighbours hold (MultiHopEnv._frame_end's ages, as the env computes them)
+        rewards = np.empty((self.n_copies, self.n))
+        for i in range(self.n_copies):
+            ages = np.where(self.stamps[i] > proto.UNKNOWN, self.t[i] - self.stamps[i], self.t[i])
+            near = proto.neighbourhood_staleness(self.weights[i] * ages, self.weights[i], self.adj[i])
+            rewards[i] = -near / self.age_unit - self.lam * self.step_bits[i] / self.bit_unit
+        return rewards
 
     def _rank_candidates(self) -> None:
         """``MultiHopEnv._rank_candidates`` of a static scene, for the copies whose held estimates changed since

@@ -65,11 +65,11 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
 
     @classmethod
     def copy_axis_world(cls, cfg):
-        """A static topology (the grid, or a field with ``speed`` 0) with the team reward, in either layout, on the
-        compiled backend, steps M copies as one batch of arrays (:mod:`.copy_axis`); other configurations (moving
-        robots, the coverage controller, the neighbourhood reward, ``observe_heard``) step their copies in turn."""
+        """A static topology (the grid, or a field with ``speed`` 0), in either layout, with either reward and with or
+        without ``observe_heard``, on the compiled backend, steps M copies as one batch of arrays (:mod:`.copy_axis`);
+        moving robots and the coverage controller step their copies in turn."""
         static = cfg.scene == "grid" or (cfg.scene == "field" and cfg.speed == 0)
-        if not static or cfg.reward_mode != "team" or cfg.observe_heard or not backend.compiled():
+        if not static or not backend.compiled():
             return None
         from mrcomm_env.multihop.copy_axis import StaticFrameBatch  # numba is imported with it
 
@@ -147,8 +147,6 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
             self.waypoint = rng.uniform(0.0, self.side, size=(n, 2))
         else:  # coverage: take off from a corner region, spread out by the controller
             self.pos = rng.uniform(0.0, 0.25 * self.side, size=(n, 2))
-        # the compiled twin of the frame on a static topology, or the numpy reference (docs/architecture.md)
-        self._send_frame = None if self._moving or not backend.compiled() else _frame_kernels().send_frame
         self._links()
         self._hops()
         self.t = 0.0
@@ -192,8 +190,6 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         else:
             self.adj = disk_links(self.pos, self.cfg.comm_range)
         self._nbrs = [np.flatnonzero(row) for row in self.adj]
-        if self._send_frame is not None:  # the same neighbour lists as CSR rows for the compiled frame
-            self._nbr_ptr, self._nbr_idx = _frame_kernels().neighbour_lists(self.adj)
 
     def _hops(self) -> None:
         """Hop-distance buckets of the current topology (for the max-age-by-hop metrics)."""
@@ -215,9 +211,11 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         self._wsum = float(w.sum())  # ≥ 1: the nearest pair weighs 1
 
     # ----------------------------------------------------------------- dynamics
-    def _step_world(self, actions: list) -> float:
+    def _step_world(self, actions: list) -> float | np.ndarray:
         if self._world_eligible:
             return self._step_one_copy(actions)
+        # moving robots, or any scene on the numpy backend: the frame slot by slot (the reference the copy-axis world
+        # is tested against, tests/multihop/test_multihop_world.py)
         n, m, b = self.n_agents, self.m, self.cfg.bits_per_estimate
         stamps, est, t = self.stamps, self.est, self.t
         # a robot's priorities are fixed for the frame; its candidate list is ranked once, filtered to the
@@ -229,26 +227,7 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         fk = None if self._all_known else self.first_known.reshape(-1)
         all_known = self._all_known
         moving = self._moving
-        if self._send_frame is not None:  # the whole frame in one compiled call: the same numbers as the loop below
-            clock = np.array([t])
-            self._send_frame(
-                stamps[None],
-                self.tdma.order[None],
-                rank[None],
-                count[None],
-                m,
-                clock,
-                self.slot_dur,
-                self._nbr_ptr,
-                self._nbr_idx,
-                self.first_known[None],
-                np.array([not all_known]),
-                last_sent[None],
-                sent_stamp[None],
-                sent_counts[None],
-            )
-            t = float(clock[0])
-        for s in [] if self._send_frame is not None else self.tdma.order.tolist():
+        for s in self.tdma.order.tolist():
             row = stamps[s]
             row[s] = t  # own state is always current (t_ii = t)
             cand = rank[s, : count[s]]
@@ -287,23 +266,28 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
     # ----------------------------------------------------------------- what its copy-axis world reads and writes
     def world_constants(self) -> dict:
         """Constants of one configuration that its copy-axis world (:mod:`.copy_axis`) computes with: the bits a
-        frame can carry, the reward's unit of age and the observation's width."""
+        frame can carry, the reward's unit of age, the observation's width and its features per candidate."""
         obs_dim = int(np.prod(self._obs_space.shape or (1,)))  # a flat Box
-        return {"capacity": self._capacity, "age_unit": self._age_unit, "obs_dim": obs_dim}
+        return {"capacity": self._capacity, "age_unit": self._age_unit, "obs_dim": obs_dim, "features": self._features}
 
     def world_arrays(self) -> dict:
         """The episode's fixed arrays and its ranking, which a copy-axis world copies into its rows at a reset:
-        slot phases, eq. (1)'s weights and their sum, the hop buckets' pair masks, the links (CSR pointer and
-        indices of the first frame) and, in the relative layout, the estimated distances of its last ranking, the
-        ranked candidates and whether each is held. The env's own arrays: copy what is kept."""
+        slot phases, eq. (1)'s weights and their sum, the hop buckets' pair masks, the links (the matrix, and its
+        rows as CSR pointer and indices) and, in the relative layout, the estimated distances of its last ranking, the
+        ranked candidates and whether each is held; with ``observe_heard``, what each robot heard and which
+        neighbours judge each estimate. The env's own arrays: copy what is kept."""
+        ptr, idx = _frame_kernels().neighbour_lists(self.adj)
         arrays = {
             "phase": self._phase,
             "weights": self._w,
             "weight_sum": self._wsum,
             "hop_masks": self._hop_masks,
-            "nbr_ptr": self._nbr_ptr[0],
-            "nbr_idx": self._nbr_idx[0],
+            "adj": self.adj,
+            "nbr_ptr": ptr[0],
+            "nbr_idx": idx[0],
         }
+        if self.heard is not None:
+            arrays.update(heard=self.heard, judged=self._judged, judged_count=self._judged_count)
         if self.cfg.layout == "relative":  # the absolute layout ranks no candidates
             arrays.update(dist=self._dist, candidates=self._candidates, ranked_known=self._ranked_known)
         return arrays
@@ -349,8 +333,9 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         self._step_bits = counters["step_bits"]
 
     # ----------------------------------------------------------------- the world of one copy
-    #: the env's arrays that are rows of its world of one copy (views), as :meth:`_bind_one_copy` binds them
-    _WORLD_VIEWS = ("stamps", "first_known", "sent_stamp", "last_sent", "_ranked_known", "_candidates")
+    #: the env's arrays that are rows of its world of one copy (views), as :meth:`_bind_one_copy` binds them (and
+    #: ``heard`` with ``observe_heard``)
+    _WORLD_VIEWS = ("stamps", "first_known", "sent_stamp", "last_sent", "_ranked_known", "_candidates", "heard")
 
     def _bind_one_copy(self) -> None:
         """Take this episode's state into the one-copy world, whose rows then are this env's arrays (views): what
@@ -358,11 +343,12 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         world = self._one_copy
         world.adopt(0)
         views = (world.stamps, world.first_known, world.sent_stamp, world.last_sent, world.ranked_known)
-        self._world_views = tuple(rows[0] for rows in (*views, world.candidates))
+        heard = world.heard[0] if world.heard is not None else None
+        self._world_views = (*(rows[0] for rows in (*views, world.candidates)), heard)
         for name, view in zip(self._WORLD_VIEWS, self._world_views, strict=True):
             setattr(self, name, view)
 
-    def _step_one_copy(self, actions) -> float:
+    def _step_one_copy(self, actions) -> float | np.ndarray:
         """One frame as the copy-axis world of this one copy (the same numbers as the reference below, bit for bit:
         ``tests/multihop/test_multihop.py`` compares whole episodes of both)."""
         if self.__dict__.get("_one_copy") is None:
@@ -379,7 +365,7 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         self.ledger.record(self._step_bits, messages=self.n_agents)
         self._world_obs = obs[0]
         self._world_infos = {key: column[0] for key, column in infos.items()}
-        return float(rewards[0, 0])
+        return rewards[0].copy() if self.cfg.reward_mode == "neighbourhood" else float(rewards[0, 0])
 
     def ages(self) -> np.ndarray:
         """(n, n) age (s) of every robot's estimate of every robot at the last frame end (unknown: the time since
@@ -480,7 +466,7 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
                 self._max_age[k] = max(self._max_age[k], float(sel.max()))
                 self._sum_age_hop[k] += float(sel.mean())
         if self.heard is not None:
-            self._hear(self.heard)
+            proto.hear(self.heard, self.last_sent, self.sent_stamp, self.adj)
         if self._relative:
             self._rank_candidates()
         age_unit = self._age_unit
@@ -488,38 +474,15 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         if self.cfg.reward_mode == "team":
             return -wage / age_unit - self.cfg.lam * float(self._step_bits.sum()) / self._capacity
         # neighbourhood: robot k's own weighted staleness, averaged over the neighbours i's broadcast reaches
-        own = weighted.sum(axis=1) / np.maximum(self._w.sum(axis=1), 1e-300)
-        deg = self.adj.sum(axis=1)
-        near = np.where(deg > 0, (self.adj @ own) / np.maximum(deg, 1), own)
+        near = proto.neighbourhood_staleness(weighted, self._w, self.adj)
         return -near / age_unit - self.cfg.lam * self._step_bits / bit_unit
 
-    def _hear(self, heard: np.ndarray) -> None:
-        """What each robot heard this frame, into ``heard`` (``observe_heard``): on a lossless broadcast channel over
-        static links, robot i heard every neighbour k broadcast, and k heard i, so k holds at least the stamps either
-        sent."""
-        sent = np.where(self.last_sent, self.sent_stamp, proto.UNKNOWN)  # row k: the stamps k broadcast this frame
-        either = np.maximum(sent[None, :, :], sent[:, None, :])  # [i, k, j]: k's or i's broadcast of j
-        np.copyto(either, proto.UNKNOWN, where=~(self.adj[:, :, None] > 0))  # only neighbours hear each other
-        np.maximum(heard, either, out=heard)
-
     def neighbour_lack(self) -> np.ndarray:
-        """(n, n) ``observe_heard``'s feature: for robot i and estimate j, the mean over i's neighbours k ≠ j of the
-        freshness of i's estimate of j beyond the freshest stamp i knows k holds, ``g/(g + T_frame)`` (1 where i
-        never heard that k holds j; 0 where i holds no estimate of j, or has no neighbour but j). A neighbour's own
-        estimate is always current, so k = j lacks nothing. Two n³ temporaries at most (the memory model)."""
+        """(n, n) ``observe_heard``'s feature (:func:`.protocol.neighbour_lack`): for robot i and estimate j, the mean
+        over i's neighbours k ≠ j of the freshness they lack of i's estimate, as far as what i heard tells."""
         if self.heard is None:
             raise ValueError("neighbour_lack() needs the env built with observe_heard=True")
-        held = self.stamps > proto.UNKNOWN
-        stamps = np.where(held, self.stamps, 0.0)  # an estimate i does not hold lacks nothing (zeroed below)
-        share = stamps[:, None, :] - self.heard  # [i, k, j]: freshness beyond what k is known to hold; inf: never
-        np.maximum(share, 0.0, out=share)
-        with np.errstate(invalid="ignore"):  # inf / inf where never heard: taken as 1 below
-            np.divide(share, share + self.frame_dur, out=share)
-        share[np.isnan(share)] = 1.0
-        share *= self._judged  # [i, k, j]: k a neighbour of i, k ≠ j
-        count = self._judged_count
-        lack = share.sum(axis=1) / np.maximum(count, 1)
-        return np.where(held & (count > 0), lack, 0.0)
+        return proto.neighbour_lack(self.stamps, self.heard, self._judged, self._judged_count, self.frame_dur)
 
     # ----------------------------------------------------------------- views
     def estimated_distances(self) -> np.ndarray:

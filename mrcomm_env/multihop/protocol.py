@@ -269,3 +269,41 @@ def centred_block(side: int, k: int) -> np.ndarray:
     lo = (side - k) // 2
     r = np.arange(lo, lo + k)
     return (r[:, None] * side + r[None, :]).ravel()
+
+
+# ---------------------------------------------------------------------------- what a robot heard (observe_heard)
+def hear(heard: np.ndarray, last_sent: np.ndarray, sent_stamp: np.ndarray, adj: np.ndarray) -> None:
+    """What each robot heard this frame, into ``heard`` (n, n, n) in place: on a lossless broadcast channel over
+    static links, robot i heard every neighbour k broadcast, and k heard i, so k holds at least the stamps either
+    sent (``last_sent``, ``sent_stamp``: what each robot broadcast this frame; ``adj``: the links)."""
+    sent = np.where(last_sent, sent_stamp, UNKNOWN)  # row k: the stamps k broadcast this frame
+    either = np.maximum(sent[None, :, :], sent[:, None, :])  # [i, k, j]: k's or i's broadcast of j
+    np.copyto(either, UNKNOWN, where=~(adj[:, :, None] > 0))  # only neighbours hear each other
+    np.maximum(heard, either, out=heard)
+
+
+def neighbour_lack(
+    stamps: np.ndarray, heard: np.ndarray, judged: np.ndarray, judged_count: np.ndarray, frame_dur: float
+) -> np.ndarray:
+    """(n, n): for robot i and estimate j, the mean over i's neighbours k ≠ j (``judged`` [i, k, j], ``judged_count``
+    their number) of the freshness of i's estimate of j beyond the freshest stamp i knows k holds (``heard``),
+    ``g/(g + T_frame)``: 1 where i never heard that k holds j; 0 where i holds no estimate of j, or has no neighbour
+    but j. A neighbour's own estimate is always current, so k = j lacks nothing. Two n³ temporaries at most."""
+    held = stamps > UNKNOWN
+    values = np.where(held, stamps, 0.0)  # an estimate i does not hold lacks nothing (zeroed below)
+    share = values[:, None, :] - heard  # [i, k, j]: freshness beyond what k is known to hold; inf: never heard
+    np.maximum(share, 0.0, out=share)
+    with np.errstate(invalid="ignore"):  # inf / inf where never heard: taken as 1 below
+        np.divide(share, share + frame_dur, out=share)
+    share[np.isnan(share)] = 1.0
+    share *= judged
+    lack = share.sum(axis=1) / np.maximum(judged_count, 1)
+    return np.where(held & (judged_count > 0), lack, 0.0)
+
+
+def neighbourhood_staleness(weighted_ages: np.ndarray, weights: np.ndarray, adj: np.ndarray) -> np.ndarray:
+    """(n,): the ``neighbourhood`` reward's age, per robot i the mean over the neighbours its broadcast reaches of
+    their own eq. (1)-weighted age (``weighted_ages`` = ``weights`` × ages), its own where it has no neighbour."""
+    own = weighted_ages.sum(axis=1) / np.maximum(weights.sum(axis=1), 1e-300)
+    deg = adj.sum(axis=1)
+    return np.where(deg > 0, (adj @ own) / np.maximum(deg, 1), own)

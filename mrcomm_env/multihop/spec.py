@@ -179,8 +179,8 @@ class MultiHopSpec(EnvSpec):
 
     MEMORY_FORMULA = (
         "8 MiB + 180·n² for n robots (`n_robots`, or `grid_side`² in the grid scene): every robot's estimate "
-        "table, its candidate observation and the pairwise distances and links are n × n; a static scene with the "
-        "team reward on the compiled backend adds 24 MiB + 48·n² (it steps as the "
+        "table, its candidate observation and the pairwise distances and links are n × n; a static scene on the "
+        "compiled backend adds 24 MiB + 48·n² (it steps as the "
         "copy-axis world of one copy: numba's kernels, and the world's rows beside the env's arrays); "
         "`observe_heard` adds 28·n³ (each robot's n × n table of what it heard and the frame's two n³ temporaries)"
     )
@@ -227,7 +227,13 @@ class MultiHopSpec(EnvSpec):
         # the env objects of a batch never step, so none builds a world of its own: each is the reference's state
         n = cls._robot_count(cfg)
         objects = cls.MEMORY_SHARED + n_copies * (180.0 * n * n + COPY_OVERHEAD_BYTES)
-        return objects + cls.WORLD_SHARED + n_copies * cls.WORLD_BYTES_PER_PAIR * n * n
+        world = cls.WORLD_SHARED + n_copies * cls.WORLD_BYTES_PER_PAIR * n * n
+        if cfg.observe_heard:
+            # per copy, what it heard and which neighbours judge each estimate (float64 and bool n³) in its env object
+            # and again in the world's rows; once, the two n³ temporaries of a copy's feature
+            objects += n_copies * 9.0 * n**3
+            world += n_copies * 9.0 * n**3 + 16.0 * n**3
+        return objects + world
 
     @staticmethod
     def _robot_count(cfg) -> float:

@@ -497,7 +497,7 @@ def test_whole_episodes_are_identical_with_the_compiled_frame(monkeypatch, kwarg
         views = env.local_views()
         obs, infos = env.reset(seed=23)
         pol.reset(views, 23)
-        assert (env._send_frame is not None) == (compiled and not env._moving)
+        assert env._world_eligible == (compiled and not env._moving)  # the world of one copy, or the reference
         trace = [(obs, infos)]
         while env.agents:
             obs, rewards, _, _, infos = env.step(pol.act(obs, views))

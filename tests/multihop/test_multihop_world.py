@@ -23,6 +23,14 @@ MULTIHOP_COPY_AXIS_CASES = [
     # v0's layout (BenchMARL's MultiHop task): Box priorities per robot index, ties and zeros among random draws
     {"grid_side": 4, "slot_size": 3, "max_cycles": 20, "layout": "absolute"},
     {"scene": "field", "n_robots": 9, "comm_range": 8.0, "arena_size": 60.0, "max_cycles": 12, "layout": "absolute"},
+    # each robot rewarded by what its neighbours hold, with its own bits priced; in either layout
+    {"grid_side": 4, "slot_size": 3, "max_cycles": 20, "reward_mode": "neighbourhood", "lam": 0.3},
+    {"grid_side": 3, "max_cycles": 10, "reward_mode": "neighbourhood", "layout": "absolute"},
+    # what each robot heard (its table, its sixth feature): the comparison's training setting, a partial grid, and a
+    # field where some robots have no neighbour (the feature is 0 there)
+    {"grid_side": 4, "slot_size": 4, "max_cycles": 20, "reward_mode": "neighbourhood", "observe_heard": True},
+    {"grid_side": 5, "n_robots": 22, "slot_size": 2, "max_cycles": 15, "observe_heard": True},
+    {"scene": "field", "n_robots": 9, "comm_range": 8.0, "arena_size": 60.0, "max_cycles": 12, "observe_heard": True},
 ]
 
 
@@ -39,7 +47,7 @@ class ReferenceMultiHop(MultiHopEnv):
 def test_a_multihop_copy_axis_world_gives_each_copy_the_single_env_episodes(kwargs):
     env_id = "mrcomm/MultiHop-v0"
     batch = mrcomm_env.make_batched(env_id, 3, **kwargs)
-    assert batch.world is not None  # compiled backend (extra "fast"), static scene, team reward
+    assert batch.world is not None  # compiled backend (extra "fast"), static scene
     horizon = 2 * kwargs["max_cycles"] + 3
     singles = assert_copies_are_single_envs(batch, env_id, kwargs, horizon, lambda: ReferenceMultiHop(**kwargs))
     assert not singles[0]._world_eligible  # the reference, not the world of one copy
@@ -48,6 +56,8 @@ def test_a_multihop_copy_axis_world_gives_each_copy_the_single_env_episodes(kwar
         assert copy.step_count == single.step_count and copy.t == single.t and copy.agents == single.agents
         for name in ("stamps", "first_known", "sent_stamp", "last_sent"):
             assert as_bytes(getattr(copy, name)) == as_bytes(getattr(single, name)), name
+        if kwargs.get("observe_heard"):
+            assert as_bytes(copy.heard) == as_bytes(single.heard)
         assert as_bytes(copy.ages()) == as_bytes(single.ages())
         if kwargs.get("layout", "relative") == "relative":  # the candidates' ranking is the relative layout's
             assert as_bytes(copy._ranked_known) == as_bytes(single._ranked_known)
@@ -59,8 +69,9 @@ def test_a_multihop_copy_axis_world_gives_each_copy_the_single_env_episodes(kwar
 
 @st.composite
 def _multihop_world_scenes(draw):
-    """MultiHop arguments its copy-axis world takes (a static grid or field, either layout, the team reward):
-    grids with partial rows, fields with their own links, every slot size from no hop to flooding, bit costs."""
+    """MultiHop arguments its copy-axis world takes (a static grid or field, either layout, either reward, with or
+    without what each robot heard): grids with partial rows, fields with their own links, every slot size from no
+    hop to flooding, bit costs."""
     common = {
         "alpha": draw(st.sampled_from([0.25, 1.0, 3.0])),
         "bits_per_estimate": draw(st.sampled_from([8, 192])),
@@ -68,7 +79,10 @@ def _multihop_world_scenes(draw):
         "lam": draw(st.sampled_from([0.0, 0.7])),
         "max_cycles": draw(st.integers(1, 6)),
         "layout": draw(st.sampled_from(["relative", "absolute"])),
+        "reward_mode": draw(st.sampled_from(["team", "neighbourhood"])),
     }
+    if common["layout"] == "relative":
+        common["observe_heard"] = draw(st.booleans())
     if draw(st.booleans()):
         side = draw(st.integers(2, 6))
         n = draw(st.integers(2, side * side))
