@@ -105,8 +105,6 @@ class StaticFrameBatch:
         self.heard: np.ndarray | None = None
         if c.observe_heard:
             self.heard = np.empty((m, n, n, n))
-            self.judged = np.zeros((m, n, n, n), dtype=bool)
-            self.judged_count = np.zeros(pair, dtype=np.int64)
             # the compiled observation's five features per candidate, before the sixth joins them
             self.obs_five = np.zeros((m, n, (constants["features"] - 1) * self.n_cand + 3), dtype=np.float32)
 
@@ -131,8 +129,6 @@ class StaticFrameBatch:
         self.adj[i] = arrays["adj"]
         if self.heard is not None:
             self.heard[i] = arrays["heard"]
-            self.judged[i] = arrays["judged"]
-            self.judged_count[i] = arrays["judged_count"]
         if self.hop_flat.shape[0] > 1 or i == 0:
             row = min(i, self.hop_flat.shape[0] - 1)
             buckets = [np.flatnonzero(mask.ravel()) for mask in arrays["hop_masks"]]
@@ -284,7 +280,7 @@ class StaticFrameBatch:
         ranked = np.empty((m, n, cand, f), dtype=np.float32)
         ranked[..., : f - 1] = self.obs_five[:, :, : (f - 1) * cand].reshape(m, n, cand, f - 1)
         for i in range(m):
-            lack = proto.neighbour_lack(self.stamps[i], heard[i], self.judged[i], self.judged_count[i], self.frame_dur)
+            lack = proto.neighbour_lack(self.stamps[i], heard[i], self.adj[i], self.frame_dur)
             ranked[i, :, :, f - 1] = np.take_along_axis(lack, self.candidates[i].astype(np.int64), axis=1)
         self.obs[:, :, : f * cand] = ranked.reshape(m, n, f * cand)
         self.obs[:, :, -3:] = self.obs_five[:, :, -3:]

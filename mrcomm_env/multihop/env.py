@@ -160,9 +160,6 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         self.sent_stamp = np.full((n, n), -self.frame_dur)  # never sent: as if sent one frame before start
         # heard[i, k, j]: the freshest stamp of j robot i heard k broadcast, or broadcast to k (observe_heard)
         self.heard = np.full((n, n, n), proto.UNKNOWN) if c.observe_heard else None
-        if c.observe_heard:  # static links: which neighbours k ≠ j judge each estimate j, once per episode
-            self._judged = (self.adj[:, :, None] > 0) & ~self._eye[None, :, :]  # [i, k, j]
-            self._judged_count = self._judged.sum(axis=1)
         self.ledger.reset()
         self._step_bits = np.zeros(n)
         self._frames = 0
@@ -274,8 +271,7 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         """The episode's fixed arrays and its ranking, which a copy-axis world copies into its rows at a reset:
         slot phases, eq. (1)'s weights and their sum, the hop buckets' pair masks, the links (the matrix, and its
         rows as CSR pointer and indices) and, in the relative layout, the estimated distances of its last ranking, the
-        ranked candidates and whether each is held; with ``observe_heard``, what each robot heard and which
-        neighbours judge each estimate. The env's own arrays: copy what is kept."""
+        ranked candidates and whether each is held; with ``observe_heard``, what each robot heard. The env's own arrays: copy what is kept."""
         ptr, idx = _frame_kernels().neighbour_lists(self.adj)
         arrays = {
             "phase": self._phase,
@@ -287,7 +283,7 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
             "nbr_idx": idx[0],
         }
         if self.heard is not None:
-            arrays.update(heard=self.heard, judged=self._judged, judged_count=self._judged_count)
+            arrays.update(heard=self.heard)
         if self.cfg.layout == "relative":  # the absolute layout ranks no candidates
             arrays.update(dist=self._dist, candidates=self._candidates, ranked_known=self._ranked_known)
         return arrays
@@ -482,7 +478,7 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         over i's neighbours k ≠ j of the freshness they lack of i's estimate, as far as what i heard tells."""
         if self.heard is None:
             raise ValueError("neighbour_lack() needs the env built with observe_heard=True")
-        return proto.neighbour_lack(self.stamps, self.heard, self._judged, self._judged_count, self.frame_dur)
+        return proto.neighbour_lack(self.stamps, self.heard, self.adj, self.frame_dur)
 
     # ----------------------------------------------------------------- views
     def estimated_distances(self) -> np.ndarray:

@@ -282,11 +282,9 @@ def hear(heard: np.ndarray, last_sent: np.ndarray, sent_stamp: np.ndarray, adj: 
     np.maximum(heard, either, out=heard)
 
 
-def neighbour_lack(
-    stamps: np.ndarray, heard: np.ndarray, judged: np.ndarray, judged_count: np.ndarray, frame_dur: float
-) -> np.ndarray:
-    """(n, n): for robot i and estimate j, the mean over i's neighbours k ≠ j (``judged`` [i, k, j], ``judged_count``
-    their number) of the freshness of i's estimate of j beyond the freshest stamp i knows k holds (``heard``),
+def neighbour_lack(stamps: np.ndarray, heard: np.ndarray, adj: np.ndarray, frame_dur: float) -> np.ndarray:
+    """(n, n): for robot i and estimate j, the mean over i's neighbours k ≠ j (``adj``: the links) of the freshness
+    of i's estimate of j beyond the freshest stamp i knows k holds (``heard``),
     ``g/(g + T_frame)``: 1 where i never heard that k holds j; 0 where i holds no estimate of j, or has no neighbour
     but j. A neighbour's own estimate is always current, so k = j lacks nothing. Two n³ temporaries at most."""
     held = stamps > UNKNOWN
@@ -296,9 +294,12 @@ def neighbour_lack(
     with np.errstate(invalid="ignore"):  # inf / inf where never heard: taken as 1 below
         np.divide(share, share + frame_dur, out=share)
     share[np.isnan(share)] = 1.0
-    share *= judged
-    lack = share.sum(axis=1) / np.maximum(judged_count, 1)
-    return np.where(held & (judged_count > 0), lack, 0.0)
+    share *= adj[:, :, None]  # k a neighbour of i …
+    diagonal = np.arange(len(adj))
+    share[:, diagonal, diagonal] = 0.0  # … and k ≠ j
+    judges = adj.sum(axis=1)[:, None] - adj  # [i, j]: the neighbours k ≠ j of i
+    lack = share.sum(axis=1) / np.maximum(judges, 1)
+    return np.where(held & (judges > 0), lack, 0.0)
 
 
 def neighbourhood_staleness(weighted_ages: np.ndarray, weights: np.ndarray, adj: np.ndarray) -> np.ndarray:

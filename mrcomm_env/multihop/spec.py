@@ -229,10 +229,10 @@ class MultiHopSpec(EnvSpec):
         objects = cls.MEMORY_SHARED + n_copies * (180.0 * n * n + COPY_OVERHEAD_BYTES)
         world = cls.WORLD_SHARED + n_copies * cls.WORLD_BYTES_PER_PAIR * n * n
         if cfg.observe_heard:
-            # per copy, what it heard and which neighbours judge each estimate (float64 and bool n³) in its env object
-            # and again in the world's rows; once, the two n³ temporaries of a copy's feature
-            objects += n_copies * 9.0 * n**3
-            world += n_copies * 9.0 * n**3 + 16.0 * n**3
+            # per copy, what it heard (float64 n³) in its env object and again in the world's rows; once, the two n³
+            # temporaries of a copy's feature
+            objects += n_copies * 8.0 * n**3
+            world += n_copies * 8.0 * n**3 + 16.0 * n**3
         return objects + world
 
     @staticmethod
