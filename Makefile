@@ -118,9 +118,9 @@ benchmark-page: .venv-benchmarl/.installed
 docs: $(STAMP)
 	$(BIN)/mrcomm docs
 
-# learned policies against every baseline at equal bits: trains 5 seeds per cost value and env (about 3 hours on two
-# cores: MultiHop 105 minutes for its five runs from random weights, ChannelAssociation 22, RendezvousMapping 5 plus
-# its 16-minute run from random weights, AsyncCL 13, MapSync 12), then
+# learned policies against every baseline at equal bits: trains 5 seeds per cost value and env, every run from random
+# weights (about 3.5 hours on two cores: MultiHop 105 minutes, RendezvousMapping 53 for its 15 runs,
+# ChannelAssociation 22, AsyncCL 13, MapSync 12), then
 # regenerates docs/learning.md with its curves (add --export-pretrained to ship the best runs); reruns skip the
 # runs already done
 learn: $(STAMP)

@@ -64,14 +64,6 @@ def scheme2_qinf_n3_tails(p: float, tmax: int = 2000):
             return
 
 
-def scheme2_qinf_n3_tail(t: int, p: float) -> float:
-    """I_t of eq. (15)."""
-    for s, it in enumerate(scheme2_qinf_n3_tails(p, t + 1)):
-        if s == t:
-            return it
-    return 0.0  # below 1e-15: the recursion stopped early
-
-
 def scheme2_qinf_n3_expected_delay(p: float, tmax: int = 2000) -> float:
     """eq. (16): E(delay) = Σ_{t≥1} t (I_{t-1} − I_t)."""
     tails = list(scheme2_qinf_n3_tails(p, tmax))

@@ -79,11 +79,6 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
         handle.write(text)
 
 
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
-    with atomic_open(path, "wb") as handle:
-        handle.write(data)
-
-
 def atomic_write_json(path: str | os.PathLike, obj: Any, **dump_kwargs: Any) -> None:
     """``json.dump(obj, …, **dump_kwargs)`` into ``path``; the object is serialised before the file is touched."""
     atomic_write_text(path, json.dumps(obj, **dump_kwargs))

@@ -20,14 +20,12 @@ from mrcomm_env.experiments.comparison import (
     baseline_on_training_heldout,
     beats,
     best_baseline,
-    curve_rows,
     dominates,
     first_reach,
     training_heldout,
 )
-from mrcomm_env.experiments.io import atomic_write_csv, atomic_write_text
-from mrcomm_env.experiments.runs import comparison_spec
-from mrcomm_env.registry import canonical_id, env_ids, make, short_name
+from mrcomm_env.experiments.io import atomic_write_text
+from mrcomm_env.registry import env_ids, short_name
 
 
 def plot_comparison(rows: list[dict], spec: dict, title: str, path: Path) -> None:
@@ -132,11 +130,9 @@ def curves_paragraph(env_id: str, docs: Path | None) -> list[str]:
     ]
 
 
-def read_curves(env_id: str, docs: Path | None, kind: str = "curves") -> list[dict]:
-    """The runs' held-out curves as ``reproduce-learning`` recorded them: ``docs/learning/<Name>-v0-curves.csv`` (the
-    comparison's runs) or, with ``kind="scratch"``, ``<Name>-v0-scratch.csv`` (a run from random weights recorded with
-    ``--record-scratch``)."""
-    table = None if docs is None else docs / "learning" / f"{short_name(env_id)}-{kind}.csv"
+def read_curves(env_id: str, docs: Path | None) -> list[dict]:
+    """The runs' held-out curves as ``reproduce-learning`` recorded them: ``docs/learning/<Name>-v0-curves.csv``."""
+    table = None if docs is None else docs / "learning" / f"{short_name(env_id)}-curves.csv"
     if table is None or not table.exists():
         return []
     with open(table, newline="") as fh:
@@ -146,31 +142,14 @@ def read_curves(env_id: str, docs: Path | None, kind: str = "curves") -> list[di
 def from_random_weights(env_id: str, baselines: list[dict], spec: dict, docs: Path | None) -> list[str]:
     """#42's from-scratch table, per price of a bit: how many of the runs (which start from random weights) reach the
     best paper algorithm's metric at equal bits on their held-out curves (that algorithm played on the curves' own
-    episodes), after how many agent-steps and wall seconds, and where the runs end. Where the comparison's runs
-    start from a clone, the same table over the recorded run from random weights (the spec's ``scratch``: its
-    algorithm and the wall seconds it is cut at), or a sentence where none is recorded."""
+    episodes), after how many agent-steps and wall seconds, and where the runs end; a sentence instead where the
+    comparison's runs start from a clone."""
     settings = spec["settings"].get(spec["algo"], {})
     if settings.get("init_from"):
-        scratch: dict = spec.get("scratch") or {}
-        curves = read_curves(env_id, docs, "scratch") if scratch else []
-        if not curves:
-            return [
-                f"**From random weights.** The comparison's runs start from a clone of `{settings['init_from']}`, not "
-                "from random weights; what training from random weights reached is in the notes below."
-            ]
-        limit = float(scratch["seconds"])
-        curves = [p for p in curves if p["seconds"] <= limit]
-        source = (
-            f"**From random weights** (#42's goal 3): the comparison's runs start from a clone of "
-            f"`{settings['init_from']}`, so this table reads one run from random weights instead, recorded with "
-            f"`mrcomm reproduce-learning {short_name(env_id)} --record-scratch RUN` from `mrcomm train "
-            f"{short_name(env_id)} --algo {scratch['algo']}` (the `{scratch['algo']}` section of "
-            f"`agents/configs/{short_name(env_id)}.json`, seed 0; `mrcomm reproduce-learning` trains it after the "
-            f"comparison's runs; read up to {limit:,.0f} s of training, "
-            f"and the recorded curve ends at {max((p['seconds'] for p in curves), default=0.0):,.0f} s). It lists the "
-            "first held-out evaluation"
-        )
-        return scratch_table(env_id, curves, baselines, spec, source)
+        return [
+            f"**From random weights.** The comparison's runs start from a clone of `{settings['init_from']}`, not "
+            "from random weights; what training from random weights reached is in the notes below."
+        ]
     source = "**From random weights** (#42's goal 3, read from the learning curves): the first held-out evaluation"
     return scratch_table(env_id, read_curves(env_id, docs), baselines, spec, source)
 
@@ -403,7 +382,8 @@ policy is evaluated on held-out episode seeds (deterministically unless the env'
 learned point's interval is over training seeds; a baseline's over episodes. Beside a learned point's mean, the
 column "IQM" gives rliable's interquartile mean over its training seeds with a 95 % percentile-bootstrap
 interval (`mrcomm_env/experiments/comparison.py`: with 3 seeds the IQM is the mean; "—" where the recorded table predates
-the column). Each shipped model is the best run within the bits of the best paper algorithm of its setting;
+the column). Each shipped model is the best run within the bits of the best paper algorithm of its setting (where
+the cost argument is the setting itself, RendezvousMapping's range, the best relative to that algorithm's metric);
 its card (`agents/pretrained/<Name>-v0/card.json`) gives its held-out metric and bits beside that algorithm's,
 and under `rl_phase` its run's own held-out evaluation at the start of the RL phase (agent-step 0: random
 weights, or the clone of a warm start) and at its end.
@@ -412,8 +392,7 @@ live env (`mrcomm_env/experiments/bounds.py`), with what it rules out of beating
 on the metric or by 20 % on bits. A **reference** row (MultiHop's `oracle`) is no bound but a policy
 with knowledge the learned policy's observation lacks, which shows whether the 10 % margin is there to be found.
 **From random weights** says when each run that starts from random weights first reaches that algorithm's metric
-at equal bits on its own held-out curve (where the comparison starts from a clone, one recorded run from random
-weights).
+at equal bits on its own held-out curve (every comparison here trains from random weights).
 While training, `progress.csv` and TensorBoard carry a held-out evaluation under `heldout/` (the env's metrics
 and bits per robot; `agents/heldout.py`). The scripted baselines see more than the learned policy where the env's
 page says so (`docs/envs/<Name>-v0.md`, column "global knowledge"), and their own per-robot memory: see
@@ -440,28 +419,3 @@ A learned policy sees only its observation. The scripted baselines read their ro
 | RendezvousMapping-v0 | `paper_protocol` | its group's fused map (landmark estimates, information, counts) and the positions it knows, to run §IV's planner; the last actions |
 | RendezvousMapping-v0 | `greedy`, `no_partition` | the candidate utilities of its local view |
 """
-
-
-def record_scratch(env_id: str, run_dir: Path, docs: Path) -> Path:
-    """Write ``run_dir``'s held-out curve (a run from random weights of ``env_id``) as the env's from-scratch table's
-    source, ``docs/learning/<Name>-v0-scratch.csv``; the price of a bit is the run's value of the comparison's cost
-    argument (the env's default where the run did not set it)."""
-    config_path = run_dir / "config.json"
-    if not config_path.exists():
-        raise ValueError(f"--record-scratch: {run_dir} is not a run folder (it has no config.json)")
-    config = json.loads(config_path.read_text())
-    if canonical_id(config["env_id"]) != env_id:
-        raise ValueError(f"--record-scratch: {run_dir} trained {config['env_id']}, not {env_id}")
-    if config.get("init_from"):
-        raise ValueError(f"--record-scratch: {run_dir} starts from a clone ({config['init_from']}), not random weights")
-    spec = comparison_spec(env_id)
-    cost_param = spec["cost_param"]
-    probe = make(env_id, **config["env_kwargs"])
-    cost = float(getattr(probe.cfg, cost_param))
-    probe.close()
-    rows = curve_rows([{"out": run_dir, "cost": cost, "seed": config["seed"]}], spec)
-    if not rows:
-        raise ValueError(f"--record-scratch: {run_dir}/progress.csv has no held-out evaluation")
-    path = docs / "learning" / f"{short_name(env_id)}-scratch.csv"
-    atomic_write_csv(path, rows)
-    return path

@@ -129,15 +129,6 @@ def measure_batched(
     return _in_child(job, timeout, os.environ, f"{env_id} {config} × {n_copies} copies")
 
 
-def measure_limits(env_id: str, seconds: float = 10.0, **kwargs: Any) -> dict[str, dict[str, Any]]:
-    """:func:`measure_limit` for every configuration of ``limit_configs(env_id)``, keyed by its name; each result
-    also holds its ``config``. What ``mrcomm bench`` reports per env at the documented maxima."""
-    return {
-        name: {"config": cfg, **measure_limit(env_id, cfg, seconds=seconds, **kwargs)}
-        for name, cfg in limit_configs(env_id).items()
-    }
-
-
 def _run(job: dict[str, Any]) -> dict[str, Any]:
 
     make_env = importlib.import_module(job["env_module"]).parallel_env  # importing is not the env's memory

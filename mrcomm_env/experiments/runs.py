@@ -47,9 +47,11 @@ BATCHED_TRAINERS = ("ippo", "mappo")
 
 def sb3_algo(spec: dict) -> str:
     """The algorithm of the env's shipped SB3 configuration (what ``mrcomm bench --train-shipped`` and
-    ``mrcomm race`` run on SB3's side): the comparison's, or ``ppo`` where the comparison trains the batched
-    trainer (its ``ppo`` section stays the SB3 path's settings)."""
-    return "ppo" if spec["algo"] in BATCHED_TRAINERS else spec["algo"]
+    ``mrcomm race`` run on SB3's side): the comparison's, or where the comparison trains the batched trainer, the
+    config's SB3 section (``ppo``, or ``maskable_ppo`` where the actions are masked: RendezvousMapping)."""
+    if spec["algo"] not in BATCHED_TRAINERS:
+        return spec["algo"]
+    return next((algo for algo in ("ppo", "maskable_ppo") if algo in spec["settings"]), "ppo")
 
 
 def run_folder(label: str, config: dict) -> str:

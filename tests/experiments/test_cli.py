@@ -162,7 +162,8 @@ def test_bench_train_shipped_runs_each_env_as_its_training_configuration_does(tm
     argv = ["bench", "MapSync-v0", "RendezvousMapping-v0", "--param", "max_cycles=8", "--train-shipped"]
     assert main([*argv, "--train-timesteps", "64", "--runs", "1", "--seconds", "0.1", "--out", str(out)]) == 0
     train = json.loads(out.read_text())["train"]
-    # SB3's side of each: MapSync's comparison trains IPPO, so its SB3 path is its "ppo" section
+    # SB3's side of each: both comparisons train IPPO, so the SB3 path is the config's SB3 section ("ppo", or
+    # RendezvousMapping's "maskable_ppo")
     for name, n_agents, algo in (("MapSync-v0", 2, "ppo"), ("RendezvousMapping-v0", 10, "maskable_ppo")):
         config = json.loads((CONFIG_DIR / f"{name}.json").read_text())
         entry = train["shipped"][f"mrcomm/{name}"]

@@ -26,12 +26,6 @@ def add_parser(command) -> None:
         action="store_true",
         help="no training: re-render learning.md from the recorded tables and sweeps",
     )
-    p.add_argument(
-        "--record-scratch",
-        metavar="RUN",
-        help="record the held-out curve of RUN, a run from random weights, as the env's from-scratch table "
-        "(docs/learning/<Name>-v0-scratch.csv) and re-render its section; one env only",
-    )
     p.add_argument("--quiet", action="store_true")
     add_runner_arguments(p)
     p.set_defaults(func=run)
@@ -48,12 +42,8 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     docs = Path(args.docs)
     (docs / "learning").mkdir(parents=True, exist_ok=True)
-    if args.record_scratch is not None:
-        if len(targets) != 1:
-            raise ValueError("--record-scratch takes one env id: the env of the run")
-        learning_report.record_scratch(targets[0], Path(args.record_scratch), docs)
-    # no training: re-render every section from its recorded table (e.g. after ``make sweep`` or --record-scratch)
-    if args.docs_only or args.record_scratch is not None:
+    # no training: re-render every section from its recorded table (e.g. after ``make sweep``)
+    if args.docs_only:
         for env_id in targets:
             name = short_name(env_id)
             table = docs / "learning" / f"{name}.csv"
@@ -70,8 +60,6 @@ def run(args: argparse.Namespace) -> int:
             name = short_name(env_id)
             rows, spec = comparison.reproduce_learning(env_id, out / name, quick=args.quick, progress=not args.quiet)
             atomic_write_csv(docs / "learning" / f"{name}.csv", rows)
-            if spec.get("scratch_run"):
-                learning_report.record_scratch(env_id, Path(spec["scratch_run"]), docs)
             curves = comparison.curve_rows(spec["tasks"], spec)
             if curves:
                 atomic_write_csv(docs / "learning" / f"{name}-curves.csv", curves)

@@ -5,7 +5,7 @@ with the paper's numbers beside ours. The protocol experiments call :mod:`mrcomm
 (as the paper's numerical simulations run the protocols alone, §V-A/B); Fig. 7 and the policy table drive the
 environment with the scripted baselines, through the shared episode loop (:func:`.common.run_episode`).
 
-:func:`protocol1_seconds` and :func:`env_steps_per_second` are the two speed measurements for ``mrcomm bench``.
+:func:`protocol1_seconds` is the speed measurement for ``mrcomm bench``.
 """
 
 from __future__ import annotations
@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from mrcomm_baselines import default_policy, make_policy, policy_names
+from mrcomm_baselines import make_policy, policy_names
 from mrcomm_env.core import backend
 from mrcomm_env.core.stats import mean_ci95
-from mrcomm_env.experiments.evaluation import evaluate, steps_per_second
+from mrcomm_env.experiments.evaluation import evaluate
 from mrcomm_env.experiments.reproductions.common import (
     atomic_write_csv,
     atomic_write_json,
@@ -105,16 +105,6 @@ def protocol1_seconds(n: int = 1024, k: int = 7, repeats: int = 2000, seed: int 
             proto.equality(x, y, strings, k, rng)
         samples.append((time.perf_counter() - start) / batch)
     return float(np.median(samples))
-
-
-def env_steps_per_second(seconds: float = 3.0, policy: str | None = None, seed: int = 0, **env_kwargs) -> float:
-    """Env steps per second of MapSync-v0 driven by a scripted baseline (default: the paper's case study)."""
-
-    env = make(ENV_ID, **env_kwargs)
-    pol = make_policy(ENV_ID, policy or default_policy(ENV_ID))
-    views = env.local_views()
-    eps, _ = steps_per_second(env, lambda obs: pol.act(obs, views), seconds, seed, lambda s: pol.reset(views, s))
-    return eps
 
 
 # ----------------------------------------------------------------------------------------------- Props 1–2
