@@ -363,6 +363,15 @@ def metric_interval(point: dict) -> tuple[float, float]:
     return point["metric"] - point["metric_ci95"], point["metric"] + point["metric_ci95"]
 
 
+def finishes_some(point: dict, spec: dict) -> bool:
+    """Whether a point finished any of its held-out episodes, where the metric is a time that an unfinished episode
+    counts at the comparison's ``unfinished`` value (its mean is that value only when every episode is unfinished).
+    A point that finishes none gets no verdict: sending fewer bits while never doing the task is no win, and
+    matching a baseline that fails as well says nothing."""
+    unfinished = spec.get("unfinished")
+    return unfinished is None or not spec.get("lower_is_better") or point["metric"] < float(unfinished)
+
+
 def dominates(learned: dict, baseline: dict, lower_is_better: bool) -> bool:
     """*Matches*: the learned point sends no more bits than the baseline (5 % slack for the bits' own noise) and
     its task metric is not worse beyond the two 95 % intervals (:func:`metric_interval`)."""

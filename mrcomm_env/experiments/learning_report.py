@@ -21,6 +21,7 @@ from mrcomm_env.experiments.comparison import (
     beats,
     best_baseline,
     dominates,
+    finishes_some,
     first_reach,
     training_heldout,
 )
@@ -197,8 +198,11 @@ def scratch_table(env_id: str, curves: list[dict], baselines: list[dict], spec: 
             if hits
             else "— | —"
         )
+        count = f"{len(hits)} of {len(runs)}"
+        if not finishes_some(target, spec):  # the target never did the task: reaching its time means nothing
+            count, reached = f"no target: `{target['policy']}` finishes none of the {episodes} episodes", "— | —"
         lines.append(
-            f"| {cost:g} | {len(hits)} of {len(runs)} | {reached} | {np.mean([e['metric'] for e in ends]):.4g}, "
+            f"| {cost:g} | {count} | {reached} | {np.mean([e['metric'] for e in ends]):.4g}, "
             f"{np.mean([e['bits'] for e in ends]):.4g} (after {spread([e['agent_steps'] for e in ends], ',.0f')} "
             f"agent-steps, {spread([e['seconds'] for e in ends], '.0f')} s) |"
         )
@@ -252,6 +256,8 @@ def learning_section(
         )
 
     per_setting = bool(spec.get("baselines_per_cost"))
+    judged = [r for r in learned if finishes_some(r, spec)]
+    unjudged = ", ".join(f"{r['cost']:g}" for r in learned if not finishes_some(r, spec))
 
     def verdict(name: str) -> str:
         # with per-setting baselines a learned point is compared with the baseline in its own setting only
@@ -260,7 +266,7 @@ def learning_section(
         def where(test) -> str:
             hits = [
                 r
-                for r in learned
+                for r in judged
                 for b in candidates
                 if (not per_setting or b["setting"] == r["cost"]) and test(r, b, lower)
             ]
@@ -285,6 +291,13 @@ def learning_section(
         "",
         *verdicts,
     ]
+    if unjudged:
+        lines += [
+            "",
+            f"No verdict at {spec['cost_param']} = {unjudged}: the learned policy finished none of its held-out "
+            f"episodes there (each counts as {spec['unfinished']:g}), and sending fewer bits while never doing the "
+            "task is no win.",
+        ]
     best = best_baseline(baselines, None, spec)
     if best is not None and lower:  # the paragraph's margins are written for a metric where lower is better
         for bound in bounds:

@@ -72,6 +72,88 @@ def test_one_collapsed_seed_does_not_buy_a_match_through_a_wide_t_interval():
     assert not comparison.beats(steady, baseline, lower_is_better=True)
 
 
+def test_a_learned_point_that_finishes_no_episode_gets_no_verdict_on_bits():
+    """RendezvousMapping's comparison at d_comms = 0: a policy that keeps the team apart never reaches half the
+    information (each episode counts as the 60 phases) and sends far fewer bits than the protocol, which finishes one
+    episode in five. Without the task done, fewer bits is no win; at a range where it finishes, it still is."""
+    from mrcomm_env.experiments.learning_report import learning_section
+
+    spec = {
+        "metric": "iterations_to_half_info",
+        "lower_is_better": True,
+        "unfinished": 60,
+        "cost_param": "d_comms",
+        "baselines_per_cost": True,
+        "algo": "ippo",
+        "settings": {"ippo": {}},
+    }
+
+    def learned(cost, per_seed, bits):
+        row = comparison.comparison_row("learned (ippo)", cost, per_seed, bits, 5)
+        row["metric_iqm"], row["metric_iqm_low"], row["metric_iqm_high"] = comparison.iqm_ci95(per_seed)
+        row["setting"] = cost
+        return row
+
+    def protocol(cost, episodes, bits):
+        row = comparison.comparison_row("paper_protocol", None, episodes, bits, 5)
+        row["setting"] = cost
+        return row
+
+    never = learned(0.0, [60.0] * 5, [17000.0, 18000.0, 16000.0, 19000.0, 17500.0])
+    sometimes = learned(10.0, [26.0, 33.0, 22.0, 20.0, 28.0], [37000.0, 45000.0, 33000.0, 36000.0, 38000.0])
+    rows = [
+        never,
+        sometimes,
+        protocol(0.0, [60, 60, 58, 60, 60], [60300.0] * 5),
+        protocol(10.0, [24.0] * 5, [58400.0] * 5),
+    ]
+    assert not comparison.finishes_some(never, spec) and comparison.finishes_some(sometimes, spec)
+    assert comparison.beats(never, rows[2], lower_is_better=True)  # on the numbers alone it would be a win
+    page = learning_section("RendezvousMapping-v0", rows, spec, "figure.png")
+    assert "- `paper_protocol`: **beaten** at equal or fewer bits (d_comms = 10)" in page
+    assert "No verdict at d_comms = 0" in page
+    finished = dict(spec, unfinished=None)
+    assert "(d_comms = 0, 10)" in learning_section("RendezvousMapping-v0", rows, finished, "figure.png")
+
+
+def test_the_from_scratch_table_sets_no_target_where_the_paper_algorithm_finishes_no_episode(monkeypatch):
+    """Reaching the time of an algorithm that never finished is no milestone: at d_comms = 0 the untrained policy
+    "reached" `paper_protocol`'s 60 phases (it never finished either) at agent-step 0."""
+    from mrcomm_env.experiments import learning_report
+
+    spec = {
+        "metric": "iterations_to_half_info",
+        "lower_is_better": True,
+        "unfinished": 60,
+        "cost_param": "d_comms",
+        "baselines_per_cost": True,
+        "algo": "ippo",
+        "settings": {"ippo": {}},
+    }
+    on_curves = {
+        0.0: {"policy": "paper_protocol", "metric": 60.0, "bits": 60000.0},
+        10.0: {"policy": "paper_protocol", "metric": 25.0, "bits": 58000.0},
+    }
+    monkeypatch.setattr(learning_report, "baseline_on_training_heldout", lambda e, s, p, setting: on_curves[setting])
+    baselines = [{"policy": "paper_protocol", "setting": c, "metric": 59.0, "bits": 60000.0} for c in on_curves]
+    curves = [
+        {"cost": cost, "seed": 0, "agent_steps": steps, "seconds": steps / 1e4, "metric": metric, "bits": bits}
+        for cost, steps, metric, bits in [
+            (0.0, 0, 60.0, 15000.0),
+            (0.0, 10**6, 60.0, 15000.0),
+            (10.0, 0, 60.0, 20000.0),
+            (10.0, 10**6, 24.0, 40000.0),
+        ]
+    ]
+    rows = [
+        line
+        for line in learning_report.scratch_table("RendezvousMapping-v0", curves, baselines, spec, "")
+        if line.startswith("| 0 |") or line.startswith("| 10 |")
+    ]
+    assert rows[0].startswith("| 0 | no target: `paper_protocol` finishes none of the")
+    assert rows[1].startswith("| 10 | 1 of 1 | 1,000,000 |")
+
+
 @pytest.mark.parametrize("env_id", env_ids())
 def test_every_env_has_a_learning_configuration_its_baselines_exist(env_id):
     from mrcomm_baselines import policy_names
