@@ -266,6 +266,9 @@ def test_train_seeds_and_grid_run_every_combination_through_the_runner(tmp_path,
     (docs / "learning" / f"sweep-{ENV}.json").write_text((out / "sweep.json").read_text())
     table = [line for line in sweep_section(ENV, docs).splitlines() if line.startswith("| 0.")]
     assert len(table) == 4  # one row per grid point (learning_rate × net_arch), seeds pooled
+    # a page whose comparison trains another section than the sweep tuned says so; one that trains it does not
+    assert "the comparison above trains the `ippo` section" in sweep_section(ENV, docs, "ippo")
+    assert "the comparison above trains" not in sweep_section(ENV, docs, "ppo")
     # a rerun trains nothing again
     before = sorted(p.stat().st_mtime_ns for p in out.rglob("model.zip"))
     assert main([*args, *grid, "--seeds", "0,1", "--eval-episodes", "2", "--workers", "1", "--quiet"]) == 0

@@ -52,7 +52,9 @@ def run(args: argparse.Namespace) -> int:
             rows, spec = learning_report.read_rows(table), comparison_spec(env_id)
             bound_table = bounds.bound_rows(env_id, spec, comparison.heldout_seeds(spec))
             section = learning_report.learning_section(env_id, rows, spec, f"learning/{name}.png", docs, bound_table)
-            atomic_write_text(docs / "learning" / f"{name}.md", section + learning_report.sweep_section(env_id, docs))
+            atomic_write_text(
+                docs / "learning" / f"{name}.md", section + learning_report.sweep_section(env_id, docs, spec["algo"])
+            )
         print(f"wrote {learning_report.write_learning_page(docs)}")
         return 0
     with using(runner_from_args(args, progress=not args.quiet)):  # one set of workers for every env
@@ -70,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
             learning_report.plot_comparison(rows, spec, f"{env_id}: learned vs scripted at equal bits", figure)
             bound_table = bounds.bound_rows(env_id, spec, comparison.heldout_seeds(spec))
             section = learning_report.learning_section(env_id, rows, spec, f"learning/{name}.png", docs, bound_table)
-            section += learning_report.sweep_section(env_id, docs)
+            section += learning_report.sweep_section(env_id, docs, spec["algo"])
             # one fragment per env: rerunning one env keeps the others' sections in the page
             atomic_write_text(docs / "learning" / f"{name}.md", section)
             if args.export_pretrained:
