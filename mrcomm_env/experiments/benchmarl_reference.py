@@ -465,8 +465,12 @@ def curve(record: dict) -> tuple[np.ndarray, np.ndarray]:
 
 
 def score_matrices(records: list[dict], references: dict) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:
-    """algorithm → (seeds × tasks) normalised held-out final scores, over the tasks where it has every seed; and
-    algorithm → those tasks."""
+    """algorithm → (seeds × tasks) normalised held-out final scores, and algorithm → those tasks.
+
+    rliable's stratified bootstrap needs the same runs on every task, so each algorithm takes one set of seeds and
+    the tasks that have all of them: of the seed sets its tasks have, the one that keeps the most runs (more seeds
+    first on a tie). A task with fewer of its seeds is left out of that algorithm's matrix (:func:`left_out`) rather
+    than cutting every task down to its seeds, which reduced IQL to one run a task and a zero-width interval."""
     by_algorithm: dict[str, dict[str, dict[int, float]]] = {}
     for record in records:
         random_return, paper_return = reference_returns(references, record["task"])
@@ -474,11 +478,20 @@ def score_matrices(records: list[dict], references: dict) -> tuple[dict[str, np.
         by_algorithm.setdefault(record["algorithm"], {}).setdefault(record["task"], {})[record["seed"]] = score
     matrices, tasks_of = {}, {}
     for algorithm, per_task in by_algorithm.items():
-        n_seeds = min(len(seeds) for seeds in per_task.values())
-        tasks = sorted(per_task)
-        matrices[algorithm] = np.array([[per_task[t][s] for t in tasks] for s in sorted(per_task[tasks[0]])[:n_seeds]])
+        seed_sets = {frozenset(scores) for scores in per_task.values()}
+        covering = {s: sorted(t for t, scores in per_task.items() if s <= scores.keys()) for s in seed_sets}
+        seeds, tasks = max(covering.items(), key=lambda c: (len(c[0]) * len(c[1]), len(c[0]), sorted(c[0])))
+        matrices[algorithm] = np.array([[per_task[t][s] for t in tasks] for s in sorted(seeds)])
         tasks_of[algorithm] = tasks
     return matrices, tasks_of
+
+
+def left_out(records: list[dict], tasks_of: dict[str, list[str]]) -> dict[str, list[str]]:
+    """algorithm → the tasks it has runs on that its score matrix leaves out (too few of its seeds yet)."""
+    ran: dict[str, set[str]] = {}
+    for record in records:
+        ran.setdefault(record["algorithm"], set()).add(record["task"])
+    return {a: sorted(ran[a] - set(tasks_of.get(a, []))) for a in ran if ran[a] - set(tasks_of.get(a, []))}
 
 
 def _fmt(values: Sequence[float], digits: int = 4) -> str:
@@ -659,6 +672,15 @@ def _aggregate_section(records: list[dict], references: dict, out: Path, figures
             f"| {algorithm.upper()} | {', '.join(t.lower() for t in tasks_of[algorithm])} | {matrix.size}"
             f" | {point[algorithm][0]:.3g} | [{low:.3g}, {high:.3g}] |"
         )
+    missing = left_out(records, tasks_of)
+    if missing:
+        lines += [
+            "",
+            "Each algorithm's runs are one set of seeds on every task it counts (the stratified bootstrap resamples "
+            "runs within each task). Left out until they have those seeds: "
+            + "; ".join(f"{a.upper()} on {', '.join(t.lower() for t in ts)}" for a, ts in missing.items())
+            + ".",
+        ]
     all_scores = np.concatenate([m.ravel() for m in matrices.values()])
     taus = np.linspace(min(0.0, float(all_scores.min())), max(1.5, float(all_scores.max())), 101)
     np.random.seed(BOOTSTRAP_SEED)  # create_performance_profile bootstraps with numpy's global generator

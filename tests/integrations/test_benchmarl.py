@@ -279,6 +279,27 @@ def test_normalised_scores_put_random_at_zero_and_the_paper_at_one():
     assert matrices["ippo"].tolist() == [[0.0, 1.375], [1.0, 0.0]]  # (seeds × tasks); random's mean is -3
 
 
+def test_score_matrices_leave_out_a_task_with_fewer_seeds_instead_of_cutting_every_task_to_it():
+    """IQL had 3 seeds on two tasks and 1 on a third: cutting every task to one seed left one run a task, and the
+    stratified bootstrap of one run a task is a zero-width interval."""
+    references = {
+        task: {"paper_policy": "paper", "policies": {"random": {"return": [0.0]}, "paper": {"return": [1.0]}}}
+        for task in ("A", "B", "C")
+    }
+    runs = [("A", 0, 0.5), ("A", 1, 0.7), ("A", 2, 0.9), ("B", 0, 1.0), ("B", 1, 1.2), ("B", 2, 1.1), ("C", 1, 0.2)]
+    records = [
+        {"task": task, "algorithm": "iql", "seed": seed, "heldout": {"return": [value]}} for task, seed, value in runs
+    ]
+    matrices, tasks = benchmarl_reference.score_matrices(records, references)
+    assert tasks == {"iql": ["A", "B"]}
+    assert matrices["iql"].tolist() == [[0.5, 1.0], [0.7, 1.2], [0.9, 1.1]]
+    assert benchmarl_reference.left_out(records, tasks) == {"iql": ["C"]}
+    # one seed on every task still counts every task
+    single = [r for r in records if r["seed"] == 1]
+    matrices, tasks = benchmarl_reference.score_matrices(single, references)
+    assert tasks == {"iql": ["A", "B", "C"]} and matrices["iql"].tolist() == [[0.7, 1.2, 0.2]]
+
+
 def test_reference_benchmark_refuses_bad_arguments_in_one_line(tmp_path, capsys):
     assert (
         benchmarl_reference.main(["run", "--frames", "100", "--frames-per-batch", "200", "--out", str(tmp_path)]) == 2
