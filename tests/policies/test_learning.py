@@ -72,21 +72,26 @@ def test_one_collapsed_seed_does_not_buy_a_match_through_a_wide_t_interval():
     assert not comparison.beats(steady, baseline, lower_is_better=True)
 
 
+#: the parts of RendezvousMapping's comparison spec the page reads: a time metric that an unfinished episode counts
+#: at 60 phases, swept over the communication range, with the baselines scored per range
+RANGE_SPEC = {
+    "metric": "iterations_to_half_info",
+    "lower_is_better": True,
+    "unfinished": 60,
+    "cost_param": "d_comms",
+    "baselines_per_cost": True,
+    "algo": "ippo",
+    "settings": {"ippo": {}},
+}
+
+
 def test_a_learned_point_that_finishes_no_episode_gets_no_verdict_on_bits():
     """RendezvousMapping's comparison at d_comms = 0: a policy that keeps the team apart never reaches half the
     information (each episode counts as the 60 phases) and sends far fewer bits than the protocol, which finishes one
     episode in five. Without the task done, fewer bits is no win; at a range where it finishes, it still is."""
     from mrcomm_env.experiments.learning_report import learning_section
 
-    spec = {
-        "metric": "iterations_to_half_info",
-        "lower_is_better": True,
-        "unfinished": 60,
-        "cost_param": "d_comms",
-        "baselines_per_cost": True,
-        "algo": "ippo",
-        "settings": {"ippo": {}},
-    }
+    spec = dict(RANGE_SPEC)
 
     def learned(cost, per_seed, bits):
         row = comparison.comparison_row("learned (ippo)", cost, per_seed, bits, 5)
@@ -121,15 +126,7 @@ def test_the_from_scratch_table_sets_no_target_where_the_paper_algorithm_finishe
     "reached" `paper_protocol`'s 60 phases (it never finished either) at agent-step 0."""
     from mrcomm_env.experiments import learning_report
 
-    spec = {
-        "metric": "iterations_to_half_info",
-        "lower_is_better": True,
-        "unfinished": 60,
-        "cost_param": "d_comms",
-        "baselines_per_cost": True,
-        "algo": "ippo",
-        "settings": {"ippo": {}},
-    }
+    spec = dict(RANGE_SPEC)
     on_curves = {
         0.0: {"policy": "paper_protocol", "metric": 60.0, "bits": 60000.0},
         10.0: {"policy": "paper_protocol", "metric": 25.0, "bits": 58000.0},
