@@ -52,6 +52,7 @@ from stable_baselines3.common.utils import update_learning_rate
 from stable_baselines3.common.vec_env import VecNormalize
 from torch import nn
 
+from mrcomm_agents.heldout import sb3_masks
 from mrcomm_env.core.base import MrcommParallelEnv, mask_info_keys
 from mrcomm_env.core.batched import BatchedEnv
 
@@ -221,8 +222,8 @@ class BatchedPPO:
         self.advantages = np.zeros((t, rows), dtype=np.float32)
         observations, infos = batch.reset(seed=int(seed))
         self.masks = mask_info_keys(infos)
-        self.buf_masks = np.zeros((t, rows, len(self.masks)), dtype=bool) if self.masks else None
         self.next_masks = self._mask_rows(infos) if self.masks else None
+        self.buf_masks = np.zeros((t, *self.next_masks.shape), dtype=bool) if self.next_masks is not None else None
         self.next_obs = self._observe(observations)
         self.next_starts = np.ones(rows, dtype=np.float32)
         self.discounted = np.zeros(rows)  # VecNormalize's running discounted return per agent row
@@ -258,8 +259,10 @@ class BatchedPPO:
         out *= scale
         return np.clip(out, -normalizer.clip_obs, normalizer.clip_obs, out=out)
 
-    def _mask_rows(self, infos: dict[str, np.ndarray]) -> np.ndarray:
-        return np.stack([infos[k].reshape(self.rows) > 0.5 for k in self.masks], axis=1)
+    def _mask_rows(self, infos: dict[str, np.ndarray], rows: int | None = None) -> np.ndarray:
+        """The info columns' masks of ``rows`` agent rows (all by default) as the policy reads them (sb3_masks)."""
+        rows = self.rows if rows is None else rows
+        return sb3_masks(np.stack([infos[k].reshape(rows) > 0.5 for k in self.masks], axis=1), self.action_space)
 
     def _values(self, obs: torch.Tensor) -> torch.Tensor:
         if self.critic is not None:
@@ -311,9 +314,7 @@ class BatchedPPO:
             for i in np.flatnonzero(ended_copies).tolist():
                 self.episodes.append((float(self.episode_return[i]), int(self.episode_length[i])))
                 if self.next_masks is not None:
-                    self.next_masks[i * self.n : (i + 1) * self.n] = np.stack(
-                        [step.reset_infos[i][k].reshape(self.n) > 0.5 for k in self.masks], axis=1
-                    )
+                    self.next_masks[i * self.n : (i + 1) * self.n] = self._mask_rows(step.reset_infos[i], self.n)
             self.episode_return[ended_copies] = 0.0
             self.episode_length[ended_copies] = 0
             self._bootstrap_truncated(step, t, gamma)

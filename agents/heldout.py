@@ -24,6 +24,7 @@ import time
 
 import numpy as np
 import torch
+from gymnasium import spaces
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecNormalize
 
@@ -51,13 +52,25 @@ def uses_masks(model) -> bool:
     return type(model).__name__ == "MaskablePPO"
 
 
+def sb3_masks(masks, action_space) -> np.ndarray:
+    """An env's action masks as sb3-contrib's masked distributions read them. For a MultiBinary action an env masks
+    each bit by whether it may be *set* (K columns: MultiHop's ``mask_unheld``); sb3-contrib masks both values of
+    every bit (2K columns: may be 0, may be 1), and a bit may always stay 0. Other masks pass unchanged."""
+    masks = np.asarray(masks, dtype=bool)
+    if isinstance(action_space, spaces.MultiBinary) and masks.shape[-1] == int(np.prod(action_space.shape)):
+        both = np.ones((*masks.shape, 2), dtype=bool)
+        both[..., 1] = masks
+        return both.reshape(*masks.shape[:-1], 2 * masks.shape[-1])
+    return masks
+
+
 def team_actions(model, venv, env, observations: dict, deterministic: bool) -> dict:
     """One shared-policy decision for every live agent of ``env`` (a PettingZoo parallel env)."""
     agents = list(observations)
     obs = normalized(venv, np.stack([observations[a] for a in agents]).astype(np.float32))
     extra = {}
     if uses_masks(model) and callable(getattr(env, "action_masks", None)):
-        extra["action_masks"] = np.asarray(env.action_masks(), dtype=bool)
+        extra["action_masks"] = sb3_masks(env.action_masks(), model.action_space)
     chosen, _ = model.predict(obs, deterministic=deterministic, **extra)
     return {a: chosen[i] for i, a in enumerate(agents)}
 

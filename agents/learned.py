@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from mrcomm_agents.artifacts import MODEL_FILE, RunError, load_model, read_json, read_statistics, refuse_pickles
+from mrcomm_agents.heldout import sb3_masks, uses_masks
 from mrcomm_agents.training import ALGORITHMS, checkpoints, config_from_record, model_spec
 from mrcomm_env.core.policy import LocalViews, Policy
 from mrcomm_env.registry import canonical_id, short_name
@@ -124,7 +125,7 @@ class LearnedPolicy(Policy):
                 f"this env has {views.observation_space.shape} and {views.action_space}; it was trained with the "
                 f"env arguments {self.env_kwargs}"
             )
-        self._masked = MASK_FIELD in views.fields
+        self._masked = MASK_FIELD in views.fields and uses_masks(self.model)
 
     def act(self, observations: dict[str, np.ndarray], views: LocalViews) -> dict[str, Any]:
         agents = list(observations)
@@ -134,7 +135,7 @@ class LearnedPolicy(Policy):
         kwargs = {}
         if self._masked:
             masks = views.team(MASK_FIELD)
-            kwargs["action_masks"] = np.stack([masks[views.index(a)] for a in agents])
+            kwargs["action_masks"] = sb3_masks(np.stack([masks[views.index(a)] for a in agents]), views.action_space)
         actions, _ = self.model.predict(obs, deterministic=self.deterministic, **kwargs)
         if np.ndim(actions) == 1:
             return {a: int(x) for a, x in zip(agents, actions)}

@@ -21,6 +21,7 @@ import math
 from typing import cast
 
 import torch
+from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
 from stable_baselines3.common.distributions import Distribution
 from stable_baselines3.common.policies import ActorCriticPolicy
 from torch import nn
@@ -104,6 +105,7 @@ class SubsetDistribution(Distribution):
     """
 
     MAX_CHOOSE = 6
+    MASKED_SCORE = -1e8
 
     def __init__(self, candidates: int, choose: int):
         super().__init__()
@@ -117,13 +119,34 @@ class SubsetDistribution(Distribution):
         self.valid = valid
         self.repeats = torch.tensor([math.lgamma(self.c - j + 1) for j in range(self.c + 1)], dtype=torch.float64)
         self.logits: torch.Tensor | None = None
+        self.unmasked_logits: torch.Tensor | None = None
 
     def proba_distribution_net(self, latent_dim: int) -> nn.Module:
         return nn.Identity()  # the extractor's outputs are the K + 1 scores
 
     def proba_distribution(self, action_logits: torch.Tensor) -> SubsetDistribution:
-        self.logits = action_logits
+        self.unmasked_logits = self.logits = action_logits
         return self
+
+    def apply_masking(self, masks) -> None:
+        """sb3-contrib's masking (``MaskableActorCriticPolicy`` calls it after :meth:`proba_distribution`): a masked
+        candidate is never drawn, and every probability is over the allowed candidates and "stop" alone.
+        ``masks``: (B, 2K) as sb3-contrib lays out a MultiBinary mask (may be 0, may be 1, per bit), or (B, K)
+        per bit whether it may be set; None undoes the masking. "Stop" is always allowed. A masked score is
+        :data:`MASKED_SCORE`, as sb3-contrib's masked categorical does: finite, so a log-probability stays a
+        number, and exp(score − max) is exactly 0."""
+        assert self.unmasked_logits is not None
+        if masks is None:
+            self.logits = self.unmasked_logits
+            return
+        logits = self.unmasked_logits
+        allowed = torch.as_tensor(masks, dtype=torch.bool, device=logits.device).reshape(logits.shape[0], -1)
+        if allowed.shape[1] == 2 * self.k:
+            allowed = allowed.reshape(-1, self.k, 2)[:, :, 1]
+        elif allowed.shape[1] != self.k:
+            raise ValueError(f"action masks must have {self.k} or {2 * self.k} columns, got {allowed.shape[1]}")
+        stop = torch.ones_like(allowed[:, :1])
+        self.logits = torch.where(torch.cat([allowed, stop], dim=1), logits, torch.full_like(logits, self.MASKED_SCORE))
 
     def _chosen(self, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(B, c) indices of the first c set bits in candidate order (padded with 0) and their count j."""
@@ -187,7 +210,7 @@ class SubsetDistribution(Distribution):
         return actions, self.log_prob(actions)
 
 
-class CandidatePolicy(ActorCriticPolicy):
+class _CandidateHeads:
     """SB3 actor-critic whose logits are the candidate scores themselves (no mixing layer after them); with
     ``subset`` the scores (and a "stop" score from the robot's own features) drive a :class:`SubsetDistribution`
     over the layout's ``choose``.
@@ -261,6 +284,16 @@ class CandidatePolicy(ActorCriticPolicy):
             layout=self.layout, hidden=self.hidden, context=self.context, subset=self.subset, stop_bias=self.stop_bias
         )
         return data
+
+
+class CandidatePolicy(_CandidateHeads, ActorCriticPolicy):
+    """:class:`_CandidateHeads` on SB3's ``ActorCriticPolicy`` (PPO, and the batched trainer on unmasked envs)."""
+
+
+class MaskableCandidatePolicy(_CandidateHeads, MaskableActorCriticPolicy):
+    """:class:`_CandidateHeads` on sb3-contrib's ``MaskableActorCriticPolicy``: the same network, given the env's
+    action masks (MaskablePPO, and the batched trainer where the env masks actions, e.g. MultiHop's
+    ``mask_unheld``); with ``subset`` a masked candidate is never drawn (:meth:`SubsetDistribution.apply_masking`)."""
 
 
 POLICIES = {

@@ -75,7 +75,7 @@ from mrcomm_agents.batched_ppo import (
     masks_actions,
 )
 from mrcomm_agents.heldout import SECONDS_KEY, TRAINING_SECONDS_KEY, HeldOutEvaluation, TrainingClock, record_heldout
-from mrcomm_agents.policies import CandidatePolicy
+from mrcomm_agents.policies import CandidatePolicy, MaskableCandidatePolicy
 from mrcomm_agents.vecenv import AgentSlotVecEnv
 from mrcomm_agents.warm_start import CriticWarmup, clone
 from mrcomm_env.core.batched import BatchedEnv
@@ -248,8 +248,8 @@ def default_config(env_id: str, algo: str = "ppo") -> dict[str, Any]:
 
 
 def policy_choice(config: TrainConfig, probe=None) -> tuple[Any, dict[str, Any]]:
-    """(policy, policy_kwargs) of a run: SB3's ``MlpPolicy`` with ``net_arch``, or :class:`CandidatePolicy` with the
-    env's candidate layout; ``probe``: an env of the run's arguments (made when not given). Training builds its
+    """(policy, policy_kwargs) of a run: SB3's ``MlpPolicy`` with ``net_arch``, or :class:`CandidatePolicy` (its
+    masked twin :class:`MaskableCandidatePolicy` under MaskablePPO) with the env's candidate layout; ``probe``: an env of the run's arguments (made when not given). Training builds its
     model from these, and loading rebuilds the model's pickled entries from them (``agents/artifacts.py``)."""
     policy_kwargs = dict(config.hyperparams.get("policy_kwargs", {}))
     if config.policy not in ("candidates", "candidate_set", "candidate_subset"):
@@ -258,13 +258,15 @@ def policy_choice(config: TrainConfig, probe=None) -> tuple[Any, dict[str, Any]]
     own_probe = probe is None
     probe = make(config.env_id, **config.env_kwargs) if own_probe else probe
     policy_kwargs.update(layout=probe.observation_layout(), hidden=int(config.net_arch[0]))
+    # MaskablePPO (and the batched trainer on an env that masks actions) passes masks to its policy
+    masked = algorithm_class(config.algo, probe).__name__ == "MaskablePPO"
     if own_probe:
         probe.close()
     if config.policy in ("candidate_set", "candidate_subset"):
         policy_kwargs.update(context=True)
     if config.policy == "candidate_subset":
         policy_kwargs.update(subset=True)
-    return CandidatePolicy, policy_kwargs
+    return (MaskableCandidatePolicy if masked else CandidatePolicy), policy_kwargs
 
 
 def model_spec(config: TrainConfig, venv=None) -> ModelSpec:

@@ -46,6 +46,7 @@ from pettingzoo.utils.wrappers import BaseParallelWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
 import mrcomm_env
+from mrcomm_agents.heldout import sb3_masks
 from mrcomm_env.core.batched import BatchedEnv, copies_of_one_env
 
 #: the env method sb3-contrib's MaskablePPO calls through ``env_method`` (``get_action_masks``)
@@ -395,7 +396,7 @@ class AgentSlotVecEnv(VecEnv):
         if callable(env_masks):
             if self.batch is not None:
                 self.batch.sync_copies([copy_index])
-            masks = np.array(env_masks(), dtype=bool)
+            masks = np.array(sb3_masks(env_masks(), self.action_space), dtype=bool)
             valid_shape = masks.ndim == 2 and masks.shape[0] == self.n_agents
             if self._mask_length is not None:
                 valid_shape = valid_shape and masks.shape[1] == self._mask_length

@@ -24,7 +24,7 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecNormalize
 
-from mrcomm_agents.heldout import normalized, uses_masks
+from mrcomm_agents.heldout import normalized, sb3_masks, uses_masks
 from mrcomm_env.core.policy import Policy
 from mrcomm_env.registry import make
 
@@ -61,11 +61,14 @@ def _rollout(model, venv, teacher: Policy, env_id: str, env_kwargs: dict, seed: 
     while env.agents:
         agents = list(observations)
         obs = np.stack([observations[a] for a in agents]).astype(np.float32)
-        masks = np.asarray(env.action_masks(), dtype=bool) if masked else None
+        masks = sb3_masks(env.action_masks(), model.action_space) if masked else None
         labels = teacher.act(observations, views)
         label_array = np.stack([np.asarray(labels[a]) for a in agents])
         if masks is not None:  # an action the teacher takes is one it can take: never a log-probability of −∞
-            masks[np.arange(len(agents)), label_array.astype(np.int64)] = True
+            if label_array.ndim == 2:  # MultiBinary: the value of every bit the teacher set
+                masks.reshape(len(agents), -1, 2)[..., 1] |= label_array > 0.5
+            else:
+                masks[np.arange(len(agents)), label_array.astype(np.int64)] = True
         if learner_acts:
             extra = {"action_masks": masks} if masks is not None else {}
             chosen, _ = model.predict(normalized(venv, obs), deterministic=False, **extra)

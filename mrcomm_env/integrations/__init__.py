@@ -18,6 +18,7 @@ from types import ModuleType
 from typing import Any
 
 import numpy as np
+from gymnasium import spaces
 from pettingzoo.utils.wrappers import BaseParallelWrapper
 
 from mrcomm_env.core.base import MASK_INFO_PREFIX
@@ -34,6 +35,18 @@ def require(module: str, extra: str) -> ModuleType:
         ) from None
 
 
+def refuse_unmaskable_actions(env) -> None:
+    """TorchRL masks the specs of discrete actions (and BenchMARL the policies over them); an env that masks the
+    select bits of a MultiBinary action (MultiHop-v0's ``mask_unheld``) has no such spec, so it is refused here
+    rather than sampled as if unmasked."""
+    space = env.action_space(env.possible_agents[0])
+    if not isinstance(space, spaces.Discrete):
+        raise ValueError(
+            f"{env.ENV_ID} masks its {type(space).__name__} actions, which TorchRL's specs cannot mask (they mask "
+            "Discrete actions): make it without the argument that turns the masks on (MultiHop-v0: 'mask_unheld')"
+        )
+
+
 class ActionMaskInInfos(BaseParallelWrapper):
     """Puts an env's feasible-action mask into each agent's infos as one bool array ``"action_mask"``.
 
@@ -47,6 +60,8 @@ class ActionMaskInInfos(BaseParallelWrapper):
     def __init__(self, env):
         super().__init__(env)
         self.has_action_mask = callable(getattr(env.unwrapped, "action_masks", None))
+        if self.has_action_mask:
+            refuse_unmaskable_actions(env.unwrapped)
 
     def _with_mask(self, infos: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
         if not self.has_action_mask or not infos:

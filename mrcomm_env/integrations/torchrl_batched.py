@@ -32,7 +32,7 @@ from gymnasium import spaces
 
 from mrcomm_env.core.base import MASK_INFO_PREFIX, mask_info_keys
 from mrcomm_env.core.batched import BatchedEnv
-from mrcomm_env.integrations import require
+from mrcomm_env.integrations import refuse_unmaskable_actions, require
 from mrcomm_env.registry import make
 
 EXTRA = "torchrl"
@@ -72,6 +72,8 @@ class BatchedTorchRLEnv(EnvBase):
         # one probe copy, reset unseeded, tells the spaces and the info keys (a bad argument fails here)
         probe = make(env_id, **env_kwargs)
         BatchedEnv.check_memory(probe, num_envs, "num_envs")
+        if callable(getattr(probe, "action_masks", None)):
+            refuse_unmaskable_actions(probe)
         if return_state and not probe.state_is_joint_observation():
             raise ValueError(
                 f"argument 'return_state': {probe.ENV_ID} defines its own state(), which a batch of copies cannot "

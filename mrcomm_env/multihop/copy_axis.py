@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from mrcomm_env.core.base import MASK_INFO_PREFIX
 from mrcomm_env.multihop import frame_numba
 from mrcomm_env.multihop import protocol as proto
 from mrcomm_env.multihop.protocol import HOP_BUCKETS
@@ -55,6 +56,7 @@ class StaticFrameBatch:
         self.max_cycles = c.max_cycles
         self.n_cand = n - 1
         self.relative = c.layout == "relative"
+        self.mask_unheld = c.mask_unheld
         self.act_shape = first.action_space(first.possible_agents[0]).shape
         # the hop buckets' flat pair indices, one after the other, and their bounds: a grid's links are the same in
         # every copy (one row for all), a static field's are each copy's own
@@ -270,6 +272,9 @@ class StaticFrameBatch:
             "known_fraction": self.known_fraction.copy(),
             "slot": self.slot.astype(np.float64),
         }
+        if self.mask_unheld:  # MultiHopEnv._held_candidates: the observation's first feature of each candidate
+            held = self.obs[:, :, 0 : self.features * self.n_cand : self.features] > 0.5
+            infos.update((f"{MASK_INFO_PREFIX}{k}", held[:, :, k].astype(np.float64)) for k in range(self.n_cand))
         return self.obs, rewards, np.zeros(m, dtype=bool), truncated, infos
 
     def _observe_heard(self, heard: np.ndarray) -> None:

@@ -40,6 +40,7 @@ from scipy.sparse.csgraph import shortest_path
 
 from mrcomm_env.core import BitLedger, MrcommParallelEnv, TDMASchedule, backend, disk_links, grid_links
 from mrcomm_env.core import render as rendering
+from mrcomm_env.core.base import MASK_INFO_PREFIX
 from mrcomm_env.multihop import coverage as cov
 from mrcomm_env.multihop import protocol as proto
 from mrcomm_env.multihop import theory
@@ -119,6 +120,16 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
                 f"speed 0): what a robot heard bounds its neighbours' tables only while the links hold; got layout "
                 f"{c.layout!r}, scene {c.scene!r}, speed {c.speed!r}"
             )
+        if c.mask_unheld and not self._relative:
+            raise ValueError(
+                "argument 'mask_unheld' needs the 'relative' layout (it masks select bits, one per candidate); got "
+                f"layout {c.layout!r}"
+            )
+        if c.mask_unheld:
+            # an instance attribute, not a method: whether an env masks actions is whether it has action_masks()
+            # (sb3-contrib, the trainers and the adapters ask that way), and without the argument this env does not
+            self.action_masks = self._held_candidates
+            self._mask_keys = [f"{MASK_INFO_PREFIX}{k}" for k in range(n - 1)]
         #: per candidate: RELATIVE_FEATURES, and with ``observe_heard`` the freshness its neighbours lack
         self._features = RELATIVE_FEATURES + int(c.observe_heard)
         if self._relative:
@@ -497,6 +508,9 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
             if self._relative
             else np.zeros((self.n_agents, 0), dtype=np.int64),
             "heard": np.zeros((self.n_agents, 0, self.n_agents)) if self.heard is None else self.heard,
+            "action_mask": self._held_candidates()
+            if self.cfg.mask_unheld
+            else np.ones((self.n_agents, self.n_agents - 1 if self._relative else 0), dtype=bool),
         }
 
     def _observe(self) -> np.ndarray:
@@ -533,12 +547,22 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
             return self._world_infos
         n = self.n_agents
         off = ~self._eye
-        return {
+        infos = {
             "bits_sent": self._step_bits,
             "mean_age": (self.ages() * off).sum(axis=1) / (n - 1),
             "known_fraction": ((self.stamps > proto.UNKNOWN) & off).sum(axis=1) / (n - 1),
             "slot": self.tdma.slot_of,
         }
+        if self.cfg.mask_unheld:
+            held = self._held_candidates()
+            infos.update((key, held[:, k]) for k, key in enumerate(self._mask_keys))
+        return infos
+
+    def _held_candidates(self) -> np.ndarray:
+        """(N, N − 1) bool: whether robot i holds an estimate of its candidate at rank k (the observation's first
+        feature of that candidate): with ``mask_unheld``, the select bits it may set (``action_masks()``)."""
+        known = self.stamps > proto.UNKNOWN
+        return np.take_along_axis(known, self._candidates.astype(np.int64, copy=False), axis=1)
 
     def propagation_times(self) -> dict[int, float]:
         """Cold-start propagation time (s) of each centred subgraph; nan while incomplete or not fitting."""

@@ -108,6 +108,15 @@ class MultiHopSpec(EnvSpec):
             "memory grows as n³)",
             Bool(),
         ),
+        "mask_unheld": Param(
+            False,
+            "`relative` layout only: mask the select bit of every candidate the robot holds no estimate of at the "
+            "frame's start (`env.action_masks()`, the infos `action_mask_<k>` and the local view's `action_mask`), "
+            "so a masked policy (MaskablePPO, the batched trainer) spends its m − 1 picks on estimates it can send. "
+            "The env itself still takes any select bits: one set on an estimate that arrives before the robot's "
+            "slot is sent, as without the mask",
+            Bool(),
+        ),
         "reward_mode": Param(
             "team",
             "`team`: one team reward; `neighbourhood`: each robot gets the weighted age "
@@ -147,6 +156,8 @@ class MultiHopSpec(EnvSpec):
         "mean_age": "mean age (s) of this robot's estimates of the others (unknown = age since the start)",
         "known_fraction": "fraction of the others this robot holds an estimate of",
         "slot": "this robot's slot index within the frame",
+        "action_mask_<k>": "with `mask_unheld`, k = 0 … N − 2: 1 when the robot holds the candidate at rank k (its "
+        "select bit may be set; the same as `env.action_masks()`)",
     }
 
     LOCAL_VIEW = {
@@ -158,6 +169,8 @@ class MultiHopSpec(EnvSpec):
         "candidates": "(N − 1,) robot index at each candidate rank of the `relative` layout (this frame)",
         "heard": "(N, N) with `observe_heard`: row k, the freshest stamp of each estimate this robot heard "
         "neighbour k broadcast or broadcast to k itself (a lower bound on k's table; −inf: none); (0, N) without it",
+        "action_mask": "(N − 1,) bool in the `relative` layout: the select bits this robot may set (with "
+        "`mask_unheld`, the candidates it holds; without it, all); (0,) in the `absolute` layout",
     }
 
     DOCUMENTED_CONFIGS = {
@@ -175,6 +188,14 @@ class MultiHopSpec(EnvSpec):
             "reward_mode": "neighbourhood",
         },
         "heard": {"grid_side": 6, "slot_size": 4, "max_cycles": 60, "observe_heard": True},
+        "heard_masked": {
+            "grid_side": 6,
+            "slot_size": 4,
+            "max_cycles": 30,
+            "observe_heard": True,
+            "mask_unheld": True,
+            "reward_mode": "neighbourhood",
+        },
     }
 
     MEMORY_FORMULA = (

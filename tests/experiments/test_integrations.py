@@ -76,6 +76,16 @@ def test_action_mask_wrapper_leaves_unmasked_envs_alone():
     assert env.state_space == bare.state_space and np.array_equal(env.state(), bare.state())
 
 
+def test_the_adapters_refuse_masks_over_multibinary_select_bits():
+    """TorchRL masks Discrete specs only: MultiHop's ``mask_unheld`` (masked select bits) is refused by name, rather
+    than sampled as if unmasked; without it the same env passes."""
+    kwargs = {"grid_side": 3, "max_cycles": 3}
+    with pytest.raises(ValueError, match="MultiBinary actions.*'mask_unheld'"):
+        make_parallel_env("MultiHop-v0", mask_unheld=True, **kwargs)
+    env = make_parallel_env("MultiHop-v0", **kwargs)
+    assert "action_mask" not in env.reset(seed=0)[1]["robot_0"]
+
+
 def test_benchmarl_task_family_without_benchmarl_names_the_extra(monkeypatch):
     # the task family subclasses BenchMARL's classes, so the module itself needs the framework
     for name in [

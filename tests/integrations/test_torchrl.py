@@ -285,3 +285,5 @@ def test_batched_env_refuses_bad_arguments_at_construction():
         make_batched_env("MapSync-v0", 10**9)
     with pytest.raises(ValueError, match="MapSync-v0"):
         make_batched_env("NoSuchEnv-v0", 2)
+    with pytest.raises(ValueError, match="MultiBinary actions.*'mask_unheld'"):
+        make_batched_env("MultiHop-v0", 2, grid_side=3, mask_unheld=True)

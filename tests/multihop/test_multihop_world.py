@@ -31,6 +31,9 @@ MULTIHOP_COPY_AXIS_CASES = [
     {"grid_side": 4, "slot_size": 4, "max_cycles": 20, "reward_mode": "neighbourhood", "observe_heard": True},
     {"grid_side": 5, "n_robots": 22, "slot_size": 2, "max_cycles": 15, "observe_heard": True},
     {"scene": "field", "n_robots": 9, "comm_range": 8.0, "arena_size": 60.0, "max_cycles": 12, "observe_heard": True},
+    # mask_unheld: the masks in the infos (the world's from its observation, the reference's from the stamps)
+    {"grid_side": 4, "slot_size": 4, "max_cycles": 20, "observe_heard": True, "mask_unheld": True},
+    {"scene": "field", "n_robots": 9, "comm_range": 8.0, "arena_size": 60.0, "max_cycles": 12, "mask_unheld": True},
 ]
 
 

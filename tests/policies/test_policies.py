@@ -69,6 +69,25 @@ def test_subset_samples_follow_the_probabilities_and_the_mode_is_the_greedy_draw
     assert stop_first.tolist() == [[0.0, 0.0, 0.0, 0.0]]
 
 
+def train_subset_policy(tmp_path, env_kwargs: dict, algo: str, n_envs: int):
+    """A few rollouts of the ``candidate_subset`` policy on a MultiHop 3×3 grid (m = 3: at most 2 of 8 candidates)."""
+    from mrcomm_agents.training import TrainConfig, train
+
+    config = TrainConfig(
+        env_id="MultiHop-v0",
+        algo=algo,
+        timesteps=9 * 8 * n_envs,
+        seed=1,
+        env_kwargs=env_kwargs,
+        hyperparams={"n_steps": 8, "batch_size": 24, "n_epochs": 1},
+        n_envs=n_envs,
+        net_arch=[16],
+        policy="candidate_subset",
+        eval_episodes=0,
+    )
+    return train(config, tmp_path / "run", progress=False)
+
+
 def test_a_subset_policy_is_refused_without_a_choose_in_the_layout(tmp_path):
     from mrcomm_agents.training import TrainConfig
 
@@ -78,23 +97,11 @@ def test_a_subset_policy_is_refused_without_a_choose_in_the_layout(tmp_path):
 
 def test_a_subset_policy_trains_saves_loads_and_never_selects_more_than_the_slot_holds(tmp_path):
     from mrcomm_agents.learned import LearnedPolicy
-    from mrcomm_agents.training import TrainConfig, train
     from mrcomm_env.experiments.evaluation import run_episode
     from mrcomm_env.registry import make
 
     kwargs = {"grid_side": 3, "slot_size": 3, "max_cycles": 6}
-    config = TrainConfig(
-        env_id="MultiHop-v0",
-        timesteps=9 * 8,
-        seed=1,
-        env_kwargs=kwargs,
-        hyperparams={"n_steps": 8, "batch_size": 24, "n_epochs": 1},
-        n_envs=1,
-        net_arch=[16],
-        policy="candidate_subset",
-        eval_episodes=0,
-    )
-    run = train(config, tmp_path / "run", progress=False)
+    run = train_subset_policy(tmp_path, kwargs, "ppo", n_envs=1)
     for deterministic in (True, False):
         policy = LearnedPolicy(run, "MultiHop-v0", deterministic=deterministic)
         assert isinstance(policy.model.policy.action_dist, SubsetDistribution)
@@ -149,3 +156,91 @@ def test_a_stop_bias_starts_random_weights_filling_the_slot():
 def test_a_stop_bias_is_refused_where_it_means_nothing(stop_bias, subset, match):
     with pytest.raises(ValueError, match=match):
         subset_policy(stop_bias, subset=subset)
+
+
+def test_a_masked_subset_is_the_subset_distribution_over_the_allowed_candidates_alone():
+    """Masking candidates 1 and 4 of five leaves exactly the Plackett–Luce draw over candidates 0, 2, 3 and "stop"
+    (the distribution of those scores alone): every set holding a masked candidate has probability 0."""
+    k, c = 5, 3
+    generator = torch.Generator().manual_seed(7)
+    logits = torch.randn(1, k + 1, generator=generator, dtype=torch.float64) * 2
+    allowed = [0, 2, 3]
+    mask = torch.tensor([[i in allowed for i in range(k)]])
+    actions = all_subsets(k, c)
+    masked = SubsetDistribution(k, c).proba_distribution(logits.repeat(len(actions), 1))
+    masked.apply_masking(mask.repeat(len(actions), 1))
+    p = masked.log_prob(actions).exp()
+    reduced_logits = logits[:, allowed + [k]]
+    inside = actions[:, [1, 4]].sum(dim=1) == 0
+    reduced = SubsetDistribution(len(allowed), c).proba_distribution(reduced_logits.repeat(int(inside.sum()), 1))
+    expected = torch.zeros(len(actions), dtype=torch.float64)
+    expected[inside] = reduced.log_prob(actions[inside][:, allowed]).exp()
+    torch.testing.assert_close(p, expected, rtol=1e-12, atol=1e-300)
+    # sb3-contrib's MultiBinary layout (may be 0, may be 1 per bit) masks the same; None undoes the masking
+    both = torch.stack([torch.ones_like(mask), mask], dim=-1).reshape(1, 2 * k)
+    again = SubsetDistribution(k, c).proba_distribution(logits)
+    again.apply_masking(both)
+    torch.testing.assert_close(again.logits, masked.logits[:1])
+    again.apply_masking(None)
+    assert torch.equal(again.logits, logits)
+    with pytest.raises(ValueError, match="columns"):
+        again.apply_masking(torch.ones(1, k + 1, dtype=torch.bool))
+
+
+def test_masked_draws_and_the_mode_never_pick_a_masked_candidate():
+    k, c = 6, 3
+    logits = torch.tensor([[3.0, 2.5, 2.0, -1.0, -2.0, 1.0, -4.0]])  # masked 0, 1: the two best scores
+    mask = torch.tensor([[False, False, True, True, True, True]])
+    dist = SubsetDistribution(k, c).proba_distribution(logits.repeat(5_000, 1))
+    dist.apply_masking(mask.repeat(5_000, 1))
+    torch.manual_seed(1)
+    assert dist.sample()[:, :2].sum().item() == 0
+    # the greedy draw over what is left: 2 (2.0) and 5 (1.0), then 3 (−1.0) ahead of stop (−4.0)
+    assert dist.mode()[0].tolist() == [0.0, 0.0, 1.0, 1.0, 0.0, 1.0]
+    # nothing allowed: the draw stops at once
+    dist.apply_masking(torch.zeros(5_000, k, dtype=torch.bool))
+    assert dist.mode().sum().item() == 0
+
+
+def test_sb3_masks_spell_a_multibinary_mask_per_value_and_pass_others_unchanged():
+    from gymnasium import spaces
+
+    from mrcomm_agents.heldout import sb3_masks
+
+    per_bit = np.array([[True, False, True], [False, False, True]])
+    assert sb3_masks(per_bit, spaces.MultiBinary(3)).tolist() == [
+        [True, True, True, False, True, True],
+        [True, False, True, False, True, True],
+    ]
+    discrete = np.array([[True, False, True]])
+    assert sb3_masks(discrete, spaces.Discrete(3)).tolist() == discrete.tolist()
+    # already in sb3-contrib's layout
+    assert sb3_masks(np.ones((1, 6), dtype=bool), spaces.MultiBinary(3)).shape == (1, 6)
+
+
+@pytest.mark.parametrize("algo", ["ippo", "maskable_ppo"])
+def test_a_subset_policy_on_multihop_with_mask_unheld_trains_masked_and_picks_only_held_estimates(tmp_path, algo):
+    """With ``mask_unheld`` the batched trainer (and SB3's MaskablePPO) build the masked candidate policy; the trained
+    policy, sampled or greedy, selects only candidates its robot holds at the frame's start."""
+    from mrcomm_agents.learned import LearnedPolicy
+    from mrcomm_agents.policies import MaskableCandidatePolicy
+    from mrcomm_env.registry import make
+
+    kwargs = {"grid_side": 3, "slot_size": 3, "max_cycles": 6, "mask_unheld": True}
+    run = train_subset_policy(tmp_path, kwargs, algo, n_envs=2)
+    picks = 0
+    for deterministic in (True, False):
+        policy = LearnedPolicy(run, "MultiHop-v0", deterministic=deterministic)
+        assert type(policy.model).__name__ == "MaskablePPO"
+        assert isinstance(policy.model.policy, MaskableCandidatePolicy)
+        env = make("MultiHop-v0", **kwargs)
+        observations, _ = env.reset(seed=3)
+        policy.reset(env.local_views(), seed=3)
+        while env.agents:
+            held = env.action_masks()
+            actions = policy.act(observations, env.local_views())
+            chosen = np.stack([actions[a] for a in env.agents]) > 0.5
+            assert not (chosen & ~held).any()
+            picks += int(chosen.sum())
+            observations, *_ = env.step(actions)
+    assert picks > 0  # the check above saw selections, not a policy that always stops
