@@ -203,17 +203,19 @@ class MultiHopSpec(EnvSpec):
         "table, its candidate observation and the pairwise distances and links are n × n; a static scene on the "
         "compiled backend adds 24 MiB + 48·n² (it steps as the "
         "copy-axis world of one copy: numba's kernels, and the world's rows beside the env's arrays); "
-        "`observe_heard` adds 28·n³ (each robot's n × n table of what it heard and the frame's two n³ temporaries)"
+        "`observe_heard` adds 28·n³ (each robot's n × n table of what it heard and the frame's two n³ temporaries); "
+        "`mask_unheld` adds 72·n² (every robot's n − 1 mask columns in the infos, as arrays and as its info dict)"
     )
 
     MEMORY_SHARED = 8.0 * 2**20  # the formula's constant term: working memory the copies of a batch share
 
-    MEMORY_ARGS = ("n_robots", "grid_side", "observe_heard")
+    MEMORY_ARGS = ("n_robots", "grid_side", "observe_heard", "mask_unheld")
 
     MEMORY_PROBES = {
         "field_384": {"scene": "field", "n_robots": 384, "max_cycles": 3},
         "field_768": {"scene": "field", "n_robots": 768, "max_cycles": 3},
         "grid_32x32": {"grid_side": 32, "max_cycles": 3},
+        "masked_32x32": {"grid_side": 32, "mask_unheld": True, "max_cycles": 3},
         "heard_16x16": {"grid_side": 16, "observe_heard": True, "max_cycles": 3},
     }
 
@@ -226,6 +228,8 @@ class MultiHopSpec(EnvSpec):
             one += cls.WORLD_SHARED + cls.WORLD_ONE_COPY_PER_PAIR * n * n
         if cfg.observe_heard:
             one += 28.0 * n**3
+        if cfg.mask_unheld:  # measured at n = 1,024: 67 MB more on numpy, 83 MB as the world of one copy
+            one += 72.0 * n * n
         return one
 
     #: bytes per robot pair of each further copy in a copy-axis world (:mod:`.copy_axis`): its (n, n) arrays of the
