@@ -249,8 +249,9 @@ def default_config(env_id: str, algo: str = "ppo") -> dict[str, Any]:
 
 def policy_choice(config: TrainConfig, probe=None) -> tuple[Any, dict[str, Any]]:
     """(policy, policy_kwargs) of a run: SB3's ``MlpPolicy`` with ``net_arch``, or :class:`CandidatePolicy` (its
-    masked twin :class:`MaskableCandidatePolicy` under MaskablePPO) with the env's candidate layout; ``probe``: an env of the run's arguments (made when not given). Training builds its
-    model from these, and loading rebuilds the model's pickled entries from them (``agents/artifacts.py``)."""
+    masked twin :class:`MaskableCandidatePolicy` under MaskablePPO) with the env's candidate layout; ``probe``: an
+    env of the run's arguments (made when not given). Training builds its model from these, and loading rebuilds the
+    model's pickled entries from them (``agents/artifacts.py``)."""
     policy_kwargs = dict(config.hyperparams.get("policy_kwargs", {}))
     if config.policy not in ("candidates", "candidate_set", "candidate_subset"):
         policy_kwargs.setdefault("net_arch", list(config.net_arch))
