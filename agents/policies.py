@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from typing import cast
+from typing import Any, cast
 
 import torch
 from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
@@ -219,7 +219,19 @@ class _CandidateHeads:
     deterministic action (highest score first) stops at once in about one robot in ``candidates + 1`` and sends
     only its own estimate, and that is the single most likely sampled set too; a bias of −3 starts the policy
     filling its slot, as every paper algorithm does, and PPO can still learn to stop. It changes only the
-    initial weights: a warm start (DAgger) fits them anyway, and a saved model loads as saved."""
+    initial weights: a warm start (DAgger) fits them anyway, and a saved model loads as saved.
+
+    A mixin: the SB3 policy class it is mixed into (:class:`CandidatePolicy`, :class:`MaskableCandidatePolicy`) is
+    what ``super()`` reaches and what provides the attributes declared below."""
+
+    mlp_extractor: Any
+    action_dist: Any
+    action_net: Any
+    optimizer: Any
+    optimizer_class: Any
+    optimizer_kwargs: dict[str, Any]
+    init_weights: Any
+    parameters: Any
 
     def __init__(
         self,
@@ -257,12 +269,11 @@ class _CandidateHeads:
     def _get_action_dist_from_latent(self, latent_pi: torch.Tensor):
         if self.subset:
             return self.action_dist.proba_distribution(action_logits=self.action_net(latent_pi))
-        return super()._get_action_dist_from_latent(latent_pi)
+        return super()._get_action_dist_from_latent(latent_pi)  # type: ignore[misc]  # the SB3 policy mixed into
 
     def _build(self, lr_schedule) -> None:
-        super()._build(
-            lr_schedule
-        )  # with the Bernoulli distribution SB3 gives MultiBinary, which it knows how to build
+        # with the Bernoulli distribution SB3 gives MultiBinary, which it knows how to build
+        super()._build(lr_schedule)  # type: ignore[misc]  # the SB3 policy this is mixed into
         if self.subset:
             self.action_dist = SubsetDistribution(self.layout["candidates"], int(self.layout["choose"]))
         # the extractor's actor output already is one logit per action: SB3's linear action head would mix them
@@ -279,7 +290,7 @@ class _CandidateHeads:
         self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
 
     def _get_constructor_parameters(self) -> dict:
-        data = super()._get_constructor_parameters()
+        data = super()._get_constructor_parameters()  # type: ignore[misc]  # the SB3 policy this is mixed into
         data.update(
             layout=self.layout, hidden=self.hidden, context=self.context, subset=self.subset, stop_bias=self.stop_bias
         )
