@@ -21,6 +21,7 @@ is unpickled (:func:`unpickle_statistics`): a ``model.zip``'s pickled entries ar
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import io
 import json
@@ -37,6 +38,7 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.running_mean_std import RunningMeanStd
+from stable_baselines3.common.utils import LinearSchedule
 from stable_baselines3.common.vec_env import VecNormalize
 
 MODEL_FILE = "model.zip"
@@ -271,6 +273,43 @@ def refuse_pickles(folder: Path, trust_pickle: bool) -> None:
         raise pickle_refusal(folder / PICKLED_STATISTICS_FILE)
 
 
+# ------------------------------------------------------------------------------------------------ schedules
+#: the hyperparameters that may be annealed over a run, in rl-zoo3's notation ``"lin_<start>"``: linear from
+#: ``start`` at the first update to 0 at the last (rl-zoo3's ``hyperparams_opt``/``exp_manager`` parse the same)
+SCHEDULED = ("learning_rate", "clip_range")
+LINEAR_PREFIX = "lin_"
+
+
+def schedule_start(name: str, value: Any) -> Any:
+    """The start of a ``"lin_<start>"`` setting of ``name`` as a float (any other value as it was), for range
+    checks; a string that is not that notation is a ValueError naming ``name`` and what is allowed."""
+    if not isinstance(value, str):
+        return value
+    start = None
+    if name in SCHEDULED and value.startswith(LINEAR_PREFIX):
+        with contextlib.suppress(ValueError):
+            start = float(value[len(LINEAR_PREFIX) :])
+    if start is None or not math.isfinite(start):
+        allowed = (
+            f"a number or '{LINEAR_PREFIX}<number>' (linear to 0 over the run)" if name in SCHEDULED else "a number"
+        )
+        raise ValueError(f"argument {name!r} must be {allowed}, got {value!r}")
+    return start
+
+
+def sb3_setting(name: str, value: Any) -> Any:
+    """A hyperparameter as SB3's constructor takes it: ``"lin_<start>"`` becomes SB3's own
+    ``LinearSchedule(start, 0, 1)`` (``progress_remaining`` 1 → 0 over the run's timesteps), anything else as it
+    was. A run's ``config.json`` keeps the string, so a loaded model gets the same schedule back."""
+    start = schedule_start(name, value)
+    return LinearSchedule(start, 0.0, 1.0) if isinstance(value, str) else value
+
+
+def sb3_settings(hyperparams: dict[str, Any]) -> dict[str, Any]:
+    """:func:`sb3_setting` on every entry of ``hyperparams``."""
+    return {name: sb3_setting(name, value) for name, value in hyperparams.items()}
+
+
 # ------------------------------------------------------------------------------------------------ models
 @dataclass
 class ModelSpec:
@@ -294,7 +333,7 @@ class ModelSpec:
     def setting(self, name: str) -> Any:
         """A hyperparameter as the run set it, else the algorithm's default (its constructor's)."""
         if name in self.hyperparams:
-            return self.hyperparams[name]
+            return sb3_setting(name, self.hyperparams[name])
         parameter = inspect.signature(self.algorithm).parameters.get(name)
         return None if parameter is None or parameter.default is inspect.Parameter.empty else parameter.default
 
@@ -308,6 +347,7 @@ REBUILDERS: dict[str, Any] = {
     "policy_kwargs": lambda spec: spec.policy_kwargs,
     "observation_space": lambda spec: spec.observation_space,
     "action_space": lambda spec: spec.action_space,
+    "learning_rate": lambda spec: spec.setting("learning_rate"),
     "clip_range": lambda spec: spec.setting("clip_range"),
     "clip_range_vf": lambda spec: spec.setting("clip_range_vf"),
     "train_freq": lambda spec: spec.setting("train_freq"),

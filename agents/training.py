@@ -60,6 +60,8 @@ from mrcomm_agents.artifacts import (
     refuse_pickles,
     save_model,
     save_statistics,
+    sb3_settings,
+    schedule_start,
     strip_pickles,
     unpickle_statistics,
     write_bytes_atomically,
@@ -208,7 +210,7 @@ class TrainConfig:
             raise ValueError(f"argument 'policy' must be one of {', '.join(POLICY_NAMES)}, got {self.policy!r}")
         for name, value in self.hyperparams.items():
             if name in HYPERPARAMETER_RANGES and not callable(value):
-                HYPERPARAMETER_RANGES[name](name, value)
+                HYPERPARAMETER_RANGES[name](name, schedule_start(name, value))
         env = make(self.env_id, **self.env_kwargs)  # the env's own arguments are checked before any work
         if self.algo in BATCHED_ALGORITHMS:
             self._validate_batched(env)
@@ -458,7 +460,7 @@ def _train_locked(
     else:
         if config.normalize:
             venv = VecNormalize(venv, norm_obs=True, norm_reward=True, gamma=config.hyperparams.get("gamma", 0.99))
-        kwargs = {k: v for k, v in config.hyperparams.items() if k != "policy_kwargs"}
+        kwargs = {k: v for k, v in sb3_settings(config.hyperparams).items() if k != "policy_kwargs"}
         policy, policy_kwargs = policy_choice(config)
         model = cls(policy, venv, seed=config.seed, device="cpu", verbose=0, policy_kwargs=policy_kwargs, **kwargs)
         done_steps = 0
@@ -621,7 +623,7 @@ def _batched_model(config: TrainConfig, out: Path, resume: bool, teacher: Policy
             policy_kwargs,
             observation_space,
             action_space,
-            config.hyperparams,
+            sb3_settings(config.hyperparams),
             config.seed,
         )
         normalizer = detached_normalizer(observation_space.shape, model.gamma) if config.normalize else None

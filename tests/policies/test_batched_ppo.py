@@ -411,3 +411,64 @@ def test_every_heldout_row_says_how_long_training_took_without_the_evaluations(t
     assert all(b >= a for a, b in zip(seconds, seconds[1:])) and seconds[-1] > 0  # never backwards
     evaluating = [float(r["time/heldout_seconds"]) for r in rows]
     assert all(b > a for a, b in zip(evaluating[1:], evaluating[2:]))  # every evaluation adds its own time
+
+
+# ------------------------------------------------------------------------------------------------ schedules
+@pytest.mark.parametrize("algo", ["ppo", "ippo"])
+def test_lin_settings_anneal_linearly_to_zero_and_come_back_from_the_run_folder(tmp_path, monkeypatch, algo):
+    """rl-zoo3's ``"lin_<start>"``: the learning rate and clip range of each update are ``start`` × the share of the
+    run's agent-steps still to come, as logged; a loaded (or resumed) model has the same schedules back."""
+    rollouts = 4
+    if algo == "ppo":
+        rollout = 16 * N_AGENTS
+        hyper = {"n_steps": 16, "batch_size": 24, "n_epochs": 1}
+        cfg = config(rollouts * rollout, "ppo", n_envs=1, hyperparams=hyper)
+        cfg.checkpoint_every = rollout
+    else:
+        rollout, cfg = ROLLOUT, config(rollouts * ROLLOUT)
+    cfg.hyperparams.update(learning_rate="lin_0.001", clip_range="lin_0.3")
+    if algo == "ippo":  # stopped after two updates and resumed: the schedule goes on from the checkpoint
+        interrupt_after_updates(monkeypatch, 2)
+        with pytest.raises(KeyboardInterrupt):
+            train(cfg, tmp_path / "run", progress=False)
+        monkeypatch.undo()
+        train(None, tmp_path / "run", resume=True, progress=False)
+    else:
+        train(cfg, tmp_path / "run", progress=False)
+    with open(tmp_path / "run" / "progress.csv", newline="") as fh:
+        rows = [r for r in csv.DictReader(fh) if r.get("train/learning_rate")]
+    # each update k = 1…4 runs after the k-th rollout, at progress_remaining = 1 − k/4 (SB3's
+    # _update_current_progress_remaining; SB3 logs an update's values with the next rollout's row)
+    expected = [1.0 - k / rollouts for k in range(1, rollouts + 1)]
+    logged_rates = [float(r["train/learning_rate"]) for r in rows]
+    logged_clips = [float(r["train/clip_range"]) for r in rows]
+    assert logged_rates == pytest.approx([0.001 * f for f in expected], rel=1e-9, abs=1e-15), logged_rates
+    assert logged_clips == pytest.approx([0.3 * f for f in expected], rel=1e-9, abs=1e-15), logged_clips
+    assert json.loads((tmp_path / "run" / "config.json").read_text())["hyperparams"]["learning_rate"] == "lin_0.001"
+    model = LearnedPolicy(tmp_path / "run", ENV, algo).model
+    assert model.lr_schedule(0.5) == pytest.approx(0.0005) and model.clip_range(0.25) == pytest.approx(0.075)
+
+
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        ("lin_fast", "argument 'learning_rate' must be a number or 'lin_<number>'"),
+        ("cos_0.001", "argument 'learning_rate' must be a number or 'lin_<number>'"),
+        ("lin_-0.001", "'learning_rate'"),  # the start is checked against the documented range
+        ("lin_nan", "argument 'learning_rate' must be a number or 'lin_<number>'"),
+    ],
+)
+def test_a_bad_schedule_is_refused_in_one_line_before_any_work(tmp_path, capsys, value, message):
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"ippo": {"learning_rate": value}}))
+    assert main(["train", ENV, "--algo", "ippo", "--out", str(tmp_path / "run"), "--quiet", "--config", str(bad)]) != 0
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1 and message in err, err
+    assert not (tmp_path / "run" / "config.json").exists()
+
+
+def test_only_the_annealable_settings_take_the_lin_notation(tmp_path, capsys):
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"ippo": {"gamma": "lin_0.9"}}))
+    assert main(["train", ENV, "--algo", "ippo", "--out", str(tmp_path / "run"), "--quiet", "--config", str(bad)]) != 0
+    assert "argument 'gamma' must be a number, got 'lin_0.9'" in capsys.readouterr().err
