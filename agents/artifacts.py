@@ -275,7 +275,7 @@ def refuse_pickles(folder: Path, trust_pickle: bool) -> None:
 
 # ------------------------------------------------------------------------------------------------ schedules
 #: the hyperparameters that may be annealed over a run, in rl-zoo3's notation ``"lin_<start>"``: linear from
-#: ``start`` at the first update to 0 at the last (rl-zoo3's ``hyperparams_opt``/``exp_manager`` parse the same)
+#: ``start`` at the first update to 0 at the last (as rl-zoo3's configs write it, e.g. ``learning_rate: lin_2.5e-4``)
 SCHEDULED = ("learning_rate", "clip_range")
 LINEAR_PREFIX = "lin_"
 
@@ -300,9 +300,11 @@ def schedule_start(name: str, value: Any) -> Any:
 def sb3_setting(name: str, value: Any) -> Any:
     """A hyperparameter as SB3's constructor takes it: ``"lin_<start>"`` becomes SB3's own
     ``LinearSchedule(start, 0, 1)`` (``progress_remaining`` 1 → 0 over the run's timesteps), anything else as it
-    was. A run's ``config.json`` keeps the string, so a loaded model gets the same schedule back."""
-    start = schedule_start(name, value)
-    return LinearSchedule(start, 0.0, 1.0) if isinstance(value, str) else value
+    was (the range checks are :class:`~mrcomm_agents.training.TrainConfig`'s). A run's ``config.json`` keeps the
+    string, so a loaded model gets the same schedule back."""
+    if name not in SCHEDULED or not isinstance(value, str):
+        return value
+    return LinearSchedule(schedule_start(name, value), 0.0, 1.0)
 
 
 def sb3_settings(hyperparams: dict[str, Any]) -> dict[str, Any]:
