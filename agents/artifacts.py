@@ -285,7 +285,7 @@ def schedule_start(name: str, value: Any) -> Any:
     checks; a string that is not that notation is a ValueError naming ``name`` and what is allowed."""
     if not isinstance(value, str):
         return value
-    start = None
+    start: float | None = None
     if name in SCHEDULED and value.startswith(LINEAR_PREFIX):
         with contextlib.suppress(ValueError):
             start = float(value[len(LINEAR_PREFIX) :])
