@@ -275,8 +275,9 @@ def refuse_pickles(folder: Path, trust_pickle: bool) -> None:
 
 # ------------------------------------------------------------------------------------------------ schedules
 #: the hyperparameters that may be annealed over a run, in rl-zoo3's notation ``"lin_<start>"``: linear from
-#: ``start`` at the first update to 0 at the last (as rl-zoo3's configs write it, e.g. ``learning_rate: lin_2.5e-4``)
-SCHEDULED = ("learning_rate", "clip_range")
+#: ``start`` at the first update to 0 at the last (as rl-zoo3's configs write it, e.g. ``learning_rate: lin_2.5e-4``;
+#: rl-zoo3 converts the same three PPO settings)
+SCHEDULED = ("learning_rate", "clip_range", "clip_range_vf")
 LINEAR_PREFIX = "lin_"
 
 

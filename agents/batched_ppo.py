@@ -440,6 +440,7 @@ class BatchedPPO:
             "train/approx_kl": _mean(logs["kl"]),
             "train/clip_fraction": _mean(logs["clip"]),
             "train/clip_range": clip_range,
+            **({} if clip_range_vf is None else {"train/clip_range_vf": clip_range_vf}),  # as SB3's PPO logs it
             "train/explained_variance": explained,
         }
 

@@ -416,8 +416,8 @@ def test_every_heldout_row_says_how_long_training_took_without_the_evaluations(t
 # ------------------------------------------------------------------------------------------------ schedules
 @pytest.mark.parametrize("algo", ["ppo", "ippo"])
 def test_lin_settings_anneal_linearly_to_zero_and_come_back_from_the_run_folder(tmp_path, monkeypatch, algo):
-    """rl-zoo3's ``"lin_<start>"``: the learning rate and clip range of each update are ``start`` × the share of the
-    run's agent-steps still to come, as logged; a loaded (or resumed) model has the same schedules back."""
+    """rl-zoo3's ``"lin_<start>"``: the learning rate and both clip ranges of each update are ``start`` × the share of
+    the run's agent-steps still to come, as logged; a loaded (or resumed) model has the same schedules back."""
     rollouts = 4
     if algo == "ppo":
         rollout = 16 * N_AGENTS
@@ -426,7 +426,7 @@ def test_lin_settings_anneal_linearly_to_zero_and_come_back_from_the_run_folder(
         cfg.checkpoint_every = rollout
     else:
         rollout, cfg = ROLLOUT, config(rollouts * ROLLOUT)
-    cfg.hyperparams.update(learning_rate="lin_0.001", clip_range="lin_0.3")
+    cfg.hyperparams.update(learning_rate="lin_0.001", clip_range="lin_0.3", clip_range_vf="lin_0.2")
     if algo == "ippo":  # stopped after two updates and resumed: the schedule goes on from the checkpoint
         interrupt_after_updates(monkeypatch, 2)
         with pytest.raises(KeyboardInterrupt):
@@ -442,11 +442,14 @@ def test_lin_settings_anneal_linearly_to_zero_and_come_back_from_the_run_folder(
     expected = [1.0 - k / rollouts for k in range(1, rollouts + 1)]
     logged_rates = [float(r["train/learning_rate"]) for r in rows]
     logged_clips = [float(r["train/clip_range"]) for r in rows]
+    logged_value_clips = [float(r["train/clip_range_vf"]) for r in rows]
     assert logged_rates == pytest.approx([0.001 * f for f in expected], rel=1e-9, abs=1e-15), logged_rates
     assert logged_clips == pytest.approx([0.3 * f for f in expected], rel=1e-9, abs=1e-15), logged_clips
+    assert logged_value_clips == pytest.approx([0.2 * f for f in expected], rel=1e-9, abs=1e-15), logged_value_clips
     assert json.loads((tmp_path / "run" / "config.json").read_text())["hyperparams"]["learning_rate"] == "lin_0.001"
     model = LearnedPolicy(tmp_path / "run", ENV, algo).model
     assert model.lr_schedule(0.5) == pytest.approx(0.0005) and model.clip_range(0.25) == pytest.approx(0.075)
+    assert model.clip_range_vf(0.5) == pytest.approx(0.1)
 
 
 @pytest.mark.parametrize(
