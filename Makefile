@@ -105,7 +105,8 @@ bench-benchmarl: .venv-benchmarl/.installed
 
 # BenchMARL's reference results (docs/benchmark.md): IPPO, MAPPO and IQL, 3 seeds, 1,000,000 frames a run, into
 # docs/benchmark/runs/ in .venv-benchmarl; runs only what has no record yet, so a killed or stopped benchmark
-# resumes where it was (a run cut short starts again). The plan's cost per run: docs/benchmark.md.
+# resumes where it was (an IPPO or MAPPO run cut short goes on from its newest checkpoint, an IQL run starts again).
+# The plan's cost per run: docs/benchmark.md.
 # BENCHMARK_ARGS passes more, e.g. BENCHMARK_ARGS="--tasks MAPSYNC --jobs 2". Keep MULTIHOP at one job on 23 GB:
 # its IPPO run peaked at 14 GB (measured with /usr/bin/time, 36 robots).
 benchmark: .venv-benchmarl/.installed

@@ -10,16 +10,26 @@ of one copy, all robots). The experiments are BenchMARL's ``Benchmark(...).get_e
 algorithm, MLP model and experiment configs, changed only where this module says (``experiment_config``): the
 budget, 100 copies per batch (``NUM_ENVS``, as one batched env of ``MrcommTask``; BenchMARL's default of 10 is sized
 for VMAS on a GPU), an evaluation every tenth of the budget on 10 episodes (``EVAL_EPISODES``), the csv logger and
-marl-eval's JSON, no rendering and no checkpoints.
+marl-eval's JSON, no rendering, and for the on-policy algorithms BenchMARL's own checkpoints (below).
 
 **Resuming.** ``Benchmark.run_sequential`` runs every experiment in one go and keeps nothing of a run it did not
 finish. Here each experiment of the benchmark runs on its own and, when it finishes, leaves two files in
 ``runs/<task>/<algorithm>/``: BenchMARL's marl-eval JSON of the run, verbatim (``seed_<s>.marl-eval.json``), and
 this module's record of it (``seed_<s>.json``: frames, BenchMARL's and the wall clock's seconds, and the final
 policy's held-out evaluation). Both are written atomically, the record last, so a run counts as done only when both
-are whole; a run killed midway leaves only its scratch folder, which the next invocation removes before running it
-again from the start. Each run is locked while it runs (``seed_<s>.lock``), so processes started together
-(``--jobs``, or a second ``make benchmark``) share the plan without running a run twice.
+are whole. Each run is locked while it runs (``seed_<s>.lock``), so processes started together (``--jobs``, or a
+second ``make benchmark``) share the plan without running a run twice.
+
+A run killed midway (``kill -9``, Ctrl-C, the end of a working session) leaves its scratch folder. An on-policy run
+(IPPO, MAPPO) writes a BenchMARL checkpoint there every twentieth of its budget (``CHECKPOINTS``: its networks,
+optimizers, collector and counters; not the rollout buffer, which the next batch refills), keeping the newest two:
+one of MultiHop's runs takes 7–10 hours here. The next invocation goes on from the newest checkpoint that loads
+(``torch.load`` with ``weights_only``: a checkpoint is tensors and numbers, and nothing in it runs), with the
+evaluations logged before it put back into the run's marl-eval JSON; its episodes then restart from the run's seed
+(BenchMARL's checkpoint holds no env generator), so a resumed run is not the one an unbroken run would have been,
+and its record says where it resumed (``resumed_at_frames``). An IQL run, and an on-policy run without a checkpoint,
+starts again: IQL's replay buffer (up to 1,000,000 frames) would have to be saved with it, and those
+runs take under an hour.
 
 **Held-out evaluation.** BenchMARL's own evaluations (the curves) draw their episodes at random. The final policy of
 each run, and the two references (``random`` and the paper's algorithm, the env's default baseline), also play 10
@@ -84,6 +94,12 @@ FRAMES = 1_000_000
 NUM_ENVS = 100
 #: BenchMARL's evaluations per run: after the first batch, then every tenth of the budget (the curves' points)
 EVALUATIONS = 10
+#: an on-policy run's checkpoints over its budget (the work a killed run loses is at most a twentieth of it)
+CHECKPOINTS = 20
+#: checkpoints kept: the newest may be cut short by a kill while it is written; the one before it then serves
+KEEP_CHECKPOINTS = 2
+#: the scratch folder's note of the arguments its checkpoints were made with (a changed plan starts afresh)
+SCRATCH_PLAN = "plan.json"
 EVAL_EPISODES = 10
 #: the first held-out episode seed: above every seed a BenchMARL run or a tuning of ours drew
 HELDOUT_SEED = 100_000
@@ -116,8 +132,11 @@ def plan(tasks: Sequence[str], algorithms: Sequence[str], seeds: Iterable[int]) 
     return runs
 
 
-def experiment_config(frames: int, frames_per_batch: int, num_envs: int, eval_episodes: int, folder: Path):
-    """BenchMARL's default experiment config with the budget and this module's changes (module docstring)."""
+def experiment_config(
+    frames: int, frames_per_batch: int, num_envs: int, eval_episodes: int, folder: Path, checkpoints: bool = False
+):
+    """BenchMARL's default experiment config with the budget and this module's changes (module docstring); with
+    ``checkpoints``, about :data:`CHECKPOINTS` of them over the budget, at whole batches."""
     config = _experiment.ExperimentConfig.get_from_yaml()
     config.max_n_frames = frames
     for kind in ("on_policy", "off_policy"):
@@ -129,7 +148,11 @@ def experiment_config(frames: int, frames_per_batch: int, num_envs: int, eval_ep
     config.render = False
     config.loggers = ["csv"]
     config.create_json = True
-    config.checkpoint_interval = 0
+    config.checkpoint_interval = (
+        frames_per_batch * max(1, round(frames / frames_per_batch / CHECKPOINTS)) if checkpoints else 0
+    )
+    config.keep_checkpoints_num = KEEP_CHECKPOINTS
+    config.exclude_buffer_from_checkpoint = True  # on-policy: the next batch refills it
     config.checkpoint_at_end = False
     config.save_folder = str(folder)
     return config
@@ -241,11 +264,16 @@ class RunLock:
 
 
 def _timer_rows(folder: Path, timer: str) -> list[float]:
-    """BenchMARL's ``timers/<timer>_time`` of each iteration that logged it (its csv logger's file)."""
-    rows = []
+    """BenchMARL's ``timers/<timer>_time`` of each iteration that logged it (its csv logger's file), in iteration
+    order. A resumed run appends to the file and logs again the iterations its killed attempt made after its last
+    checkpoint: each iteration counts once, as its last row gives it (the one the finished run is made of)."""
+    by_step: dict[int, float] = {}
     for path in folder.glob(f"**/scalars/timers_{timer}_time.csv"):
-        rows += [float(line.split(",")[1]) for line in path.read_text().splitlines() if "," in line]
-    return rows
+        for line in path.read_text().splitlines():
+            if "," in line:
+                step, value = line.split(",")[:2]
+                by_step[int(float(step))] = float(value)
+    return [by_step[step] for step in sorted(by_step)]
 
 
 def _timer_total(folder: Path, timer: str) -> float:
@@ -259,20 +287,92 @@ def run_paths(out: Path, task: str, algorithm: str, seed: int) -> tuple[Path, Pa
     return folder / f"seed_{seed}.json", folder / f"seed_{seed}.marl-eval.json"
 
 
+def loadable_checkpoint(scratch: Path) -> Path | None:
+    """The newest BenchMARL checkpoint in ``scratch`` that loads as tensors and numbers alone (``weights_only``), or
+    None; the others are deleted (a damaged one, and older ones BenchMARL no longer rotates after a resume)."""
+    checkpoints = sorted(scratch.glob("*/checkpoints/checkpoint_*.pt"), key=lambda p: int(p.stem.split("_")[-1]))
+    chosen = None
+    for path in reversed(checkpoints):
+        try:
+            torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as error:  # noqa: BLE001 - cut short by a kill: any unpickling or reading error
+            print(f"benchmark: {path.name} does not load ({type(error).__name__}); trying the one before", flush=True)
+            continue
+        chosen = path
+        break
+    for path in checkpoints:
+        if path != chosen:
+            path.unlink()
+    return chosen
+
+
+def earlier_evaluations(checkpoint: Path) -> dict | None:
+    """The marl-eval JSON that the attempt which wrote ``checkpoint`` kept beside it (BenchMARL's
+    ``<experiment>/<experiment>.json``), or None where it is missing or cut short by a kill (BenchMARL writes it in
+    place): without it the run's earlier curve points would be lost, so the run starts afresh."""
+    folder = checkpoint.parent.parent
+    try:
+        return json.loads((folder / f"{folder.name}.json").read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def restore_evaluations(experiment, earlier: dict) -> None:
+    """Put the evaluations an earlier attempt logged up to the restored checkpoint (``earlier``, its marl-eval JSON)
+    back into the experiment's marl-eval writer: BenchMARL starts it empty and rewrites the whole file at its next
+    evaluation."""
+    writer = experiment.logger.json_writer
+    runs = earlier[experiment.environment_name][experiment.task_name][experiment.algorithm_name]
+    run = runs[f"seed_{experiment.seed}"]
+    kept = {k: v for k, v in run.items() if k.startswith("step_") and v["step_count"] <= experiment.total_frames}
+    writer.run_data.update(kept)
+    best = writer.run_data["absolute_metrics"]
+    for step in kept.values():
+        for metric, values in step.items():
+            if metric != "step_count" and len(values):
+                best[metric] = [max([max(values), *best.get(metric, [])])]
+
+
+def _scratch_for(scratch: Path, plan_args: dict, resumable: bool) -> tuple[Path | None, dict, list[int]]:
+    """(the checkpoint to go on from in ``scratch``, the marl-eval JSON logged before it, the frames at which earlier
+    attempts resumed), or (None, {}, []) after clearing the folder for a fresh start: a scratch folder is resumed only
+    when its checkpoints were made with the same arguments (its :data:`SCRATCH_PLAN` note)."""
+    note_path = scratch / SCRATCH_PLAN
+    note = json.loads(note_path.read_text()) if resumable and note_path.exists() else {}
+    checkpoint = loadable_checkpoint(scratch) if note.get("plan") == plan_args else None
+    earlier = earlier_evaluations(checkpoint) if checkpoint is not None else None
+    if checkpoint is None or earlier is None:
+        shutil.rmtree(scratch, ignore_errors=True)  # what a killed attempt left
+        scratch.mkdir(parents=True)
+        atomic_write_json(note_path, {"plan": plan_args, "resumed_at_frames": []})
+        return None, {}, []
+    return checkpoint, earlier, list(note["resumed_at_frames"])
+
+
 def run_one(
     out: Path, task: str, algorithm: str, seed: int, frames: int, frames_per_batch: int, num_envs: int, episodes: int
 ) -> dict:
-    """Run one experiment of the benchmark from the start in a scratch folder, evaluate its final policy on the
-    held-out episodes and keep its two files (module docstring); returns the record."""
+    """Run one experiment of the benchmark in a scratch folder, from its newest checkpoint if a killed attempt left
+    one (module docstring), evaluate its final policy on the held-out episodes and keep its two files; returns the
+    record."""
     record_path, json_path = run_paths(out, task, algorithm, seed)
     scratch = record_path.with_suffix(".scratch")
-    shutil.rmtree(scratch, ignore_errors=True)  # what a killed attempt left
-    scratch.mkdir(parents=True)
-    config = experiment_config(frames, frames_per_batch, num_envs, episodes, scratch)
+    resumable = bool(algorithm_config(algorithm).on_policy())
+    plan_args = {"frames": frames, "frames_per_batch": frames_per_batch, "num_envs": num_envs, "episodes": episodes}
+    checkpoint, earlier, resumed_at = _scratch_for(scratch, plan_args, resumable)
+    config = experiment_config(frames, frames_per_batch, num_envs, episodes, scratch, checkpoints=resumable)
+    config.restore_file = None if checkpoint is None else str(checkpoint)
     experiment = the_experiment(task, algorithm, seed, config)
+    if checkpoint is not None:
+        restore_evaluations(experiment, earlier)
+        resumed_at.append(int(experiment.total_frames))
+        atomic_write_json(scratch / SCRATCH_PLAN, {"plan": plan_args, "resumed_at_frames": resumed_at})
+        print(f"benchmark: {task} {algorithm} seed {seed} goes on from {checkpoint.name}", flush=True)
+    # the iterations kept from earlier attempts, as BenchMARL timed them (0 on a fresh start)
+    restored_seconds = float(experiment.total_time)
     start = time.perf_counter()
     experiment.run()
-    wall = time.perf_counter() - start
+    wall = time.perf_counter() - start + restored_seconds
     marl_eval = json.loads((experiment.folder_name / f"{experiment.name}.json").read_text())
     heldout = evaluate_benchmarl_policy(experiment, task, episodes)
     record = {
@@ -285,7 +385,9 @@ def run_one(
         "frames_per_batch": frames_per_batch,
         "num_envs": num_envs,
         "iterations": int(experiment.n_iters_performed),
+        # a resumed run: this attempt's wall clock plus BenchMARL's own time of the iterations it went on from
         "wall_seconds": wall,
+        "resumed_at_frames": resumed_at,
         "benchmarl_seconds": float(experiment.total_time),
         **{f"{timer}_seconds": _timer_total(scratch, timer) for timer in ("collection", "training", "evaluation")},
         "torch_threads": torch.get_num_threads(),
@@ -746,16 +848,20 @@ def _wall_time_table(records: list[dict]) -> list[str]:
         "## Wall time",
         "",
         "Seconds per run on this machine: the wall clock around `Experiment.run()`, and BenchMARL's own timers summed"
-        " over the run's iterations (collection, training, its evaluations).",
+        " over the run's iterations (collection, training, its evaluations). A run killed midway and resumed from a"
+        " checkpoint counts its last attempt's wall clock plus BenchMARL's own time of the iterations it went on from;"
+        " the last column says at which frames it resumed.",
         "",
-        "| task | algorithm | seed | frames | wall (s) | collection (s) | training (s) | evaluation (s) | frames/s |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| task | algorithm | seed | frames | wall (s) | collection (s) | training (s) | evaluation (s) | frames/s"
+        " | resumed at (frames) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for r in sorted(records, key=lambda r: (list(ENV_ID_OF_TASK).index(r["task"]), r["algorithm"], r["seed"])):
+        resumed = ", ".join(f"{frames:,}" for frames in r.get("resumed_at_frames", [])) or "—"  # older records: none
         lines.append(
             f"| {r['task'].lower()} | {r['algorithm']} | {r['seed']} | {r['frames']:,} | {r['wall_seconds']:.0f}"
             f" | {r['collection_seconds']:.0f} | {r['training_seconds']:.0f} | {r['evaluation_seconds']:.0f}"
-            f" | {r['frames'] / r['wall_seconds']:,.0f} |"
+            f" | {r['frames'] / r['wall_seconds']:,.0f} | {resumed} |"
         )
     return lines
 

@@ -6,6 +6,10 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import subprocess
+import sys
+import time
 
 import pytest
 import torch
@@ -227,9 +231,105 @@ def test_reference_benchmark_runs_resumes_and_writes_its_page(tmp_path, capsys):
     assert f"| 2 | {2 * cost['projected_run_hours']:.1f} |" in text  # seeds 1 and 2 are left
     assert "**Runs:** 1 of the plan's 42 have finished." in text
     assert "| IPPO (BenchMARL) | 1 |" in text and "| IPPO | mapsync | 1 |" in text
+    wall_row = next(line for line in text.splitlines() if line.startswith("| mapsync | ippo | 0 | 200 |"))
+    assert wall_row.endswith("| — |")  # a run that went through in one attempt resumed nowhere
     assert (out / "profile.png").stat().st_size > 0 and (out / "curves.png").stat().st_size > 0
     merged = json.loads((out / benchmarl_reference.MERGED).read_text())
     assert merged["mrcomm"]["mapsync"]["ippo"]["seed_0"] == run
+
+
+def test_an_on_policy_run_killed_midway_goes_on_from_its_newest_checkpoint(tmp_path):
+    """``kill -9`` once the third of eight batches is checkpointed: the next attempt goes on from a checkpoint, and
+    the run's record and marl-eval JSON hold all eight iterations and evaluations, each once."""
+    out, run_args = tmp_path / "benchmark", ("MAPSYNC", "ippo", 0, 800, 100, 4, 2)
+    record_path, json_path = benchmarl_reference.run_paths(out, *run_args[:3])
+    scratch = record_path.with_suffix(".scratch")
+    code = (
+        "import sys; from pathlib import Path; from mrcomm_env.experiments import benchmarl_reference as b; "
+        f"b.run_one(Path(sys.argv[1]), *{run_args!r})"
+    )
+    child = subprocess.Popen(
+        [sys.executable, "-c", code, str(out)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+    )
+    try:
+        deadline = time.monotonic() + 600
+        while not list(scratch.glob("*/checkpoints/checkpoint_300.pt")):
+            assert child.poll() is None, "the run ended before it was killed"
+            assert time.monotonic() < deadline, "no third checkpoint in 10 minutes"
+            time.sleep(0.05)
+    finally:
+        child.kill()
+        child.wait()
+    assert not record_path.exists()
+
+    record = benchmarl_reference.run_one(out, *run_args)
+    assert record["frames"] == 800 and record["iterations"] == 8
+    [resumed] = record["resumed_at_frames"]
+    assert 300 <= resumed < 800 and resumed % 100 == 0  # the third checkpoint, or a later one that loads
+    run = json.loads(json_path.read_text())["mrcomm"]["mapsync"]["ippo"]["seed_0"]
+    steps = [run[k] for k in run if k.startswith("step_")]
+    assert sorted(step["step_count"] for step in steps) == list(range(100, 900, 100))
+    assert run["absolute_metrics"]["return"] == [max(max(step["return"]) for step in steps)]
+    assert 0 < record["benchmarl_seconds"] <= record["wall_seconds"]
+    assert not scratch.exists()
+
+
+class _RunsCodeWhenUnpickled:
+    """Unpickling this makes a folder: a checkpoint holding it must be refused, never loaded."""
+
+    def __init__(self, path):
+        self.path = str(path)
+
+    def __reduce__(self):
+        return (os.mkdir, (self.path,))
+
+
+def test_only_a_checkpoint_of_tensors_and_numbers_is_gone_on_from(tmp_path):
+    """The newest checkpoint is cut short (a kill while BenchMARL wrote it), the one before holds an object whose
+    unpickling runs code: both are refused (``weights_only``) and deleted, and the oldest is chosen."""
+    checkpoints = tmp_path / "experiment" / "checkpoints"
+    checkpoints.mkdir(parents=True)
+    torch.save({"state": {"total_frames": 100}, "weights": torch.zeros(3)}, checkpoints / "checkpoint_100.pt")
+    torch.save({"state": _RunsCodeWhenUnpickled(tmp_path / "ran")}, checkpoints / "checkpoint_200.pt")
+    whole = (checkpoints / "checkpoint_100.pt").read_bytes()
+    (checkpoints / "checkpoint_300.pt").write_bytes(whole[: len(whole) // 2])
+    assert benchmarl_reference.loadable_checkpoint(tmp_path) == checkpoints / "checkpoint_100.pt"
+    assert not (tmp_path / "ran").exists()
+    assert sorted(p.name for p in checkpoints.iterdir()) == ["checkpoint_100.pt"]
+
+
+@pytest.mark.parametrize(
+    "algorithm, note_plan",
+    [("iql", {"frames": 800}), ("ippo", {"frames": 400})],  # off-policy: never; on-policy: other arguments
+)
+def test_a_scratch_folder_is_resumed_only_by_an_on_policy_run_with_its_own_arguments(tmp_path, algorithm, note_plan):
+    plan_args = {"frames": 800}
+    scratch = tmp_path / "seed_0.scratch"
+    checkpoints = scratch / "experiment" / "checkpoints"
+    checkpoints.mkdir(parents=True)
+    torch.save({"state": {}}, checkpoints / "checkpoint_100.pt")
+    (scratch / "experiment" / "experiment.json").write_text("{}")
+    (scratch / benchmarl_reference.SCRATCH_PLAN).write_text(json.dumps({"plan": note_plan, "resumed_at_frames": []}))
+    resumable = benchmarl_reference.algorithm_config(algorithm).on_policy()
+    assert benchmarl_reference._scratch_for(scratch, plan_args, resumable) == (None, {}, [])
+    assert sorted(p.name for p in scratch.iterdir()) == [benchmarl_reference.SCRATCH_PLAN]  # a fresh start
+    (scratch / benchmarl_reference.SCRATCH_PLAN).write_text(json.dumps({"plan": plan_args, "resumed_at_frames": [300]}))
+    checkpoints.mkdir(parents=True)
+    torch.save({"state": {}}, checkpoints / "checkpoint_100.pt")
+    (scratch / "experiment" / "experiment.json").write_text('{"earlier": 1}')
+    expected = (checkpoints / "checkpoint_100.pt", {"earlier": 1}, [300]) if resumable else (None, {}, [])
+    assert benchmarl_reference._scratch_for(scratch, plan_args, resumable) == expected
+
+
+def test_each_iteration_counts_once_in_the_timers_of_a_resumed_run(tmp_path):
+    """A resumed run logs again the iterations its killed attempt made after the checkpoint: the last row counts."""
+    scalars = tmp_path / "experiment" / "scalars"
+    scalars.mkdir(parents=True)
+    (scalars / "timers_training_time.csv").write_text("0,1.0\n1,2.0\n2,3.0\n1,20.0\n2,30.0\n3,4.0\n")
+    assert benchmarl_reference._timer_rows(tmp_path, "training") == [1.0, 20.0, 30.0, 4.0]
 
 
 @pytest.mark.parametrize("task", ["MAPSYNC", "CHANNEL_ASSOCIATION"])
