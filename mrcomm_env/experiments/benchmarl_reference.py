@@ -94,13 +94,14 @@ FRAMES = 1_000_000
 NUM_ENVS = 100
 #: BenchMARL's evaluations per run: after the first batch, then every tenth of the budget (the curves' points)
 EVALUATIONS = 10
-#: an on-policy run's checkpoints over its budget (the work a killed run loses is at most a twentieth of it)
+EVAL_EPISODES = 10
+#: an on-policy run's checkpoints over its budget: a killed run loses at most a twentieth of it (two twentieths where
+#: the kill cut the newest checkpoint short)
 CHECKPOINTS = 20
 #: checkpoints kept: the newest may be cut short by a kill while it is written; the one before it then serves
 KEEP_CHECKPOINTS = 2
 #: the scratch folder's note of the arguments its checkpoints were made with (a changed plan starts afresh)
 SCRATCH_PLAN = "plan.json"
-EVAL_EPISODES = 10
 #: the first held-out episode seed: above every seed a BenchMARL run or a tuning of ours drew
 HELDOUT_SEED = 100_000
 #: rliable's bootstrap repetitions and the seed of its generator (the page is the same on every machine)
