@@ -240,7 +240,10 @@ def test_reference_benchmark_runs_resumes_and_writes_its_page(tmp_path, capsys):
 
 def test_an_on_policy_run_killed_midway_goes_on_from_its_newest_checkpoint(tmp_path):
     """``kill -9`` once the third of eight batches is checkpointed: the next attempt goes on from a checkpoint, and
-    the run's record and marl-eval JSON hold all eight iterations and evaluations, each once."""
+    the run's record and marl-eval JSON hold all eight iterations and evaluations, each once. The kill waits for the
+    fourth checkpoint's file to appear: only then is the third whole (a file appears when BenchMARL starts writing it,
+    and a kill while it writes leaves it cut short, which the attempt after it skips), and BenchMARL keeps it, deleting
+    only the oldest of its two before it writes the next."""
     out, run_args = tmp_path / "benchmark", ("MAPSYNC", "ippo", 0, 800, 100, 4, 2)
     record_path, json_path = benchmarl_reference.run_paths(out, *run_args[:3])
     scratch = record_path.with_suffix(".scratch")
@@ -256,9 +259,9 @@ def test_an_on_policy_run_killed_midway_goes_on_from_its_newest_checkpoint(tmp_p
     )
     try:
         deadline = time.monotonic() + 600
-        while not list(scratch.glob("*/checkpoints/checkpoint_300.pt")):
+        while not list(scratch.glob("*/checkpoints/checkpoint_400.pt")):
             assert child.poll() is None, "the run ended before it was killed"
-            assert time.monotonic() < deadline, "no third checkpoint in 10 minutes"
+            assert time.monotonic() < deadline, "no fourth checkpoint in 10 minutes"
             time.sleep(0.05)
     finally:
         child.kill()
@@ -268,7 +271,7 @@ def test_an_on_policy_run_killed_midway_goes_on_from_its_newest_checkpoint(tmp_p
     record = benchmarl_reference.run_one(out, *run_args)
     assert record["frames"] == 800 and record["iterations"] == 8
     [resumed] = record["resumed_at_frames"]
-    assert 300 <= resumed < 800 and resumed % 100 == 0  # the third checkpoint, or a later one that loads
+    assert 300 <= resumed < 800 and resumed % 100 == 0  # the third checkpoint, or a later one that is whole
     run = json.loads(json_path.read_text())["mrcomm"]["mapsync"]["ippo"]["seed_0"]
     steps = [run[k] for k in run if k.startswith("step_")]
     assert sorted(step["step_count"] for step in steps) == list(range(100, 900, 100))
