@@ -112,6 +112,7 @@ RUN_KEYS = (
     "eval_deterministic",
     "critic_warmup",
     "freeze_normalization",
+    "update_threads",
 )
 #: the documented ranges of the SB3 hyperparameters (a value outside is refused before any training)
 HYPERPARAMETER_RANGES = {
@@ -175,6 +176,11 @@ class TrainConfig:
     #: after a warm start, keep VecNormalize's statistics as the clone was fitted with them (else PPO keeps
     #: updating them, which moves a fitted policy's inputs)
     freeze_normalization: bool = False
+    #: ippo/mappo: torch threads of the update (None: min(2, cores), ``batched_ppo.BatchedPPO``). The trained bits
+    #: depend on it (torch splits its sums by thread), so it is a setting of the run, kept on ``--resume``. Two
+    #: trainings started by hand on two cores each want 1: with two each, their spinning threads made them slower
+    #: together than one after the other (docs/performance.md, "update threads")
+    update_threads: int | None = None
 
     def validate(self) -> TrainConfig:
         self.env_id = canonical_id(self.env_id)
@@ -191,6 +197,7 @@ class TrainConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"argument '{name}' must be an integer ≥ 0, got {value!r}")
+        self._validate_update_threads()
         if not isinstance(self.freeze_normalization, bool):
             raise ValueError(
                 f"argument 'freeze_normalization' must be true or false, got {self.freeze_normalization!r}"
@@ -226,6 +233,18 @@ class TrainConfig:
             )
         env.close()
         return self
+
+    def _validate_update_threads(self) -> None:
+        value = self.update_threads
+        if value is None:
+            return
+        if self.algo not in BATCHED_ALGORITHMS:
+            raise ValueError(
+                f"argument 'update_threads' applies to {' and '.join(BATCHED_ALGORITHMS)} only (SB3's "
+                f"{self.algo} trains on one torch thread), got {value!r}"
+            )
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"argument 'update_threads' must be None or an integer ≥ 1, got {value!r}")
 
     def _validate_batched(self, env) -> None:
         """ippo/mappo: the env's spaces (and for mappo its state), the copies' memory and the rollout's sizes."""
@@ -526,7 +545,9 @@ def _train_batched(
         _cut_progress_log(out / "progress.csv", done_steps)
     batch = BatchedEnv(lambda: make(config.env_id, **config.env_kwargs), int(config.n_envs or 1), copy=False)
     # a resumed run continues on other episodes than those it trained on before the interruption
-    trainer = BatchedPPO(model, batch, normalizer, config.seed + done_steps, critic, critic_optimizer)
+    trainer = BatchedPPO(
+        model, batch, normalizer, config.seed + done_steps, critic, critic_optimizer, config.update_threads
+    )
     trainer.critic_warmup_until = config.critic_warmup
     csv_log = resumed_csv_output(str(out / "progress.csv")) if resume else make_output_format("csv", str(out))
     model.set_logger(Logger(str(out), [csv_log, make_output_format("tensorboard", str(out))]))

@@ -475,3 +475,56 @@ def test_only_the_annealable_settings_take_the_lin_notation(tmp_path, capsys):
     bad.write_text(json.dumps({"ippo": {"gamma": "lin_0.9"}}))
     assert main(["train", ENV, "--algo", "ippo", "--out", str(tmp_path / "run"), "--quiet", "--config", str(bad)]) != 0
     assert "argument 'gamma' must be a number, got 'lin_0.9'" in capsys.readouterr().err
+
+
+def record_thread_counts(monkeypatch) -> list[int]:
+    """Every ``torch.set_num_threads`` call from now on (the calls still take effect)."""
+    calls: list[int] = []
+    original = torch.set_num_threads
+
+    def record(n: int) -> None:
+        calls.append(n)
+        original(n)
+
+    monkeypatch.setattr(torch, "set_num_threads", record)
+    return calls
+
+
+def test_update_threads_is_a_setting_of_the_run_used_by_every_update_and_kept_on_resume(tmp_path, monkeypatch):
+    """``update_threads``: each update runs on that many torch threads (3 here, which no default gives on any
+    machine), and the rollout on one; the run folder keeps the setting, and a resumed run goes on with it."""
+    try:
+        calls = record_thread_counts(monkeypatch)
+        interrupt_after_updates(monkeypatch, 1)
+        with pytest.raises(KeyboardInterrupt):
+            train(config(3 * ROLLOUT, update_threads=3), tmp_path / "run", progress=False)
+        assert calls.count(3) == 1 and set(calls) == {1, 3}
+        assert json.loads((tmp_path / "run" / "config.json").read_text())["update_threads"] == 3
+        monkeypatch.undo()
+        calls = record_thread_counts(monkeypatch)
+        train(None, tmp_path / "run", resume=True, progress=False)
+        assert calls.count(3) == 2 and set(calls) == {1, 3}  # the two updates left
+    finally:
+        torch.set_num_threads(1)  # as this module runs; the interrupt above leaves the update's 3
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--algo", "ppo", "--update-threads", "2"], "argument 'update_threads' applies to ippo and mappo only"),
+        (["--algo", "ippo", "--update-threads", "0"], "--update-threads: must be an integer ≥ 1"),
+    ],
+)
+def test_update_threads_outside_the_batched_trainer_or_below_one_is_refused_in_one_line(
+    tmp_path, capsys, argv, message
+):
+    assert main(["train", ENV, *argv, "--out", str(tmp_path / "run"), "--quiet"]) != 0
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1 and message in err, err
+    assert not (tmp_path / "run" / "config.json").exists()
+
+
+@pytest.mark.parametrize("value", [0, True, 1.5])
+def test_update_threads_from_a_configuration_must_be_a_whole_count(value):
+    with pytest.raises(ValueError, match="argument 'update_threads' must be None or an integer ≥ 1"):
+        config(ROLLOUT, update_threads=value).validate()

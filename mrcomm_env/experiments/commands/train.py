@@ -51,6 +51,14 @@ def add_parser(command) -> None:
         default=5,
         help="sweeps: held-out episodes each run is scored on (seeds 20000+, apart from reproduce-learning's)",
     )
+    p.add_argument(
+        "--update-threads",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="ippo/mappo: torch threads of the update (default min(2, cores)); 1 for each of two trainings sharing "
+        "two cores (the trained bits depend on N, so it is kept with the run)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument(
         "--trust-pickle",
@@ -142,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
             ("--grid", args.grid),
             ("--seeds", args.seeds),
             ("--init-from", args.init_from),
+            ("--update-threads", args.update_threads),
         ):
             if value:
                 raise ValueError(f"{flag} cannot be used with --resume: a resumed run keeps its own settings")
@@ -158,6 +167,8 @@ def run(args: argparse.Namespace) -> int:
     run.pop("timesteps", None)
     if args.init_from is not None:
         run["init_from"] = args.init_from
+    if args.update_threads is not None:
+        run["update_threads"] = args.update_threads
     # the warm start's teacher, found once (the configuration's or --init-from's): a bad name is reported before any work
     teacher = teacher_for(env_id, run.get("init_from"))
     base = dict(env_id=env_id, algo=args.algo, timesteps=timesteps, env_kwargs=env_kwargs, hyperparams=hyper, **run)
