@@ -120,8 +120,8 @@ docs: $(STAMP)
 	$(BIN)/mrcomm docs
 
 # learned policies against every baseline at equal bits: trains 5 seeds per cost value and env, every run from random
-# weights (about 3.5 hours on two cores: MultiHop 105 minutes, RendezvousMapping 53 for its 15 runs,
-# ChannelAssociation 22, AsyncCL 13, MapSync 12), then
+# weights (about 4.5 hours on two cores: MultiHop 165 minutes for its 5 MAPPO runs, RendezvousMapping 53 for its 15
+# runs, ChannelAssociation 22, AsyncCL 13, MapSync 12), then
 # regenerates docs/learning.md with its curves (add --export-pretrained to ship the best runs); reruns skip the
 # runs already done
 learn: $(STAMP)
