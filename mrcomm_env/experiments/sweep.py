@@ -136,10 +136,11 @@ def one_thread() -> None:
     """Each worker process uses one core: BLAS and torch would otherwise start one thread per core each.
 
     The batched trainer still runs its update on its ``update_threads`` (two by default: a model's bits depend on
-    the thread count, so a sweep's runs stay those of ``--workers 1``). Its OpenMP threads then wait passively: spinning, two workers'
-    four threads on two cores ran MapSync's IPPO at 3,300 agent-steps/s each, two seeds of 401,408 agent-steps
-    in 132 s against 36 s one after the other; waiting passively, in 28-32 s (``OMP_WAIT_POLICY``, read when torch
-    loads; alone, passive waiting halves the trainer's speed, so only workers set it)."""
+    the thread count, so a sweep's runs stay those of ``--workers 1``). Its OpenMP threads then wait passively:
+    spinning, two workers' four threads on two cores ran MapSync's IPPO at 3,300 agent-steps/s each, two seeds of
+    401,408 agent-steps in 132 s against 36 s one after the other; waiting passively, in 28-32 s
+    (``OMP_WAIT_POLICY``, read when torch loads; alone, passive waiting halves the trainer's speed, so only workers
+    set it)."""
     os.environ["OMP_NUM_THREADS"] = "1"
     os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
     os.environ["MKL_NUM_THREADS"] = "1"
