@@ -56,6 +56,8 @@ PR_SET_PDEATHSIG = 1
 
 #: attempts per task: the first run and one retry
 ATTEMPTS = 2
+#: how long a stopping driver goes on cancelling its Ray tasks until each has ended (:func:`_cancel_until_gone`)
+CANCEL_SECONDS = 30.0
 
 
 class SweepError(RuntimeError):
@@ -334,9 +336,26 @@ class Runner:
                         finished(i, outcome)
         finally:
             # an interrupted or failed driver leaves no task of its sweep running on the cluster
-            for ref in pending:
-                with contextlib.suppress(Exception):
-                    ray.cancel(ref, force=True)
+            _cancel_until_gone(ray, list(pending))
+
+
+def _cancel_until_gone(ray, refs: list, seconds: float = CANCEL_SECONDS) -> None:
+    """Cancel ``refs`` (``force``: a running task's worker exits) and cancel again, once a second, those that have
+    not ended, for at most ``seconds``. Ray can lose a cancel that reaches a task between its dispatch to a worker
+    and its start (ray-project/ray#24359, #52703); the task then runs to its end and holds its CPU. This happened
+    once in our CI: one of two cancelled tasks of two minutes still held its CPU a minute later."""
+    deadline = time.monotonic() + seconds
+    while refs:
+        for ref in refs:
+            with contextlib.suppress(Exception):
+                ray.cancel(ref, force=True)
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            return
+        try:
+            _, refs = ray.wait(refs, num_returns=len(refs), timeout=min(1.0, remaining))
+        except Exception:  # noqa: BLE001 - the session went away: nothing is left to cancel from here
+            return
 
 
 @dataclass(frozen=True)

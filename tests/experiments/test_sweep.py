@@ -188,3 +188,41 @@ def test_the_cache_key_holds_the_backend_of_the_hot_loops(monkeypatch):
         monkeypatch.setattr(backend, "name", lambda name=name: name)
         keys.add(task.key())
     assert len(keys) == 2
+
+
+class _LosesFirstCancel:
+    """Ray as a stopping driver sees it when the cancel of task "b" reaches it between dispatch and start: that
+    first cancel is lost, and only a second one ends the task (ray-project/ray#24359)."""
+
+    def __init__(self):
+        self.cancels = {"a": 0, "b": 0}
+
+    def cancel(self, ref, force):
+        assert force
+        self.cancels[ref] += 1
+
+    def ended(self, ref) -> bool:
+        return self.cancels[ref] >= (2 if ref == "b" else 1)
+
+    def wait(self, refs, num_returns, timeout):
+        return [r for r in refs if self.ended(r)], [r for r in refs if not self.ended(r)]
+
+
+def test_a_stopping_driver_cancels_again_the_ray_tasks_a_lost_cancel_left_running():
+    from mrcomm_env.experiments.sweep import _cancel_until_gone
+
+    fake = _LosesFirstCancel()
+    _cancel_until_gone(fake, ["a", "b"], seconds=5.0)
+    assert fake.cancels == {"a": 1, "b": 2}  # each cancelled until it ended, and no more
+
+
+def test_a_stopping_driver_gives_up_cancelling_after_its_time():
+    from mrcomm_env.experiments.sweep import _cancel_until_gone
+
+    class NeverEnds(_LosesFirstCancel):
+        def ended(self, ref) -> bool:
+            return False
+
+    fake = NeverEnds()
+    _cancel_until_gone(fake, ["a", "b"], seconds=0.0)
+    assert fake.cancels == {"a": 1, "b": 1}
