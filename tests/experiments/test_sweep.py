@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from mrcomm_env.experiments.sweep import Runner, SweepError, Task, current, using
+from mrcomm_env.experiments.sweep import Runner, SweepError, Task, _cancel_until_gone, current, using
 
 TESTS = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(TESTS))  # helpers.sweep_tasks must import in spawned workers too
@@ -209,16 +209,12 @@ class _LosesFirstCancel:
 
 
 def test_a_stopping_driver_cancels_again_the_ray_tasks_a_lost_cancel_left_running():
-    from mrcomm_env.experiments.sweep import _cancel_until_gone
-
     fake = _LosesFirstCancel()
     _cancel_until_gone(fake, ["a", "b"], seconds=5.0)
     assert fake.cancels == {"a": 1, "b": 2}  # each cancelled until it ended, and no more
 
 
 def test_a_stopping_driver_gives_up_cancelling_after_its_time():
-    from mrcomm_env.experiments.sweep import _cancel_until_gone
-
     class NeverEnds(_LosesFirstCancel):
         def ended(self, ref) -> bool:
             return False
