@@ -375,6 +375,10 @@ class AsyncCLEnv(AsyncCLSpec, MrcommParallelEnv):
             "neighbours": self.neighbours,
         }
 
+    def action_label(self, action) -> str:
+        """The transfer mode the action indexes (argument ``modes``)."""
+        return self.mode_names[int(action)]
+
     def _metrics(self) -> dict[str, float]:
         tab = self.tables
         links = self._links_used

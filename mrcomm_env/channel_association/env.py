@@ -304,6 +304,10 @@ class ChannelAssociationEnv(ChannelAssociationSpec, MrcommParallelEnv):
         return {"bits_sent": self.ledger.step_bits}
 
     # ------------------------------------------------------------------ ground truth and metrics
+    def action_label(self, action) -> str:
+        """1 emits (a blink with its wireless message, Algorithm 1's emission), 0 stays dark and silent."""
+        return "emit" if int(action) else "silent"
+
     def _metrics(self) -> dict[str, float]:
         matched, nv, ne = self._stats[:3]
         sel = self.measured & (nv > 0)

@@ -212,6 +212,17 @@ class MrcommParallelEnv(EnvSpec, ParallelEnv):
         self._index_of(agent)
         return self._act_space
 
+    def action_label(self, action) -> str:
+        """A short name for what one agent's ``action`` does, for tables of what a policy chose (``mrcomm
+        actions``): the index of a discrete action and the number of items a multi-binary one selects, unless the
+        env names its actions."""
+        space = self._act_space
+        if isinstance(space, spaces.Discrete):
+            return str(int(action))
+        if isinstance(space, spaces.MultiBinary):
+            return f"{int(np.count_nonzero(np.asarray(action) > 0.5))} selected"
+        return "continuous"
+
     @property
     def state_space(self) -> spaces.Space:
         space = self.__dict__.get("_state_space")

@@ -1,4 +1,4 @@
-"""The ``mrcomm`` command: list, evaluate, record, reproduce, bench, train, race, reproduce-learning and docs, each
+"""The ``mrcomm`` command: list, evaluate, actions, record, reproduce, bench, train, race, reproduce-learning and docs, each
 in its own module (``experiments/commands/``; see ``COMMANDS``).
 
 Errors are one line on stderr and a non-zero exit (2 for bad input, 1 for a failure during the work,
@@ -14,6 +14,7 @@ import os
 import sys
 
 from mrcomm_env.experiments.commands import (
+    actions,
     bench,
     docs,
     evaluate,
@@ -35,6 +36,7 @@ EXIT_PIPE_CLOSED = 141  # 128 + SIGPIPE, what a shell reports for `ls | head`'s 
 COMMANDS = (
     listing.add_parser,
     evaluate.add_parser,
+    actions.add_parser,
     record.add_parser,
     reproduce.add_parser,
     bench.add_parser,

@@ -17,11 +17,12 @@ from tqdm.auto import tqdm
 
 from mrcomm_agents.artifacts import MODEL_FILE, STATISTICS_FILE, read_json
 from mrcomm_agents.heldout import HELDOUT_SEEDS
-from mrcomm_agents.learned import CARD_NAME, pretrained_dir
+from mrcomm_agents.learned import CARD_NAME, LearnedPolicy, pretrained_dir
 from mrcomm_agents.training import TrainConfig, split_settings
 from mrcomm_baselines import make_policy
 from mrcomm_env.core.stats import mean_ci95
-from mrcomm_env.experiments.evaluation import evaluate_policy
+from mrcomm_env.experiments.actions import ActionProfile, profile_actions
+from mrcomm_env.experiments.evaluation import baseline_label, evaluate_policy
 from mrcomm_env.experiments.io import atomic_write_text
 from mrcomm_env.experiments.runs import comparison_spec, run_folder
 from mrcomm_env.experiments.sweep import Task, run_tasks
@@ -153,11 +154,6 @@ def reproduce_learning(env_id: str, out_dir: Path, quick: bool = False, progress
     return rows, spec
 
 
-def baseline_label(name: str, params: dict) -> str:
-    """A baseline's name in the comparison's table: ``name`` and its parameters (``periodic_sketch period=1``)."""
-    return name + (" " + ", ".join(f"{k}={v}" for k, v in params.items()) if params else "")
-
-
 def training_heldout(spec: dict) -> tuple[int, int]:
     """(first seed, episodes) of the held-out evaluation the comparison's runs log while they train."""
     settings = spec["settings"].get(spec["algo"], {})
@@ -279,6 +275,18 @@ def rl_phase(points: list[dict], episodes: int | None, first_seed: int) -> dict 
         "episodes": episodes,
         "first_seed": first_seed,
     }
+
+
+def shipped_actions(env_id: str, spec: dict) -> ActionProfile | None:
+    """What the run that ships (``spec["best_run"]``) chooses on the table's held-out episodes, beside the rules the
+    comparison's ``actions_against`` names (``[name, params]`` pairs of its baselines), each asked at every state the
+    learned policy reaches; None where the config names none."""
+    against = spec.get("actions_against")
+    if not against:
+        return None
+    policy = LearnedPolicy(spec["best_run"], env_id, spec["algo"], deterministic=spec.get("deterministic", True))
+    rules = {baseline_label(name, params): make_policy(env_id, name, **params) for name, params in against}
+    return profile_actions(env_id, policy.env_kwargs, policy, rules, heldout_seeds(spec))
 
 
 def export_pretrained(run: str | Path, env_id: str, shipped: dict | None = None) -> Path:

@@ -36,6 +36,11 @@ def make_any_policy(env_id: str, name: str, trust_pickle: bool = False, **params
     )
 
 
+def baseline_label(name: str, params: dict) -> str:
+    """A baseline's name in the comparison's table: ``name`` and its parameters (``periodic_sketch period=1``)."""
+    return name + (" " + ", ".join(f"{k}={v}" for k, v in params.items()) if params else "")
+
+
 def limit_threads() -> None:
     """One BLAS/torch thread per process: PPO here ran 45× slower with torch's default of 2 threads."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")

@@ -15,6 +15,7 @@ from matplotlib.figure import Figure
 from mrcomm_agents.training import default_config
 from mrcomm_baselines import default_policy
 from mrcomm_env.core.stats import mean_ci95
+from mrcomm_env.experiments.actions import ActionProfile, profile_table
 from mrcomm_env.experiments.bounds import bound_paragraph
 from mrcomm_env.experiments.comparison import (
     baseline_on_training_heldout,
@@ -305,9 +306,37 @@ def learning_section(
     scratch = from_random_weights(env_id, baselines, spec, docs)
     if scratch:
         lines += ["", *scratch]
+    lines += actions_paragraph(env_id, docs)
     if spec.get("notes"):
         lines += ["", spec["notes"]]
     return "\n".join(lines) + "\n"
+
+
+def actions_paragraph(env_id: str, docs: Path | None) -> list[str]:
+    """What the shipped model chooses beside the rules it is compared with, from ``docs/learning/<Name>-v0-actions.json``
+    (written by ``reproduce-learning`` where the config's comparison names ``actions_against``)."""
+    name = short_name(env_id)
+    path = None if docs is None else docs / "learning" / f"{name}-actions.json"
+    if path is None or not path.exists():
+        return []
+    profile = ActionProfile.from_json(json.loads(path.read_text()))
+    seeds = profile.seeds
+    against = " ".join(f"--against {_rule_argument(r)}" for r in profile.rules)
+    return [
+        "",
+        f"What the shipped model chooses, from its actions on the table's {len(seeds)} held-out episodes "
+        f"({profile.decisions:,} decisions). Each rule was asked at every state the learned policy reached, and only "
+        f"the learned policy's actions were stepped (`mrcomm actions {name} --policy pretrained {against} "
+        f"--episodes {len(seeds)} --seed {seeds[0]}`):",
+        "",
+        *profile_table(profile),
+    ]
+
+
+def _rule_argument(label: str) -> str:
+    """``periodic_sketch period=1`` (a table label) as ``mrcomm actions``' ``--against periodic_sketch:period=1``."""
+    name, _, params = label.partition(" ")
+    return name + (":" + params.replace(", ", ",") if params else "")
 
 
 def read_rows(path: Path) -> list[dict]:

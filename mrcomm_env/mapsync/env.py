@@ -443,6 +443,10 @@ class MapSyncEnv(MapSyncSpec, WorldDynamics, SyncSessions, MrcommParallelEnv):
         }
         return self._infos_cache
 
+    def action_label(self, action) -> str:
+        """Idle, or the sync protocol the robot opens (``actions.ACTIONS``)."""
+        return ACTIONS[int(action)]
+
     def _metrics(self) -> dict[str, float]:
         steps = max(self._steps, 1)
         out = {

@@ -558,6 +558,12 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
             infos.update((key, held[:, k]) for k, key in enumerate(self._mask_keys))
         return infos
 
+    def action_label(self, action) -> str:
+        """How many estimates the robot selects: set select bits (relative layout), or priorities above 0, since 0
+        withholds (absolute layout). The slot sends at most ``slot_size − 1`` of them, those the robot holds."""
+        selected = np.asarray(action) > (0.5 if self._relative else 0.0)
+        return f"{int(np.count_nonzero(selected))} selected"
+
     def _held_candidates(self) -> np.ndarray:
         """(N, N − 1) bool: whether robot i holds an estimate of its candidate at rank k (the observation's first
         feature of that candidate): with ``mask_unheld``, the select bits it may set (``action_masks()``)."""

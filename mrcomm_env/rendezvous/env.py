@@ -389,6 +389,16 @@ class RendezvousMappingEnv(RendezvousMappingSpec, MrcommParallelEnv):
         self.mask[:, :K] = self.candidates >= 0
 
     # ----------------------------------------------------------------- queries
+    def action_label(self, action) -> str:
+        """Fig. 5's kinds of decision: slot 0 (the group's recommended landmark l_p(v) when the vehicle has one),
+        another candidate landmark, a rendezvous at l_c, or hold."""
+        a = int(action)
+        if a == 0:
+            return "first candidate (recommended)"
+        if a < self.K:
+            return "other candidate"
+        return "rendezvous" if a == self.K else "hold"
+
     def action_masks(self) -> np.ndarray:
         """(N, K + 2) bool: the feasible actions of every vehicle (sb3-contrib's MaskablePPO reads this)."""
         return self.mask.copy()

@@ -186,6 +186,7 @@ def test_reproduce_learning_end_to_end_on_a_tiny_budget(tmp_path, monkeypatch):
             "eval_episodes": 2,
             "deterministic": False,
             "baselines": [["coin_flip", {}], ["random", {}]],
+            "actions_against": [["coin_flip", {}]],
         },
     }
     config_dir = tmp_path / "configs"
@@ -236,6 +237,13 @@ def test_reproduce_learning_end_to_end_on_a_tiny_budget(tmp_path, monkeypatch):
     assert card["deterministic"] is False  # the mode of the (patched) comparison config above
     assert card["best_baseline"]["policy"] == "coin_flip"  # the one paper algorithm here (random is a reference)
     assert card["heldout"]["episodes"] == 2 and 0 <= card["heldout"]["metric"] <= 12  # 12: the tiny max_cycles
+    # what the shipped run chooses beside the rule the config names, on the table's held-out episodes: 4 robots
+    # decide at every step until the field is done or the 12 steps end
+    actions = json.loads((docs / "learning" / "ChannelAssociation-v0-actions.json").read_text())
+    assert actions["rules"] == ["coin_flip"] and actions["seeds"] == [10000, 10001]
+    assert 2 * 4 <= actions["decisions"] <= 2 * 4 * 12
+    assert sum(actions["counts"]["learned"].values()) == actions["decisions"]
+    assert "| the same action as `learned` | — |" in page and "--against coin_flip --episodes 2 --seed 10000" in page
     # a rerun trains nothing again: every run folder is finished
     runs = sorted((tmp_path / "runs").rglob("done.json"))
     assert len(runs) == 2

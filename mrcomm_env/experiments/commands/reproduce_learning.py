@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 
 from mrcomm_env.experiments.evaluation import limit_threads
-from mrcomm_env.experiments.io import atomic_write_csv, atomic_write_text
+from mrcomm_env.experiments.io import atomic_write_csv, atomic_write_json, atomic_write_text
 from mrcomm_env.experiments.runs import agent_config_dir, comparison_spec
 from mrcomm_env.experiments.sweep import add_runner_arguments, runner_from_args, using
 from mrcomm_env.registry import canonical_id, env_ids, short_name
@@ -70,6 +70,9 @@ def run(args: argparse.Namespace) -> int:
                 )
             figure = docs / "learning" / f"{name}.png"
             learning_report.plot_comparison(rows, spec, f"{env_id}: learned vs scripted at equal bits", figure)
+            profile = comparison.shipped_actions(env_id, spec)
+            if profile is not None:
+                atomic_write_json(docs / "learning" / f"{name}-actions.json", profile.to_json(), indent=2)
             bound_table = bounds.bound_rows(env_id, spec, comparison.heldout_seeds(spec))
             section = learning_report.learning_section(env_id, rows, spec, f"learning/{name}.png", docs, bound_table)
             section += learning_report.sweep_section(env_id, docs, spec["algo"])

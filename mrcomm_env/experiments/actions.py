@@ -1,0 +1,160 @@
+"""What a policy chooses, beside the rules it is compared with (``mrcomm actions``, and the action tables of
+docs/learning.md).
+
+The policy plays its episodes; at every state it reaches, each rule is asked too (the same observations and local
+views), and only the policy's actions are stepped. So the rules are judged on the policy's states, not their own:
+the tables say how often the policy chose as a rule would have, there. Each action is named by the env's
+``action_label`` (a transfer mode, a sync protocol, a kind of Fig. 5 decision, the number of estimates selected).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields
+
+import numpy as np
+from gymnasium import spaces
+
+from mrcomm_env.experiments.evaluation import run_episode
+from mrcomm_env.registry import make
+
+
+@dataclass
+class ActionProfile:
+    """Counts over the decisions (one per live agent and step) of ``policy`` and of each rule at the same states."""
+
+    policy: str
+    rules: list[str]
+    #: the episodes' seeds
+    seeds: list[int] = field(default_factory=list)
+    #: action labels in table order: the env's action order for discrete actions, else by the number they start with
+    labels: list[str] = field(default_factory=list)
+    decisions: int = 0
+    #: who (the policy or a rule) → label → decisions
+    counts: dict[str, dict[str, int]] = field(default_factory=dict)
+    #: rule → decisions where the policy's action equals the rule's
+    same: dict[str, int] = field(default_factory=dict)
+    #: multi-binary actions only: rule → [items both select, items the rule selects]
+    shared_items: dict[str, list[int]] = field(default_factory=dict)
+
+    def share(self, who: str, label: str) -> float:
+        """The fraction of the decisions in which ``who`` chose an action named ``label``."""
+        return self.counts[who].get(label, 0) / self.decisions if self.decisions else float("nan")
+
+    def agreement(self, rule: str) -> float:
+        """The fraction of the decisions in which the policy chose exactly what ``rule`` would have."""
+        return self.same[rule] / self.decisions if self.decisions else float("nan")
+
+    def item_overlap(self, rule: str) -> float | None:
+        """Multi-binary actions: the fraction of the items ``rule`` selects that the policy selects too."""
+        both, theirs = self.shared_items.get(rule, (0, 0))
+        return both / theirs if rule in self.shared_items and theirs else None
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_json(cls, record: dict) -> ActionProfile:
+        """The profile in ``record`` (:meth:`to_json`'s, or ``mrcomm actions --json``'s with its other keys)."""
+        return cls(**{f.name: record[f.name] for f in fields(cls)})
+
+
+class _Shadowed:
+    """A policy that acts as ``policy`` and, at every state, also asks each rule and counts both in ``profile``."""
+
+    def __init__(self, env, policy, rules: dict, profile: ActionProfile):
+        self.env, self.policy, self.rules, self.profile = env, policy, rules, profile
+        self.binary = isinstance(env.action_space(env.possible_agents[0]), spaces.MultiBinary)
+
+    def reset(self, views, seed) -> None:
+        self.policy.reset(views, seed)
+        for rule in self.rules.values():
+            rule.reset(views, seed)
+
+    def act(self, observations: dict, views) -> dict:
+        actions = self.policy.act(observations, views)
+        asked = {name: rule.act(observations, views) for name, rule in self.rules.items()}
+        p, label = self.profile, self.env.action_label
+        for agent in observations:
+            mine = np.asarray(actions[agent])
+            p.decisions += 1
+            _count(p.counts, p.policy, label(mine))
+            for name, theirs in asked.items():
+                theirs_a = np.asarray(theirs[agent])
+                _count(p.counts, name, label(theirs_a))
+                if self.binary:  # select bits: what is selected is what counts
+                    mine_b, theirs_b = mine > 0.5, theirs_a > 0.5
+                    p.same[name] += bool(np.array_equal(mine_b, theirs_b))
+                    p.shared_items[name][0] += int(np.count_nonzero(mine_b & theirs_b))
+                    p.shared_items[name][1] += int(np.count_nonzero(theirs_b))
+                else:
+                    p.same[name] += bool(np.array_equal(mine, theirs_a))
+        return actions
+
+
+def _count(counts: dict, who: str, label: str) -> None:
+    counts[who][label] = counts[who].get(label, 0) + 1
+
+
+def profile_actions(
+    env_id: str, env_kwargs: dict, policy, rules: dict, seeds: list[int], policy_name: str = "learned"
+) -> ActionProfile:
+    """Play ``policy`` on the episodes ``seeds`` of ``env_id`` (``env_kwargs``), asking every rule of ``rules``
+    (name → policy) at each state it reaches; returns the counts."""
+    env = make(env_id, **env_kwargs)
+    names = list(rules)
+    profile = ActionProfile(policy=policy_name, rules=names, seeds=list(seeds))
+    profile.counts = {policy_name: {}, **{n: {} for n in names}}
+    profile.same = dict.fromkeys(names, 0)
+    shadow = _Shadowed(env, policy, rules, profile)
+    if shadow.binary:
+        profile.shared_items = {n: [0, 0] for n in names}
+    try:
+        for seed in seeds:
+            run_episode(env, shadow, seed)
+        profile.labels = _table_order(env, profile.counts)
+    finally:
+        env.close()
+    return profile
+
+
+def _table_order(env, counts: dict[str, dict[str, int]]) -> list[str]:
+    """Every label seen, in the env's action order for discrete actions; else by the number a label starts with."""
+    seen = {label for per in counts.values() for label in per}
+    space = env.action_space(env.possible_agents[0])
+    if isinstance(space, spaces.Discrete):
+        ordered = dict.fromkeys(env.action_label(a) for a in range(int(space.n)))
+        return [label for label in ordered if label in seen]
+
+    def key(label: str):
+        head = label.split()[0]
+        return (int(head), label) if head.isdigit() else (np.inf, label)
+
+    return sorted(seen, key=key)
+
+
+def profile_table(profile: ActionProfile) -> list[str]:
+    """Markdown: the share of decisions per action, for the policy and each rule, then how often the policy chose
+    what each rule would have (and, for multi-binary actions, how many of the rule's selected items it selected)."""
+    who = [profile.policy, *profile.rules]
+    lines = [
+        "| action | " + " | ".join(f"`{w}`" for w in who) + " |",
+        "| --- |" + " --- |" * len(who),
+    ]
+    for label in profile.labels:
+        lines.append(f"| {label} | " + " | ".join(_percent(profile.share(w, label)) for w in who) + " |")
+    lines.append(
+        f"| the same action as `{profile.policy}` | — | "
+        + " | ".join(_percent(profile.agreement(r)) for r in profile.rules)
+        + " |"
+    )
+    if profile.shared_items:
+        lines.append(
+            f"| of the rule's selected items, also selected by `{profile.policy}` | — | "
+            + " | ".join(_percent(profile.item_overlap(r)) for r in profile.rules)
+            + " |"
+        )
+    return lines
+
+
+def _percent(value: float | None) -> str:
+    return "—" if value is None or not np.isfinite(value) else f"{100.0 * value:.1f} %"

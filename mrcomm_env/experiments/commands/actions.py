@@ -1,0 +1,66 @@
+"""``mrcomm actions``: what a policy chooses, beside the rules it is compared with, at the states it reaches
+(:mod:`mrcomm_env.experiments.actions`)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from mrcomm_env.experiments.actions import profile_actions, profile_table
+from mrcomm_env.experiments.arguments import parse_params, positive_int, seed_type
+from mrcomm_env.experiments.evaluation import baseline_label, limit_threads, make_any_policy
+from mrcomm_env.experiments.io import atomic_write_json, check_writable_file
+from mrcomm_env.registry import canonical_id
+
+
+def add_parser(command) -> None:
+    p = command(
+        "actions",
+        help="what a policy chooses, and how often it chooses as each rule would at the same states",
+    )
+    p.add_argument("env_id")
+    p.add_argument("--policy", required=True, help="the policy that acts (a baseline, pretrained or ALGO:RUN)")
+    p.add_argument(
+        "--against",
+        required=True,
+        action="append",
+        metavar="RULE[:KEY=VALUE,…]",
+        help="a scripted policy asked at every state the policy reaches (its actions are not stepped), with its "
+        "parameters after a colon, e.g. periodic_sketch:period=1; repeat for several",
+    )
+    p.add_argument("--episodes", type=positive_int, default=10)
+    p.add_argument("--seed", type=seed_type, default=0, help="seed of the first episode (integer ≥ 0)")
+    p.add_argument("--param", action="append", metavar="KEY=VALUE", help="environment argument (JSON value)")
+    p.add_argument("--json", metavar="PATH", help="also write the counts as JSON")
+    p.add_argument(
+        "--trust-pickle",
+        action="store_true",
+        help="load a learned model's run written before the safe formats (it unpickles: only a run you made)",
+    )
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    limit_threads()
+    env_id = canonical_id(args.env_id)
+    params = parse_params(args.param)
+    json_path = check_writable_file(args.json, "--json") if args.json else None
+    policy = make_any_policy(env_id, args.policy, trust_pickle=args.trust_pickle)
+    rules = {}
+    for text in args.against:
+        name, _, rest = text.partition(":")
+        rule_params = parse_params([pair for pair in rest.split(",") if pair], "--against")
+        rules[baseline_label(name.strip(), rule_params)] = make_any_policy(env_id, name.strip(), **rule_params)
+    trained_on = getattr(policy, "env_kwargs", None)
+    if trained_on is not None:  # as `mrcomm evaluate`: a learned model acts in its training setting
+        params = {**trained_on, **params}
+        print(f"learned model: its training setting with --param applied, {params}", file=sys.stderr)
+    seeds = list(range(args.seed, args.seed + args.episodes))
+    profile = profile_actions(env_id, params, policy, rules, seeds, policy_name=args.policy)
+    print(f"{env_id}  policy={args.policy}  episodes={args.episodes}  seed={args.seed}  params={params}")
+    print(f"{profile.decisions} decisions; each rule asked at every state the policy reached")
+    print("\n".join(profile_table(profile)))
+    if json_path is not None:
+        atomic_write_json(json_path, {"env": env_id, "params": params, **profile.to_json()}, indent=2)
+        print(f"wrote {json_path}")
+    return 0

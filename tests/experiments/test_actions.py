@@ -1,0 +1,168 @@
+"""``mrcomm actions``: a policy's choices beside the rules asked at the states it reaches."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from mrcomm_baselines import default_policy, make_policy
+from mrcomm_env.experiments import actions as actions_module
+from mrcomm_env.experiments.actions import ActionProfile, profile_actions, profile_table
+from mrcomm_env.experiments.cli import main
+from mrcomm_env.experiments.evaluation import run_episode
+from mrcomm_env.experiments.learning_report import actions_paragraph
+from mrcomm_env.registry import env_ids, make
+
+MAPSYNC = "mrcomm/MapSync-v0"
+MULTIHOP = "mrcomm/MultiHop-v0"
+SMALL_MULTIHOP = {"grid_side": 3, "max_cycles": 8}
+
+
+class Recording:
+    """A policy that plays ``inner`` and keeps every action it returned, to compare two runs of one episode."""
+
+    def __init__(self, inner):
+        self.inner, self.taken = inner, []
+
+    def reset(self, views, seed):
+        self.inner.reset(views, seed)
+
+    def act(self, observations, views):
+        actions = self.inner.act(observations, views)
+        self.taken.append({agent: np.asarray(a).tolist() for agent, a in actions.items()})
+        return actions
+
+
+def test_asking_rules_does_not_change_the_episode_the_policy_plays():
+    # the `random` rule draws from its own generator at every state: if asking it touched the env or the
+    # policy, the policy's actions (the age-aware rule's choices on what the env shows it) would differ
+    alone, shadowed = Recording(make_policy(MULTIHOP, "age_aware")), Recording(make_policy(MULTIHOP, "age_aware"))
+    env = make(MULTIHOP, **SMALL_MULTIHOP)
+    run_episode(env, alone, seed=3)
+    rules = {"random": make_policy(MULTIHOP, "random"), "flooding": make_policy(MULTIHOP, "flooding")}
+    profile_actions(MULTIHOP, SMALL_MULTIHOP, shadowed, rules, [3])
+    assert shadowed.taken == alone.taken and len(alone.taken) == SMALL_MULTIHOP["max_cycles"]
+
+
+def test_a_rule_asked_beside_itself_agrees_everywhere_and_counts_every_decision():
+    rules = {"age_aware": make_policy(MULTIHOP, "age_aware"), "location_based": make_policy(MULTIHOP, "location_based")}
+    profile = profile_actions(MULTIHOP, SMALL_MULTIHOP, make_policy(MULTIHOP, "age_aware"), rules, [0, 1])
+    robots = SMALL_MULTIHOP["grid_side"] ** 2
+    assert profile.decisions == 2 * robots * SMALL_MULTIHOP["max_cycles"]  # every robot decides every frame
+    for who in ("learned", "age_aware", "location_based"):
+        assert sum(profile.counts[who].values()) == profile.decisions
+    assert profile.agreement("age_aware") == 1.0 and profile.item_overlap("age_aware") == 1.0
+    assert profile.counts["learned"] == profile.counts["age_aware"]
+    # select bits: each label counts the selected candidates, at most one per other robot
+    assert all(0 <= int(label.split()[0]) <= robots - 1 for label in profile.labels)
+    assert [int(label.split()[0]) for label in profile.labels] == sorted(int(x.split()[0]) for x in profile.labels)
+
+
+def test_agreeing_with_a_rule_that_never_syncs_is_idling():
+    # `never` idles at every state, so the policy chose as it would exactly where the policy idled
+    rules = {"never": make_policy(MAPSYNC, "never")}
+    policy = make_policy(MAPSYNC, "periodic_sketch", period=2)
+    profile = profile_actions(MAPSYNC, {"max_cycles": 12}, policy, rules, [0, 1, 2], policy_name="every other")
+    assert profile.share("never", "idle") == 1.0
+    assert profile.agreement("never") == pytest.approx(profile.share("every other", "idle"))
+    assert 0.0 < profile.share("every other", "sketch") < 1.0
+    assert profile.labels == ["idle", "sketch"]  # the env's action order, only those chosen
+    assert not profile.shared_items  # discrete actions have no items to share
+
+
+def test_every_env_names_its_actions():
+    asynccl = make("mrcomm/AsyncCL-v0")
+    assert [asynccl.action_label(a) for a in range(len(asynccl.mode_names))] == list(asynccl.mode_names)
+    mapsync = make(MAPSYNC)
+    assert [mapsync.action_label(a) for a in range(5)] == ["idle", "equality", "bisection", "full", "sketch"]
+    assert [make("mrcomm/ChannelAssociation-v0").action_label(a) for a in (0, 1)] == ["silent", "emit"]
+    rendezvous = make("mrcomm/RendezvousMapping-v0")
+    k = rendezvous.K
+    labels = [rendezvous.action_label(a) for a in range(k + 2)]
+    assert labels[0] == "first candidate (recommended)" and set(labels[1:k]) == {"other candidate"}
+    assert labels[k:] == ["rendezvous", "hold"]
+    relative, absolute = make(MULTIHOP), make(MULTIHOP, layout="absolute")
+    assert relative.action_label(np.array([1, 0, 1] + [0] * 32)) == "2 selected"
+    # absolute layout: 0 withholds, any positive priority selects
+    assert absolute.action_label(np.array([0.0, 0.2, 0.9] + [0.0] * 33)) == "2 selected"
+
+
+def test_the_table_gives_each_action_share_and_the_agreement_row():
+    profile = ActionProfile(
+        policy="learned",
+        rules=["rule"],
+        seeds=[7],
+        labels=["idle", "sketch"],
+        decisions=4,
+        counts={"learned": {"idle": 3, "sketch": 1}, "rule": {"sketch": 4}},
+        same={"rule": 1},
+    )
+    table = profile_table(profile)
+    assert table[2] == "| idle | 75.0 % | 0.0 % |"
+    assert table[3] == "| sketch | 25.0 % | 100.0 % |"
+    assert table[-1] == "| the same action as `learned` | — | 25.0 % |"
+    assert ActionProfile.from_json(json.loads(json.dumps(profile.to_json()))) == profile
+
+
+def test_the_learning_page_renders_the_recorded_profile_with_the_command_that_makes_it(tmp_path):
+    env_id = MAPSYNC
+    (tmp_path / "learning").mkdir()
+    assert actions_paragraph(env_id, tmp_path) == []  # nothing recorded: nothing said
+    profile = profile_actions(
+        env_id,
+        {"max_cycles": 6},
+        make_policy(env_id, "never"),
+        {"periodic_sketch period=1": make_policy(env_id, "periodic_sketch", period=1)},
+        [10000, 10001],
+    )
+    (tmp_path / "learning" / "MapSync-v0-actions.json").write_text(json.dumps(profile.to_json()))
+    lines = actions_paragraph(env_id, tmp_path)
+    text = "\n".join(lines)
+    assert "--against periodic_sketch:period=1 --episodes 2 --seed 10000" in text
+    assert f"({profile.decisions:,} decisions)" in text
+    assert lines[-len(profile_table(profile)) :] == profile_table(profile)
+
+
+def test_the_command_prints_the_table_and_writes_the_json(tmp_path, capsys):
+    path = tmp_path / "actions.json"
+    argv = ["actions", "MapSync-v0", "--policy", "periodic_sketch", "--against", "periodic_sketch:period=1"]
+    argv += ["--against", "never", "--episodes", "2", "--param", "max_cycles=10", "--json", str(path)]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "| action | `periodic_sketch` | `periodic_sketch period=1` | `never` |" in out
+    record = json.loads(path.read_text())
+    assert record["env"] == MAPSYNC and record["seeds"] == [0, 1] and record["params"] == {"max_cycles": 10}
+    profile = ActionProfile.from_json(record)
+    assert profile.rules == ["periodic_sketch period=1", "never"]
+    # the paper's period (10) sketches once in 10 moves, at step 10 only: never within steps 0-9
+    assert profile.share("periodic_sketch", "idle") == 1.0 and profile.agreement("never") == 1.0
+
+
+@pytest.mark.parametrize(
+    ("against", "message"),
+    [
+        ("no_such_rule", "valid policies are"),
+        ("periodic_sketch:bogus=1", "bogus"),
+        ("periodic_sketch:period", "key=value"),
+    ],
+)
+def test_a_bad_rule_is_one_line_before_any_episode(against, message, capsys, monkeypatch):
+    def forbidden(*args, **kwargs):
+        raise AssertionError("the work started before the bad input was reported")
+
+    monkeypatch.setattr(actions_module, "run_episode", forbidden)
+    argv = ["actions", "MapSync-v0", "--policy", "never", "--against", against, "--episodes", "1"]
+    assert main(argv) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1 and message in err[0]
+
+
+def test_every_env_can_be_profiled_against_its_default_rule():
+    for env_id in env_ids():
+        rule = default_policy(env_id)
+        profile = profile_actions(
+            env_id, {"max_cycles": 3}, make_policy(env_id, rule), {rule: make_policy(env_id, rule)}, [0]
+        )
+        assert profile.decisions > 0 and profile.agreement(rule) == 1.0, env_id
