@@ -234,7 +234,8 @@ def shipped_run(tasks: list[dict], baseline_rows: list[dict], spec: dict, episod
 def curve_rows(tasks: list[dict], spec: dict) -> list[dict]:
     """Every run's held-out evaluations against agent-steps (the ``heldout/`` columns of its progress.csv,
     ``agents/heldout.py``). Where a step has two rows (the rollout's policy and, at the end, the final one), the
-    later one is kept. ``seconds``: the run's training wall time so far."""
+    later one is kept. ``seconds``: the run's training wall time so far, over every session of a resumed run (a
+    session's ``time/time_elapsed`` starts again from 0, so each session goes on from where the log left off)."""
     metric, per = spec["metric"], spec.get("bits_per", "step")
     rows = []
     for task in tasks:
@@ -242,13 +243,19 @@ def curve_rows(tasks: list[dict], spec: dict) -> list[dict]:
         if not path.exists():
             continue
         points: dict[int, dict] = {}
+        earlier_sessions, last = 0.0, 0.0
         with open(path, newline="") as fh:
             for raw in csv.DictReader(fh):
+                if raw.get("time/time_elapsed"):
+                    session = float(raw["time/time_elapsed"])
+                    if session < last:  # a resumed session: the log up to its checkpoint was the earlier ones'
+                        earlier_sessions += last
+                    last = session
                 value, bits = raw.get(f"heldout/{metric}"), raw.get(f"heldout/bits_per_agent_{per}")
                 if not value or not bits or not raw.get("time/total_timesteps"):
                     continue
                 steps = int(float(raw["time/total_timesteps"]))
-                elapsed = raw.get("time/time_elapsed") or (points[max(points)]["seconds"] if points else 0.0)
+                elapsed = earlier_sessions + last
                 points[steps] = {
                     "cost": task["cost"],
                     "seed": task["seed"],

@@ -465,3 +465,15 @@ def test_a_curve_reaches_the_paper_at_its_metric_with_at_most_five_percent_more_
     assert comparison.first_reach(curve[1:], target, lower_is_better=True) is None  # too many bits, or too slow
     higher = [at(0, 0.5, 10.0), at(50, 0.9, 9.0)]
     assert comparison.first_reach(higher, {"metric": 0.8, "bits": 10.0}, lower_is_better=False)["agent_steps"] == 50
+
+
+def test_a_resumed_runs_curve_counts_the_wall_time_of_every_session(tmp_path):
+    # each session of a resumed run logs time/time_elapsed from 0 (SB3's and the batched trainer's clocks start at
+    # their learn()); the curve's seconds must go on across sessions, or a from-scratch table would report the
+    # last session's time alone
+    header = "time/total_timesteps,time/time_elapsed,heldout/weighted_mean_age,heldout/bits_per_agent_step"
+    log = [header, "0,0,150,700", "100,50,", "200,100,60,710", "300,20,", "400,40,45,720"]  # resumed after 200
+    (tmp_path / "progress.csv").write_text("\n".join(log) + "\n")
+    spec = {"metric": "weighted_mean_age", "bits_per": "step"}
+    rows = comparison.curve_rows([{"out": str(tmp_path), "cost": 0.0, "seed": 0}], spec)
+    assert [(r["agent_steps"], r["seconds"]) for r in rows] == [(0, 0.0), (200, 100.0), (400, 140.0)]
