@@ -379,6 +379,10 @@ class AsyncCLEnv(AsyncCLSpec, MrcommParallelEnv):
         """The transfer mode the action indexes (argument ``modes``)."""
         return self.mode_names[int(action)]
 
+    def decision_context(self) -> list[str]:
+        """Whether a robot can reach any other in the coming exchange (a mode sends nothing without a link)."""
+        return ["no robot in reach" if k == 0 else "robots in reach" for k in self.neighbours]
+
     def _metrics(self) -> dict[str, float]:
         tab = self.tables
         links = self._links_used

@@ -223,6 +223,11 @@ class MrcommParallelEnv(EnvSpec, ParallelEnv):
             return f"{int(np.count_nonzero(np.asarray(action) > 0.5))} selected"
         return "continuous"
 
+    def decision_context(self) -> list[str] | None:
+        """Each robot's situation now, in a few words, by which ``mrcomm actions`` splits what a policy chose (e.g.
+        whether a sync would carry news); None where the env names none. Read between ``reset``/``step`` calls."""
+        return None
+
     @property
     def state_space(self) -> spaces.Space:
         space = self.__dict__.get("_state_space")

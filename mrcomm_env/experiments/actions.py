@@ -35,6 +35,18 @@ class ActionProfile:
     same: dict[str, int] = field(default_factory=dict)
     #: multi-binary actions only: rule → [items both select, items the rule selects]
     shared_items: dict[str, list[int]] = field(default_factory=dict)
+    #: where the env names each robot's situation (``decision_context``): situation → who → label → decisions
+    by_context: dict[str, dict[str, dict[str, int]]] = field(default_factory=dict)
+    #: situation → rule → decisions there where the policy's action equals the rule's
+    same_by_context: dict[str, dict[str, int]] = field(default_factory=dict)
+
+    def context_decisions(self, context: str) -> int:
+        """The decisions taken in ``context``."""
+        return sum(self.by_context[context][self.policy].values())
+
+    def context_share(self, context: str, who: str, label: str) -> float:
+        """The fraction of the decisions in ``context`` in which ``who`` chose an action named ``label``."""
+        return self.by_context[context][who].get(label, 0) / self.context_decisions(context)
 
     def share(self, who: str, label: str) -> float:
         """The fraction of the decisions in which ``who`` chose an action named ``label``."""
@@ -64,6 +76,7 @@ class _Shadowed:
     def __init__(self, env, policy, rules: dict, profile: ActionProfile):
         self.env, self.policy, self.rules, self.profile = env, policy, rules, profile
         self.binary = isinstance(env.action_space(env.possible_agents[0]), spaces.MultiBinary)
+        self.index = {agent: i for i, agent in enumerate(env.possible_agents)}  # decision_context's rows
 
     def reset(self, views, seed) -> None:
         self.policy.reset(views, seed)
@@ -71,23 +84,36 @@ class _Shadowed:
             rule.reset(views, seed)
 
     def act(self, observations: dict, views) -> dict:
+        contexts = self.env.decision_context()  # the state the actions are chosen in, before it steps
         actions = self.policy.act(observations, views)
         asked = {name: rule.act(observations, views) for name, rule in self.rules.items()}
         p, label = self.profile, self.env.action_label
         for agent in observations:
             mine = np.asarray(actions[agent])
+            counts = [p.counts]
+            same = [p.same]
+            if contexts is not None:
+                context = contexts[self.index[agent]]
+                if context not in p.by_context:
+                    p.by_context[context] = {who: {} for who in p.counts}
+                    p.same_by_context[context] = dict.fromkeys(self.rules, 0)
+                counts.append(p.by_context[context])
+                same.append(p.same_by_context[context])
             p.decisions += 1
-            _count(p.counts, p.policy, label(mine))
+            for table in counts:
+                _count(table, p.policy, label(mine))
             for name, theirs in asked.items():
                 theirs_a = np.asarray(theirs[agent])
-                _count(p.counts, name, label(theirs_a))
                 if self.binary:  # select bits: what is selected is what counts
                     mine_b, theirs_b = mine > 0.5, theirs_a > 0.5
-                    p.same[name] += bool(np.array_equal(mine_b, theirs_b))
+                    agrees = bool(np.array_equal(mine_b, theirs_b))
                     p.shared_items[name][0] += int(np.count_nonzero(mine_b & theirs_b))
                     p.shared_items[name][1] += int(np.count_nonzero(theirs_b))
                 else:
-                    p.same[name] += bool(np.array_equal(mine, theirs_a))
+                    agrees = bool(np.array_equal(mine, theirs_a))
+                for table, tally in zip(counts, same):
+                    _count(table, name, label(theirs_a))
+                    tally[name] += agrees
         return actions
 
 
@@ -153,6 +179,30 @@ def profile_table(profile: ActionProfile) -> list[str]:
             + " | ".join(_percent(profile.item_overlap(r)) for r in profile.rules)
             + " |"
         )
+    return lines
+
+
+def context_table(profile: ActionProfile) -> list[str]:
+    """Markdown: the same shares within each situation the env names (most decisions first); empty where it names
+    none."""
+    if not profile.by_context:
+        return []
+    who = [profile.policy, *profile.rules]
+    lines = [
+        "| situation (decisions) | action | " + " | ".join(f"`{w}`" for w in who) + " |",
+        "| --- | --- |" + " --- |" * len(who),
+    ]
+    for context in sorted(profile.by_context, key=lambda c: (-profile.context_decisions(c), c)):
+        seen = {label for per in profile.by_context[context].values() for label in per}
+        head = f"{context} ({profile.context_decisions(context):,})"
+        for label in (label for label in profile.labels if label in seen):
+            shares = " | ".join(_percent(profile.context_share(context, w, label)) for w in who)
+            lines.append(f"| {head} | {label} | {shares} |")
+            head = ""
+        agreement = " | ".join(
+            _percent(profile.same_by_context[context][r] / profile.context_decisions(context)) for r in profile.rules
+        )
+        lines.append(f"|  | the same action as `{profile.policy}` | — | {agreement} |")
     return lines
 
 

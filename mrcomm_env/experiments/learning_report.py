@@ -15,7 +15,7 @@ from matplotlib.figure import Figure
 from mrcomm_agents.training import default_config
 from mrcomm_baselines import default_policy
 from mrcomm_env.core.stats import mean_ci95
-from mrcomm_env.experiments.actions import ActionProfile, profile_table
+from mrcomm_env.experiments.actions import ActionProfile, context_table, profile_table
 from mrcomm_env.experiments.bounds import bound_paragraph
 from mrcomm_env.experiments.comparison import (
     baseline_on_training_heldout,
@@ -330,6 +330,16 @@ def actions_paragraph(env_id: str, docs: Path | None) -> list[str]:
         f"--episodes {len(seeds)} --seed {seeds[0]}`):",
         "",
         *profile_table(profile),
+        *(
+            [
+                "",
+                "The same decisions split by each robot's situation when it chose (the env's `decision_context`):",
+                "",
+                *context_table(profile),
+            ]
+            if profile.by_context
+            else []
+        ),
     ]
 
 

@@ -447,6 +447,15 @@ class MapSyncEnv(MapSyncSpec, WorldDynamics, SyncSessions, MrcommParallelEnv):
         """Idle, or the sync protocol the robot opens (``actions.ACTIONS``)."""
         return ACTIONS[int(action)]
 
+    def decision_context(self) -> list[str]:
+        """Whose sensing has changed cells since a robot's map was last made equal to a linked peer's: the news a
+        sync would carry. Split by it, a policy's actions show whether it syncs on a clock or on news."""
+        peers = self.linked & ~self._eye
+        news = self.new_cells > 0  # [i, j]: i's own sensing changed cells since i and j were last made equal
+        own, theirs = (news & peers).any(axis=1), (news.T & peers).any(axis=1)
+        context = np.where(own, "own sensing changed cells", np.where(theirs, "only a peer's did", "no news"))
+        return np.where(peers.any(axis=1), context, "no link").tolist()
+
     def _metrics(self) -> dict[str, float]:
         steps = max(self._steps, 1)
         out = {

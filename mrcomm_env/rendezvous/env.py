@@ -399,6 +399,12 @@ class RendezvousMappingEnv(RendezvousMappingSpec, MrcommParallelEnv):
             return "other candidate"
         return "rendezvous" if a == self.K else "hold"
 
+    def decision_context(self) -> list[str]:
+        """How much of the team a vehicle's connected group holds now (maps are shared within a group)."""
+        sizes = self.group.sum(axis=1)
+        n = self.n_agents
+        return ["with the whole team" if k == n else "alone" if k == 1 else "with part of the team" for k in sizes]
+
     def action_masks(self) -> np.ndarray:
         """(N, K + 2) bool: the feasible actions of every vehicle (sb3-contrib's MaskablePPO reads this)."""
         return self.mask.copy()

@@ -9,7 +9,7 @@ import pytest
 
 from mrcomm_baselines import default_policy, make_policy
 from mrcomm_env.experiments import actions as actions_module
-from mrcomm_env.experiments.actions import ActionProfile, profile_actions, profile_table
+from mrcomm_env.experiments.actions import ActionProfile, context_table, profile_actions, profile_table
 from mrcomm_env.experiments.cli import main
 from mrcomm_env.experiments.evaluation import run_episode
 from mrcomm_env.experiments.learning_report import actions_paragraph
@@ -122,7 +122,10 @@ def test_the_learning_page_renders_the_recorded_profile_with_the_command_that_ma
     text = "\n".join(lines)
     assert "--against periodic_sketch:period=1 --episodes 2 --seed 10000" in text
     assert f"({profile.decisions:,} decisions)" in text
-    assert lines[-len(profile_table(profile)) :] == profile_table(profile)
+    table, by_situation = profile_table(profile), context_table(profile)
+    assert by_situation and lines[-len(by_situation) :] == by_situation  # MapSync names its robots' situations
+    start = lines.index(table[0])
+    assert lines[start : start + len(table)] == table
 
 
 def test_the_command_prints_the_table_and_writes_the_json(tmp_path, capsys):
@@ -166,3 +169,62 @@ def test_every_env_can_be_profiled_against_its_default_rule():
             env_id, {"max_cycles": 3}, make_policy(env_id, rule), {rule: make_policy(env_id, rule)}, [0]
         )
         assert profile.decisions > 0 and profile.agreement(rule) == 1.0, env_id
+
+
+def test_the_situations_split_every_decision_and_every_agreement():
+    rules = {"never": make_policy(MAPSYNC, "never"), "sketch": make_policy(MAPSYNC, "periodic_sketch", period=1)}
+    policy = make_policy(MAPSYNC, "periodic_sketch", period=3)
+    profile = profile_actions(MAPSYNC, {"max_cycles": 40}, policy, rules, [0, 1, 2], policy_name="every third")
+    assert sum(profile.context_decisions(c) for c in profile.by_context) == profile.decisions
+    for who in ("every third", "never", "sketch"):
+        for label in profile.labels:
+            assert sum(profile.by_context[c][who].get(label, 0) for c in profile.by_context) == profile.counts[who].get(
+                label, 0
+            )
+    for rule in rules:
+        assert sum(profile.same_by_context[c][rule] for c in profile.by_context) == profile.same[rule]
+    assert "own sensing changed cells" in profile.by_context  # robots explore: their sensing changes cells
+
+
+def test_mapsync_news_stays_news_until_a_sync():
+    # without a sync a robot's own changed cells are never reconciled: once it has news for its peer, it keeps it
+    env = make(MAPSYNC, max_cycles=40)
+    env.reset(seed=4)
+    had_news = np.zeros(env.n_agents, dtype=bool)
+    while env.agents:
+        context = np.array(env.decision_context())
+        assert not (had_news & (context == "no news")).any()
+        had_news |= context == "own sensing changed cells"
+        env.step(dict.fromkeys(env.agents, 0))  # idle
+    assert had_news.any()
+
+
+def test_asynccl_situation_is_whether_the_coming_exchange_has_a_link():
+    # the infos' `neighbours` after a step count the links of the exchange the next actions choose a mode for
+    env = make("mrcomm/AsyncCL-v0", max_cycles=30, link_model="bernoulli", link_probability=0.1)
+    _, infos = env.reset(seed=2)
+    seen = set()
+    while env.agents:
+        context = env.decision_context()
+        for i, agent in enumerate(env.agents):
+            assert context[i] == ("no robot in reach" if infos[agent]["neighbours"] == 0 else "robots in reach")
+            seen.add(context[i])
+        _, _, _, _, infos = env.step(dict.fromkeys(env.agents, 0))
+    assert seen == {"no robot in reach", "robots in reach"}
+
+
+def test_rendezvous_situation_is_the_share_of_the_team_in_the_vehicles_group():
+    env = make("mrcomm/RendezvousMapping-v0", max_cycles=20, d_comms=10.0)
+    env.reset(seed=1)
+    views = env.local_views()
+    seen = set()
+    while env.agents:
+        sizes = views.team("group").sum(axis=1)
+        expected = [
+            "alone" if k == 1 else "with the whole team" if k == env.n_agents else "with part of the team"
+            for k in sizes
+        ]
+        assert env.decision_context() == expected
+        seen.update(expected)
+        env.step(dict.fromkeys(env.agents, env.K))  # everyone calls a rendezvous
+    assert seen

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from mrcomm_env.experiments.actions import profile_actions, profile_table
+from mrcomm_env.experiments.actions import context_table, profile_actions, profile_table
 from mrcomm_env.experiments.arguments import parse_params, positive_int, seed_type
 from mrcomm_env.experiments.evaluation import baseline_label, limit_threads, make_any_policy
 from mrcomm_env.experiments.io import atomic_write_json, check_writable_file
@@ -60,6 +60,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"{env_id}  policy={args.policy}  episodes={args.episodes}  seed={args.seed}  params={params}")
     print(f"{profile.decisions} decisions; each rule asked at every state the policy reached")
     print("\n".join(profile_table(profile)))
+    if profile.by_context:
+        print("by each robot's situation when it chose (the env's decision_context):")
+        print("\n".join(context_table(profile)))
     if json_path is not None:
         atomic_write_json(json_path, {"env": env_id, "params": params, **profile.to_json()}, indent=2)
         print(f"wrote {json_path}")
