@@ -453,6 +453,9 @@ on the metric or by 20 % on bits. A **reference** row (MultiHop's `oracle`) is n
 with knowledge the learned policy's observation lacks, which shows whether the 10 % margin is there to be found.
 **From random weights** says when each run that starts from random weights first reaches that algorithm's metric
 at equal bits on its own held-out curve (every comparison here trains from random weights).
+**What the shipped model chooses** plays it on the table's held-out episodes and asks the paper's rules at every
+state it reaches (`mrcomm actions`, `mrcomm_env/experiments/actions.py`): the share of each action, how often it
+chose as each rule would, and where the env names each robot's situation, the same split by it.
 While training, `progress.csv` and TensorBoard carry a held-out evaluation under `heldout/` (the env's metrics
 and bits per robot; `agents/heldout.py`). The scripted baselines see more than the learned policy where the env's
 page says so (`docs/envs/<Name>-v0.md`, column "global knowledge"), and their own per-robot memory: see

@@ -228,3 +228,12 @@ def test_rendezvous_situation_is_the_share_of_the_team_in_the_vehicles_group():
         seen.update(expected)
         env.step(dict.fromkeys(env.agents, env.K))  # everyone calls a rendezvous
     assert seen
+
+
+def test_a_learned_policy_can_be_the_rule_it_is_compared_with(tmp_path, capsys):
+    # ALGO:RUN and pretrained name learned policies, whose names hold no rule parameters after a colon
+    path = tmp_path / "actions.json"
+    argv = ["actions", "MapSync-v0", "--policy", "pretrained", "--against", "pretrained", "--episodes", "1"]
+    assert main([*argv, "--param", "max_cycles=20", "--json", str(path)]) == 0
+    profile = ActionProfile.from_json(json.loads(path.read_text()))
+    assert profile.rules == ["pretrained"] and profile.agreement("pretrained") == 1.0

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from mrcomm_baselines import policy_names
 from mrcomm_env.experiments.actions import context_table, profile_actions, profile_table
 from mrcomm_env.experiments.arguments import parse_params, positive_int, seed_type
 from mrcomm_env.experiments.evaluation import baseline_label, limit_threads, make_any_policy
@@ -25,8 +26,9 @@ def add_parser(command) -> None:
         required=True,
         action="append",
         metavar="RULE[:KEY=VALUE,…]",
-        help="a scripted policy asked at every state the policy reaches (its actions are not stepped), with its "
-        "parameters after a colon, e.g. periodic_sketch:period=1; repeat for several",
+        help="a policy asked at every state the policy reaches (its actions are not stepped): a scripted one, with "
+        "its parameters after a colon (periodic_sketch:period=1), or a learned one (pretrained, ALGO:RUN); repeat "
+        "for several",
     )
     p.add_argument("--episodes", type=positive_int, default=10)
     p.add_argument("--seed", type=seed_type, default=0, help="seed of the first episode (integer ≥ 0)")
@@ -49,8 +51,13 @@ def run(args: argparse.Namespace) -> int:
     rules = {}
     for text in args.against:
         name, _, rest = text.partition(":")
-        rule_params = parse_params([pair for pair in rest.split(",") if pair], "--against")
-        rules[baseline_label(name.strip(), rule_params)] = make_any_policy(env_id, name.strip(), **rule_params)
+        if name.strip() in policy_names(env_id):  # a scripted rule, its parameters after the colon
+            name, rule_params = name.strip(), parse_params([pair for pair in rest.split(",") if pair], "--against")
+        else:  # a learned policy (ALGO:RUN, pretrained), or an unknown name make_any_policy reports
+            name, rule_params = text, {}
+        rules[baseline_label(name, rule_params)] = make_any_policy(
+            env_id, name, trust_pickle=args.trust_pickle, **rule_params
+        )
     trained_on = getattr(policy, "env_kwargs", None)
     if trained_on is not None:  # as `mrcomm evaluate`: a learned model acts in its training setting
         params = {**trained_on, **params}
