@@ -62,3 +62,16 @@ def nonnegative_seconds(text: str) -> float:
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be a number of seconds ≥ 0, got {text!r}")
     return value
+
+
+def add_episode_arguments(parser: argparse.ArgumentParser) -> None:
+    """The episodes a command plays a policy on and their env (``evaluate``, ``actions``): ``--episodes``, ``--seed``
+    of the first, ``--param`` env arguments, and ``--trust-pickle`` for a learned model's older run."""
+    parser.add_argument("--episodes", type=positive_int, default=10)
+    parser.add_argument("--seed", type=seed_type, default=0, help="seed of the first episode (integer ≥ 0)")
+    parser.add_argument("--param", action="append", metavar="KEY=VALUE", help="environment argument (JSON value)")
+    parser.add_argument(
+        "--trust-pickle",
+        action="store_true",
+        help="load a learned model's run written before the safe formats (it unpickles: only a run you made)",
+    )

@@ -4,6 +4,7 @@ scores the learned-against-scripted comparison uses, and the speed benchmark."""
 from __future__ import annotations
 
 import os
+import sys
 import time
 from collections.abc import Callable
 from typing import Any
@@ -39,6 +40,17 @@ def make_any_policy(env_id: str, name: str, trust_pickle: bool = False, **params
 def baseline_label(name: str, params: dict) -> str:
     """A baseline's name in the comparison's table: ``name`` and its parameters (``periodic_sketch period=1``)."""
     return name + (" " + ", ".join(f"{k}={v}" for k, v in params.items()) if params else "")
+
+
+def acting_setting(policy, params: dict) -> dict:
+    """The env arguments ``policy`` acts in: a learned model's own training setting (its spaces depend on the env's
+    arguments) with ``params`` (``--param``) applied one by one, said on stderr; a scripted policy's, ``params``."""
+    trained_on = getattr(policy, "env_kwargs", None)
+    if trained_on is None:
+        return params
+    params = {**trained_on, **params}
+    print(f"learned model: its training setting with --param applied, {params}", file=sys.stderr)
+    return params
 
 
 def limit_threads() -> None:

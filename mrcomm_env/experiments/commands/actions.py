@@ -4,12 +4,11 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
 from mrcomm_baselines import policy_names
 from mrcomm_env.experiments.actions import context_table, profile_actions, profile_table
-from mrcomm_env.experiments.arguments import parse_params, positive_int, seed_type
-from mrcomm_env.experiments.evaluation import baseline_label, limit_threads, make_any_policy
+from mrcomm_env.experiments.arguments import add_episode_arguments, parse_params
+from mrcomm_env.experiments.evaluation import acting_setting, baseline_label, limit_threads, make_any_policy
 from mrcomm_env.experiments.io import atomic_write_json, check_writable_file
 from mrcomm_env.registry import canonical_id
 
@@ -30,15 +29,8 @@ def add_parser(command) -> None:
         "its parameters after a colon (periodic_sketch:period=1), or a learned one (pretrained, ALGO:RUN); repeat "
         "for several",
     )
-    p.add_argument("--episodes", type=positive_int, default=10)
-    p.add_argument("--seed", type=seed_type, default=0, help="seed of the first episode (integer ≥ 0)")
-    p.add_argument("--param", action="append", metavar="KEY=VALUE", help="environment argument (JSON value)")
+    add_episode_arguments(p)
     p.add_argument("--json", metavar="PATH", help="also write the counts as JSON")
-    p.add_argument(
-        "--trust-pickle",
-        action="store_true",
-        help="load a learned model's run written before the safe formats (it unpickles: only a run you made)",
-    )
     p.set_defaults(func=run)
 
 
@@ -58,10 +50,7 @@ def run(args: argparse.Namespace) -> int:
         rules[baseline_label(name, rule_params)] = make_any_policy(
             env_id, name, trust_pickle=args.trust_pickle, **rule_params
         )
-    trained_on = getattr(policy, "env_kwargs", None)
-    if trained_on is not None:  # as `mrcomm evaluate`: a learned model acts in its training setting
-        params = {**trained_on, **params}
-        print(f"learned model: its training setting with --param applied, {params}", file=sys.stderr)
+    params = acting_setting(policy, params)
     seeds = list(range(args.seed, args.seed + args.episodes))
     profile = profile_actions(env_id, params, policy, rules, seeds, policy_name=args.policy)
     print(f"{env_id}  policy={args.policy}  episodes={args.episodes}  seed={args.seed}  params={params}")

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from mrcomm_env.experiments.arguments import parse_params, positive_int, seed_type
-from mrcomm_env.experiments.evaluation import evaluate, limit_threads, make_any_policy
+from mrcomm_env.experiments.arguments import add_episode_arguments, parse_params
+from mrcomm_env.experiments.evaluation import acting_setting, evaluate, limit_threads, make_any_policy
 from mrcomm_env.experiments.io import atomic_write_json, check_writable_dir, check_writable_file, json_safe
 from mrcomm_env.experiments.record import record_episode
 from mrcomm_env.registry import canonical_id, make, short_name
@@ -16,18 +16,11 @@ def add_parser(command) -> None:
     p = command("evaluate", help="run a policy for K episodes; mean ± 95%% CI of every metric")
     p.add_argument("env_id")
     p.add_argument("--policy", required=True)
-    p.add_argument("--episodes", type=positive_int, default=10)
-    p.add_argument("--seed", type=seed_type, default=0, help="seed of the first episode (integer ≥ 0)")
-    p.add_argument("--param", action="append", metavar="KEY=VALUE", help="environment argument (JSON value)")
+    add_episode_arguments(p)
     p.add_argument("--policy-param", action="append", metavar="KEY=VALUE", help="policy parameter (JSON value)")
     p.add_argument("--json", metavar="PATH")
     p.add_argument("--video", metavar="DIR", help="also record the first episode into DIR/<Name>-<policy>.gif")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument(
-        "--trust-pickle",
-        action="store_true",
-        help="load a learned model's run written before the safe formats (it unpickles: only a run you made)",
-    )
     p.set_defaults(func=run)
 
 
@@ -40,12 +33,7 @@ def run(args: argparse.Namespace) -> int:
     # everything a bad argument could break is built once before the first episode: the env with its
     # params, the policy with its params, and the policy's reset against this env (e.g. a mode it needs)
     policy = make_any_policy(env_id, args.policy, trust_pickle=args.trust_pickle, **policy_params)
-    trained_on = getattr(policy, "env_kwargs", None)
-    if trained_on is not None:
-        # a learned model acts in the setting it was trained in (its spaces depend on the env's arguments): the
-        # run's own env arguments are the default, and --param overrides them one by one
-        params = {**trained_on, **params}
-        print(f"learned model: its training setting with --param applied, {params}", file=sys.stderr)
+    params = acting_setting(policy, params)
     probe = make(env_id, **params)
     try:
         probe.reset(seed=args.seed)
