@@ -126,8 +126,10 @@ def profile_actions(
 ) -> ActionProfile:
     """Play ``policy`` on the episodes ``seeds`` of ``env_id`` (``env_kwargs``), asking every rule of ``rules``
     (name → policy) at each state it reaches; returns the counts."""
-    env = make(env_id, **env_kwargs)
     names = list(rules)
+    if policy_name in names:
+        raise ValueError(f"the acting policy's name {policy_name!r} is also a rule's; name one of them otherwise")
+    env = make(env_id, **env_kwargs)
     profile = ActionProfile(policy=policy_name, rules=names, seeds=list(seeds))
     profile.counts = {policy_name: {}, **{n: {} for n in names}}
     profile.same = dict.fromkeys(names, 0)

@@ -237,3 +237,10 @@ def test_a_learned_policy_can_be_the_rule_it_is_compared_with(tmp_path, capsys):
     assert main([*argv, "--param", "max_cycles=20", "--json", str(path)]) == 0
     profile = ActionProfile.from_json(json.loads(path.read_text()))
     assert profile.rules == ["pretrained"] and profile.agreement("pretrained") == 1.0
+    assert profile.policy == "pretrained (acting)"  # a name of its own: the two are counted apart
+    assert sum(profile.counts["pretrained (acting)"].values()) == sum(profile.counts["pretrained"].values())
+    assert sum(profile.counts["pretrained"].values()) == profile.decisions
+    with pytest.raises(ValueError, match="also a rule's"):
+        profile_actions(
+            MAPSYNC, {}, make_policy(MAPSYNC, "never"), {"never": make_policy(MAPSYNC, "never")}, [0], "never"
+        )

@@ -52,7 +52,9 @@ def run(args: argparse.Namespace) -> int:
         )
     params = acting_setting(policy, params)
     seeds = list(range(args.seed, args.seed + args.episodes))
-    profile = profile_actions(env_id, params, policy, rules, seeds, policy_name=args.policy)
+    # the acting policy asked beside itself (e.g. to see how deterministic it is) gets a name of its own
+    acting = args.policy if args.policy not in rules else f"{args.policy} (acting)"
+    profile = profile_actions(env_id, params, policy, rules, seeds, policy_name=acting)
     print(f"{env_id}  policy={args.policy}  episodes={args.episodes}  seed={args.seed}  params={params}")
     print(f"{profile.decisions} decisions; each rule asked at every state the policy reached")
     print("\n".join(profile_table(profile)))
