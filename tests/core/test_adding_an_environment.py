@@ -245,6 +245,14 @@ def test_its_docs_page_cli_and_reproduction_come_from_the_registry(gossip_regist
     assert 1 / 8 < metrics["known_fraction"]["mean"] <= 1.0 and metrics["bits_sent"]["mean"] >= 8 * TOKEN_BITS
     assert main(["reproduce", "Gossip-v0", "--tiny", "--out", str(tmp_path / "results")]) == 0
     assert len(list((tmp_path / "results").rglob("completion.json"))) == 1
+    # what a policy chooses beside another, with the base class's names for the actions (the index)
+    profile_path = tmp_path / "actions.json"
+    argv = ["actions", "Gossip-v0", "--policy", DEFAULT_POLICY, "--against", "silent", "--episodes", "2"]
+    assert main([*argv, "--json", str(profile_path)]) == 0
+    profile = json.loads(profile_path.read_text())
+    assert profile["labels"] == ["0", "1"] and profile["counts"]["silent"] == {"0": profile["decisions"]}
+    assert profile["same"]["silent"] == profile["counts"][DEFAULT_POLICY]["0"]  # agreeing with silence is silence
+    assert profile["by_context"] == {}  # the env names no situations
 
 
 def test_the_baseline_finishes_and_silence_never_does():
