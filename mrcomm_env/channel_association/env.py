@@ -308,6 +308,13 @@ class ChannelAssociationEnv(ChannelAssociationSpec, MrcommParallelEnv):
         """1 emits (a blink with its wireless message, Algorithm 1's emission), 0 stays dark and silent."""
         return "emit" if int(action) else "silent"
 
+    def decision_context(self) -> list[str]:
+        """The clock phase every robot observes (step mod ⌈log2 N⌉ + 1): the step at which a blink code sends its
+        ID's bit p, or the beacon step of a full turn. Split by it, a code's emissions show which bits it sends."""
+        phase = self.step_count % self._clock
+        context = "beacon phase" if phase == self._id_bits else f"bit phase {phase}"
+        return [context] * self.n_agents
+
     def _metrics(self) -> dict[str, float]:
         matched, nv, ne = self._stats[:3]
         sel = self.measured & (nv > 0)

@@ -244,3 +244,32 @@ def test_a_learned_policy_can_be_the_rule_it_is_compared_with(tmp_path, capsys):
         profile_actions(
             MAPSYNC, {}, make_policy(MAPSYNC, "never"), {"never": make_policy(MAPSYNC, "never")}, [0], "never"
         )
+
+
+class Dark:
+    """Never emits: a ChannelAssociation field is then never done, and every episode runs to its horizon."""
+
+    def reset(self, views, seed):
+        pass
+
+    def act(self, observations, views):
+        return dict.fromkeys(observations, 0)
+
+
+def test_channel_association_situation_is_the_phase_the_id_bits_code_follows():
+    # 9 robots: ⌈log2 9⌉ = 4 address bits and a beacon, a clock of 5 phases; 12 steps hold phases 0-4, 0-4, 0-1.
+    # `id_bits` sends bit p of its address at phase p and blinks at every beacon
+    env_id = "mrcomm/ChannelAssociation-v0"
+    rules = {"id_bits": make_policy(env_id, "id_bits")}
+    profile = profile_actions(env_id, {"n_robots": 9, "max_cycles": 12}, Dark(), rules, [0, 1])
+    decisions = {c: profile.context_decisions(c) for c in profile.by_context}
+    per_step = 9 * 2  # robots × episodes
+    assert decisions == {
+        "bit phase 0": 3 * per_step,
+        "bit phase 1": 3 * per_step,
+        "bit phase 2": 2 * per_step,
+        "bit phase 3": 2 * per_step,
+        "beacon phase": 2 * per_step,
+    }
+    assert profile.context_share("beacon phase", "id_bits", "emit") == 1.0
+    assert profile.context_share("bit phase 0", "id_bits", "emit") < 1.0  # some addresses have a 0 there
