@@ -35,6 +35,8 @@ class ActionProfile:
     same: dict[str, int] = field(default_factory=dict)
     #: multi-binary actions only: rule → [items both select, items the rule selects]
     shared_items: dict[str, list[int]] = field(default_factory=dict)
+    #: multi-binary actions only: who → [sum of the selected items' places in the list (1 = first), items selected]
+    selected_places: dict[str, list[int]] = field(default_factory=dict)
     #: where the env names each robot's situation (``decision_context``): situation → who → label → decisions
     by_context: dict[str, dict[str, dict[str, int]]] = field(default_factory=dict)
     #: situation → rule → decisions there where the policy's action equals the rule's
@@ -60,6 +62,11 @@ class ActionProfile:
         """Multi-binary actions: the fraction of the items ``rule`` selects that the policy selects too."""
         both, theirs = self.shared_items.get(rule, (0, 0))
         return both / theirs if rule in self.shared_items and theirs else None
+
+    def mean_place(self, who: str) -> float | None:
+        """Multi-binary actions: the mean place in the item list (1 = first) of the items ``who`` selected."""
+        total, items = self.selected_places.get(who, (0, 0))
+        return total / items if items else None
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -102,6 +109,8 @@ class _Shadowed:
             p.decisions += 1
             for table in counts:
                 _count(table, p.policy, label(mine))
+            if self.binary:
+                _add_places(p.selected_places[p.policy], mine > 0.5)
             for name, theirs in asked.items():
                 theirs_a = np.asarray(theirs[agent])
                 if self.binary:  # select bits: what is selected is what counts
@@ -109,12 +118,19 @@ class _Shadowed:
                     agrees = bool(np.array_equal(mine_b, theirs_b))
                     p.shared_items[name][0] += int(np.count_nonzero(mine_b & theirs_b))
                     p.shared_items[name][1] += int(np.count_nonzero(theirs_b))
+                    _add_places(p.selected_places[name], theirs_b)
                 else:
                     agrees = bool(np.array_equal(mine, theirs_a))
                 for table, tally in zip(counts, same):
                     _count(table, name, label(theirs_a))
                     tally[name] += agrees
         return actions
+
+
+def _add_places(tally: list[int], selected: np.ndarray) -> None:
+    places = np.flatnonzero(selected) + 1
+    tally[0] += int(places.sum())
+    tally[1] += len(places)
 
 
 def _count(counts: dict, who: str, label: str) -> None:
@@ -136,6 +152,7 @@ def profile_actions(
     shadow = _Shadowed(env, policy, rules, profile)
     if shadow.binary:
         profile.shared_items = {n: [0, 0] for n in names}
+        profile.selected_places = {who: [0, 0] for who in (policy_name, *names)}
     try:
         for seed in seeds:
             run_episode(env, shadow, seed)
@@ -179,6 +196,13 @@ def profile_table(profile: ActionProfile) -> list[str]:
         lines.append(
             f"| of the rule's selected items, also selected by `{profile.policy}` | — | "
             + " | ".join(_percent(profile.item_overlap(r)) for r in profile.rules)
+            + " |"
+        )
+    if profile.selected_places:
+        places = [profile.mean_place(w) for w in who]
+        lines.append(
+            "| mean place of a selected item in the list (1 = first) | "
+            + " | ".join("—" if v is None else f"{v:.1f}" for v in places)
             + " |"
         )
     return lines

@@ -47,13 +47,20 @@ def test_asking_rules_does_not_change_the_episode_the_policy_plays():
 
 
 def test_a_rule_asked_beside_itself_agrees_everywhere_and_counts_every_decision():
-    rules = {"age_aware": make_policy(MULTIHOP, "age_aware"), "location_based": make_policy(MULTIHOP, "location_based")}
+    rules = {"age_aware": make_policy(MULTIHOP, "age_aware"), "no_hop": make_policy(MULTIHOP, "no_hop")}
     profile = profile_actions(MULTIHOP, SMALL_MULTIHOP, make_policy(MULTIHOP, "age_aware"), rules, [0, 1])
     robots = SMALL_MULTIHOP["grid_side"] ** 2
     assert profile.decisions == 2 * robots * SMALL_MULTIHOP["max_cycles"]  # every robot decides every frame
-    for who in ("learned", "age_aware", "location_based"):
+    for who in ("learned", "age_aware", "no_hop"):
         assert sum(profile.counts[who].values()) == profile.decisions
     assert profile.agreement("age_aware") == 1.0 and profile.item_overlap("age_aware") == 1.0
+    assert profile.mean_place("learned") == profile.mean_place("age_aware")
+    assert 1.0 <= profile.mean_place("age_aware") <= robots - 1
+    # no_hop sends only the robot's own estimate: it selects no candidate, so no place and no agreement
+    assert profile.mean_place("no_hop") is None and profile.share("no_hop", "0 selected") == 1.0
+    assert profile.item_overlap("no_hop") is None and profile.agreement("no_hop") == profile.share(
+        "learned", "0 selected"
+    )
     assert profile.counts["learned"] == profile.counts["age_aware"]
     # select bits: each label counts the selected candidates, at most one per other robot
     assert all(0 <= int(label.split()[0]) <= robots - 1 for label in profile.labels)
@@ -102,7 +109,7 @@ def test_the_table_gives_each_action_share_and_the_agreement_row():
     table = profile_table(profile)
     assert table[2] == "| idle | 75.0 % | 0.0 % |"
     assert table[3] == "| sketch | 25.0 % | 100.0 % |"
-    assert table[-1] == "| the same action as `learned` | — | 25.0 % |"
+    assert table[-1] == "| the same action as `learned` | — | 25.0 % |"  # discrete actions: no item rows
     assert ActionProfile.from_json(json.loads(json.dumps(profile.to_json()))) == profile
 
 
