@@ -74,7 +74,7 @@ class ActionProfile:
     @classmethod
     def from_json(cls, record: dict) -> ActionProfile:
         """The profile in ``record`` (:meth:`to_json`'s, or ``mrcomm actions --json``'s with its other keys)."""
-        return cls(**{f.name: record[f.name] for f in fields(cls)})
+        return cls(**{f.name: record[f.name] for f in fields(cls) if f.name in record})
 
 
 class _Shadowed:
