@@ -559,10 +559,12 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         return infos
 
     def action_label(self, action) -> str:
-        """How many estimates the robot selects: set select bits (relative layout), or priorities above 0, since 0
-        withholds (absolute layout). The slot sends at most ``slot_size − 1`` of them, those the robot holds."""
-        selected = np.asarray(action) > (0.5 if self._relative else 0.0)
-        return f"{int(np.count_nonzero(selected))} selected"
+        """How many estimates the robot selects: its set select bits (relative layout: the base class's count), or its
+        priorities above 0, since 0 withholds (absolute layout). The slot sends at most ``slot_size − 1`` of them,
+        those the robot holds."""
+        if self._relative:
+            return super().action_label(action)
+        return f"{int(np.count_nonzero(np.asarray(action) > 0.0))} selected"
 
     def _held_candidates(self) -> np.ndarray:
         """(N, N − 1) bool: whether robot i holds an estimate of its candidate at rank k (the observation's first
