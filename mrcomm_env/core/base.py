@@ -223,6 +223,14 @@ class MrcommParallelEnv(EnvSpec, ParallelEnv):
             return f"{int(np.count_nonzero(np.asarray(action) > 0.5))} selected"
         return "continuous"
 
+    def action_measures(self, agent: str, action) -> dict[str, np.ndarray]:
+        """Numbers that the items of one agent's ``action`` carry in the current state (measure → one value per
+        item; bool values are counted as shares), which ``mrcomm actions`` averages over all items a policy chose,
+        e.g. the age of each estimate a slot would relay; empty where the env names none. Read between
+        ``reset``/``step`` calls, before ``action`` is stepped, so that a rule's action is measured at the same
+        state as the policy's."""
+        return {}
+
     def decision_context(self) -> list[str] | None:
         """Each robot's situation now, in a few words, by which ``mrcomm actions`` splits what a policy chose (e.g.
         whether a sync would carry news); None where the env names none. Read between ``reset``/``step`` calls."""

@@ -4,7 +4,9 @@ docs/learning.md).
 The policy plays its episodes; at every state it reaches, each rule is asked too (the same observations and local
 views), and only the policy's actions are stepped. So the rules are judged on the policy's states, not their own:
 the tables say how often the policy chose as a rule would have, there. Each action is named by the env's
-``action_label`` (a transfer mode, a sync protocol, a kind of Fig. 5 decision, the number of estimates selected).
+``action_label`` (a transfer mode, a sync protocol, a kind of Fig. 5 decision, the number of estimates selected);
+where the env measures the items an action chooses (``action_measures``: MultiHop's age of each estimate a slot
+would relay), their means are compared too.
 """
 
 from __future__ import annotations
@@ -41,6 +43,10 @@ class ActionProfile:
     by_context: dict[str, dict[str, dict[str, int]]] = field(default_factory=dict)
     #: situation → rule → decisions there where the policy's action equals the rule's
     same_by_context: dict[str, dict[str, int]] = field(default_factory=dict)
+    #: where the env measures the items an action chooses (``action_measures``): measure → who → [sum, items]
+    measures: dict[str, dict[str, list[float]]] = field(default_factory=dict)
+    #: the measures whose values are yes/no (their mean is a share)
+    share_measures: list[str] = field(default_factory=list)
 
     def context_decisions(self, context: str) -> int:
         """The decisions taken in ``context``."""
@@ -66,6 +72,11 @@ class ActionProfile:
     def mean_place(self, who: str) -> float | None:
         """Multi-binary actions: the mean place in the item list (1 = first) of the items ``who`` selected."""
         total, items = self.selected_places.get(who, (0, 0))
+        return total / items if items else None
+
+    def mean_measure(self, measure: str, who: str) -> float | None:
+        """The mean of ``measure`` over the items ``who`` chose (None where it chose none)."""
+        total, items = self.measures[measure].get(who, (0.0, 0))
         return total / items if items else None
 
     def to_json(self) -> dict:
@@ -109,6 +120,7 @@ class _Shadowed:
             p.decisions += 1
             for table in counts:
                 _count(table, p.policy, label(mine))
+            self._measure(p.policy, agent, mine)
             if self.binary:
                 _add_places(p.selected_places[p.policy], mine > 0.5)
             for name, theirs in asked.items():
@@ -124,7 +136,20 @@ class _Shadowed:
                 for table, tally in zip(counts, same):
                     _count(table, name, label(theirs_a))
                     tally[name] += agrees
+                self._measure(name, agent, theirs_a)
         return actions
+
+    def _measure(self, who: str, agent: str, action: np.ndarray) -> None:
+        p = self.profile
+        for measure, values in self.env.action_measures(agent, action).items():
+            values = np.asarray(values)
+            if measure not in p.measures:
+                p.measures[measure] = {name: [0.0, 0] for name in p.counts}
+                if values.dtype == bool:
+                    p.share_measures.append(measure)
+            tally = p.measures[measure][who]
+            tally[0] += float(values.sum())
+            tally[1] += int(values.size)
 
 
 def _add_places(tally: list[int], selected: np.ndarray) -> None:
@@ -205,6 +230,11 @@ def profile_table(profile: ActionProfile) -> list[str]:
             + " | ".join("—" if v is None else f"{v:.1f}" for v in places)
             + " |"
         )
+    for measure in profile.measures:
+        means = [profile.mean_measure(measure, w) for w in who]
+        shown = _percent if measure in profile.share_measures else (lambda v: "—" if v is None else f"{v:.1f}")
+        kind = "share" if measure in profile.share_measures else "mean"
+        lines.append(f"| {measure}, {kind} | " + " | ".join(shown(v) for v in means) + " |")
     return lines
 
 

@@ -566,6 +566,28 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
             return super().action_label(action)
         return f"{int(np.count_nonzero(np.asarray(action) > 0.0))} selected"
 
+    def action_measures(self, agent: str, action) -> dict[str, np.ndarray]:
+        """Per estimate the robot selects and holds (those its slot may relay, up to ``slot_size − 1``): its age in
+        seconds, and whether no neighbour in reach lacks it, from the robots' true tables (each neighbour k ≠ j
+        already holds robot j's estimate at least as fresh). These are what the age-of-information rules of §IV
+        trade: old estimates cost weighted age (eq. 1), and an estimate every neighbour holds spends bits on
+        nothing."""
+        i = self._index_of(agent)
+        action = np.asarray(action)
+        if self._relative:
+            chosen = self._candidates[i][action > 0.5]
+        else:
+            chosen = np.flatnonzero(action > 0.0)
+            chosen = chosen[chosen != i]  # a robot's own estimate is always sent
+        own = self.stamps[i, chosen]
+        held = own > proto.UNKNOWN
+        chosen, own = chosen[held], own[held]
+        neighbours = np.flatnonzero(self.adj[i])
+        theirs = self.stamps[neighbours[:, None], chosen[None, :]]  # (neighbours, chosen)
+        judged = neighbours[:, None] != chosen[None, :]  # a neighbour's own estimate is always current
+        lacks = ((theirs < own[None, :]) & judged).any(axis=0)
+        return {"age of a selected estimate (s)": self.t - own, "selected estimates no neighbour lacks": ~lacks}
+
     def _held_candidates(self) -> np.ndarray:
         """(N, N − 1) bool: whether robot i holds an estimate of its candidate at rank k (the observation's first
         feature of that candidate): with ``mask_unheld``, the select bits it may set (``action_masks()``)."""

@@ -280,3 +280,58 @@ def test_channel_association_situation_is_the_phase_the_id_bits_code_follows():
     }
     assert profile.context_share("beacon phase", "id_bits", "emit") == 1.0
     assert profile.context_share("bit phase 0", "id_bits", "emit") < 1.0  # some addresses have a 0 there
+
+
+def test_multihop_measures_the_age_and_the_need_of_every_held_estimate_a_slot_would_relay():
+    env = make(MULTIHOP, grid_side=3, max_cycles=8, layout="absolute")
+    env.reset(seed=0)
+    assert list(np.flatnonzero(env.adj[0])) == [1, 3]  # robot 0 in the corner of the 3 × 3 grid
+    # a hand-made state at t = 10 s: robot 0 holds 5 (stamp 2) as fresh as both its neighbours do, holds 7
+    # (stamp 3) fresher than neighbour 3 (stamp 1), holds 1 (stamp 4), which neighbour 1 keeps current itself
+    # but neighbour 3 lacks, and does not hold 8
+    env.t = 10.0
+    env.stamps[0, [5, 7, 1, 8]] = [2.0, 3.0, 4.0, -np.inf]
+    env.stamps[1, [5, 7]] = [2.0, 3.0]
+    env.stamps[3, [5, 7, 1]] = [6.0, 1.0, -np.inf]
+    priorities = np.zeros(9)
+    priorities[[0, 5, 7, 1, 8]] = [0.9, 0.5, 0.4, 0.3, 0.2]  # its own estimate is always sent: not an item
+    measures = env.action_measures("robot_0", priorities)
+    ages, needless = measures["age of a selected estimate (s)"], measures["selected estimates no neighbour lacks"]
+    # items in robot order (1, 5, 7); 8 is not held, so no slot can relay it
+    assert ages.tolist() == [6.0, 8.0, 7.0]
+    assert needless.tolist() == [False, True, False]
+    assert all(len(v) == 0 for v in env.action_measures("robot_0", np.zeros(9)).values())  # withholds all
+
+
+def test_multihop_relative_bits_measure_the_candidates_the_views_rank():
+    env = make(MULTIHOP, **SMALL_MULTIHOP)
+    observations, _ = env.reset(seed=4)
+    policy = make_policy(MULTIHOP, "flooding")
+    views = env.local_views()
+    policy.reset(views, 4)
+    for _ in range(3):  # let estimates spread, so that robots hold some and lack others
+        observations, *_ = env.step(policy.act(observations, views))
+    candidates, stamps = views.team("candidates"), views.team("stamps")
+    bits = np.zeros(env.n_agents - 1)
+    bits[::2] = 1  # every other candidate, nearest first
+    chosen = candidates[2][::2]
+    held = chosen[stamps[2, chosen] > -np.inf]
+    ages = env.action_measures("robot_2", bits)["age of a selected estimate (s)"]
+    assert len(held) > 0 and np.allclose(ages, env.ages()[2, held])
+
+
+def test_the_profile_averages_the_measures_over_the_items_each_chose():
+    rules = {"age_aware": make_policy(MULTIHOP, "age_aware"), "no_hop": make_policy(MULTIHOP, "no_hop")}
+    profile = profile_actions(MULTIHOP, SMALL_MULTIHOP, make_policy(MULTIHOP, "age_aware"), rules, [0])
+    age, need = "age of a selected estimate (s)", "selected estimates no neighbour lacks"
+    assert profile.share_measures == [need]
+    # the policy and its own rule choose the same items at the same states; no_hop chooses none
+    assert profile.measures[age]["learned"] == profile.measures[age]["age_aware"]
+    assert profile.measures[age]["no_hop"] == [0.0, 0] and profile.mean_measure(age, "no_hop") is None
+    # the items measured are the selected ones the robot holds
+    assert 0 < profile.measures[age]["learned"][1] <= profile.selected_places["learned"][1]
+    assert 0.0 <= profile.mean_measure(need, "learned") <= 1.0
+    table = profile_table(profile)
+    assert table[-2].startswith(f"| {age}, mean | ") and table[-2].endswith(" | — |")
+    assert table[-1].startswith(f"| {need}, share | ") and table[-1].count("%") == 2
+    assert ActionProfile.from_json(json.loads(json.dumps(profile.to_json()))) == profile
