@@ -105,6 +105,7 @@ RUN_KEYS = (
     "normalize",
     "checkpoint_every",
     "net_arch",
+    "critic_arch",
     "policy",
     "init_from",
     "eval_every",
@@ -156,6 +157,9 @@ class TrainConfig:
     n_envs: int | None = None
     normalize: bool = True  #: VecNormalize on observations and returns
     net_arch: list[int] = field(default_factory=lambda: [64, 64])
+    #: mappo: the hidden layers of the centralised critic (None: ``net_arch``). The critic reads every robot's
+    #: observation (MultiHop's 36 robots: 7,668 numbers) through its first layer, where the actor reads one robot's
+    critic_arch: list[int] | None = None
     #: ``mlp`` (SB3's MlpPolicy), ``candidates`` (one shared scorer per candidate, ``agents/policies.py``; needs
     #: an env whose ``observation_layout()`` lists candidates), ``candidate_set`` (the same, each candidate also
     #: scored against a summary of the whole list) or ``candidate_subset`` (``candidate_set`` whose select bits are
@@ -198,6 +202,7 @@ class TrainConfig:
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"argument '{name}' must be an integer ≥ 0, got {value!r}")
         self._validate_update_threads()
+        self._validate_critic_arch()
         if not isinstance(self.freeze_normalization, bool):
             raise ValueError(
                 f"argument 'freeze_normalization' must be true or false, got {self.freeze_normalization!r}"
@@ -233,6 +238,22 @@ class TrainConfig:
             )
         env.close()
         return self
+
+    def _validate_critic_arch(self) -> None:
+        value = self.critic_arch
+        if value is None:
+            return
+        if (
+            not isinstance(value, list | tuple)
+            or not value
+            or not all(isinstance(h, int) and not isinstance(h, bool) and h >= 1 for h in value)
+        ):
+            raise ValueError(f"argument 'critic_arch' must be None or a non-empty list of integers ≥ 1, got {value!r}")
+        if self.algo != "mappo":
+            raise ValueError(
+                f"argument 'critic_arch' applies to mappo only (its centralised critic; {self.algo}'s value head "
+                f"shares 'net_arch'), got {self.critic_arch!r}"
+            )
 
     def _validate_update_threads(self) -> None:
         value = self.update_threads
@@ -658,7 +679,8 @@ def _batched_model(config: TrainConfig, out: Path, resume: bool, teacher: Policy
     critic = critic_optimizer = None
     if config.algo == "mappo":
         obs_dim = int(np.prod(observation_space.shape or (1,)))
-        critic, critic_optimizer = make_critic(n_agents, obs_dim, config.net_arch, model.lr_schedule(1), critic_state)
+        critic_arch = config.net_arch if config.critic_arch is None else config.critic_arch
+        critic, critic_optimizer = make_critic(n_agents, obs_dim, critic_arch, model.lr_schedule(1), critic_state)
     return model, normalizer, critic, critic_optimizer, clock
 
 

@@ -173,6 +173,43 @@ def test_mappo_critic_reads_each_copys_state_beside_the_agents_own_observation()
     np.testing.assert_allclose(values, expected, rtol=1e-5, atol=1e-6)
 
 
+def test_mappo_critic_takes_its_own_layers_and_keeps_them_on_resume(tmp_path):
+    # the actor stays [16] (config's net_arch) while the critic is [24, 8]; a resumed run must rebuild the critic
+    # with the widths its checkpoint holds, or loading its weights fails
+    train(config(ROLLOUT, "mappo", critic_arch=[24, 8]), tmp_path / "run", progress=False)
+    critic = torch.load(tmp_path / "run" / CRITIC_FILE, weights_only=True)["critic"]
+    assert critic["state_layer.weight"].shape == (24, N_AGENTS * run_obs_dim())
+    assert critic["own_layer.weight"].shape == (24, run_obs_dim())
+    assert [tuple(w.shape) for k, w in critic.items() if k.startswith("head.") and k.endswith("weight")] == [
+        (8, 24),
+        (1, 8),
+    ]
+    train(None, tmp_path / "run", resume=True, progress=False, requested={"timesteps": 2 * ROLLOUT})
+    model = LearnedPolicy(tmp_path / "run", ENV, "mappo").model
+    assert model.num_timesteps == 2 * ROLLOUT
+    assert [m.out_features for m in model.policy.mlp_extractor.policy_net if hasattr(m, "out_features")] == [16]
+
+
+@pytest.mark.parametrize(
+    ("algo", "critic_arch", "message"),
+    [
+        ("ippo", [32], "applies to mappo only"),
+        ("mappo", [], "non-empty list of integers"),
+        ("mappo", [32, 0], "non-empty list of integers"),
+        ("mappo", "64", "non-empty list of integers"),
+    ],
+)
+def test_a_bad_critic_arch_is_refused_before_any_work(tmp_path, algo, critic_arch, message):
+    with pytest.raises(ValueError, match=f"argument 'critic_arch'.*{message}"):
+        train(config(ROLLOUT, algo, critic_arch=critic_arch), tmp_path / "run", progress=False)
+    assert not (tmp_path / "run").exists()
+
+
+def run_obs_dim() -> int:
+    env = make(ENV, **ENV_KWARGS)
+    return int(np.prod(env.observation_space(env.possible_agents[0]).shape))
+
+
 def test_an_env_with_its_own_state_is_refused_for_mappo_only():
     class OwnState(type(make("MapSync-v0"))):
         def _state(self):
