@@ -22,6 +22,32 @@ def parse_params(pairs: list[str] | None, flag: str = "--param") -> dict:
     return params
 
 
+def split_values(text: str) -> list[str]:
+    """Comma-separated values, where commas inside brackets or a JSON string belong to a value
+    (``net_arch=[64,64],[128,128]``, ``label="a, b"``)."""
+    values, depth, start, quoted, escaped = [], 0, 0, False, False
+    for i, char in enumerate(text):
+        if quoted:  # inside "…": only its end counts, and \" does not end it
+            quoted = escaped or char != '"'
+            escaped = not escaped and char == "\\"
+            continue
+        quoted = char == '"'
+        depth += char in "[{"
+        depth -= char in "]}"
+        if char == "," and depth == 0:
+            values.append(text[start:i])
+            start = i + 1
+    values.append(text[start:])
+    return [v.strip() for v in values]
+
+
+def rule_argument(name: str, params: dict) -> str:
+    """A scripted rule and its parameters as ``mrcomm actions --against`` takes them (``periodic_sketch:period=1``):
+    values as JSON, so that lists and text come back as they were (:func:`split_values`, :func:`parse_params`)."""
+    pairs = ",".join(f"{key}={json.dumps(value, separators=(',', ':'))}" for key, value in params.items())
+    return name + (":" + pairs if pairs else "")
+
+
 def _integer(text: str, allowed: str, minimum: int) -> int:
     try:
         value = int(text)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import shlex
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -16,6 +17,7 @@ from mrcomm_agents.training import default_config
 from mrcomm_baselines import default_policy
 from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.actions import ActionProfile, context_table, profile_table
+from mrcomm_env.experiments.arguments import rule_argument
 from mrcomm_env.experiments.bounds import bound_paragraph
 from mrcomm_env.experiments.comparison import (
     baseline_on_training_heldout,
@@ -26,6 +28,7 @@ from mrcomm_env.experiments.comparison import (
     first_reach,
     training_heldout,
 )
+from mrcomm_env.experiments.evaluation import baseline_label
 from mrcomm_env.experiments.io import atomic_write_text
 from mrcomm_env.registry import env_ids, short_name
 
@@ -306,22 +309,28 @@ def learning_section(
     scratch = from_random_weights(env_id, baselines, spec, docs)
     if scratch:
         lines += ["", *scratch]
-    lines += actions_paragraph(env_id, docs)
+    lines += actions_paragraph(env_id, docs, spec.get("actions_against", []))
     if spec.get("notes"):
         lines += ["", spec["notes"]]
     return "\n".join(lines) + "\n"
 
 
-def actions_paragraph(env_id: str, docs: Path | None) -> list[str]:
+def actions_paragraph(env_id: str, docs: Path | None, against: Sequence) -> list[str]:
     """What the shipped model chooses beside the rules it is compared with, from ``docs/learning/<Name>-v0-actions.json``
-    (written by ``reproduce-learning`` where the config's comparison names ``actions_against``)."""
+    (written by ``reproduce-learning`` from the config's comparison's ``actions_against``: ``[name, params]`` pairs,
+    from which the paragraph writes the command's ``--against`` arguments)."""
     name = short_name(env_id)
     path = None if docs is None else docs / "learning" / f"{name}-actions.json"
     if path is None or not path.exists():
         return []
     profile = ActionProfile.from_json(json.loads(path.read_text()))
     seeds = profile.seeds
-    against = " ".join(f"--against {_rule_argument(r)}" for r in profile.rules)
+    if [baseline_label(name, params) for name, params in against] != profile.rules:
+        raise ValueError(
+            f"{path} holds the rules {profile.rules}, but the config's actions_against names {against}: rerun "
+            "`mrcomm reproduce-learning` for this env (without --docs-only)"
+        )
+    against = " ".join(f"--against {shlex.quote(rule_argument(name, params))}" for name, params in against)
     return [
         "",
         f"What the shipped model chooses, from its actions on the table's {len(seeds)} held-out episodes "
@@ -341,12 +350,6 @@ def actions_paragraph(env_id: str, docs: Path | None) -> list[str]:
             else []
         ),
     ]
-
-
-def _rule_argument(label: str) -> str:
-    """``periodic_sketch period=1`` (a table label) as ``mrcomm actions``' ``--against periodic_sketch:period=1``."""
-    name, _, params = label.partition(" ")
-    return name + (":" + params.replace(", ", ",") if params else "")
 
 
 def read_rows(path: Path) -> list[dict]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shlex
 
 import numpy as np
 import pytest
@@ -10,6 +11,7 @@ import pytest
 from mrcomm_baselines import default_policy, make_policy
 from mrcomm_env.experiments import actions as actions_module
 from mrcomm_env.experiments.actions import ActionProfile, context_table, profile_actions, profile_table
+from mrcomm_env.experiments.arguments import parse_params, rule_argument, split_values
 from mrcomm_env.experiments.cli import main
 from mrcomm_env.experiments.evaluation import run_episode
 from mrcomm_env.experiments.learning_report import actions_paragraph
@@ -116,7 +118,8 @@ def test_the_table_gives_each_action_share_and_the_agreement_row():
 def test_the_learning_page_renders_the_recorded_profile_with_the_command_that_makes_it(tmp_path):
     env_id = MAPSYNC
     (tmp_path / "learning").mkdir()
-    assert actions_paragraph(env_id, tmp_path) == []  # nothing recorded: nothing said
+    against = [["periodic_sketch", {"period": 1}]]
+    assert actions_paragraph(env_id, tmp_path, against) == []  # nothing recorded: nothing said
     profile = profile_actions(
         env_id,
         {"max_cycles": 6},
@@ -125,7 +128,7 @@ def test_the_learning_page_renders_the_recorded_profile_with_the_command_that_ma
         [10000, 10001],
     )
     (tmp_path / "learning" / "MapSync-v0-actions.json").write_text(json.dumps(profile.to_json()))
-    lines = actions_paragraph(env_id, tmp_path)
+    lines = actions_paragraph(env_id, tmp_path, against)
     text = "\n".join(lines)
     assert "--against periodic_sketch:period=1 --episodes 2 --seed 10000" in text
     assert f"({profile.decisions:,} decisions)" in text
@@ -133,6 +136,34 @@ def test_the_learning_page_renders_the_recorded_profile_with_the_command_that_ma
     assert by_situation and lines[-len(by_situation) :] == by_situation  # MapSync names its robots' situations
     start = lines.index(table[0])
     assert lines[start : start + len(table)] == table
+
+
+def test_a_recorded_profile_of_other_rules_than_the_config_names_is_refused(tmp_path):
+    (tmp_path / "learning").mkdir()
+    profile = ActionProfile(policy="learned", rules=["periodic_sketch period=2"], seeds=[0], decisions=0)
+    (tmp_path / "learning" / "MapSync-v0-actions.json").write_text(json.dumps(profile.to_json()))
+    with pytest.raises(ValueError, match="rerun `mrcomm reproduce-learning`"):
+        actions_paragraph(MAPSYNC, tmp_path, [["periodic_sketch", {"period": 1}]])
+
+
+@pytest.mark.parametrize(
+    "params",
+    [
+        {},
+        {"period": 1},
+        {"period": 2, "mode": "sketch"},
+        {"weights": [0.5, 0.25], "label": "a b, c"},
+        {"label": 'say "hi", then \\ go', "on": True},
+    ],
+)
+def test_a_rules_argument_reads_back_as_its_parameters(params):
+    # what the learning page prints for a rule must be what `mrcomm actions --against` parses back: commas inside
+    # a list value and spaces inside a text value included
+    text = rule_argument("some_rule", params)
+    (shell_word,) = shlex.split(shlex.quote(text))  # as the page quotes it for a shell
+    name, _, rest = shell_word.partition(":")
+    assert name == "some_rule"
+    assert parse_params([pair for pair in split_values(rest) if pair], "--against") == params
 
 
 def test_the_command_prints_the_table_and_writes_the_json(tmp_path, capsys):

@@ -7,7 +7,7 @@ import argparse
 
 from mrcomm_baselines import policy_names
 from mrcomm_env.experiments.actions import context_table, profile_actions, profile_table
-from mrcomm_env.experiments.arguments import add_episode_arguments, parse_params
+from mrcomm_env.experiments.arguments import add_episode_arguments, parse_params, split_values
 from mrcomm_env.experiments.evaluation import acting_setting, baseline_label, limit_threads, make_any_policy
 from mrcomm_env.experiments.io import atomic_write_json, check_writable_file
 from mrcomm_env.registry import canonical_id
@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     for text in args.against:
         name, _, rest = text.partition(":")
         if name.strip() in policy_names(env_id):  # a scripted rule, its parameters after the colon
-            name, rule_params = name.strip(), parse_params([pair for pair in rest.split(",") if pair], "--against")
+            name, rule_params = name.strip(), parse_params([pair for pair in split_values(rest) if pair], "--against")
         else:  # a learned policy (ALGO:RUN, pretrained), or an unknown name make_any_policy reports
             name, rule_params = text, {}
         rules[baseline_label(name, rule_params)] = make_any_policy(

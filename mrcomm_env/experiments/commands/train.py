@@ -8,7 +8,7 @@ import argparse
 import json
 from pathlib import Path
 
-from mrcomm_env.experiments.arguments import parse_params, positive_int, seed_type
+from mrcomm_env.experiments.arguments import parse_params, positive_int, seed_type, split_values
 from mrcomm_env.experiments.evaluation import limit_threads
 from mrcomm_env.experiments.runs import teacher_for
 from mrcomm_env.experiments.sweep import add_runner_arguments
@@ -97,19 +97,6 @@ def seed_list(text: str) -> list[int]:
     if not seeds or len(set(seeds)) != len(seeds):
         raise argparse.ArgumentTypeError(f"--seeds takes distinct integers ≥ 0 separated by commas, got {text!r}")
     return seeds
-
-
-def split_values(text: str) -> list[str]:
-    """Comma-separated values, where commas inside brackets belong to a value (``net_arch=[64,64],[128,128]``)."""
-    values, depth, start = [], 0, 0
-    for i, char in enumerate(text):
-        depth += char in "[{"
-        depth -= char in "]}"
-        if char == "," and depth == 0:
-            values.append(text[start:i])
-            start = i + 1
-    values.append(text[start:])
-    return [v.strip() for v in values]
 
 
 def parse_grid(pairs: list[str] | None) -> dict[str, list]:
