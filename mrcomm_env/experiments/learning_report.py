@@ -325,17 +325,17 @@ def actions_paragraph(env_id: str, docs: Path | None, against: Sequence) -> list
         return []
     profile = ActionProfile.from_json(json.loads(path.read_text()))
     seeds = profile.seeds
-    if [baseline_label(name, params) for name, params in against] != profile.rules:
+    if [baseline_label(rule, params) for rule, params in against] != profile.rules:
         raise ValueError(
             f"{path} holds the rules {profile.rules}, but the config's actions_against names {against}: rerun "
             "`mrcomm reproduce-learning` for this env (without --docs-only)"
         )
-    against = " ".join(f"--against {shlex.quote(rule_argument(name, params))}" for name, params in against)
+    arguments = " ".join(f"--against {shlex.quote(rule_argument(rule, params))}" for rule, params in against)
     return [
         "",
         f"What the shipped model chooses, from its actions on the table's {len(seeds)} held-out episodes "
         f"({profile.decisions:,} decisions). Each rule was asked at every state the learned policy reached, and only "
-        f"the learned policy's actions were stepped (`mrcomm actions {name} --policy pretrained {against} "
+        f"the learned policy's actions were stepped (`mrcomm actions {name} --policy pretrained {arguments} "
         f"--episodes {len(seeds)} --seed {seeds[0]}`):",
         "",
         *profile_table(profile),
