@@ -264,6 +264,15 @@ class BatchedPPO:
         rows = self.rows if rows is None else rows
         return sb3_masks(np.stack([infos[k].reshape(rows) > 0.5 for k in self.masks], axis=1), self.action_space)
 
+    def actor_distribution(self, obs: torch.Tensor, masks):
+        """The policy's action distribution on ``obs`` (masked if ``masks`` is not None), from the actor alone (SB3's
+        ``get_distribution``): MAPPO's values come from its own critic, so the policy's value branch, which SB3's
+        ``forward`` and ``evaluate_actions`` compute too, is skipped. The same actions, log-probabilities and
+        random draws as theirs."""
+        if masks is None:
+            return self.policy.get_distribution(obs)
+        return self.policy.get_distribution(obs, action_masks=masks)
+
     def _values(self, obs: torch.Tensor) -> torch.Tensor:
         if self.critic is not None:
             return self.critic(obs)
@@ -286,14 +295,18 @@ class BatchedPPO:
             self.buf_obs[t] = obs
             self.buf_starts[t] = self.next_starts
             obs_t = torch.from_numpy(obs)
+            if self.buf_masks is not None:
+                self.buf_masks[t] = self.next_masks
             with torch.no_grad():
-                if self.buf_masks is not None:
-                    self.buf_masks[t] = self.next_masks
+                if self.critic is not None:
+                    distribution = self.actor_distribution(obs_t, self.next_masks)
+                    actions = distribution.get_actions(deterministic=False)
+                    log_probs = distribution.log_prob(actions)
+                    values = self.critic(obs_t)
+                elif self.buf_masks is not None:
                     actions, values, log_probs = policy(obs_t, action_masks=self.next_masks)
                 else:
                     actions, values, log_probs = policy(obs_t)
-                if self.critic is not None:
-                    values = self.critic(obs_t)
             actions_np = actions.numpy()
             self.buf_actions[t] = actions_np.reshape(self.buf_actions[t].shape)
             self.buf_log_probs[t] = log_probs.numpy()
@@ -466,14 +479,15 @@ class BatchedPPO:
         """PPO's losses on the rows ``idx``: (policy, value, entropy, ratio, log ratio), as SB3's PPO.train."""
         policy, model = self.policy, self.model
         obs = data["obs"][idx]
-        if data["masks"] is not None:
-            values, log_prob, entropy = policy.evaluate_actions(
-                obs, data["actions"][idx], action_masks=data["masks"][idx]
-            )
+        masks = None if data["masks"] is None else data["masks"][idx]
+        if self.critic is not None:
+            distribution = self.actor_distribution(obs, masks)
+            log_prob, entropy = distribution.log_prob(data["actions"][idx]), distribution.entropy()
+            values = self.critic(obs)
+        elif masks is not None:
+            values, log_prob, entropy = policy.evaluate_actions(obs, data["actions"][idx], action_masks=masks)
         else:
             values, log_prob, entropy = policy.evaluate_actions(obs, data["actions"][idx])
-        if self.critic is not None:
-            values = self.critic(obs)
         values = values.flatten()
         advantages = data["advantages"][idx]
         if model.normalize_advantage and len(advantages) > 1:

@@ -64,25 +64,42 @@ class CandidateExtractor(nn.Module):
         self.value_head = _mlp([2 * hidden, hidden])
 
     def _split(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(candidates ``(B, K, F)``, own features ``(B, G)``) of flat observations."""
         cand = obs[:, : self.k * self.f].reshape(-1, self.k, self.f)
         own = obs[:, self.k * self.f : self.k * self.f + self.g]
-        paired = torch.cat([cand, own[:, None, :].expand(-1, self.k, -1)], dim=-1)
-        return paired, own
+        return cand, own
+
+    def _paired_mlp(self, mlp: nn.Sequential, cand: torch.Tensor, own: torch.Tensor, summary=None) -> torch.Tensor:
+        """``mlp`` (a :func:`_mlp`) on each candidate's (features, own features[, the list's summary]), ``(B, K, ·)``.
+        Its first layer is split as W·[x, o, s] + b = W_x·x + (W_o·o + W_s·s + b): the own features and the summary
+        are the same for all K candidates of a row, so their part is computed once per row rather than K times and
+        the (B, K, F + G + 2·hidden) concatenation is never built (for MultiHop's 35 candidates the summary's part
+        was 2 × 64 of the scorer's 137 inputs, most of an update's arithmetic; splitting halves the actor's
+        time). The weights are the unsplit ``nn.Linear``'s, so saved models load as before; the outputs equal the
+        concatenation's up to float rounding."""
+        first = cast(nn.Linear, mlp[0])
+        per_row_inputs = own if summary is None else torch.cat([own, summary], dim=-1)
+        per_row = nn.functional.linear(per_row_inputs, first.weight[:, self.f :], first.bias)  # (B, hidden)
+        hidden = nn.functional.linear(cand, first.weight[:, : self.f]) + per_row[:, None, :]
+        for layer in list(mlp)[1:]:  # its Tanh, then the other (Linear, Tanh) layers
+            hidden = layer(hidden)
+        return hidden
 
     def forward_actor(self, obs: torch.Tensor) -> torch.Tensor:
-        paired, own = self._split(obs)
+        cand, own = self._split(obs)
+        summary = None
         if self.context is not None:
-            embedded = self.context(paired)
+            embedded = self._paired_mlp(self.context, cand, own)
             summary = torch.cat([embedded.mean(dim=1), embedded.max(dim=1).values], dim=-1)
-            paired = torch.cat([paired, summary[:, None, :].expand(-1, self.k, -1)], dim=-1)
-        logits = self.scorer(paired).squeeze(-1)
+        hidden = self._paired_mlp(cast(nn.Sequential, self.scorer[0]), cand, own, summary)
+        logits = self.scorer[1](hidden).squeeze(-1)
         if self.extra is not None:
             logits = torch.cat([logits, self.extra(own)], dim=-1)
         return logits
 
     def forward_critic(self, obs: torch.Tensor) -> torch.Tensor:
-        paired, own = self._split(obs)
-        pooled = self.value_candidates(paired).mean(dim=1)
+        cand, own = self._split(obs)
+        pooled = self._paired_mlp(self.value_candidates, cand, own).mean(dim=1)
         return self.value_head(torch.cat([pooled, self.value_own(own)], dim=-1))
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -173,6 +173,35 @@ def test_mappo_critic_reads_each_copys_state_beside_the_agents_own_observation()
     np.testing.assert_allclose(values, expected, rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize(
+    "env_id, env_kwargs",
+    [
+        ("MapSync-v0", {}),
+        ("RendezvousMapping-v0", {"max_cycles": 6, "n_vehicles": 2, "n_landmarks": 3, "k_candidates": 5}),  # masked
+    ],
+)
+def test_mappo_acts_with_the_actions_and_log_probabilities_of_sb3s_own_forward(env_id, env_kwargs):
+    """MAPPO computes the actor alone (its values come from its own critic): from the same random state it draws the
+    actions SB3's ``forward`` draws, with the same log-probabilities, masked where the env masks."""
+    run = trainer(env_id, env_kwargs, 3, 2, algo="mappo")
+    obs = torch.from_numpy(run.next_obs)
+    masks = run.next_masks
+    torch.manual_seed(11)
+    with torch.no_grad():
+        distribution = run.actor_distribution(obs, masks)
+        actions = distribution.get_actions(deterministic=False)
+        log_probs = distribution.log_prob(actions)
+    torch.manual_seed(11)
+    with torch.no_grad():
+        if masks is None:
+            expected_actions, _, expected_log_probs = run.policy(obs)
+        else:
+            expected_actions, _, expected_log_probs = run.policy(obs, action_masks=masks)
+    assert (masks is None) == (env_id == "MapSync-v0")
+    torch.testing.assert_close(actions.reshape(expected_actions.shape), expected_actions, rtol=0, atol=0)
+    torch.testing.assert_close(log_probs, expected_log_probs, rtol=0, atol=0)
+
+
 def test_mappo_critic_takes_its_own_layers_and_keeps_them_on_resume(tmp_path):
     # the actor stays [16] (config's net_arch) while the critic is [24, 8]; a resumed run must rebuild the critic
     # with the widths its checkpoint holds, or loading its weights fails

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from mrcomm_agents.policies import SubsetDistribution
+from mrcomm_agents.policies import CandidateExtractor, SubsetDistribution
 
 torch.set_num_threads(1)
 
@@ -244,3 +244,39 @@ def test_a_subset_policy_on_multihop_with_mask_unheld_trains_masked_and_picks_on
             picks += int(chosen.sum())
             observations, *_ = env.step(actions)
     assert picks > 0  # the check above saw selections, not a policy that always stops
+
+
+@pytest.mark.parametrize("context", [True, False])
+def test_the_candidate_networks_are_mlps_of_each_candidates_concatenated_inputs(context):
+    """Each candidate's score (and the critic's embedding of it) is the MLP of the concatenation (its features, the
+    robot's own features[, the list's summary]), as the layers' shapes declare; the extractor splits the first layer
+    so as never to build it. Scores, values and every parameter's gradient agree up to float rounding."""
+    torch.manual_seed(3)
+    k, f, g, hidden = 7, 4, 3, 16
+    extractor = CandidateExtractor(k, f, g, extra_actions=2, hidden=hidden, context=context)
+    obs = torch.rand(50, k * f + g + 2)  # two trailing numbers that are not part of the layout
+    cand, own = obs[:, : k * f].reshape(-1, k, f), obs[:, k * f : k * f + g]
+    paired = torch.cat([cand, own[:, None, :].expand(-1, k, -1)], dim=-1)
+
+    def reference() -> tuple[torch.Tensor, torch.Tensor]:
+        scorer_inputs = paired
+        if context:
+            embedded = extractor.context(paired)
+            summary = torch.cat([embedded.mean(dim=1), embedded.max(dim=1).values], dim=-1)
+            scorer_inputs = torch.cat([paired, summary[:, None, :].expand(-1, k, -1)], dim=-1)
+        logits = torch.cat([extractor.scorer(scorer_inputs).squeeze(-1), extractor.extra(own)], dim=-1)
+        pooled = extractor.value_candidates(paired).mean(dim=1)
+        return logits, extractor.value_head(torch.cat([pooled, extractor.value_own(own)], dim=-1))
+
+    def gradients(outputs: tuple[torch.Tensor, torch.Tensor]) -> list[torch.Tensor]:
+        extractor.zero_grad()
+        (outputs[0].square().sum() + outputs[1].square().sum()).backward()
+        return [p.grad.clone() for p in extractor.parameters()]
+
+    expected, got = reference(), (extractor.forward_actor(obs), extractor.forward_critic(obs))
+    assert got[0].shape == (50, k + 2) and got[1].shape == (50, hidden)
+    # the same float32 sums in another order: at most F + G + 2·hidden = 39 terms of size O(1) per first-layer unit
+    for a, b in zip(got, expected):
+        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+    for a, b in zip(gradients(got), gradients(reference())):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
