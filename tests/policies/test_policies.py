@@ -278,5 +278,6 @@ def test_the_candidate_networks_are_mlps_of_each_candidates_concatenated_inputs(
     # the same float32 sums in another order: at most F + G + 2·hidden = 39 terms of size O(1) per first-layer unit
     for a, b in zip(got, expected):
         torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+    # a gradient also sums over the 50 rows and 7 candidates, in another order
     for a, b in zip(gradients(got), gradients(reference())):
         torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
