@@ -21,6 +21,7 @@ They reach ``progress.csv`` and TensorBoard with the rollout's own row (``tensor
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -100,9 +101,11 @@ def evaluate_episodes(model, venv, env_id: str, env_kwargs: dict, seeds, determi
     return {key: float(np.mean(values)) for key, values in totals.items()}
 
 
-def record_heldout(logger, model, venv, env_id: str, env_kwargs: dict, episodes: int, deterministic: bool) -> float:
+def record_heldout(
+    logger, model, venv, env_id: str, env_kwargs: dict, episodes: int, deterministic: bool
+) -> tuple[float, dict[str, float]]:
     """Evaluate ``model`` on ``episodes`` held-out episodes and record the means under ``heldout/`` in ``logger``;
-    returns the seconds it took. ``venv``: the training VecNormalize (or a detached one) whose statistics normalise
+    returns the seconds it took and the means. ``venv``: the training VecNormalize (or a detached one) whose statistics normalise
     the observations. torch's global generator, which SB3 samples actions from, is saved and restored: training
     draws nothing less."""
     start = time.perf_counter()
@@ -114,7 +117,7 @@ def record_heldout(logger, model, venv, env_id: str, env_kwargs: dict, episodes:
         torch.set_rng_state(state)
     for key, value in means.items():
         logger.record(PREFIX + key, value)
-    return time.perf_counter() - start
+    return time.perf_counter() - start, means
 
 
 class TrainingClock:
@@ -141,10 +144,19 @@ class HeldOutEvaluation(BaseCallback):
     last time, and once more when training ends: see the module docstring.
 
     The evaluation draws no random number from the training: it saves and restores torch's global generator,
-    which SB3 samples actions from, so a run with evaluation trains exactly as one without."""
+    which SB3 samples actions from, so a run with evaluation trains exactly as one without. ``on_evaluated(means,
+    final)``, if given, receives each evaluation's means; ``final`` is True for the one after the last update (a
+    rollout's evaluation scores the policy that collected it, before the update on it)."""
 
     def __init__(
-        self, env_id: str, env_kwargs: dict, every: int, episodes: int, deterministic: bool, clock: TrainingClock
+        self,
+        env_id: str,
+        env_kwargs: dict,
+        every: int,
+        episodes: int,
+        deterministic: bool,
+        clock: TrainingClock,
+        on_evaluated: Callable[[dict[str, float], bool], None] | None = None,
     ):
         super().__init__()
         self.env_id, self.env_kwargs = env_id, dict(env_kwargs)
@@ -153,6 +165,7 @@ class HeldOutEvaluation(BaseCallback):
         self.seconds = 0.0
         #: training's own time, started by the caller when learning starts
         self.clock = clock
+        self.on_evaluated = on_evaluated
         self.next_at = self.every
 
     def _on_training_start(self) -> None:
@@ -167,14 +180,16 @@ class HeldOutEvaluation(BaseCallback):
         self.logger.record("time/time_elapsed", max((time.time_ns() - self.model.start_time) / 1e9, 0.0))
         self.logger.dump(self.num_timesteps)
 
-    def _evaluate(self) -> None:
+    def _evaluate(self, final: bool = False) -> None:
         self.logger.record(TRAINING_SECONDS_KEY, self.clock.seconds() if self.num_timesteps else 0.0)
-        spent = record_heldout(
+        spent, means = record_heldout(
             self.logger, self.model, self.training_env, self.env_id, self.env_kwargs, self.episodes, self.deterministic
         )
         self.seconds += spent
         self.clock.evaluating += spent
         self.logger.record(SECONDS_KEY, self.seconds)
+        if self.on_evaluated is not None:
+            self.on_evaluated(means, final)
 
     def _on_step(self) -> bool:
         return True
@@ -187,5 +202,5 @@ class HeldOutEvaluation(BaseCallback):
     def _on_training_end(self) -> None:
         # one more row: the final policy's evaluation (a rollout's row shows the policy that collected it, before
         # the update on it), with the last update's statistics, which SB3 records after its last dump and drops
-        self._evaluate()
+        self._evaluate(final=True)
         self._dump()

@@ -19,7 +19,7 @@ import torch
 
 from mrcomm_agents.artifacts import MODEL_FILE, RunError, load_model, read_json, read_statistics, refuse_pickles
 from mrcomm_agents.heldout import sb3_masks, uses_masks
-from mrcomm_agents.training import ALGORITHMS, checkpoints, config_from_record, model_spec
+from mrcomm_agents.training import ALGORITHMS, best_checkpoint, checkpoints, config_from_record, model_spec
 from mrcomm_env.core.policy import LocalViews, Policy
 from mrcomm_env.registry import canonical_id, short_name
 
@@ -54,12 +54,18 @@ def model_card(env_id: str) -> dict[str, Any]:
     return card
 
 
+#: which of a run's models a learned policy acts with (``checkpoint``): its last, or its best by held-out return
+CHECKPOINTS = ("final", "best")
+
+
 class LearnedPolicy(Policy):
     """A parameter-shared SB3 policy: one network acts for every agent.
 
     ``deterministic`` (default) takes each agent's most likely action; otherwise actions are sampled, seeded by
     ``reset``. Sampling matters where identical robots must break symmetry (two robots with the same observation
-    and a deterministic shared policy always act alike)."""
+    and a deterministic shared policy always act alike). ``checkpoint``: ``final``, the run's last model (or, for a
+    run stopped early, its newest checkpoint), or ``best``, the checkpoint its held-out evaluation scored highest
+    (``best.json``, rl-zoo3's ``best_model``)."""
 
     name = "learned"
 
@@ -70,10 +76,13 @@ class LearnedPolicy(Policy):
         algo: str | None = None,
         deterministic: bool = True,
         trust_pickle: bool = False,
+        checkpoint: str = "final",
     ):
         super().__init__()
         if not isinstance(deterministic, bool):
             raise RunError(f"parameter 'deterministic' must be true or false, got {deterministic!r}")
+        if checkpoint not in CHECKPOINTS:
+            raise RunError(f"parameter 'checkpoint' must be one of {', '.join(CHECKPOINTS)}, got {checkpoint!r}")
         self.deterministic = deterministic
         run = Path(run)
         self.run = run
@@ -95,7 +104,11 @@ class LearnedPolicy(Policy):
         if not isinstance(self.env_kwargs, dict):
             raise RunError(f"{config_path} is corrupt: 'env_kwargs' is not an object")
         model_path, source = run / MODEL_FILE, run
-        if not model_path.exists():
+        if checkpoint == "best":  # the run's best policy by held-out return (training.BestCheckpoint)
+            source = best_checkpoint(run)
+            refuse_pickles(source, trust_pickle)
+            model_path = source / MODEL_FILE
+        elif not model_path.exists():
             # a run stopped early (Ctrl-C, a crash) holds checkpoints: its newest one is the policy it has
             found = checkpoints(run)
             if not found:
@@ -112,7 +125,9 @@ class LearnedPolicy(Policy):
             raise RunError(f"{config_path} is corrupt: {exc}") from None
         self.model = load_model(model_path, model_spec(config), trust_pickle=trust_pickle)
         self.normalizer = read_statistics(source, trust_pickle=trust_pickle) if record.get("normalize", True) else None
-        self.params = {"run": str(run), "algo": self.algo, "deterministic": deterministic}
+        #: the folder the model and its statistics were read from: the run, or one of its checkpoints
+        self.source = source
+        self.params = {"run": str(run), "algo": self.algo, "deterministic": deterministic, "checkpoint": checkpoint}
 
     def reset(self, views: LocalViews, seed: int | None = None) -> None:
         super().reset(views, seed)
@@ -144,12 +159,17 @@ class LearnedPolicy(Policy):
 
 def load_policy(spec: str, env_id: str, trust_pickle: bool = False, **params) -> LearnedPolicy:
     """``ppo:PATH``, ``maskable_ppo:PATH``, ``dqn:PATH``, ``ippo:PATH``, ``mappo:PATH`` or ``pretrained``;
-    ``params``: ``deterministic``.
+    ``params``: ``deterministic``, and for a run ``checkpoint``: ``final`` (its last model) or ``best`` (its best by
+    held-out return, ``best.json``).
     ``trust_pickle``: load a run written before ``agents/artifacts.py``'s formats (only one the user made)."""
-    unknown = set(params) - {"deterministic"}
+    unknown = set(params) - {"deterministic", "checkpoint"}
     if unknown:
-        raise RunError(f"a learned policy takes only the parameter 'deterministic', got {sorted(unknown)}")
+        raise RunError(
+            f"a learned policy takes only the parameters 'deterministic' and 'checkpoint', got {sorted(unknown)}"
+        )
     if spec == "pretrained":
+        if "checkpoint" in params:
+            raise RunError("parameter 'checkpoint' is for a run (ALGO:PATH); a pretrained model is one model")
         if not has_pretrained(env_id):
             raise RunError(f"no pretrained model ships for {canonical_id(env_id)}")
         # the mode the model was chosen with (its card), unless the caller asks for the other one

@@ -141,6 +141,11 @@ HYPERPARAMETER_RANGES = {
 }
 #: checkpoints kept: the newest may be damaged by a crash while it is written; the one before it then serves
 KEEP_CHECKPOINTS = 2
+#: which checkpoint holds the run's best policy by held-out return (:class:`BestCheckpoint`), and its evaluation
+BEST_FILE = "best.json"
+#: the held-out mean that ranks the checkpoints: the return, the env's reward with the price of its bits, which is
+#: what PPO maximises and what rl-zoo3's ``best_model`` is chosen by
+BEST_BY = "episode_return"
 LOCK_NAME = ".lock"
 
 
@@ -519,10 +524,29 @@ def _train_locked(
     bar = _Progress(config.timesteps, done_steps, config.checkpoint_every, save, progress)
     callbacks: list[BaseCallback] = [bar.callback]
     if config.eval_episodes:
+        best = BestCheckpoint(out, done_steps if resume else None)
+
+        def save_evaluated(final: bool) -> Path:
+            # a rollout's evaluation scores the policy before the update on that rollout: it is saved under the
+            # rollout's start, as an interrupted run is (its normalisation already counts the rollout's observations)
+            steps = model.num_timesteps
+            if not final:
+                model.num_timesteps = bar.rollout_start
+            try:
+                return _save_checkpoint(model, config, ckpt, clock=clock)
+            finally:
+                model.num_timesteps = steps
+
         every = config.eval_every or config.timesteps + 1
         callbacks.append(
             HeldOutEvaluation(
-                config.env_id, config.env_kwargs, every, config.eval_episodes, config.eval_deterministic, clock
+                config.env_id,
+                config.env_kwargs,
+                every,
+                config.eval_episodes,
+                config.eval_deterministic,
+                clock,
+                on_evaluated=lambda means, final: best.offer(means, model.num_timesteps, lambda: save_evaluated(final)),
             )
         )
     if config.critic_warmup:
@@ -573,8 +597,10 @@ def _train_batched(
     csv_log = resumed_csv_output(str(out / "progress.csv")) if resume else make_output_format("csv", str(out))
     model.set_logger(Logger(str(out), [csv_log, make_output_format("tensorboard", str(out))]))
 
-    def save() -> None:
-        _save_checkpoint(model, config, ckpt, normalizer, trainer.critic_state(), clock)
+    def save(again: bool = False) -> Path:
+        # nothing changes the trainer's state between an update, its held-out evaluation and the next rollout's
+        # start, so a checkpoint of the same step already written holds this very state
+        return _save_checkpoint(model, config, ckpt, normalizer, trainer.critic_state(), clock, again)
 
     every = config.checkpoint_every
     next_save = [(done_steps // every + 1) * every]
@@ -583,12 +609,13 @@ def _train_batched(
     next_eval = [(done_steps // evaluate_every + 1) * evaluate_every]
 
     evaluating = [0.0]  # seconds in held-out evaluations since training started (SECONDS_KEY)
+    best = BestCheckpoint(out, done_steps if resume else None)
 
     def heldout() -> None:
         if config.eval_episodes:
             # evaluations run inside learn()'s clock: training's own time is that clock minus them
             model.logger.record(TRAINING_SECONDS_KEY, clock.seconds())
-            spent = record_heldout(
+            spent, means = record_heldout(
                 model.logger,
                 model,
                 normalizer,
@@ -601,6 +628,8 @@ def _train_batched(
             if clock.started is not None:
                 clock.evaluating += spent
             model.logger.record(SECONDS_KEY, evaluating[0])
+            # after an update: the evaluated policy is the one a checkpoint taken now holds
+            best.offer(means, model.num_timesteps, save)
 
     def on_rollout_start() -> None:
         rollout_start[0] = model.num_timesteps
@@ -627,7 +656,7 @@ def _train_batched(
     except KeyboardInterrupt:
         # as the SB3 path: the rollout being collected was not trained on, so its steps are not counted
         model.num_timesteps = rollout_start[0]
-        save()
+        save(again=True)  # the statistics may have seen part of the rollout: as before, they are kept
         raise
     finally:
         bar.close()
@@ -819,23 +848,111 @@ def _save_files(
 
 
 def _save_checkpoint(
-    m, config: TrainConfig, ckpt: Path, normalizer=None, critic_state=None, clock: TrainingClock | None = None
-) -> None:
-    """A new ``step-<n>`` folder, written whole under a temporary name and renamed; then all but the newest
-    :data:`KEEP_CHECKPOINTS` are removed."""
+    m,
+    config: TrainConfig,
+    ckpt: Path,
+    normalizer=None,
+    critic_state=None,
+    clock: TrainingClock | None = None,
+    again: bool = True,
+) -> Path:
+    """A new ``step-<n>`` folder, written whole under a temporary name and renamed, and returned; then all but the
+    newest :data:`KEEP_CHECKPOINTS` are removed, except the run's best (:class:`BestCheckpoint`). ``again=False``
+    keeps a whole folder of the same step as it is (the batched trainer saves the same state twice when a
+    held-out evaluation's best falls on a checkpoint's step: replacing it would leave ``best.json`` naming a
+    folder that is, for a moment, gone)."""
     name = f"step-{int(m.num_timesteps):012d}"
+    if not again and (ckpt / name / "state.json").exists():
+        return ckpt / name
     tmp = ckpt / f".{name}.tmp"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
     _save_files(m, config, tmp, normalizer, critic_state, clock)
     shutil.rmtree(ckpt / name, ignore_errors=True)
     os.replace(tmp, ckpt / name)
-    for old in checkpoints(ckpt.parent)[KEEP_CHECKPOINTS:]:
+    _prune_checkpoints(ckpt.parent)
+    return ckpt / name
+
+
+def _prune_checkpoints(out: Path) -> None:
+    """Remove all checkpoints but the newest :data:`KEEP_CHECKPOINTS` and the one ``best.json`` names."""
+    ckpt = out / "checkpoints"
+    kept = BestCheckpoint.named(out)
+    for old in checkpoints(out)[KEEP_CHECKPOINTS:]:
         if old == ckpt:  # the single checkpoint of the old layout
             for stale in (MODEL_FILE, STATISTICS_FILE, PICKLED_STATISTICS_FILE, CRITIC_FILE, "state.json"):
                 (ckpt / stale).unlink(missing_ok=True)
-        else:
+        elif old.name != kept:
             shutil.rmtree(old, ignore_errors=True)
+
+
+class BestCheckpoint:
+    """The run's best policy by held-out evaluation, as rl-zoo3 keeps ``best_model.zip`` beside the last model.
+
+    After each held-out evaluation (``eval_every``, and the last), :meth:`offer` keeps the policy just evaluated as a checkpoint
+    when the mean of :data:`BEST_BY` over the evaluation's episodes is higher than every earlier evaluation's of
+    the run (the first on a tie), and writes ``best.json`` (after the checkpoint is whole) naming it with its
+    evaluation; that checkpoint is then spared by the rotation of :data:`KEEP_CHECKPOINTS`. The held-out episodes
+    are the training's own (``heldout.HELDOUT_SEEDS``), apart from every comparison's and sweep's, so a policy
+    chosen by them is still scored on episodes its choice never saw. Keeping it changes nothing in training.
+
+    ``resumed_at``: the agent-steps of the checkpoint a resumed run goes on from. A best kept after it belongs to
+    the stretch the interrupted process trained and the resumed one will train again on other episodes, so it is
+    forgotten (its checkpoint then rotates away), as the log rows after it are (``_cut_progress_log``)."""
+
+    def __init__(self, out: Path, resumed_at: int | None = None):
+        self.out = Path(out)
+        self.path = self.out / BEST_FILE
+        self.record: dict[str, Any] | None = None
+        with contextlib.suppress(OSError, RunError):  # none yet, or cut short: the next evaluation writes one
+            self.record = read_json(self.path)
+        if not (isinstance(self.record, dict) and isinstance(self.record.get(BEST_BY), float)):
+            self.record = None
+        elif resumed_at is not None and self.record.get("num_timesteps", 0) > resumed_at:
+            self.path.unlink()
+            self.record = None
+
+    @staticmethod
+    def named(out: Path) -> str | None:
+        """The checkpoint folder's name that ``out/best.json`` names, or None (no evaluation yet, or unreadable)."""
+        try:
+            name = read_json(Path(out) / BEST_FILE).get("checkpoint")
+        except (OSError, RunError, AttributeError):
+            return None
+        return name if isinstance(name, str) else None
+
+    def offer(self, means: dict[str, float], steps: int, save) -> None:
+        """``means``: an evaluation of the policy after ``steps`` agent-steps; ``save()`` writes that policy as a
+        checkpoint and returns its folder, called only for a new best. The evaluation before any update (agent-step
+        0: random weights, or a warm start's clone) is the curve's start, not a candidate."""
+        score = float(means[BEST_BY])
+        if steps <= 0 or (self.record is not None and not score > self.record[BEST_BY]):
+            return
+        folder = save()
+        self.record = {
+            "checkpoint": folder.name,
+            "num_timesteps": read_state(folder)[0],
+            BEST_BY: score,
+            "heldout": {key: float(value) for key, value in means.items()},
+        }
+        write_json(self.path, self.record)
+        _prune_checkpoints(self.out)
+
+
+def best_checkpoint(out: Path) -> Path:
+    """The checkpoint folder of the run's best policy by held-out return (:class:`BestCheckpoint`); a run without
+    one (no held-out evaluation, or trained before runs kept it) is a :class:`RunError` saying so."""
+    out = Path(out)
+    name = BestCheckpoint.named(out)
+    if name is None:
+        raise RunError(
+            f"{out} names no best checkpoint ({BEST_FILE}): its run had no held-out evaluation (eval_episodes 0) or "
+            "was trained before runs kept one; use its final model"
+        )
+    folder = out / "checkpoints" / name
+    if not (folder / "state.json").exists():
+        raise RunError(f"{out / BEST_FILE} names {name}, which {out / 'checkpoints'} does not hold")
+    return folder
 
 
 def _load_newest_checkpoint(config: TrainConfig, ckpt: Path, venv, trust_pickle: bool = False):

@@ -264,7 +264,7 @@ class RunLock:
             self.fd = None
 
 
-def _timer_rows(folder: Path, timer: str) -> list[float]:
+def timer_rows(folder: Path, timer: str) -> list[float]:
     """BenchMARL's ``timers/<timer>_time`` of each iteration that logged it (its csv logger's file), in iteration
     order. A resumed run appends to the file and logs again the iterations its killed attempt made after its last
     checkpoint: each iteration counts once, as its last row gives it (the one the finished run is made of)."""
@@ -279,7 +279,7 @@ def _timer_rows(folder: Path, timer: str) -> list[float]:
 
 def _timer_total(folder: Path, timer: str) -> float:
     """BenchMARL's ``timers/<timer>_time`` summed over the run's iterations."""
-    return float(sum(_timer_rows(folder, timer)))
+    return float(sum(timer_rows(folder, timer)))
 
 
 def run_paths(out: Path, task: str, algorithm: str, seed: int) -> tuple[Path, Path]:
@@ -334,7 +334,7 @@ def restore_evaluations(experiment, earlier: dict) -> None:
                 best[metric] = [max([max(values), *best.get(metric, [])])]
 
 
-def _scratch_for(scratch: Path, plan_args: dict, resumable: bool) -> tuple[Path | None, dict, list[int]]:
+def scratch_for(scratch: Path, plan_args: dict, resumable: bool) -> tuple[Path | None, dict, list[int]]:
     """(the checkpoint to go on from in ``scratch``, the marl-eval JSON logged before it, the frames at which earlier
     attempts resumed), or (None, {}, []) after clearing the folder for a fresh start: a scratch folder is resumed only
     when its checkpoints were made with the same arguments (its :data:`SCRATCH_PLAN` note)."""
@@ -360,7 +360,7 @@ def run_one(
     scratch = record_path.with_suffix(".scratch")
     resumable = bool(algorithm_config(algorithm).on_policy())
     plan_args = {"frames": frames, "frames_per_batch": frames_per_batch, "num_envs": num_envs, "episodes": episodes}
-    checkpoint, earlier, resumed_at = _scratch_for(scratch, plan_args, resumable)
+    checkpoint, earlier, resumed_at = scratch_for(scratch, plan_args, resumable)
     config = experiment_config(frames, frames_per_batch, num_envs, episodes, scratch, checkpoints=resumable)
     config.restore_file = None if checkpoint is None else str(checkpoint)
     experiment = the_experiment(task, algorithm, seed, config)
@@ -481,7 +481,7 @@ def measure_cost(
         start = time.perf_counter()
         experiment.run()
         wall = time.perf_counter() - start
-        timers = {timer: _timer_rows(scratch, timer) for timer in ("collection", "training", "evaluation")}
+        timers = {timer: timer_rows(scratch, timer) for timer in ("collection", "training", "evaluation")}
         iteration = timers["collection"][-1] + timers["training"][-1]
         evaluation = float(np.mean(timers["evaluation"]))
         iterations = math.ceil(FRAMES / frames_per_batch)

@@ -18,7 +18,7 @@ from tqdm.auto import tqdm
 from mrcomm_agents.artifacts import MODEL_FILE, STATISTICS_FILE, read_json
 from mrcomm_agents.heldout import HELDOUT_SEEDS
 from mrcomm_agents.learned import CARD_NAME, LearnedPolicy, pretrained_dir
-from mrcomm_agents.training import TrainConfig, split_settings
+from mrcomm_agents.training import TrainConfig, best_checkpoint, split_settings
 from mrcomm_baselines import make_policy
 from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.actions import ActionProfile, profile_actions
@@ -291,28 +291,38 @@ def shipped_actions(env_id: str, spec: dict) -> ActionProfile | None:
     against = spec.get("actions_against")
     if not against:
         return None
-    policy = LearnedPolicy(spec["best_run"], env_id, spec["algo"], deterministic=spec.get("deterministic", True))
+    policy = LearnedPolicy(
+        spec["best_run"],
+        env_id,
+        spec["algo"],
+        deterministic=spec.get("deterministic", True),
+        checkpoint=spec.get("checkpoint", "final"),
+    )
     rules = {baseline_label(name, params): make_policy(env_id, name, **params) for name, params in against}
     return profile_actions(env_id, policy.env_kwargs, policy, rules, heldout_seeds(spec))
 
 
 def export_pretrained(run: str | Path, env_id: str, shipped: dict | None = None) -> Path:
     """Copy a run's model, statistics and config into ``agents/pretrained/<Name>-v0/`` (shipped in the package;
-    ``mrcomm evaluate ID --policy pretrained``). Checkpoints and logs stay behind: well under 1 MB. ``shipped``:
-    the comparison's account of the run (:func:`shipped_run`), written into the card."""
+    ``mrcomm evaluate ID --policy pretrained``): its final model, or its best by held-out return where the
+    comparison says ``"checkpoint": "best"`` (the model the comparison scored). Checkpoints and logs stay behind:
+    well under 1 MB. ``shipped``: the comparison's account of the run (:func:`shipped_run`), written into the card."""
+    spec = comparison_spec(env_id)
+    chosen = spec.get("checkpoint", "final")
+    source = best_checkpoint(Path(run)) if chosen == "best" else Path(run)
     target = pretrained_dir(env_id)
     target.mkdir(parents=True, exist_ok=True)
-    for name in (MODEL_FILE, STATISTICS_FILE, "config.json"):
-        if (Path(run) / name).exists():
+    for folder, name in ((source, MODEL_FILE), (source, STATISTICS_FILE), (Path(run), "config.json")):
+        if (folder / name).exists():
             tmp = target / f".{name}.tmp"
-            shutil.copyfile(Path(run) / name, tmp)
+            shutil.copyfile(folder / name, tmp)
             tmp.replace(target / name)
     record = json.loads((target / "config.json").read_text())
     # the agent-steps the model was trained for, which a rollout's length rounds up from the budget ``timesteps``
-    state = Path(run) / "state.json"
+    state = source / "state.json"
     if state.exists():
         record = {**record, "trained_agent_steps": int(read_json(state)["num_timesteps"])}
-    spec = comparison_spec(env_id)
+    record["checkpoint"] = chosen
     cost = record.get("env_kwargs", {}).get(spec["cost_param"])
     points = curve_rows([{"out": str(run), "cost": cost, "seed": record.get("seed")}], spec)
     write_model_card(env_id, record, shipped, rl_phase(points, record.get("eval_episodes"), HELDOUT_SEEDS))
@@ -334,6 +344,8 @@ def write_model_card(env_id: str, record: dict, shipped: dict | None = None, pha
         "policy": record.get("policy", "mlp"),
         "seed": record.get("seed"),
         "agent_steps": record.get("trained_agent_steps", record.get("timesteps")),
+        # which of its run's models ships: "final", or "best" by the run's held-out return (its agent_steps above)
+        "checkpoint": record.get("checkpoint", "final"),
         "deterministic": bool(spec.get("deterministic", True)),
         "metric": spec.get("metric"),
         "reproduce": f"mrcomm reproduce-learning {short_name(env_id)} --export-pretrained",

@@ -441,7 +441,10 @@ One policy is shared by every agent (parameter sharing): PPO through SB3 (`agent
 trainer's IPPO or MAPPO where the env's table says `learned (ippo)` or `learned (mappo)` (`agents/batched_ppo.py`;
 MAPPO's critic also reads `env.state()`). For each env, the price of a
 bit in the reward (the cost argument) is swept; each value is trained with several seeds and each trained
-policy is evaluated on held-out episode seeds (deterministically unless the env's section says otherwise). A
+policy is evaluated on held-out episode seeds (deterministically unless the env's section says otherwise): its final
+model, or where the env's section says so its best checkpoint, the one the run's own held-out evaluation while
+training (`heldout/`, episodes from seed 30,000, apart from the table's) scored highest by return (`best.json`,
+rl-zoo3's `best_model`). A
 learned point's interval is over training seeds; a baseline's over episodes. Beside a learned point's mean, the
 column "IQM" gives rliable's interquartile mean over its training seeds with a 95 % percentile-bootstrap
 interval (`mrcomm_env/experiments/comparison.py`: with 3 seeds the IQM is the mean; "—" where the recorded table predates

@@ -56,7 +56,7 @@ PR_SET_PDEATHSIG = 1
 
 #: attempts per task: the first run and one retry
 ATTEMPTS = 2
-#: how long a stopping driver goes on cancelling its Ray tasks until each has ended (:func:`_cancel_until_gone`)
+#: how long a stopping driver goes on cancelling its Ray tasks until each has ended (:func:`cancel_until_gone`)
 CANCEL_SECONDS = 30.0
 
 
@@ -336,10 +336,10 @@ class Runner:
                         finished(i, outcome)
         finally:
             # an interrupted or failed driver leaves no task of its sweep running on the cluster
-            _cancel_until_gone(ray, list(pending))
+            cancel_until_gone(ray, list(pending))
 
 
-def _cancel_until_gone(ray, refs: list, seconds: float = CANCEL_SECONDS) -> None:
+def cancel_until_gone(ray, refs: list, seconds: float = CANCEL_SECONDS) -> None:
     """Cancel ``refs`` (``force``: a running task's worker exits) and cancel again, once a second, those that have
     not ended, for at most ``seconds``. Ray can lose a cancel that reaches a task between its dispatch to a worker
     and its start (ray-project/ray#24359, #52703); the task then runs to its end and holds its CPU. This happened

@@ -167,13 +167,20 @@ def training_summary(run: Path) -> dict:
 
 def train_and_evaluate(out: str, config: dict, eval_seeds: list[int]) -> dict:
     """A sweep task: train one run into ``out`` (resumed, or skipped when finished) and score it on ``eval_seeds``
-    with the env's comparison metric, bits and return. Returns JSON data only, so any backend can carry it."""
+    with the env's comparison metric, bits and return: its final model, or its best by held-out return where the
+    comparison says ``"checkpoint": "best"``. Returns JSON data only, so any backend can carry it."""
     train_run(out, config)
     summary = training_summary(Path(out))
     try:
         spec = comparison_spec(config["env_id"])
     except ValueError:  # no comparison section: score by the return alone
         spec = {"metric": "episode_return", "deterministic": True}
-    policy = LearnedPolicy(out, config["env_id"], config.get("algo"), deterministic=spec.get("deterministic", True))
+    policy = LearnedPolicy(
+        out,
+        config["env_id"],
+        config.get("algo"),
+        deterministic=spec.get("deterministic", True),
+        checkpoint=spec.get("checkpoint", "final"),
+    )
     evaluation = evaluate_policy(config["env_id"], config.get("env_kwargs", {}), policy, eval_seeds, spec)
     return {"run": out, "training": summary, "evaluation": evaluation}

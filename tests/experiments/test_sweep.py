@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from mrcomm_env.experiments.sweep import Runner, SweepError, Task, _cancel_until_gone, current, using
+from mrcomm_env.experiments.sweep import Runner, SweepError, Task, cancel_until_gone, current, using
 
 TESTS = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(TESTS))  # helpers.sweep_tasks must import in spawned workers too
@@ -210,7 +210,7 @@ class _LosesFirstCancel:
 
 def test_a_stopping_driver_cancels_again_the_ray_tasks_a_lost_cancel_left_running():
     fake = _LosesFirstCancel()
-    _cancel_until_gone(fake, ["a", "b"], seconds=5.0)
+    cancel_until_gone(fake, ["a", "b"], seconds=5.0)
     assert fake.cancels == {"a": 1, "b": 2}  # each cancelled until it ended, and no more
 
 
@@ -220,5 +220,5 @@ def test_a_stopping_driver_gives_up_cancelling_after_its_time():
             return False
 
     fake = NeverEnds()
-    _cancel_until_gone(fake, ["a", "b"], seconds=0.0)
+    cancel_until_gone(fake, ["a", "b"], seconds=0.0)
     assert fake.cancels == {"a": 1, "b": 1}

@@ -317,14 +317,14 @@ def test_a_scratch_folder_is_resumed_only_by_an_on_policy_run_with_its_own_argum
     (scratch / "experiment" / "experiment.json").write_text("{}")
     (scratch / benchmarl_reference.SCRATCH_PLAN).write_text(json.dumps({"plan": note_plan, "resumed_at_frames": []}))
     resumable = benchmarl_reference.algorithm_config(algorithm).on_policy()
-    assert benchmarl_reference._scratch_for(scratch, plan_args, resumable) == (None, {}, [])
+    assert benchmarl_reference.scratch_for(scratch, plan_args, resumable) == (None, {}, [])
     assert sorted(p.name for p in scratch.iterdir()) == [benchmarl_reference.SCRATCH_PLAN]  # a fresh start
     (scratch / benchmarl_reference.SCRATCH_PLAN).write_text(json.dumps({"plan": plan_args, "resumed_at_frames": [300]}))
     checkpoints.mkdir(parents=True)
     torch.save({"state": {}}, checkpoints / "checkpoint_100.pt")
     (scratch / "experiment" / "experiment.json").write_text('{"earlier": 1}')
     expected = (checkpoints / "checkpoint_100.pt", {"earlier": 1}, [300]) if resumable else (None, {}, [])
-    assert benchmarl_reference._scratch_for(scratch, plan_args, resumable) == expected
+    assert benchmarl_reference.scratch_for(scratch, plan_args, resumable) == expected
 
 
 def test_each_iteration_counts_once_in_the_timers_of_a_resumed_run(tmp_path):
@@ -332,7 +332,7 @@ def test_each_iteration_counts_once_in_the_timers_of_a_resumed_run(tmp_path):
     scalars = tmp_path / "experiment" / "scalars"
     scalars.mkdir(parents=True)
     (scalars / "timers_training_time.csv").write_text("0,1.0\n1,2.0\n2,3.0\n1,20.0\n2,30.0\n3,4.0\n")
-    assert benchmarl_reference._timer_rows(tmp_path, "training") == [1.0, 20.0, 30.0, 4.0]
+    assert benchmarl_reference.timer_rows(tmp_path, "training") == [1.0, 20.0, 30.0, 4.0]
 
 
 @pytest.mark.parametrize("task", ["MAPSYNC", "CHANNEL_ASSOCIATION"])

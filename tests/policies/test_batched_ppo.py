@@ -479,6 +479,82 @@ def test_every_heldout_row_says_how_long_training_took_without_the_evaluations(t
     assert all(b > a for a, b in zip(evaluating[1:], evaluating[2:]))  # every evaluation adds its own time
 
 
+# ------------------------------------------------------------------------------------------------ best checkpoint
+def heldout_rows(run) -> list[tuple[int, float]]:
+    """(agent-steps, held-out mean return) of every held-out evaluation a run logged, in order."""
+    with open(run / "progress.csv", newline="") as fh:
+        return [
+            (int(float(r["time/total_timesteps"])), float(r["heldout/episode_return"]))
+            for r in csv.DictReader(fh)
+            if r.get("heldout/episode_return")
+        ]
+
+
+@pytest.mark.parametrize("algo", ["ppo", "ippo", "mappo"])
+def test_the_best_checkpoint_is_the_policy_its_best_heldout_evaluation_scored(tmp_path, algo):
+    """rl-zoo3's ``best_model``: ``best.json`` names the checkpoint of the evaluation with the highest held-out return
+    after agent-step 0 (the first on a tie), and that checkpoint, played again on the same held-out episodes, scores
+    that return to the last digit (the policy saved is the policy evaluated, with its normalisation). It outlives
+    the rotation of the regular checkpoints, and ``checkpoint="best"`` acts with it."""
+    from mrcomm_agents.heldout import HELDOUT_SEEDS, evaluate_episodes
+
+    if algo == "ppo":
+        hyper = {"n_steps": 16, "batch_size": 24, "n_epochs": 2}
+        cfg = config(8 * 16 * N_AGENTS, "ppo", n_envs=1, hyperparams=hyper, eval_every=16 * N_AGENTS)
+    else:
+        cfg = config(8 * ROLLOUT, algo, eval_every=ROLLOUT)
+    cfg.eval_episodes = 2
+    cfg.hyperparams["learning_rate"] = 3e-3  # the policy moves enough between evaluations for returns to differ
+    run = train(cfg, tmp_path / "run", progress=False)
+    rows = heldout_rows(run)
+    candidates = [(steps, value) for steps, value in rows if steps > 0]
+    assert len(candidates) >= 6 and len({v for _, v in candidates}) > 1, rows
+    top = max(value for _, value in candidates)
+    first_step = next(steps for steps, value in candidates if value == top)
+    record = json.loads((run / training.BEST_FILE).read_text())
+    assert record["episode_return"] == top and record["heldout"]["episode_return"] == top
+    best = training.best_checkpoint(run)
+    assert best.name == record["checkpoint"]
+    # an SB3 rollout's evaluation scores the policy that collected it, saved under the rollout's start
+    rollout = 16 * N_AGENTS if algo == "ppo" else ROLLOUT
+    expected_steps = first_step - rollout if algo == "ppo" and first_step != cfg.timesteps else first_step
+    assert record["num_timesteps"] == expected_steps == json.loads((best / "state.json").read_text())["num_timesteps"]
+    # kept beside the newest regular checkpoints, however old
+    assert best in training.checkpoints(run)
+    assert len(training.checkpoints(run)) <= training.KEEP_CHECKPOINTS + 1
+    policy = LearnedPolicy(run, ENV, algo, checkpoint="best")
+    assert policy.source == best and policy.model.num_timesteps == expected_steps
+    again = evaluate_episodes(
+        policy.model, policy.normalizer, ENV, cfg.env_kwargs, range(HELDOUT_SEEDS, HELDOUT_SEEDS + 2), True
+    )
+    assert again["episode_return"] == top
+
+
+def test_a_resumed_run_forgets_a_best_kept_after_the_checkpoint_it_goes_on_from(tmp_path):
+    """The stretch after the checkpoint a resumed run goes on from is trained again on other episodes: a best kept
+    in it belongs to a policy the run no longer leads to."""
+    (tmp_path / training.BEST_FILE).write_text(
+        json.dumps({"checkpoint": "step-000000000096", "num_timesteps": 96, "episode_return": -1.0})
+    )
+    assert training.BestCheckpoint(tmp_path, resumed_at=192).record["num_timesteps"] == 96
+    assert (tmp_path / training.BEST_FILE).exists()
+    assert training.BestCheckpoint(tmp_path, resumed_at=48).record is None
+    assert not (tmp_path / training.BEST_FILE).exists()
+
+
+def test_a_run_without_a_best_checkpoint_and_a_bad_checkpoint_setting_are_refused_naming_them(tmp_path, capsys):
+    run = train(config(2 * ROLLOUT, eval_episodes=0), tmp_path / "run", progress=False)
+    with pytest.raises(training.RunError, match="names no best checkpoint"):
+        LearnedPolicy(run, ENV, "ippo", checkpoint="best")
+    capsys.readouterr()
+    assert main(["evaluate", ENV, "--policy", f"ippo:{run}", "--policy-param", "checkpoint=best", "--quiet"]) != 0
+    err = capsys.readouterr().err
+    assert "names no best checkpoint" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    with pytest.raises(training.RunError, match="'checkpoint' must be one of final, best, got 'newest'"):
+        LearnedPolicy(run, ENV, "ippo", checkpoint="newest")
+    assert LearnedPolicy(run, ENV, "ippo", checkpoint="final").model.num_timesteps == 2 * ROLLOUT
+
+
 # ------------------------------------------------------------------------------------------------ schedules
 @pytest.mark.parametrize("algo", ["ppo", "ippo"])
 def test_lin_settings_anneal_linearly_to_zero_and_come_back_from_the_run_folder(tmp_path, monkeypatch, algo):

@@ -185,6 +185,7 @@ def test_reproduce_learning_end_to_end_on_a_tiny_budget(tmp_path, monkeypatch):
             "seeds": 1,
             "eval_episodes": 2,
             "deterministic": False,
+            "checkpoint": "best",
             "baselines": [["coin_flip", {}], ["random", {}]],
             "actions_against": [["coin_flip", {}]],
         },
@@ -235,6 +236,11 @@ def test_reproduce_learning_end_to_end_on_a_tiny_budget(tmp_path, monkeypatch):
     card = json.loads((shipped / "card.json").read_text())
     assert card["env_kwargs"] == json.loads((shipped / "config.json").read_text())["env_kwargs"]
     assert card["deterministic"] is False  # the mode of the (patched) comparison config above
+    # each run is scored, and the chosen one shipped, as its best checkpoint by held-out return: with evaluations
+    # only at agent-step 0 (never a candidate) and at the end, the final policy's
+    assert card["checkpoint"] == "best" and card["agent_steps"] == 64
+    best_runs = [json.loads(p.read_text())["checkpoint"] for p in (tmp_path / "runs").rglob("best.json")]
+    assert sorted(best_runs) == ["step-000000000064"] * 2
     assert card["best_baseline"]["policy"] == "coin_flip"  # the one paper algorithm here (random is a reference)
     assert card["heldout"]["episodes"] == 2 and 0 <= card["heldout"]["metric"] <= 12  # 12: the tiny max_cycles
     # what the shipped run chooses beside the rule the config names, on the table's held-out episodes: 4 robots
@@ -310,8 +316,12 @@ def test_every_shipped_model_has_a_card_that_agrees_with_it(env_id):
     assert card["algo"] == record["algo"]
     assert card["deterministic"] is comparison_spec(env_id).get("deterministic", True)
     policy = load_policy("pretrained", env_id)
-    # the agent-steps the model was trained for: its budget, rounded up to whole rollouts
-    assert card["agent_steps"] == policy.model.num_timesteps >= record["timesteps"]
+    if card.get("checkpoint", "final") == "final":
+        # the agent-steps the model was trained for: its budget, rounded up to whole rollouts
+        assert card["agent_steps"] == policy.model.num_timesteps >= record["timesteps"]
+    else:  # its run's best checkpoint by held-out return, after some update and at most at the end
+        assert card["checkpoint"] == "best" and 0 < card["agent_steps"] == policy.model.num_timesteps
+        assert card["agent_steps"] <= card["rl_phase"]["end"]["agent_steps"]
     assert policy.deterministic is card["deterministic"]
     assert (
         load_policy("pretrained", env_id, deterministic=not card["deterministic"]).deterministic
