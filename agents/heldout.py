@@ -105,9 +105,9 @@ def record_heldout(
     logger, model, venv, env_id: str, env_kwargs: dict, episodes: int, deterministic: bool
 ) -> tuple[float, dict[str, float]]:
     """Evaluate ``model`` on ``episodes`` held-out episodes and record the means under ``heldout/`` in ``logger``;
-    returns the seconds it took and the means. ``venv``: the training VecNormalize (or a detached one) whose statistics normalise
-    the observations. torch's global generator, which SB3 samples actions from, is saved and restored: training
-    draws nothing less."""
+    returns the seconds it took and the means. ``venv``: the training VecNormalize (or a detached one) whose
+    statistics normalise the observations. torch's global generator, which SB3 samples actions from, is saved and
+    restored: training draws nothing less."""
     start = time.perf_counter()
     state = torch.get_rng_state()
     try:

@@ -889,12 +889,13 @@ def _prune_checkpoints(out: Path) -> None:
 class BestCheckpoint:
     """The run's best policy by held-out evaluation, as rl-zoo3 keeps ``best_model.zip`` beside the last model.
 
-    After each held-out evaluation (``eval_every``, and the last), :meth:`offer` keeps the policy just evaluated as a checkpoint
-    when the mean of :data:`BEST_BY` over the evaluation's episodes is higher than every earlier evaluation's of
-    the run (the first on a tie), and writes ``best.json`` (after the checkpoint is whole) naming it with its
-    evaluation; that checkpoint is then spared by the rotation of :data:`KEEP_CHECKPOINTS`. The held-out episodes
-    are the training's own (``heldout.HELDOUT_SEEDS``), apart from every comparison's and sweep's, so a policy
-    chosen by them is still scored on episodes its choice never saw. Keeping it changes nothing in training.
+    After each held-out evaluation (every ``eval_every`` agent-steps, and the last), :meth:`offer` keeps the policy
+    just evaluated as a checkpoint when the mean of :data:`BEST_BY` over the evaluation's episodes is higher than
+    every earlier evaluation's of the run (the first on a tie), and writes ``best.json`` (after the checkpoint is
+    whole) naming it with its evaluation; that checkpoint is then spared by the rotation of :data:`KEEP_CHECKPOINTS`.
+    The held-out episodes are the training's own (``heldout.HELDOUT_SEEDS``), apart from every comparison's and
+    sweep's, so a policy chosen by them is still scored on episodes its choice never saw. Keeping it changes
+    nothing in training.
 
     ``resumed_at``: the agent-steps of the checkpoint a resumed run goes on from. A best kept after it belongs to
     the stretch the interrupted process trained and the resumed one will train again on other episodes, so it is
