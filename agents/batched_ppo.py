@@ -234,6 +234,28 @@ class BatchedPPO:
         self.elapsed = 0.0
         #: agent-steps until which only the critic learns (``critic_warmup`` after a warm start)
         self.critic_warmup_until = 0
+        #: kickstarting (:meth:`kickstart`): the frozen teacher policy, its starting weight and the agent-steps over
+        #: which the weight falls to 0; the teacher's choices at the rollout's states, and the rollout's weight
+        self.teacher: Any = None
+        self.kickstart_coef, self.kickstart_steps = 0.0, 1
+        self.buf_teacher_actions: np.ndarray | None = None
+        self.rollout_kickstart_weight = 0.0
+
+    def kickstart(self, teacher, coef: float, steps: int) -> None:
+        """Kickstarting (Schmitt et al. 2018, with the teacher's mode in place of its distribution): every update
+        adds ``w`` × the policy's negative log-likelihood of ``teacher``'s deterministic choice at each state of the
+        rollout (a policy of the same observation and action spaces, e.g. a warm start's clone, never trained
+        here), with ``w = coef × max(0, 1 − agent-steps at the rollout's start / steps)``. The mode rather than the
+        whole distribution: the policies compared here act by their mode, and it serves every action distribution
+        alike (a subset draw has no closed-form cross-entropy)."""
+        self.teacher, self.kickstart_coef, self.kickstart_steps = teacher, float(coef), int(steps)
+        self.buf_teacher_actions = np.zeros_like(self.buf_actions)
+
+    def kickstart_weight(self, agent_steps: int) -> float:
+        """The weight of the kickstarting loss for a rollout that starts after ``agent_steps``."""
+        if self.teacher is None:
+            return 0.0
+        return self.kickstart_coef * max(0.0, 1.0 - agent_steps / self.kickstart_steps)
 
     # ------------------------------------------------------------------ observations and values
     def _observe(self, observations: np.ndarray) -> np.ndarray:
@@ -269,9 +291,13 @@ class BatchedPPO:
         ``get_distribution``): MAPPO's values come from its own critic, so the policy's value branch, which SB3's
         ``forward`` and ``evaluate_actions`` compute too, is skipped. The same actions, log-probabilities and
         random draws as theirs."""
+        return self._distribution(self.policy, obs, masks)
+
+    @staticmethod
+    def _distribution(policy, obs: torch.Tensor, masks):
         if masks is None:
-            return self.policy.get_distribution(obs)
-        return self.policy.get_distribution(obs, action_masks=masks)
+            return policy.get_distribution(obs)
+        return policy.get_distribution(obs, action_masks=masks)
 
     def _values(self, obs: torch.Tensor) -> torch.Tensor:
         if self.critic is not None:
@@ -289,6 +315,7 @@ class BatchedPPO:
         policy, gamma = self.policy, float(self.model.gamma)
         policy.set_training_mode(False)
         torch.set_num_threads(1)
+        self.rollout_kickstart_weight = self.kickstart_weight(self.model.num_timesteps)
         env_actions_dtype = np.int64 if isinstance(self.action_space, (spaces.Discrete, spaces.MultiDiscrete)) else None
         for t in range(self.steps):
             obs = self.next_obs
@@ -309,6 +336,10 @@ class BatchedPPO:
                     actions, values, log_probs = policy(obs_t)
             actions_np = actions.numpy()
             self.buf_actions[t] = actions_np.reshape(self.buf_actions[t].shape)
+            if self.rollout_kickstart_weight > 0.0 and self.buf_teacher_actions is not None:
+                with torch.no_grad():
+                    taught = self._distribution(self.teacher, obs_t, self.next_masks).get_actions(deterministic=True)
+                self.buf_teacher_actions[t] = taught.numpy().reshape(self.buf_teacher_actions[t].shape)
             self.buf_log_probs[t] = log_probs.numpy()
             self.buf_values[t] = values.flatten().numpy()
             env_actions = self._env_actions(actions_np, env_actions_dtype)
@@ -415,7 +446,8 @@ class BatchedPPO:
             blocks, block_rows = total, 1
         blocks_per_batch = max(1, min(int(model.batch_size), total) // block_rows)
         params = [p for optimizer in optimizers for group in optimizer.param_groups for p in group["params"]]
-        logs: dict[str, list[float]] = {k: [] for k in ("pg", "vf", "ent", "kl", "clip")}
+        logs: dict[str, list[float]] = {k: [] for k in ("pg", "vf", "ent", "kl", "clip", "kick")}
+        kickstart = data["teacher_actions"] is not None and not critic_only
         for _ in range(int(model.n_epochs)):
             order = torch.randperm(blocks, generator=self.generator)
             for lo in range(0, blocks, blocks_per_batch):
@@ -430,6 +462,12 @@ class BatchedPPO:
                 loss = model.vf_coef * vf_loss
                 if not critic_only:
                     loss = loss + pg_loss + model.ent_coef * ent_loss
+                if kickstart:
+                    masks = None if data["masks"] is None else data["masks"][idx]
+                    distribution = self.actor_distribution(data["obs"][idx], masks)
+                    kick_loss = -distribution.log_prob(data["teacher_actions"][idx]).mean()
+                    loss = loss + self.rollout_kickstart_weight * kick_loss
+                    logs["kick"].append(kick_loss.item())
                 for optimizer in optimizers:
                     optimizer.zero_grad()
                 loss.backward()
@@ -455,14 +493,17 @@ class BatchedPPO:
             "train/clip_range": clip_range,
             **({} if clip_range_vf is None else {"train/clip_range_vf": clip_range_vf}),  # as SB3's PPO logs it
             "train/explained_variance": explained,
+            **(
+                {"train/kickstart_weight": self.rollout_kickstart_weight, "train/kickstart_loss": _mean(logs["kick"])}
+                if self.teacher is not None
+                else {}
+            ),
         }
 
     def _rollout_tensors(self) -> dict[str, Any]:
         """The rollout's buffers as flat tensors over its T·M·N rows (views, no copies), and the returns."""
         total = self.steps * self.rows
-        actions = torch.from_numpy(self.buf_actions.reshape(total, *self.buf_actions.shape[2:]))
-        if isinstance(self.action_space, spaces.Discrete):
-            actions = actions.long().flatten()
+        actions = self._action_rows(self.buf_actions)
         values = torch.from_numpy(self.buf_values.reshape(total))
         advantages = torch.from_numpy(self.advantages.reshape(total))
         return {
@@ -473,7 +514,17 @@ class BatchedPPO:
             "advantages": advantages,
             "returns": advantages + values,
             "masks": None if self.buf_masks is None else self.buf_masks.reshape(total, -1),
+            "teacher_actions": None
+            if self.rollout_kickstart_weight <= 0.0 or self.buf_teacher_actions is None
+            else self._action_rows(self.buf_teacher_actions),
         }
+
+    def _action_rows(self, buffer: np.ndarray) -> torch.Tensor:
+        """A ``(T, M·N, …)`` action buffer as a tensor of T·M·N rows, as the policy's ``log_prob`` takes them."""
+        actions = torch.from_numpy(buffer.reshape(self.steps * self.rows, *buffer.shape[2:]))
+        if isinstance(self.action_space, spaces.Discrete):
+            actions = actions.long().flatten()
+        return actions
 
     def _losses(self, data: dict[str, Any], idx: torch.Tensor, clip_range: float, clip_range_vf: float | None):
         """PPO's losses on the rows ``idx``: (policy, value, entropy, ratio, log ratio), as SB3's PPO.train."""

@@ -26,6 +26,7 @@ import fcntl
 import importlib
 import io
 import json
+import math
 import os
 import platform
 import shutil
@@ -99,6 +100,9 @@ ALGORITHMS = {
 }
 #: the file beside ``model.zip`` holding MAPPO's centralised critic and its optimizer (tensors only)
 CRITIC_FILE = "critic.pt"
+#: the run folder's copy of the warm start's clone as cloned, the frozen teacher of kickstarting (SB3's archive,
+#: without pickles); a resumed run reads it again
+KICKSTART_TEACHER_FILE = "warm_start_model.zip"
 #: arguments of ``train`` that are not the algorithm's own hyperparameters
 RUN_KEYS = (
     "n_envs",
@@ -114,6 +118,8 @@ RUN_KEYS = (
     "critic_warmup",
     "freeze_normalization",
     "update_threads",
+    "kickstart_coef",
+    "kickstart_steps",
 )
 #: the documented ranges of the SB3 hyperparameters (a value outside is refused before any training)
 HYPERPARAMETER_RANGES = {
@@ -190,6 +196,31 @@ class TrainConfig:
     #: trainings started by hand on two cores each want 1: with two each, their spinning threads made them slower
     #: together than one after the other (docs/performance.md, "update threads")
     update_threads: int | None = None
+    #: ippo/mappo after a warm start: kickstarting (Schmitt et al. 2018). The policy's negative log-likelihood of
+    #: what the warm start's clone, frozen as cloned (:data:`KICKSTART_TEACHER_FILE`), chooses (its mode) at every
+    #: state of the rollout is added to PPO's loss with this weight, which falls linearly to 0 over the first
+    #: ``kickstart_steps`` agent-steps: the policy starts near its teacher and is then free to leave it
+    kickstart_coef: float = 0.0
+    kickstart_steps: int = 0
+
+    def _validate_kickstart(self) -> None:
+        coef = self.kickstart_coef
+        if isinstance(coef, bool) or not isinstance(coef, (int, float)) or not 0.0 <= coef < math.inf:
+            raise ValueError(f"argument 'kickstart_coef' must be a number ≥ 0, got {coef!r}")
+        if coef == 0:
+            if self.kickstart_steps:
+                raise ValueError("argument 'kickstart_steps' needs 'kickstart_coef' > 0 (the weight it lowers to 0)")
+            return
+        if self.algo not in BATCHED_ALGORITHMS or self.init_from is None:
+            raise ValueError(
+                f"argument 'kickstart_coef' needs algo ippo or mappo and a warm start ('init_from'), whose clone is "
+                f"the teacher; got algo={self.algo!r}, init_from={self.init_from!r}"
+            )
+        if self.kickstart_steps < 1:
+            raise ValueError(
+                f"argument 'kickstart_steps' must be an integer ≥ 1 with 'kickstart_coef' > 0 (the agent-steps over "
+                f"which its weight falls to 0), got {self.kickstart_steps!r}"
+            )
 
     def validate(self) -> TrainConfig:
         self.env_id = canonical_id(self.env_id)
@@ -202,12 +233,13 @@ class TrainConfig:
             unset = value is None and name == "n_envs"  # ippo/mappo: default_copies, once the env is made
             if not unset and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
                 raise ValueError(f"argument '{name}' must be an integer ≥ 1, got {value!r}")
-        for name in ("seed", "eval_every", "eval_episodes", "critic_warmup"):
+        for name in ("seed", "eval_every", "eval_episodes", "critic_warmup", "kickstart_steps"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"argument '{name}' must be an integer ≥ 0, got {value!r}")
         self._validate_update_threads()
         self._validate_critic_arch()
+        self._validate_kickstart()
         if not isinstance(self.freeze_normalization, bool):
             raise ValueError(
                 f"argument 'freeze_normalization' must be true or false, got {self.freeze_normalization!r}"
@@ -589,11 +621,7 @@ def _train_batched(
     if resume:
         _cut_progress_log(out / "progress.csv", done_steps)
     batch = BatchedEnv(lambda: make(config.env_id, **config.env_kwargs), int(config.n_envs or 1), copy=False)
-    # a resumed run continues on other episodes than those it trained on before the interruption
-    trainer = BatchedPPO(
-        model, batch, normalizer, config.seed + done_steps, critic, critic_optimizer, config.update_threads
-    )
-    trainer.critic_warmup_until = config.critic_warmup
+    trainer = _batched_trainer(config, out, model, batch, normalizer, critic, critic_optimizer, trust_pickle)
     csv_log = resumed_csv_output(str(out / "progress.csv")) if resume else make_output_format("csv", str(out))
     model.set_logger(Logger(str(out), [csv_log, make_output_format("tensorboard", str(out))]))
 
@@ -701,6 +729,8 @@ def _batched_model(config: TrainConfig, out: Path, resume: bool, teacher: Policy
         if teacher is not None:
             report = clone(model, normalizer, teacher, config.env_id, config.env_kwargs, config.seed)
             write_json(out / "warm_start.json", {"teacher": config.init_from, **report.as_dict()})
+            if config.kickstart_coef:
+                save_model(model, out / KICKSTART_TEACHER_FILE)  # kickstarting's teacher, as cloned
             if config.freeze_normalization and normalizer is not None:
                 normalizer.training = False  # the clone was fitted to these statistics
     n_agents = probe.n_agents
@@ -711,6 +741,28 @@ def _batched_model(config: TrainConfig, out: Path, resume: bool, teacher: Policy
         critic_arch = config.net_arch if config.critic_arch is None else config.critic_arch
         critic, critic_optimizer = make_critic(n_agents, obs_dim, critic_arch, model.lr_schedule(1), critic_state)
     return model, normalizer, critic, critic_optimizer, clock
+
+
+def _batched_trainer(config: TrainConfig, out: Path, model, batch, normalizer, critic, critic_optimizer, trust_pickle):
+    """The :class:`BatchedPPO` of a run, with its critic warm-up and kickstarting."""
+    # a resumed run continues on other episodes than those it trained on before the interruption
+    seed = config.seed + int(model.num_timesteps)
+    trainer = BatchedPPO(model, batch, normalizer, seed, critic, critic_optimizer, config.update_threads)
+    trainer.critic_warmup_until = config.critic_warmup
+    if config.kickstart_coef:
+        trainer.kickstart(_kickstart_teacher(config, out, trust_pickle), config.kickstart_coef, config.kickstart_steps)
+    return trainer
+
+
+def _kickstart_teacher(config: TrainConfig, out: Path, trust_pickle: bool):
+    """The warm start's clone as cloned (:data:`KICKSTART_TEACHER_FILE`), frozen: kickstarting's teacher."""
+    path = out / KICKSTART_TEACHER_FILE
+    if not path.exists():
+        raise RunError(f"{path} is missing (a run with 'kickstart_coef' keeps its warm start's clone there)")
+    policy = load_model(path, model_spec(config), trust_pickle=trust_pickle).policy
+    policy.set_training_mode(False)
+    policy.requires_grad_(False)
+    return policy
 
 
 def _load_newest_batched(config: TrainConfig, out: Path, trust_pickle: bool):

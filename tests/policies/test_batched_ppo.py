@@ -670,3 +670,116 @@ def test_update_threads_outside_the_batched_trainer_or_below_one_is_refused_in_o
 def test_update_threads_from_a_configuration_must_be_a_whole_count(value):
     with pytest.raises(ValueError, match="argument 'update_threads' must be None or an integer ≥ 1"):
         config(ROLLOUT, update_threads=value).validate()
+
+
+# ------------------------------------------------------------------------------------------------ kickstarting
+def emit_on_own_id_bit(seed: int):
+    """A frozen policy of ChannelAssociation's spaces that emits exactly when the normalised first feature (the own
+    ID bit a blink code sends now) is positive: a choice that depends on the state, unlike a random network's."""
+    probe = make(ENV, **ENV_KWARGS)
+    agent = probe.possible_agents[0]
+    model = build_model(
+        training.algorithm_class("ippo", probe), "MlpPolicy", {"net_arch": [16]}, probe.observation_space(agent),
+        probe.action_space(agent), {"n_steps": 8, "batch_size": 16, "n_epochs": 1}, seed,
+    )  # fmt: skip
+    policy = model.policy
+    first = policy.mlp_extractor.policy_net[0]
+    with torch.no_grad():
+        first.weight.zero_()
+        first.bias.zero_()
+        first.weight[0, 0] = 5.0
+        policy.action_net.weight.zero_()
+        policy.action_net.bias.zero_()
+        policy.action_net.weight[1, 0] = 10.0
+    return policy.requires_grad_(False)
+
+
+def agreement_with(tr: BatchedPPO, teacher, rollouts: int = 3) -> float:
+    """The share of the states of ``rollouts`` fresh rollouts where the policy's and the teacher's modes agree."""
+    agree = total = 0
+    for _ in range(rollouts):
+        tr.collect()
+        obs = torch.from_numpy(tr.buf_obs.reshape(-1, tr.obs_dim))
+        with torch.no_grad():
+            mine = tr.actor_distribution(obs, None).get_actions(deterministic=True)
+            theirs = teacher.get_distribution(obs).get_actions(deterministic=True)
+        agree += int((mine == theirs).sum())
+        total += len(mine)
+    return agree / total
+
+
+def test_kickstarting_pulls_the_policy_to_its_teachers_choices_and_plain_ppo_does_not():
+    after = {}
+    for coef in (0.0, 5.0):
+        tr = trainer(ENV, ENV_KWARGS, COPIES, 8)  # the same seed: the same start and the same first rollouts
+        teacher = emit_on_own_id_bit(seed=1)
+        if coef:
+            tr.kickstart(teacher, coef, 10**9)
+        before = agreement_with(tr, teacher)
+        for _ in range(10):
+            tr.collect()
+            tr.update(1.0)
+        after[coef] = agreement_with(tr, teacher)
+    # a Discrete(2) choice: a policy that ignores the teacher agrees with it about half the time
+    assert before < 0.8 and after[0.0] < 0.8, (before, after)
+    assert after[5.0] >= 0.95, (before, after)
+
+
+def kickstart_run(tmp_path, **settings) -> list[str]:
+    """``mrcomm train`` argv of a warm-started ippo run of 4 rollouts that kickstarts over the first 2."""
+    cfg = tmp_path / "kickstart.json"
+    block = {**HYPER, "n_envs": COPIES, "net_arch": [16], "eval_episodes": 0, "checkpoint_every": ROLLOUT}
+    block.update({"kickstart_coef": 2.0, "kickstart_steps": 2 * ROLLOUT, **settings})
+    cfg.write_text(json.dumps({"ippo": block}))
+    argv = ["train", ENV, "--algo", "ippo", "--init-from", "baseline:id_bits", "--config", str(cfg), "--quiet"]
+    argv += ["--timesteps", str(4 * ROLLOUT), "--out", str(tmp_path / "run")]
+    return argv + [x for k, v in ENV_KWARGS.items() for x in ("--param", f"{k}={v}")]
+
+
+def logged(run, column: str) -> list[float]:
+    with open(run / "progress.csv", newline="") as fh:
+        return [float(r[column]) for r in csv.DictReader(fh) if r.get(column)]
+
+
+def test_the_kickstarting_weight_falls_linearly_to_zero_and_a_resumed_run_reads_its_teacher_again(
+    tmp_path, monkeypatch
+):
+    run = tmp_path / "run"
+    interrupt_after_updates(monkeypatch, 1)
+    assert main(kickstart_run(tmp_path)) == 130  # Ctrl-C after the first update
+    monkeypatch.undo()
+    teacher_file = run / training.KICKSTART_TEACHER_FILE
+    written = teacher_file.read_bytes()
+    assert main(["train", ENV, "--resume", "--out", str(run), "--quiet"]) == 0
+    # the weight of the rollouts starting at agent-steps 0, R, 2R, 3R: 2 · (1 − start / 2R), then 0
+    assert logged(run, "train/kickstart_weight") == [2.0, 1.0, 0.0, 0.0]
+    losses = logged(run, "train/kickstart_loss")
+    assert len(losses) == 4 and all(loss > 0 for loss in losses[:2]) and np.isnan(losses[2:]).all()
+    assert teacher_file.read_bytes() == written  # the clone as cloned, read again on resume, never retrained
+    teacher_file.unlink()
+    assert main(["train", ENV, "--resume", "--timesteps", str(5 * ROLLOUT), "--out", str(run), "--quiet"]) != 0
+
+
+@pytest.mark.parametrize(
+    "argv, settings, message",
+    [
+        ([], {"kickstart_steps": 0}, "'kickstart_steps' must be an integer ≥ 1 with 'kickstart_coef' > 0"),
+        ([], {"kickstart_coef": -1.0}, "'kickstart_coef' must be a number ≥ 0"),
+        ([], {"kickstart_coef": 0.0}, "'kickstart_steps' needs 'kickstart_coef' > 0"),
+        (["--algo", "ppo"], {}, "'kickstart_coef' needs algo ippo or mappo and a warm start"),
+        (["--no-warm-start"], {}, "'kickstart_coef' needs algo ippo or mappo and a warm start"),
+    ],
+)
+def test_bad_kickstarting_settings_are_refused_in_one_line_before_any_work(tmp_path, capsys, argv, settings, message):
+    full = kickstart_run(tmp_path, **settings)
+    if "--no-warm-start" in argv:
+        at = full.index("--init-from")
+        del full[at : at + 2]
+    if "--algo" in argv:
+        full[full.index("--algo") + 1] = argv[1]
+        cfg = tmp_path / "kickstart.json"
+        cfg.write_text(json.dumps({"ppo": json.loads(cfg.read_text())["ippo"]}))
+    assert main(full) != 0
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1 and message in err, err
+    assert not (tmp_path / "run" / "config.json").exists()
