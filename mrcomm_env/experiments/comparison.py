@@ -24,7 +24,7 @@ from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.actions import ActionProfile, profile_actions
 from mrcomm_env.experiments.evaluation import baseline_label, evaluate_policy
 from mrcomm_env.experiments.io import atomic_write_text
-from mrcomm_env.experiments.runs import comparison_spec, run_folder
+from mrcomm_env.experiments.runs import comparison_spec, run_folder, scored_policy_settings
 from mrcomm_env.experiments.sweep import Task, run_tasks
 from mrcomm_env.registry import canonical_id, short_name
 
@@ -291,13 +291,7 @@ def shipped_actions(env_id: str, spec: dict) -> ActionProfile | None:
     against = spec.get("actions_against")
     if not against:
         return None
-    policy = LearnedPolicy(
-        spec["best_run"],
-        env_id,
-        spec["algo"],
-        deterministic=spec.get("deterministic", True),
-        checkpoint=spec.get("checkpoint", "final"),
-    )
+    policy = LearnedPolicy(spec["best_run"], env_id, spec["algo"], **scored_policy_settings(spec))
     rules = {baseline_label(name, params): make_policy(env_id, name, **params) for name, params in against}
     return profile_actions(env_id, policy.env_kwargs, policy, rules, heldout_seeds(spec))
 
@@ -308,7 +302,7 @@ def export_pretrained(run: str | Path, env_id: str, shipped: dict | None = None)
     comparison says ``"checkpoint": "best"`` (the model the comparison scored). Checkpoints and logs stay behind:
     well under 1 MB. ``shipped``: the comparison's account of the run (:func:`shipped_run`), written into the card."""
     spec = comparison_spec(env_id)
-    chosen = spec.get("checkpoint", "final")
+    chosen = scored_policy_settings(spec)["checkpoint"]
     source = best_checkpoint(Path(run)) if chosen == "best" else Path(run)
     target = pretrained_dir(env_id)
     target.mkdir(parents=True, exist_ok=True)
@@ -346,7 +340,7 @@ def write_model_card(env_id: str, record: dict, shipped: dict | None = None, pha
         "agent_steps": record.get("trained_agent_steps", record.get("timesteps")),
         # which of its run's models ships: "final", or "best" by the run's held-out return (its agent_steps above)
         "checkpoint": record.get("checkpoint", "final"),
-        "deterministic": bool(spec.get("deterministic", True)),
+        "deterministic": bool(scored_policy_settings(spec)["deterministic"]),
         "metric": spec.get("metric"),
         "reproduce": f"mrcomm reproduce-learning {short_name(env_id)} --export-pretrained",
     }

@@ -40,6 +40,13 @@ def comparison_spec(env_id: str) -> dict:
     return {"algo": "ppo", **spec[COMPARISON_KEY], "settings": spec}
 
 
+def scored_policy_settings(spec: dict) -> dict:
+    """How a comparison's runs act when scored, profiled and shipped (``LearnedPolicy``'s keyword arguments):
+    deterministically unless the comparison says otherwise, with the final model unless it names
+    ``"checkpoint": "best"``."""
+    return {"deterministic": spec.get("deterministic", True), "checkpoint": spec.get("checkpoint", "final")}
+
+
 #: the batched trainer's algorithms (``mrcomm_agents.batched_ppo.BATCHED_ALGORITHMS``, named here so that this
 #: module reads agents/configs without importing SB3; a test holds the two equal)
 BATCHED_TRAINERS = ("ippo", "mappo")

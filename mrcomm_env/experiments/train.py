@@ -23,7 +23,7 @@ from mrcomm_agents.training import ALGORITHMS, RUN_KEYS, TrainConfig, has_checkp
 from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.evaluation import evaluate_policy, limit_threads
 from mrcomm_env.experiments.io import atomic_write_csv, atomic_write_text
-from mrcomm_env.experiments.runs import comparison_spec, run_folder, teacher_for
+from mrcomm_env.experiments.runs import comparison_spec, run_folder, scored_policy_settings, teacher_for
 from mrcomm_env.experiments.sweep import Task, runner_from_args
 
 
@@ -175,12 +175,6 @@ def train_and_evaluate(out: str, config: dict, eval_seeds: list[int]) -> dict:
         spec = comparison_spec(config["env_id"])
     except ValueError:  # no comparison section: score by the return alone
         spec = {"metric": "episode_return", "deterministic": True}
-    policy = LearnedPolicy(
-        out,
-        config["env_id"],
-        config.get("algo"),
-        deterministic=spec.get("deterministic", True),
-        checkpoint=spec.get("checkpoint", "final"),
-    )
+    policy = LearnedPolicy(out, config["env_id"], config.get("algo"), **scored_policy_settings(spec))
     evaluation = evaluate_policy(config["env_id"], config.get("env_kwargs", {}), policy, eval_seeds, spec)
     return {"run": out, "training": summary, "evaluation": evaluation}
