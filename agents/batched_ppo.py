@@ -494,7 +494,11 @@ class BatchedPPO:
             **({} if clip_range_vf is None else {"train/clip_range_vf": clip_range_vf}),  # as SB3's PPO logs it
             "train/explained_variance": explained,
             **(
-                {"train/kickstart_weight": self.rollout_kickstart_weight, "train/kickstart_loss": _mean(logs["kick"])}
+                {
+                    # the weight this update applied (none in a critic-only update)
+                    "train/kickstart_weight": self.rollout_kickstart_weight if kickstart else 0.0,
+                    "train/kickstart_loss": _mean(logs["kick"]),
+                }
                 if self.teacher is not None
                 else {}
             ),
