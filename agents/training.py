@@ -199,7 +199,8 @@ class TrainConfig:
     #: ippo/mappo after a warm start: kickstarting (Schmitt et al. 2018). The policy's negative log-likelihood of
     #: what the warm start's clone, frozen as cloned (:data:`KICKSTART_TEACHER_FILE`), chooses (its mode) at every
     #: state of the rollout is added to PPO's loss with this weight, which falls linearly to 0 over the first
-    #: ``kickstart_steps`` agent-steps: the policy starts near its teacher and is then free to leave it
+    #: ``kickstart_steps`` agent-steps: the policy starts near its teacher and is then free to leave it. It needs
+    #: ``freeze_normalization`` (with ``normalize``): the teacher reads observations as it was fitted to them
     kickstart_coef: float = 0.0
     kickstart_steps: int = 0
 
@@ -220,6 +221,13 @@ class TrainConfig:
             raise ValueError(
                 f"argument 'kickstart_steps' must be an integer ≥ 1 with 'kickstart_coef' > 0 (the agent-steps over "
                 f"which its weight falls to 0), got {self.kickstart_steps!r}"
+            )
+        if self.normalize and not self.freeze_normalization:
+            # the frozen clone reads its observations through the statistics it was fitted with; while PPO updated
+            # them, the clone's own choices moved (MultiHop: 43.0 s → 54.1 s with the same network, docs/learning.md)
+            raise ValueError(
+                "argument 'kickstart_coef' needs 'freeze_normalization': true when 'normalize' is on, so that the "
+                "clone it pulls toward reads the observations as it was fitted to them"
             )
 
     def validate(self) -> TrainConfig:

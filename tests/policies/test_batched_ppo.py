@@ -729,7 +729,7 @@ def kickstart_run(tmp_path, **settings) -> list[str]:
     """``mrcomm train`` argv of a warm-started ippo run of 4 rollouts that kickstarts over the first 2."""
     cfg = tmp_path / "kickstart.json"
     block = {**HYPER, "n_envs": COPIES, "net_arch": [16], "eval_episodes": 0, "checkpoint_every": ROLLOUT}
-    block.update({"kickstart_coef": 2.0, "kickstart_steps": 2 * ROLLOUT, **settings})
+    block.update({"kickstart_coef": 2.0, "kickstart_steps": 2 * ROLLOUT, "freeze_normalization": True, **settings})
     cfg.write_text(json.dumps({"ippo": block}))
     argv = ["train", ENV, "--algo", "ippo", "--init-from", "baseline:id_bits", "--config", str(cfg), "--quiet"]
     argv += ["--timesteps", str(4 * ROLLOUT), "--out", str(tmp_path / "run")]
@@ -770,7 +770,8 @@ def test_the_kickstarting_weight_falls_linearly_to_zero_and_a_resumed_run_reads_
         ([], {"kickstart_coef": -1.0}, "'kickstart_coef' must be a number ≥ 0"),
         ([], {"kickstart_coef": 0.0}, "'kickstart_steps' needs 'kickstart_coef' > 0"),
         (["--algo", "ppo"], {}, "'kickstart_coef' needs algo ippo or mappo and a warm start"),
-        (["--no-warm-start"], {}, "'kickstart_coef' needs algo ippo or mappo and a warm start"),
+        (["--no-warm-start"], {"freeze_normalization": False}, "needs algo ippo or mappo and a warm start"),
+        ([], {"freeze_normalization": False}, "'kickstart_coef' needs 'freeze_normalization': true"),
     ],
 )
 def test_bad_kickstarting_settings_are_refused_in_one_line_before_any_work(tmp_path, capsys, argv, settings, message):
