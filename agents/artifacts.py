@@ -81,15 +81,29 @@ def pickle_refusal(path: Path, what: str = "") -> PickleRefused:
 
 # ------------------------------------------------------------------------------------------------ plain files
 def write_json(path: Path, data: dict) -> None:
-    """Atomic: a temporary file renamed into place, so a reader never sees half a file."""
+    """Atomic: a temporary file renamed into place, so a reader never sees half a file. Standard JSON: a float
+    that is not finite (a metric the episode left undefined, such as MultiHop's propagation time of a subgraph the
+    grid does not hold) is written as ``null``, since ``NaN`` is Python's extension that other readers refuse."""
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=_plain))
+    tmp.write_text(json.dumps(_finite_or_null(data), indent=2, default=_plain, allow_nan=False))
     os.replace(tmp, path)
 
 
-def _plain(value):
+def _finite_or_null(value):
+    if isinstance(value, dict):
+        return {k: _finite_or_null(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite_or_null(v) for v in value]
     if isinstance(value, np.generic):
-        return value.item()
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _plain(value):
+    if isinstance(value, np.ndarray):
+        return _finite_or_null(value.tolist())
     raise TypeError(f"not JSON serialisable: {value!r}")
 
 

@@ -320,6 +320,29 @@ def test_statistics_come_back_exactly(finished_run, tmp_path):
     assert np.array_equal(again.obs_rms.var, stats.obs_rms.var) and again.ret_rms.var == stats.ret_rms.var
 
 
+def test_run_files_are_standard_json_with_an_undefined_metric_as_null(tmp_path):
+    """A run's JSON files (``best.json``'s held-out metrics, ``warm_start.json``, ``state.json``) must read in any
+    JSON reader: a metric the episode left undefined (nan) is ``null``, not Python's ``NaN``."""
+    from mrcomm_agents.artifacts import write_json
+
+    record = {
+        "heldout": {"propagation_time_8x8": float("nan"), "coverage_cost": np.float64("nan"), "mean_age": 56.5},
+        "agreement": [1.0, np.float32(0.5), float("inf")],
+        "steps": np.int64(3),
+    }
+    write_json(tmp_path / "best.json", record)
+
+    def refuse(constant):
+        raise ValueError(f"non-standard JSON constant {constant}")
+
+    back = json.loads((tmp_path / "best.json").read_text(), parse_constant=refuse)
+    assert back == {
+        "heldout": {"propagation_time_8x8": None, "coverage_cost": None, "mean_age": 56.5},
+        "agreement": [1.0, 0.5, None],
+        "steps": 3,
+    }
+
+
 @pytest.mark.parametrize("env_id", [e for e in env_ids() if learned.has_pretrained(e)])
 def test_the_shipped_models_keep_the_held_out_metric_on_their_cards(env_id):
     """Re-exported in the safe formats, every shipped model plays the card's held-out episodes to the card's
