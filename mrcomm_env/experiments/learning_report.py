@@ -30,6 +30,7 @@ from mrcomm_env.experiments.comparison import (
 )
 from mrcomm_env.experiments.evaluation import baseline_label
 from mrcomm_env.experiments.io import atomic_write_text
+from mrcomm_env.experiments.runs import comparison_spec
 from mrcomm_env.registry import env_ids, short_name
 
 
@@ -366,6 +367,27 @@ def read_rows(path: Path) -> list[dict]:
     return rows
 
 
+def warm_start_sentence() -> str:
+    """Which comparisons start from a clone of a paper algorithm (their config section's ``init_from``), read from
+    the shipped configurations, for the page's header."""
+    cloned = []
+    for env_id in env_ids():
+        try:
+            spec = comparison_spec(env_id)
+        except ValueError:  # no learning configuration
+            continue
+        teacher = spec["settings"].get(spec["algo"], {}).get("init_from")
+        if teacher:
+            cloned.append(f"{short_name(env_id)}'s from a clone of `{str(teacher).partition(':')[2]}`")
+    if not cloned:
+        return "every comparison here trains from random weights"
+    return (
+        "every comparison here trains from random weights but "
+        + ", ".join(cloned)
+        + ", whose notes give what training from random weights reached"
+    )
+
+
 def write_learning_page(docs: Path, quick: bool = False) -> Path:
     """``docs/learning.md``: the header, every env's fragment ``docs/learning/<Name>-v0.md`` (registry order) and
     the footer."""
@@ -374,7 +396,9 @@ def write_learning_page(docs: Path, quick: bool = False) -> Path:
         for e in env_ids()
         if (docs / "learning" / f"{short_name(e)}.md").exists()
     ]
-    header = LEARNING_HEADER.format(command="mrcomm reproduce-learning" + (" --quick" if quick else ""))
+    header = LEARNING_HEADER.format(
+        command="mrcomm reproduce-learning" + (" --quick" if quick else ""), starts=warm_start_sentence()
+    )
     page = docs / "learning.md"
     atomic_write_text(page, header + "\n".join(sections) + LEARNING_FOOTER)
     return page
@@ -458,7 +482,7 @@ live env (`mrcomm_env/experiments/bounds.py`), with what it rules out of beating
 on the metric or by 20 % on bits. A **reference** row (MultiHop's `oracle`) is no bound but a policy
 with knowledge the learned policy's observation lacks, which shows whether the 10 % margin is there to be found.
 **From random weights** says when each run that starts from random weights first reaches that algorithm's metric
-at equal bits on its own held-out curve (every comparison here trains from random weights).
+at equal bits on its own held-out curve ({starts}).
 **What the shipped model chooses** plays it on the table's held-out episodes and asks the paper's rules at every
 state it reaches (`mrcomm actions`, `mrcomm_env/experiments/actions.py`): the share of each action, how often it
 chose as each rule would, and where the env names each robot's situation, the same split by it.
