@@ -368,7 +368,7 @@ def read_rows(path: Path) -> list[dict]:
 
 
 def warm_start_sentence() -> str:
-    """Which comparisons start from a clone of a paper algorithm (their config section's ``init_from``), read from
+    """Which comparisons start from a clone of a scripted baseline (their config section's ``init_from``), read from
     the shipped configurations, for the page's header."""
     cloned = []
     for env_id in env_ids():
