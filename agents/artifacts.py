@@ -85,11 +85,12 @@ def write_json(path: Path, data: dict) -> None:
     that is not finite (a metric the episode left undefined, such as MultiHop's propagation time of a subgraph the
     grid does not hold) is written as ``null``, since ``NaN`` is Python's extension that other readers refuse."""
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(_finite_or_null(data), indent=2, default=_plain, allow_nan=False))
+    tmp.write_text(json.dumps(_finite_or_null(data), indent=2, allow_nan=False))
     os.replace(tmp, path)
 
 
 def _finite_or_null(value):
+    """``value`` with numpy scalars as Python numbers and non-finite floats as None (containers walked)."""
     if isinstance(value, dict):
         return {k: _finite_or_null(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
@@ -99,12 +100,6 @@ def _finite_or_null(value):
     if isinstance(value, float) and not math.isfinite(value):
         return None
     return value
-
-
-def _plain(value):
-    if isinstance(value, np.ndarray):
-        return _finite_or_null(value.tolist())
-    raise TypeError(f"not JSON serialisable: {value!r}")
 
 
 def looks_pickled(raw: bytes) -> bool:
