@@ -1,4 +1,5 @@
-"""Scripted baseline policies: the papers' own decision algorithms, one module per environment.
+"""Scripted baseline policies, one module per environment: the papers' own decision algorithms, and rules of
+ours beside them (a policy's ``FROM_PAPER`` says which: :func:`from_paper`).
 
 Which module belongs to which environment is the registry's ``EnvEntry.policies``
 (``mrcomm_env/registry.py``); each module defines ``ENV_ID``, ``DEFAULT_POLICY`` and ``POLICIES``.
@@ -26,14 +27,35 @@ def default_policy(env_id: str) -> str:
     return policy_module(env_id).DEFAULT_POLICY
 
 
-def make_policy(env_id: str, name: str, **params) -> Policy:
-    """Build policy ``name`` for ``env_id``; unknown names raise ``ValueError`` listing the valid ones."""
+def policy_class(env_id: str, name: str) -> type[Policy]:
+    """The class of ``env_id``'s policy ``name``; unknown names raise ``ValueError`` listing the valid ones."""
     policies = policy_module(env_id).POLICIES
     if name not in policies:
         raise ValueError(
             f"unknown policy {name!r} for {canonical_id(env_id)}; valid policies are: {', '.join(policies)}"
         )
-    return policies[name](**params)
+    return policies[name]
 
 
-__all__ = ["LocalViews", "Policy", "RandomPolicy", "policy_module", "policy_names", "default_policy", "make_policy"]
+def from_paper(env_id: str, name: str) -> str:
+    """Where ``env_id``'s paper describes policy ``name`` (its ``FROM_PAPER``); empty for a rule that is not the
+    paper's."""
+    return policy_class(env_id, name).FROM_PAPER
+
+
+def make_policy(env_id: str, name: str, **params) -> Policy:
+    """Build policy ``name`` for ``env_id``; unknown names raise ``ValueError`` listing the valid ones."""
+    return policy_class(env_id, name)(**params)
+
+
+__all__ = [
+    "LocalViews",
+    "Policy",
+    "RandomPolicy",
+    "policy_module",
+    "policy_names",
+    "default_policy",
+    "policy_class",
+    "from_paper",
+    "make_policy",
+]

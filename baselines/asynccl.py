@@ -34,18 +34,18 @@ class FixedMode(Policy):
         return dict.fromkeys(observations, self._action)
 
 
-def _fixed(mode: str):
-    cls = type(f"Policy_{mode}", (FixedMode,), {"mode": mode, "name": mode, "__doc__": f"Always `{mode}`."})
-    return cls
+def _fixed(mode: str, from_paper: str = ""):
+    attributes = {"mode": mode, "name": mode, "__doc__": f"Always `{mode}`.", "FROM_PAPER": from_paper}
+    return type(f"Policy_{mode}", (FixedMode,), attributes)
 
 
 POLICIES = {
-    "scheme1": _fixed("scheme1"),
-    "scheme2_q1": _fixed("scheme2_q1"),
-    "scheme2_q2": _fixed("scheme2_q2"),
-    "scheme2_q4": _fixed("scheme2_q4"),
-    "scheme2_q8": _fixed("scheme2_q8"),
-    "scheme2_qinf": _fixed("scheme2_qinf"),
+    "scheme1": _fixed("scheme1", "Scheme 1, §III-A"),
+    "scheme2_q1": _fixed("scheme2_q1", "Scheme 2, §III-B"),
+    "scheme2_q2": _fixed("scheme2_q2", "Scheme 2, §III-B"),
+    "scheme2_q4": _fixed("scheme2_q4", "Scheme 2, §III-B"),
+    "scheme2_q8": _fixed("scheme2_q8", "Scheme 2, §III-B"),
+    "scheme2_qinf": _fixed("scheme2_qinf", "Scheme 2 with q = ∞, §III-B, the scheme of [11]"),
     "silent": _fixed("silent"),
     "random": RandomPolicy,
 }

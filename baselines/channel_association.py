@@ -33,6 +33,7 @@ class BernoulliPolicy(Policy):
     """Each robot independently emits a message pair with probability ``p`` every step."""
 
     name = "bernoulli"
+    FROM_PAPER = "§6.5, p ≠ ½"
     PARAMS = {
         "p": Param(
             0.5,
@@ -68,6 +69,7 @@ class CoinFlipPolicy(BernoulliPolicy):
     """The paper's fair coin (p = ½)."""
 
     name = "coin_flip"
+    FROM_PAPER = "Algorithms 1–2"
     PARAMS = {}
 
     def reset(self, views, seed=None):

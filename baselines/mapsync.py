@@ -54,6 +54,7 @@ class PeriodicFull(_Periodic):
     """Every ``period`` moves, send the whole map (n bits) and merge."""
 
     name = "periodic_full"
+    FROM_PAPER = "§I, the naive O(n) protocol"
     protocol = FULL
 
 
@@ -70,6 +71,7 @@ class PeriodicEqualityThenBisection(_Periodic):
     ``separate_test``)."""
 
     name = "periodic_equality_then_bisection"
+    FROM_PAPER = "§V-C, the case study"
     PARAMS = {
         "period": _PERIOD,
         "separate_test": Param(

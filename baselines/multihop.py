@@ -86,6 +86,7 @@ class LocationBased(Policy):
     """Algorithm 1 with persistent counters (§3.2), one counter row per robot."""
 
     name = "location_based"
+    FROM_PAPER = "Algorithm 1, §3.2"
     PARAMS = {
         "rule": Param(
             "text",
@@ -146,6 +147,7 @@ class Probabilistic(Policy):
     """Eq. (2): successive draws proportional to d^-α without replacement (Plackett–Luce = Gumbel-top-k)."""
 
     name = "probabilistic"
+    FROM_PAPER = "eq. (2), §3.1"
 
     def act(self, observations, views):
         n = views.n_agents
@@ -158,6 +160,7 @@ class Flooding(Policy):
     """Every known estimate (slot_size = n); with a shorter slot, a round-robin window over the list."""
 
     name = "flooding"
+    FROM_PAPER = "§2.1 and §4, simple flooding with m = n"
 
     def reset(self, views, seed=None):
         super().reset(views, seed)
@@ -176,6 +179,7 @@ class NoHop(Policy):
     """Only the robot's own estimate (the paper's m = 1 scheme)."""
 
     name = "no_hop"
+    FROM_PAPER = "§4, the no-hop scheme with m = 1"
 
     def act(self, observations, views):
         return _as_actions(views, np.zeros((views.n_agents, views.n_agents)), observations)

@@ -83,6 +83,7 @@ class PaperProtocol(Policy):
     """§IV recommendation phase and §V Action module (Fig. 5)."""
 
     name = "paper_protocol"
+    FROM_PAPER = "§IV–§V"
 
     def reset(self, views, seed=None):
         super().reset(views, seed)
@@ -138,6 +139,7 @@ class NoPartition(Policy):
     """§VI-B.2: Munkres over each vehicle's candidates; no partition, no rendezvous."""
 
     name = "no_partition"
+    FROM_PAPER = "§VI-B.2"
 
     def act(self, observations, views):
         K = int(views.action_space.n) - 2
@@ -165,6 +167,7 @@ class AlwaysRendezvous(Policy):
     """§VI-B.3: every vehicle regroups at l_c at every phase (observing l_p on the way when it fits)."""
 
     name = "always_rendezvous"
+    FROM_PAPER = "§VI-B.3"
 
     def act(self, observations, views):
         K = int(views.action_space.n) - 2

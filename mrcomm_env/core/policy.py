@@ -113,8 +113,9 @@ class LocalViews:
 class Policy:
     """A team policy: ``act`` returns one action per live agent.
 
-    Subclasses declare ``name``, optional ``PARAMS`` (validated keyword parameters) and, when they read
-    more than each robot's own local view, ``GLOBAL_KNOWLEDGE``.
+    Subclasses declare ``name``, optional ``PARAMS`` (validated keyword parameters), when they read
+    more than each robot's own local view ``GLOBAL_KNOWLEDGE``, and when the rule is one the env's paper
+    describes ``FROM_PAPER``.
     """
 
     name: ClassVar[str] = "policy"
@@ -122,6 +123,10 @@ class Policy:
     #: empty when the policy reads only observations and each robot's own local view; otherwise a sentence
     #: naming the global knowledge it uses (listed in the docs beside the policy)
     GLOBAL_KNOWLEDGE: ClassVar[str] = ""
+    #: where the env's paper describes this rule ("Algorithm 1, §3.2"); empty for a rule that is not the paper's
+    #: (ours, or a reference such as ``random``). docs/learning.md measures learned policies against the best
+    #: rule of each kind, so a rule of ours never passes for the paper's
+    FROM_PAPER: ClassVar[str] = ""
 
     def __init__(self, **params: Any):
         self.params = validate_config(self.PARAMS, params, owner=f"policy '{self.name}'")

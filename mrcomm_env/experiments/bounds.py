@@ -25,7 +25,13 @@ import numpy as np
 
 from mrcomm_baselines import make_policy
 from mrcomm_env.channel_association.theory import fewest_emissions
-from mrcomm_env.experiments.comparison import comparison_row, metric_interval
+from mrcomm_env.experiments.comparison import (
+    BITS_MARGIN,
+    BITS_SLACK,
+    METRIC_MARGIN,
+    comparison_row,
+    metric_interval,
+)
 from mrcomm_env.experiments.evaluation import bits_per_agent, run_episode
 from mrcomm_env.registry import make
 
@@ -215,14 +221,9 @@ def multihop_bound(env_id: str, env_kwargs: dict, seeds: list[int], spec: dict) 
     return rows
 
 
-#: the margins by which a learned policy beats a paper algorithm in #42: a task metric 10 % better at no more than
-#: 5 % more bits, or 20 % fewer bits at a task metric not worse
-METRIC_MARGIN, BITS_SLACK, BITS_MARGIN = 0.10, 0.05, 0.20
-
-
 def bound_paragraph(bound: dict, best: dict, learned: list[dict], spec: dict) -> str:
     """What a bound row rules out, in numbers, for a metric where lower is better: the margins against the best
-    paper algorithm ``best`` that no policy can reach, and how far the learned points that are not worse than
+    scripted rule ``best`` that no policy can reach, and how far the learned points that are not worse than
     ``best`` (beyond the intervals) sit from the bound. A row with ``bits_bound`` False bounds the metric only; an
     ``oracle`` row is no bound at all (:func:`oracle_paragraph`)."""
     if bound.get("oracle"):

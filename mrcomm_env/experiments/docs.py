@@ -152,15 +152,16 @@ def env_page(env_id: str) -> str:
         "",
         "## Baselines (`baselines/`)",
         "",
-        "| policy | parameters | what it does | global knowledge it reads |",
-        "| --- | --- | --- | --- |",
+        "| policy | parameters | what it does | from the paper | global knowledge it reads |",
+        "| --- | --- | --- | --- | --- |",
     ]
     for pname, factory in module.POLICIES.items():
         params = ", ".join(f"`{k}`={_fmt(p.default)}" for k, p in getattr(factory, "PARAMS", {}).items()) or "—"
         doc = (inspect.getdoc(factory) or "").split("\n\n")[0]
         default = " (default)" if pname == module.DEFAULT_POLICY else ""
         reads = _cell(getattr(factory, "GLOBAL_KNOWLEDGE", "")) or "none (own local view only)"
-        lines.append(f"| `{pname}`{default} | {params} | {_cell(doc)} | {reads} |")
+        source = _cell(getattr(factory, "FROM_PAPER", "")) or "no"
+        lines.append(f"| `{pname}`{default} | {params} | {_cell(doc)} | {source} | {reads} |")
     lines += [
         "",
         f"## Reproduction (`mrcomm reproduce {name}`)",

@@ -14,18 +14,22 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from mrcomm_agents.training import default_config
-from mrcomm_baselines import default_policy
+from mrcomm_baselines import default_policy, from_paper
 from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.actions import ActionProfile, context_table, profile_table
 from mrcomm_env.experiments.arguments import rule_argument
 from mrcomm_env.experiments.bounds import bound_paragraph
 from mrcomm_env.experiments.comparison import (
+    BITS_MARGIN,
+    METRIC_MARGIN,
     baseline_on_training_heldout,
     beats,
     best_baseline,
+    clears_margin,
     dominates,
     finishes_some,
     first_reach,
+    margins,
     training_heldout,
 )
 from mrcomm_env.experiments.evaluation import baseline_label
@@ -147,7 +151,7 @@ def read_curves(env_id: str, docs: Path | None) -> list[dict]:
 
 def from_random_weights(env_id: str, baselines: list[dict], spec: dict, docs: Path | None) -> list[str]:
     """#42's from-scratch table, per price of a bit: how many of the runs (which start from random weights) reach the
-    best paper algorithm's metric at equal bits on their held-out curves (that algorithm played on the curves' own
+    best scripted rule's metric at equal bits on their held-out curves (that algorithm played on the curves' own
     episodes), after how many agent-steps and wall seconds, and where the runs end; a sentence instead where the
     comparison's runs start from a clone."""
     settings = spec["settings"].get(spec["algo"], {})
@@ -162,7 +166,7 @@ def from_random_weights(env_id: str, baselines: list[dict], spec: dict, docs: Pa
 
 def scratch_table(env_id: str, curves: list[dict], baselines: list[dict], spec: dict, source: str) -> list[str]:
     """The from-scratch table of :func:`from_random_weights` over ``curves``, after its opening ``source``: per price
-    of a bit, against the best paper algorithm (of that setting, where the baselines are scored per setting)."""
+    of a bit, against the best scripted rule (of that setting, where the baselines are scored per setting)."""
     lower = bool(spec.get("lower_is_better"))
     per_setting = bool(spec.get("baselines_per_cost"))
     first, episodes = training_heldout(spec)
@@ -180,7 +184,7 @@ def scratch_table(env_id: str, curves: list[dict], baselines: list[dict], spec: 
             f"at {spec['cost_param']} = {cost:g}, `{t['policy']}` scores {t['metric']:.4g} at {t['bits']:.4g} bits"
             for cost, t in targets.items()
         )
-        whose = "the best paper algorithm's of its setting"
+        whose = "the best scripted rule's of its setting"
     else:
         t = next(iter(targets.values()))
         scored, whose = f"`{t['policy']}` scores {t['metric']:.4g} at {t['bits']:.4g} bits", f"`{t['policy']}`'s"
@@ -303,6 +307,7 @@ def learning_section(
             f"episodes there (each counts as {spec['unfinished']:g}), and sending fewer bits while never doing the "
             "task is no win.",
         ]
+    lines += margins_paragraph(env_id, rows, spec)
     best = best_baseline(baselines, None, spec)
     if best is not None and lower:  # the paragraph's margins are written for a metric where lower is better
         for bound in bounds:
@@ -314,6 +319,145 @@ def learning_section(
     if spec.get("notes"):
         lines += ["", spec["notes"]]
     return "\n".join(lines) + "\n"
+
+
+#: the two references #42's goal 2 is measured against: the best of the paper's own algorithms (``FROM_PAPER``),
+#: and the best scripted rule, ours included
+REFERENCES = ("paper", "any")
+
+
+def widest_margin(env_id: str, rows: list[dict], spec: dict, reference: str) -> dict | None:
+    """#42's goal 2 on one env's comparison table against ``reference`` (:data:`REFERENCES`): the best such rule
+    (per setting, where the baselines are scored per setting) and the learned point with the widest margin over it
+    (:func:`~mrcomm_env.experiments.comparison.margins`, each margin as a share of #42's threshold), with whether
+    it clears #42's threshold; ``None`` where the table has no such rule or no learned point that finished an
+    episode."""
+    lower = bool(spec.get("lower_is_better"))
+    per_setting = bool(spec.get("baselines_per_cost"))
+    baselines = [r for r in rows if r["cost"] is None]
+    eligible = (lambda name: bool(from_paper(env_id, name))) if reference == "paper" else None
+    best = None
+    for point in (r for r in rows if r["cost"] is not None and finishes_some(r, spec)):
+        rule = best_baseline(baselines, point["cost"] if per_setting else None, spec, eligible)
+        if rule is None:
+            continue
+        metric, bits = margins(point, rule, lower)
+        score = max(
+            -np.inf if metric is None else metric / METRIC_MARGIN, -np.inf if bits is None else bits / BITS_MARGIN
+        )
+        if best is None or score > best["score"]:
+            best = {"learned": point, "rule": rule, "metric": metric, "bits": bits, "score": score}
+    if best is not None:
+        best["clears"] = clears_margin(best["metric"], best["bits"])
+    return best
+
+
+def percent(value: float, digits: int = 1) -> str:
+    """A fraction as the page writes it: ``0.315`` → ``31.5 %``."""
+    return f"{100 * value:.{digits}f} %"
+
+
+def margin_text(found: dict) -> str:
+    """A margin of :func:`widest_margin` in words: the criterion that clears #42's threshold (bold), or both."""
+
+    def share(value: float | None, ahead: str, behind: str) -> str:
+        return "—" if value is None else f"{percent(abs(value))} {ahead if value >= 0 else behind}"
+
+    metric = share(found["metric"], "better", "worse")
+    bits = share(found["bits"], "fewer bits", "more bits")
+    if found["metric"] is not None and found["metric"] >= METRIC_MARGIN:
+        return f"**{metric}**"
+    if found["bits"] is not None and found["bits"] >= BITS_MARGIN:
+        return f"**{bits}**"
+    return f"short of it: {metric}, {bits}"
+
+
+def rule_text(env_id: str, rule: dict) -> str:
+    """A reference rule with where its paper describes it, or "ours"."""
+    source = from_paper(env_id, rule["policy"].split()[0])
+    return f"`{rule['policy']}` ({'paper: ' + source if source else 'ours'})"
+
+
+GOAL_2 = (
+    f"#42's goal 2: {percent(METRIC_MARGIN, 0)} better on the task metric at equal bits, or "
+    f"{percent(BITS_MARGIN, 0)} fewer bits at a metric not worse, each margin at the worse ends of the two 95 % "
+    "intervals, `comparison.margins`"
+)
+
+
+def margins_paragraph(env_id: str, rows: list[dict], spec: dict) -> list[str]:
+    """An env's margins over the best of its paper's algorithms and over the best scripted rule, ours included."""
+    paper, any_rule = (widest_margin(env_id, rows, spec, reference) for reference in REFERENCES)
+    if paper is None and any_rule is None:
+        return []
+
+    def sentence(found: dict | None, what: str) -> str:
+        if found is None:
+            return f"The table has no {what}."
+        rule, learned = found["rule"], found["learned"]
+        cleared = " (clears the margin)" if found["clears"] else ""
+        return (
+            f"{what[0].upper()}{what[1:]} is {rule_text(env_id, rule)}, {rule['metric']:.4g} at {rule['bits']:.4g} "
+            f"bits; the learned point at {spec['cost_param']} = {learned['cost']:g} is {margin_text(found)}{cleared}."
+        )
+
+    same = paper is not None and any_rule is not None and paper["rule"] is any_rule["rule"]
+    text = " ".join(
+        [
+            f"**Margins** ({GOAL_2}).",
+            sentence(paper, "the best of the paper's own algorithms"),
+            "It is also the best scripted rule."
+            if same
+            else sentence(any_rule, "the best scripted rule, ours included,"),
+        ]
+    )
+    return ["", text]
+
+
+def margins_table(docs: Path) -> list[str]:
+    """The page's summary of #42's goal 2: per env, where RL starts and its margins over the two references."""
+    lines = [
+        "| env | RL starts from | best paper algorithm | learned's margin over it | best rule, ours included "
+        "| learned's margin over it |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    cleared = dict.fromkeys(REFERENCES, 0)
+    envs = 0
+    for env_id in env_ids():
+        table = docs / "learning" / f"{short_name(env_id)}.csv"
+        if not table.exists():
+            continue
+        spec = comparison_spec(env_id)
+        rows = read_rows(table)
+        envs += 1
+        start = spec["settings"].get(spec["algo"], {}).get("init_from")
+        cells = [short_name(env_id), f"a clone of `{str(start).partition(':')[2]}`" if start else "random weights"]
+        for reference in REFERENCES:
+            found = widest_margin(env_id, rows, spec, reference)
+            if found is None:
+                cells += ["—", "—"]
+                continue
+            cleared[reference] += found["clears"]
+            setting = ""
+            if spec.get("baselines_per_cost"):
+                setting = f" at {spec['cost_param']} = {found['rule']['setting']:g}"
+            cells += [
+                rule_text(env_id, found["rule"]) + setting,
+                f"{margin_text(found)} ({spec['cost_param']} = {found['learned']['cost']:g})",
+            ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return [
+        f"**Against the papers, computed from the tables below** ({GOAL_2}): the learned policy clears the margin "
+        f"over the best of the paper's own algorithms on {cleared['paper']} of {envs} envs, and over the best "
+        f"scripted rule, ours included, on {cleared['any']} of {envs}. A rule is the paper's where its policy says "
+        'where the paper describes it (`FROM_PAPER`, the column "from the paper" of each env page\'s baselines); '
+        "the others are ours or references (`random`, `never`, `silent`). Each margin is the widest of the env's "
+        "learned points over the best such rule of its setting (best by the metric; bold: cleared; the env's "
+        "section gives both figures).",
+        "",
+        *lines,
+        "",
+    ]
 
 
 def actions_paragraph(env_id: str, docs: Path | None, against: Sequence) -> list[str]:
@@ -399,8 +543,9 @@ def write_learning_page(docs: Path, quick: bool = False) -> Path:
     header = LEARNING_HEADER.format(
         command="mrcomm reproduce-learning" + (" --quick" if quick else ""), starts=warm_start_sentence()
     )
+    summary = "\n".join(margins_table(docs)) + "\n" if sections else ""
     page = docs / "learning.md"
-    atomic_write_text(page, header + "\n".join(sections) + LEARNING_FOOTER)
+    atomic_write_text(page, header + summary + "\n".join(sections) + LEARNING_FOOTER)
     return page
 
 
@@ -472,13 +617,13 @@ rl-zoo3's `best_model`). A
 learned point's interval is over training seeds; a baseline's over episodes. Beside a learned point's mean, the
 column "IQM" gives rliable's interquartile mean over its training seeds with a 95 % percentile-bootstrap
 interval (`mrcomm_env/experiments/comparison.py`: with 3 seeds the IQM is the mean; "—" where the recorded table predates
-the column). Each shipped model is the best run within the bits of the best paper algorithm of its setting (where
+the column). Each shipped model is the best run within the bits of the best scripted rule of its setting (where
 the cost argument is the setting itself, RendezvousMapping's range, the best relative to that algorithm's metric);
 its card (`agents/pretrained/<Name>-v0/card.json`) gives its held-out metric and bits beside that algorithm's,
 and under `rl_phase` its run's own held-out evaluation at the start of the RL phase (agent-step 0: random
 weights, or the clone of a warm start) and at its end.
 Where an env has one, a **bound** row gives what no policy can pass on the same held-out episodes, computed from the
-live env (`mrcomm_env/experiments/bounds.py`), with what it rules out of beating the best paper algorithm by 10 %
+live env (`mrcomm_env/experiments/bounds.py`), with what it rules out of beating the best scripted rule by 10 %
 on the metric or by 20 % on bits. A **reference** row (MultiHop's `oracle`) is no bound but a policy
 with knowledge the learned policy's observation lacks, which shows whether the 10 % margin is there to be found.
 **From random weights** says when each run that starts from random weights first reaches that algorithm's metric

@@ -55,6 +55,58 @@ def test_beats_needs_a_margin_beyond_the_intervals(learned, baseline, expected):
     assert comparison.beats(learned, baseline, lower_is_better=True) is expected
 
 
+@pytest.mark.parametrize(
+    "learned,baseline,lower,expected",
+    [
+        # 40 ± 1 against 50 ± 2: at the worse ends 41 against 48, 1 − 41/48 ahead on the metric; bits equal at the
+        # worse ends (100 against 100) count only with the metric not worse, which it is not (it is better)
+        (point(40.0, 100.0, 1.0), point(50.0, 100.0, 2.0), True, (1 - 41 / 48, 0.0)),
+        # 6 % more bits than the baseline: no metric margin, whatever the metric
+        (point(40.0, 106.0, 1.0), point(50.0, 100.0, 2.0), True, (None, -0.06)),
+        # a metric worse beyond the intervals earns no bits margin, however few the bits
+        (point(60.0, 10.0, 1.0), point(50.0, 100.0, 2.0), True, (1 - 61 / 48, None)),
+        # the same metric with 40 ± 5 bits against 100 ± 10: (40 + 5) against (100 − 10) at the worse ends
+        (point(50.0, 40.0, 0.0, 5.0), point(50.0, 100.0, 0.0, 10.0), True, (0.0, 1 - 45 / 90)),
+        # higher is better: 0.9 ± 0.05 against 0.8 ± 0.0, 0.85 / 0.8 − 1 ahead
+        (point(0.9, 10.0, 0.05), point(0.8, 10.0), False, (0.85 / 0.8 - 1, 0.0)),
+    ],
+)
+def test_margins_are_taken_at_the_worse_ends_of_both_intervals(learned, baseline, lower, expected):
+    metric, bits = comparison.margins(learned, baseline, lower)
+    for got, want in zip((metric, bits), expected, strict=True):
+        assert (got is None) == (want is None) and (want is None or got == pytest.approx(want, abs=1e-12))
+
+
+def test_a_margin_clears_goal_2_at_ten_percent_on_the_metric_or_twenty_on_bits():
+    assert comparison.clears_margin(0.10, None) and comparison.clears_margin(None, 0.20)
+    assert comparison.clears_margin(-0.5, 0.25) and comparison.clears_margin(0.11, -1.0)
+    assert not comparison.clears_margin(0.099, 0.199) and not comparison.clears_margin(None, None)
+
+
+def test_a_rule_of_ours_never_passes_for_the_papers_algorithm():
+    """Against the paper's own algorithms, the page's reference is the best rule that says where the paper describes
+    it, however much better a rule of ours scores; and every comparison table names a paper algorithm."""
+    from mrcomm_baselines import from_paper
+    from mrcomm_env.experiments.learning_report import widest_margin
+
+    rows = [
+        {**point(45.0, 758.0), "policy": "age_aware", "setting": None},
+        {**point(43.0, 758.0), "policy": "heard_aware", "setting": None},
+        {**point(60.0, 759.0), "policy": "location_based", "setting": None},
+        {**point(100.0, 759.0), "policy": "random", "setting": None},
+        {**point(41.0, 757.0, 0.1, 1.0, cost=0.0), "setting": 0.0, "policy": "learned", "n": 5},
+    ]
+    spec = {"lower_is_better": True}
+    paper = widest_margin("MultiHop-v0", rows, spec, "paper")
+    ours = widest_margin("MultiHop-v0", rows, spec, "any")
+    assert paper["rule"]["policy"] == "location_based" and paper["clears"]
+    assert ours["rule"]["policy"] == "heard_aware" and not ours["clears"]
+    assert not from_paper("MultiHop-v0", "heard_aware") and not from_paper("ChannelAssociation-v0", "id_bits")
+    for env_id in env_ids():
+        names = [name for name, _ in comparison.comparison_spec(env_id)["baselines"]]
+        assert any(from_paper(env_id, name) for name in names), env_id
+
+
 def test_one_collapsed_seed_does_not_buy_a_match_through_a_wide_t_interval():
     """Five seeds, one collapsed (AsyncCL at a high bit price): the t-interval of the mean is wide enough to call a
     delay 12 times the baseline's "not worse"; the bootstrap interval of the IQM is not."""
