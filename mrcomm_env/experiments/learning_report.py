@@ -140,9 +140,11 @@ def curves_paragraph(env_id: str, docs: Path | None) -> list[str]:
     ]
 
 
-def read_curves(env_id: str, docs: Path | None) -> list[dict]:
-    """The runs' held-out curves as ``reproduce-learning`` recorded them: ``docs/learning/<Name>-v0-curves.csv``."""
-    table = None if docs is None else docs / "learning" / f"{short_name(env_id)}-curves.csv"
+def read_curves(env_id: str, docs: Path | None, kind: str = "curves") -> list[dict]:
+    """The runs' held-out curves as ``reproduce-learning`` recorded them: ``docs/learning/<Name>-v0-curves.csv``, or
+    with ``kind="scratch-curves"`` those of the same section's runs from random weights that a comparison starting
+    from a clone keeps beside its own (``<Name>-v0-scratch-curves.csv``, the curves file of an earlier revision)."""
+    table = None if docs is None else docs / "learning" / f"{short_name(env_id)}-{kind}.csv"
     if table is None or not table.exists():
         return []
     with open(table, newline="") as fh:
@@ -154,14 +156,20 @@ def from_random_weights(env_id: str, baselines: list[dict], spec: dict, docs: Pa
     best scripted rule's metric at equal bits on their held-out curves (that algorithm played on the curves' own
     episodes), after how many agent-steps and wall seconds, and where the runs end; a sentence instead where the
     comparison's runs start from a clone."""
-    settings = spec["settings"].get(spec["algo"], {})
-    if settings.get("init_from"):
-        return [
-            f"**From random weights.** The comparison's runs start from a clone of `{settings['init_from']}`, not "
-            "from random weights; what training from random weights reached is in the notes below."
-        ]
-    source = "**From random weights** (#42's goal 3, read from the learning curves): the first held-out evaluation"
-    return scratch_table(env_id, read_curves(env_id, docs), baselines, spec, source)
+    teacher = spec["settings"].get(spec["algo"], {}).get("init_from")
+    if not teacher:
+        source = "**From random weights** (#42's goal 3, read from the learning curves): the first held-out evaluation"
+        return scratch_table(env_id, read_curves(env_id, docs), baselines, spec, source)
+    scratch = read_curves(env_id, docs, "scratch-curves")
+    clone = f"The comparison's runs start from a clone of `{str(teacher).partition(':')[2]}`"
+    if not scratch:
+        return [f"**From random weights.** {clone}; what training from random weights reached is in the notes below."]
+    source = (
+        f"**From random weights** (#42's goal 3). {clone}, so this table reads the curves of runs of the same section "
+        f"without its warm start, from random weights (`docs/learning/{short_name(env_id)}-scratch-curves.csv`; the notes below say "
+        "which runs): the first held-out evaluation"
+    )
+    return scratch_table(env_id, scratch, baselines, spec, source)
 
 
 def scratch_table(env_id: str, curves: list[dict], baselines: list[dict], spec: dict, source: str) -> list[str]:

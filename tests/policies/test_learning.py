@@ -203,6 +203,30 @@ def test_the_from_scratch_table_sets_no_target_where_the_paper_algorithm_finishe
     assert rows[1].startswith("| 10 | 1 of 1 | 1,000,000 |")
 
 
+def test_a_comparison_from_a_clone_reads_its_from_scratch_table_from_the_kept_curves(monkeypatch, tmp_path):
+    """A comparison whose runs start from a clone has no curve from random weights of its own: its goal-3 table reads
+    ``<Name>-scratch-curves.csv`` where one is kept, and says where the runs start either way."""
+    from mrcomm_env.experiments import learning_report
+
+    spec = {**RANGE_SPEC, "baselines_per_cost": False, "settings": {"ippo": {"init_from": "baseline:greedy"}}}
+    target = {"policy": "paper_protocol", "metric": 25.0, "bits": 58000.0}
+    monkeypatch.setattr(learning_report, "baseline_on_training_heldout", lambda e, s, p, setting: target)
+    baselines = [{"policy": "paper_protocol", "setting": None, "metric": 24.0, "bits": 58000.0}]
+    (tmp_path / "learning").mkdir()
+    without = learning_report.from_random_weights("RendezvousMapping-v0", baselines, spec, tmp_path)
+    assert len(without) == 1 and "a clone of `greedy`" in without[0] and "notes below" in without[0]
+    # seed 0 reaches 25 phases at 58,000 bits after 500,000 agent-steps; seed 1 never does (26 at the end)
+    curves = tmp_path / "learning" / "RendezvousMapping-v0-scratch-curves.csv"
+    curves.write_text(
+        "cost,seed,agent_steps,metric,bits,seconds\n"
+        "10.0,0,0,60.0,20000.0,0.0\n10.0,0,500000,25.0,58000.0,50.0\n10.0,0,1000000,24.0,57000.0,100.0\n"
+        "10.0,1,0,60.0,20000.0,0.0\n10.0,1,1000000,26.0,50000.0,90.0\n"
+    )
+    table = learning_report.from_random_weights("RendezvousMapping-v0", baselines, spec, tmp_path)
+    assert "a clone of `greedy`" in table[0] and "RendezvousMapping-v0-scratch-curves.csv" in table[0]
+    assert table[-1].startswith("| 10 | 1 of 2 | 500,000 | 50.0 | 25, 5.35e+04 (after 1,000,000 agent-steps")
+
+
 @pytest.mark.parametrize("env_id", env_ids())
 def test_every_env_has_a_learning_configuration_its_baselines_exist(env_id):
     from mrcomm_baselines import policy_names
