@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import shlex
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -334,29 +336,43 @@ def learning_section(
 REFERENCES = ("paper", "any")
 
 
-def widest_margin(env_id: str, rows: list[dict], spec: dict, reference: str) -> dict | None:
+@dataclass(frozen=True)
+class Margin:
+    """A learned point's margins over a reference rule (:func:`~mrcomm_env.experiments.comparison.margins`)."""
+
+    learned: dict
+    rule: dict
+    metric: float | None
+    bits: float | None
+
+    @property
+    def score(self) -> float:
+        """The wider margin as a share of #42's threshold for it (``-inf`` where neither counts)."""
+        shares = [m / t for m, t in ((self.metric, METRIC_MARGIN), (self.bits, BITS_MARGIN)) if m is not None]
+        return max(shares, default=-math.inf)
+
+    @property
+    def clears(self) -> bool:
+        return clears_margin(self.metric, self.bits)
+
+
+def widest_margin(env_id: str, rows: list[dict], spec: dict, reference: str) -> Margin | None:
     """#42's goal 2 on one env's comparison table against ``reference`` (:data:`REFERENCES`): the best such rule
     (per setting, where the baselines are scored per setting) and the learned point with the widest margin over it
-    (:func:`~mrcomm_env.experiments.comparison.margins`, each margin as a share of #42's threshold), with whether
-    it clears #42's threshold; ``None`` where the table has no such rule or no learned point that finished an
+    (:attr:`Margin.score`); ``None`` where the table has no such rule or no learned point that finished an
     episode."""
     lower = bool(spec.get("lower_is_better"))
     per_setting = bool(spec.get("baselines_per_cost"))
     baselines = [r for r in rows if r["cost"] is None]
     eligible = (lambda name: bool(from_paper(env_id, name))) if reference == "paper" else None
-    best = None
+    best: Margin | None = None
     for point in (r for r in rows if r["cost"] is not None and finishes_some(r, spec)):
         rule = best_baseline(baselines, point["cost"] if per_setting else None, spec, eligible)
         if rule is None:
             continue
-        metric, bits = margins(point, rule, lower)
-        score = max(
-            -np.inf if metric is None else metric / METRIC_MARGIN, -np.inf if bits is None else bits / BITS_MARGIN
-        )
-        if best is None or score > best["score"]:
-            best = {"learned": point, "rule": rule, "metric": metric, "bits": bits, "score": score}
-    if best is not None:
-        best["clears"] = clears_margin(best["metric"], best["bits"])
+        found = Margin(point, rule, *margins(point, rule, lower))
+        if best is None or found.score > best.score:
+            best = found
     return best
 
 
@@ -365,17 +381,17 @@ def percent(value: float, digits: int = 1) -> str:
     return f"{100 * value:.{digits}f} %"
 
 
-def margin_text(found: dict) -> str:
+def margin_text(found: Margin) -> str:
     """A margin of :func:`widest_margin` in words: the criterion that clears #42's threshold (bold), or both."""
 
     def share(value: float | None, ahead: str, behind: str) -> str:
         return "—" if value is None else f"{percent(abs(value))} {ahead if value >= 0 else behind}"
 
-    metric = share(found["metric"], "better", "worse")
-    bits = share(found["bits"], "fewer bits", "more bits")
-    if found["metric"] is not None and found["metric"] >= METRIC_MARGIN:
+    metric = share(found.metric, "better", "worse")
+    bits = share(found.bits, "fewer bits", "more bits")
+    if found.metric is not None and found.metric >= METRIC_MARGIN:
         return f"**{metric}**"
-    if found["bits"] is not None and found["bits"] >= BITS_MARGIN:
+    if found.bits is not None and found.bits >= BITS_MARGIN:
         return f"**{bits}**"
     return f"short of it: {metric}, {bits}"
 
@@ -399,17 +415,17 @@ def margins_paragraph(env_id: str, rows: list[dict], spec: dict) -> list[str]:
     if paper is None and any_rule is None:
         return []
 
-    def sentence(found: dict | None, what: str) -> str:
+    def sentence(found: Margin | None, what: str) -> str:
         if found is None:
             return f"The table has no {what}."
-        rule, learned = found["rule"], found["learned"]
-        cleared = " (clears the margin)" if found["clears"] else ""
+        rule, learned = found.rule, found.learned
+        cleared = " (clears the margin)" if found.clears else ""
         return (
             f"{what[0].upper()}{what[1:]} is {rule_text(env_id, rule)}, {rule['metric']:.4g} at {rule['bits']:.4g} "
             f"bits; the learned point at {spec['cost_param']} = {learned['cost']:g} is {margin_text(found)}{cleared}."
         )
 
-    same = paper is not None and any_rule is not None and paper["rule"] is any_rule["rule"]
+    same = paper is not None and any_rule is not None and paper.rule is any_rule.rule
     text = " ".join(
         [
             f"**Margins** ({GOAL_2}).",
@@ -445,13 +461,13 @@ def margins_table(docs: Path) -> list[str]:
             if found is None:
                 cells += ["—", "—"]
                 continue
-            cleared[reference] += found["clears"]
+            cleared[reference] += found.clears
             setting = ""
             if spec.get("baselines_per_cost"):
-                setting = f" at {spec['cost_param']} = {found['rule']['setting']:g}"
+                setting = f" at {spec['cost_param']} = {found.rule['setting']:g}"
             cells += [
-                rule_text(env_id, found["rule"]) + setting,
-                f"{margin_text(found)} ({spec['cost_param']} = {found['learned']['cost']:g})",
+                rule_text(env_id, found.rule) + setting,
+                f"{margin_text(found)} ({spec['cost_param']} = {found.learned['cost']:g})",
             ]
         lines.append("| " + " | ".join(cells) + " |")
     return [

@@ -99,8 +99,8 @@ def test_a_rule_of_ours_never_passes_for_the_papers_algorithm():
     spec = {"lower_is_better": True}
     paper = widest_margin("MultiHop-v0", rows, spec, "paper")
     ours = widest_margin("MultiHop-v0", rows, spec, "any")
-    assert paper["rule"]["policy"] == "location_based" and paper["clears"]
-    assert ours["rule"]["policy"] == "heard_aware" and not ours["clears"]
+    assert paper.rule["policy"] == "location_based" and paper.clears
+    assert ours.rule["policy"] == "heard_aware" and not ours.clears
     assert not from_paper("MultiHop-v0", "heard_aware") and not from_paper("ChannelAssociation-v0", "id_bits")
     for env_id in env_ids():
         names = [name for name, _ in comparison.comparison_spec(env_id)["baselines"]]
