@@ -166,10 +166,11 @@ def from_random_weights(env_id: str, baselines: list[dict], spec: dict, docs: Pa
     clone = f"The comparison's runs start from a clone of `{str(teacher).partition(':')[2]}`"
     if not scratch:
         return [f"**From random weights.** {clone}; what training from random weights reached is in the notes below."]
+    kept = f"docs/learning/{short_name(env_id)}-scratch-curves.csv"
     source = (
-        f"**From random weights** (#42's goal 3). {clone}, so this table reads the curves of runs of the same section "
-        f"without its warm start, from random weights (`docs/learning/{short_name(env_id)}-scratch-curves.csv`; the notes below say "
-        "which runs): the first held-out evaluation"
+        f"**From random weights** (#42's goal 3). {clone}, so this table reads the curves of runs of the same "
+        f"section without its warm start, from random weights (`{kept}`; the notes below say which runs): the "
+        "first held-out evaluation"
     )
     return scratch_table(env_id, scratch, baselines, spec, source)
 
@@ -535,9 +536,10 @@ def read_rows(path: Path) -> list[dict]:
     return rows
 
 
-def warm_start_sentence() -> str:
+def warm_start_sentence(docs: Path | None = None) -> str:
     """Which comparisons start from a clone of a scripted baseline (their config section's ``init_from``), read from
-    the shipped configurations, for the page's header."""
+    the shipped configurations, for the page's header, and where each one's from-random-weights figures are: its
+    table over kept curves (:func:`from_random_weights`) or its notes."""
     cloned = []
     for env_id in env_ids():
         try:
@@ -546,14 +548,14 @@ def warm_start_sentence() -> str:
             continue
         teacher = spec["settings"].get(spec["algo"], {}).get("init_from")
         if teacher:
-            cloned.append(f"{short_name(env_id)}'s from a clone of `{str(teacher).partition(':')[2]}`")
+            where = "table reads kept curves of" if read_curves(env_id, docs, "scratch-curves") else "notes give"
+            cloned.append(
+                f"{short_name(env_id)}'s from a clone of `{str(teacher).partition(':')[2]}`, whose {where} runs from "
+                "random weights"
+            )
     if not cloned:
         return "every comparison here trains from random weights"
-    return (
-        "every comparison here trains from random weights but "
-        + ", ".join(cloned)
-        + ", whose notes give what training from random weights reached"
-    )
+    return "every comparison here trains from random weights but " + "; ".join(cloned)
 
 
 def write_learning_page(docs: Path, quick: bool = False) -> Path:
@@ -565,7 +567,7 @@ def write_learning_page(docs: Path, quick: bool = False) -> Path:
         if (docs / "learning" / f"{short_name(e)}.md").exists()
     ]
     header = LEARNING_HEADER.format(
-        command="mrcomm reproduce-learning" + (" --quick" if quick else ""), starts=warm_start_sentence()
+        command="mrcomm reproduce-learning" + (" --quick" if quick else ""), starts=warm_start_sentence(docs)
     )
     summary = "\n".join(margins_table(docs)) + "\n" if sections else ""
     page = docs / "learning.md"
