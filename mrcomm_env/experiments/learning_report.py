@@ -36,7 +36,7 @@ from mrcomm_env.experiments.comparison import (
 )
 from mrcomm_env.experiments.evaluation import baseline_label
 from mrcomm_env.experiments.io import atomic_write_text
-from mrcomm_env.experiments.runs import comparison_spec
+from mrcomm_env.experiments.runs import comparison_spec, comparison_teacher
 from mrcomm_env.registry import env_ids, short_name
 
 
@@ -158,12 +158,12 @@ def from_random_weights(env_id: str, baselines: list[dict], spec: dict, docs: Pa
     best scripted rule's metric at equal bits on their held-out curves (that algorithm played on the curves' own
     episodes), after how many agent-steps and wall seconds, and where the runs end; a sentence instead where the
     comparison's runs start from a clone."""
-    teacher = spec["settings"].get(spec["algo"], {}).get("init_from")
+    teacher = comparison_teacher(spec)
     if not teacher:
         source = "**From random weights** (#42's goal 3, read from the learning curves): the first held-out evaluation"
         return scratch_table(env_id, read_curves(env_id, docs), baselines, spec, source)
     scratch = read_curves(env_id, docs, "scratch-curves")
-    clone = f"The comparison's runs start from a clone of `{str(teacher).partition(':')[2]}`"
+    clone = f"The comparison's runs start from a clone of `{teacher}`"
     if not scratch:
         return [f"**From random weights.** {clone}; what training from random weights reached is in the notes below."]
     kept = f"docs/learning/{short_name(env_id)}-scratch-curves.csv"
@@ -455,8 +455,8 @@ def margins_table(docs: Path) -> list[str]:
         spec = comparison_spec(env_id)
         rows = read_rows(table)
         envs += 1
-        start = spec["settings"].get(spec["algo"], {}).get("init_from")
-        cells = [short_name(env_id), f"a clone of `{str(start).partition(':')[2]}`" if start else "random weights"]
+        teacher = comparison_teacher(spec)
+        cells = [short_name(env_id), f"a clone of `{teacher}`" if teacher else "random weights"]
         for reference in REFERENCES:
             found = widest_margin(env_id, rows, spec, reference)
             if found is None:
@@ -546,13 +546,10 @@ def warm_start_sentence(docs: Path | None = None) -> str:
             spec = comparison_spec(env_id)
         except ValueError:  # no learning configuration
             continue
-        teacher = spec["settings"].get(spec["algo"], {}).get("init_from")
+        teacher = comparison_teacher(spec)
         if teacher:
             where = "table reads kept curves of" if read_curves(env_id, docs, "scratch-curves") else "notes give"
-            cloned.append(
-                f"{short_name(env_id)}'s from a clone of `{str(teacher).partition(':')[2]}`, whose {where} runs from "
-                "random weights"
-            )
+            cloned.append(f"{short_name(env_id)}'s from a clone of `{teacher}`, whose {where} runs from random weights")
     if not cloned:
         return "every comparison here trains from random weights"
     return "every comparison here trains from random weights but " + "; ".join(cloned)

@@ -40,6 +40,13 @@ def comparison_spec(env_id: str) -> dict:
     return {"algo": "ppo", **spec[COMPARISON_KEY], "settings": spec}
 
 
+def comparison_teacher(spec: dict) -> str | None:
+    """The scripted baseline a comparison's runs start from a clone of (``NAME`` of its section's ``init_from:
+    baseline:NAME``), or None where they start from random weights."""
+    init_from = spec["settings"].get(spec["algo"], {}).get("init_from")
+    return str(init_from).partition(":")[2] if init_from else None
+
+
 def scored_policy_settings(spec: dict) -> dict:
     """How a comparison's runs act when scored, profiled and shipped (``LearnedPolicy``'s keyword arguments):
     deterministically unless the comparison says otherwise, with the final model unless it names
