@@ -55,6 +55,7 @@ from torch import nn
 from mrcomm_agents.heldout import sb3_masks
 from mrcomm_env.core.base import MrcommParallelEnv, mask_info_keys
 from mrcomm_env.core.batched import BatchedEnv
+from mrcomm_env.core.sharded import ShardedBatchedEnv
 
 #: the algorithms of this module (``mrcomm train --algo``)
 BATCHED_ALGORITHMS = ("ippo", "mappo")
@@ -195,7 +196,7 @@ class BatchedPPO:
     def __init__(
         self,
         model,
-        batch: BatchedEnv,
+        batch: BatchedEnv | ShardedBatchedEnv,
         normalizer: VecNormalize | None,
         seed: int,
         critic: CentralCritic | None = None,

@@ -34,6 +34,7 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
+from functools import partial
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -84,6 +85,7 @@ from mrcomm_agents.warm_start import CriticWarmup, clone
 from mrcomm_env.core.batched import BatchedEnv
 from mrcomm_env.core.config import Int, Optional, Real
 from mrcomm_env.core.policy import Policy
+from mrcomm_env.core.sharded import stepping_batch
 from mrcomm_env.registry import canonical_id, make, short_name
 
 CONFIG_DIR = Path(__file__).with_name("configs")
@@ -118,6 +120,7 @@ RUN_KEYS = (
     "critic_warmup",
     "freeze_normalization",
     "update_threads",
+    "env_workers",
     "kickstart_coef",
     "kickstart_steps",
 )
@@ -196,6 +199,10 @@ class TrainConfig:
     #: trainings started by hand on two cores each want 1: with two each, their spinning threads made them slower
     #: together than one after the other (docs/performance.md, "update threads")
     update_threads: int | None = None
+    #: ippo/mappo: processes that step the copies, this one included (None: ``core.sharded.default_workers``, two
+    #: on two or more cores where the env's copies step one after another, as AsyncCL's and RendezvousMapping's
+    #: do, else one). Every copy steps the same either way, so the run's numbers do not depend on it: only its speed
+    env_workers: int | None = None
     #: ippo/mappo after a warm start: kickstarting (Schmitt et al. 2018). The policy's negative log-likelihood of
     #: what the warm start's clone, frozen as cloned (:data:`KICKSTART_TEACHER_FILE`), chooses (its mode) at every
     #: state of the rollout is added to PPO's loss with this weight, which falls linearly to 0 over the first
@@ -245,7 +252,8 @@ class TrainConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"argument '{name}' must be an integer ≥ 0, got {value!r}")
-        self._validate_update_threads()
+        self._validate_batched_count("update_threads", f"SB3's {self.algo} trains on one torch thread")
+        self._validate_batched_count("env_workers", "SB3's VecEnv steps its copies in one process")
         self._validate_critic_arch()
         self._validate_kickstart()
         if not isinstance(self.freeze_normalization, bool):
@@ -300,17 +308,17 @@ class TrainConfig:
                 f"shares 'net_arch'), got {self.critic_arch!r}"
             )
 
-    def _validate_update_threads(self) -> None:
-        value = self.update_threads
+    def _validate_batched_count(self, name: str, why_not_sb3: str) -> None:
+        """``update_threads`` and ``env_workers``: None, or a count ≥ 1 of a batched trainer's run."""
+        value = getattr(self, name)
         if value is None:
             return
         if self.algo not in BATCHED_ALGORITHMS:
             raise ValueError(
-                f"argument 'update_threads' applies to {' and '.join(BATCHED_ALGORITHMS)} only (SB3's "
-                f"{self.algo} trains on one torch thread), got {value!r}"
+                f"argument '{name}' applies to {' and '.join(BATCHED_ALGORITHMS)} only ({why_not_sb3}), got {value!r}"
             )
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"argument 'update_threads' must be None or an integer ≥ 1, got {value!r}")
+            raise ValueError(f"argument '{name}' must be None or an integer ≥ 1, got {value!r}")
 
     def _validate_batched(self, env) -> None:
         """ippo/mappo: the env's spaces (and for mappo its state), the copies' memory and the rollout's sizes."""
@@ -318,6 +326,11 @@ class TrainConfig:
         if self.n_envs is None:
             self.n_envs = default_copies(env.n_agents)
         BatchedEnv.check_memory(env, int(self.n_envs or 1), "n_envs")  # the copies together, before any work
+        if self.env_workers is not None and self.env_workers > int(self.n_envs or 1):
+            raise ValueError(
+                f"argument 'env_workers' must be at most n_envs = {self.n_envs} (each process steps at least one "
+                f"copy), got {self.env_workers}"
+            )
         for name in ("n_steps", "batch_size", "n_epochs"):
             value = self.hyperparams.get(name, batched_ppo.DEFAULTS[name])
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -628,7 +641,10 @@ def _train_batched(
     done_steps = int(model.num_timesteps)
     if resume:
         _cut_progress_log(out / "progress.csv", done_steps)
-    batch = BatchedEnv(lambda: make(config.env_id, **config.env_kwargs), int(config.n_envs or 1), copy=False)
+    # the copies' stepping processes (config.env_workers, or as many as pay off): the same numbers whatever their count
+    batch = stepping_batch(
+        partial(make, config.env_id, **config.env_kwargs), int(config.n_envs or 1), config.env_workers, copy=False
+    )
     trainer = _batched_trainer(config, out, model, batch, normalizer, critic, critic_optimizer, trust_pickle)
     csv_log = resumed_csv_output(str(out / "progress.csv")) if resume else make_output_format("csv", str(out))
     model.set_logger(Logger(str(out), [csv_log, make_output_format("tensorboard", str(out))]))
@@ -696,6 +712,7 @@ def _train_batched(
         raise
     finally:
         bar.close()
+        batch.close()  # its worker processes too; the held-out evaluations below step envs of their own
     save()
     if config.eval_episodes:  # the final policy's row, as the SB3 path's last one
         before = evaluating[0]
@@ -706,7 +723,6 @@ def _train_batched(
     _save_files(model, config, out, normalizer, trainer.critic_state(), clock)
     write_json(out / "done.json", {"num_timesteps": int(model.num_timesteps)})
     model.logger.close()
-    batch.close()
     return out
 
 

@@ -150,11 +150,11 @@ class BatchedEnv:
         ``seed``: None (each copy continues its stream), s (copy i gets s + i) or one seed (or None) per copy.
         ``options``: one dict for every copy or one per copy.
         """
-        seeds = self._per_copy_seeds(seed)
-        per_copy_options = self._per_copy_options(options)
+        seeds = copy_seeds(seed, self.n_copies)
+        per_copy_options = copy_options(options, self.n_copies)
         observations, infos = [], []
-        for env, copy_seed, copy_options in zip(self.envs, seeds, per_copy_options):
-            obs, info = env.reset_arrays(seed=copy_seed, options=copy_options)
+        for env, copy_seed, options_of_copy in zip(self.envs, seeds, per_copy_options):
+            obs, info = env.reset_arrays(seed=copy_seed, options=options_of_copy)
             observations.append(obs)
             infos.append(info)
         if self.world is not None:
@@ -165,15 +165,7 @@ class BatchedEnv:
 
     def step(self, actions: np.ndarray) -> BatchStep:
         """Step every copy with ``actions`` ``(M, N, *action_shape)``; copies that end are reset (see BatchStep)."""
-        if self._observations is None:
-            raise RuntimeError("step() called before reset(); call reset() first")
-        actions = np.asarray(actions)
-        if actions.shape != self._action_shape:
-            raise ValueError(
-                f"argument 'actions' must have shape (copies, agents, *action shape) = {self._action_shape}, "
-                f"got {actions.shape}"
-            )
-        return self._step_copies(actions)
+        return self._step_copies(checked_actions(actions, self._action_shape, self._observations is not None))
 
     def _step_copies(self, actions: np.ndarray) -> BatchStep:
         if self.world is not None:
@@ -295,27 +287,43 @@ class BatchedEnv:
             env.close()
 
     # ----------------------------------------------------------------- helpers
-    def _per_copy_seeds(self, seed: int | Sequence[int | None] | None) -> list[int | None]:
-        if seed is None:
-            return [None] * self.n_copies
-        if isinstance(seed, Integral) and not isinstance(seed, bool):
-            if seed < 0:
-                raise ValueError(f"argument 'seed' must be None, an integer ≥ 0 or one per copy, got {seed!r}")
-            return [int(seed) + i for i in range(self.n_copies)]
-        seeds = list(seed)  # type: ignore[arg-type]
-        if len(seeds) != self.n_copies:
-            raise ValueError(f"argument 'seed' must hold one seed per copy ({self.n_copies}), got {len(seeds)}")
-        return seeds
 
-    def _per_copy_options(self, options: dict | Sequence[dict | None] | None) -> list[dict | None]:
-        if options is None or isinstance(options, dict):
-            return [options] * self.n_copies
-        per_copy = list(options)
-        if len(per_copy) != self.n_copies:
-            raise ValueError(
-                f"argument 'options' must be a dict or one dict per copy ({self.n_copies}), got {len(per_copy)}"
-            )
-        return per_copy
+
+def copy_seeds(seed: int | Sequence[int | None] | None, n_copies: int) -> list[int | None]:
+    """``reset``'s ``seed`` as one seed per copy: None for each (every copy continues its stream), s + i for copy i
+    of an integer s, or the sequence itself (one per copy)."""
+    if seed is None:
+        return [None] * n_copies
+    if isinstance(seed, Integral) and not isinstance(seed, bool):
+        if seed < 0:
+            raise ValueError(f"argument 'seed' must be None, an integer ≥ 0 or one per copy, got {seed!r}")
+        return [int(seed) + i for i in range(n_copies)]
+    seeds = list(seed)  # type: ignore[arg-type]
+    if len(seeds) != n_copies:
+        raise ValueError(f"argument 'seed' must hold one seed per copy ({n_copies}), got {len(seeds)}")
+    return seeds
+
+
+def copy_options(options: dict | Sequence[dict | None] | None, n_copies: int) -> list[dict | None]:
+    """``reset``'s ``options`` as one dict (or None) per copy."""
+    if options is None or isinstance(options, dict):
+        return [options] * n_copies
+    per_copy = list(options)
+    if len(per_copy) != n_copies:
+        raise ValueError(f"argument 'options' must be a dict or one dict per copy ({n_copies}), got {len(per_copy)}")
+    return per_copy
+
+
+def checked_actions(actions: Any, shape: tuple[int, ...], started: bool) -> np.ndarray:
+    """``actions`` as an array of ``shape`` (copies, agents, *action shape), after a reset (``started``)."""
+    if not started:
+        raise RuntimeError("step() called before reset(); call reset() first")
+    actions = np.asarray(actions)
+    if actions.shape != shape:
+        raise ValueError(
+            f"argument 'actions' must have shape (copies, agents, *action shape) = {shape}, got {actions.shape}"
+        )
+    return actions
 
 
 def sample_actions(space: spaces.Space, rng: np.random.Generator, leading: tuple[int, ...]) -> np.ndarray:

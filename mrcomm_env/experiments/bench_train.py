@@ -6,6 +6,7 @@ imports it when ``--train`` or ``--train-shipped`` is given."""
 from __future__ import annotations
 
 import time
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -18,7 +19,7 @@ from tqdm.auto import tqdm
 from mrcomm_agents.batched_ppo import BatchedPPO, build_model, detached_normalizer, make_critic
 from mrcomm_agents.training import algorithm_class
 from mrcomm_agents.vecenv import AgentSlotVecEnv
-from mrcomm_env.core.batched import BatchedEnv
+from mrcomm_env.core.sharded import stepping_batch
 from mrcomm_env.experiments.bench import BATCHED_BENCH_ALGORITHMS, TRAIN_SLOTS, shipped_training
 from mrcomm_env.registry import make
 
@@ -162,7 +163,8 @@ def batched_throughput(env_id: str, env_kwargs: dict, timesteps: int, algo: str,
         obs_dim = int(np.prod(obs_space.shape or (1,)))
         critic, critic_optimizer = make_critic(probe.n_agents, obs_dim, net_arch, model.lr_schedule(1))
     probe.close()
-    batch = BatchedEnv(lambda: make(env_id, **env_kwargs), copies, copy=False)
+    # as `mrcomm train` steps them: in two processes where the copies step one after another (core.sharded)
+    batch = stepping_batch(partial(make, env_id, **env_kwargs), copies, copy=False)
     trainer = BatchedPPO(
         model, batch, detached_normalizer(obs_space.shape, model.gamma), seed, critic, critic_optimizer
     )
@@ -182,6 +184,7 @@ def batched_throughput(env_id: str, env_kwargs: dict, timesteps: int, algo: str,
         "copies": copies,
         "minibatch": int(model.batch_size),
         "update_threads": trainer.update_threads,
+        "env_workers": getattr(batch, "workers", 1),
     }
 
 

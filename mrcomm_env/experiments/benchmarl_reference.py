@@ -73,6 +73,7 @@ from mrcomm_env.experiments.runs import comparison_spec
 from mrcomm_env.integrations import require
 from mrcomm_env.integrations.benchmarl import ENV_ID_OF_TASK, MrcommTask
 from mrcomm_env.integrations.torchrl_batched import GROUP, BatchedTorchRLEnv
+from mrcomm_env.registry import env_class
 
 EXTRA = "benchmarl"
 torch = require("torch", EXTRA)
@@ -189,7 +190,7 @@ def evaluate_benchmarl_policy(experiment, task: str, episodes: int) -> dict[str,
     env_id = ENV_ID_OF_TASK[task]
     spec = paper_spec(env_id)
     env = BatchedTorchRLEnv(env_id, episodes, seed=HELDOUT_SEED, **yaml_task.config)
-    probe = env.batch.envs[0]
+    unreached_times = env_class(env_id).UNREACHED_TIMES
     returns = np.zeros(episodes)
     steps = np.zeros(episodes, dtype=int)
     finals: dict[int, dict[str, float]] = {}
@@ -209,7 +210,7 @@ def evaluate_benchmarl_policy(experiment, task: str, episodes: int) -> dict[str,
     out: dict[str, list[float]] = {"metric": [], "bits": [], "return": []}
     for i in range(episodes):
         value = float(finals[i][spec["metric"]])
-        if spec["metric"] in probe.UNREACHED_TIMES and not value >= 0:
+        if spec["metric"] in unreached_times and not value >= 0:
             value = float(steps[i])  # never reached: the episode's length, as counted_time counts it
         out["metric"].append(value)
         per = max(int(steps[i]), 1) if spec.get("bits_per", "step") == "step" else 1

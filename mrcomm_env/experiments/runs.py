@@ -69,10 +69,11 @@ def sb3_algo(spec: dict) -> str:
 
 
 def run_folder(label: str, config: dict) -> str:
-    """``<grid point>-<digest>/s<seed>``: the digest covers every setting of the run but its seed (env arguments,
-    algorithm, hyperparameters, agent-steps, …) and the backend of the env's hot loops, so a rerun with any of
-    them changed trains new runs instead of reusing the old ones."""
-    settings = {k: v for k, v in config.items() if k != "seed"}
+    """``<grid point>-<digest>/s<seed>``: the digest covers every setting of the run but its seed and its stepping
+    processes (env arguments, algorithm, hyperparameters, agent-steps, …) and the backend of the env's hot loops, so a
+    rerun with any of them changed trains new runs instead of reusing the old ones."""
+    # env_workers: how many processes step the copies changes no number of the run, only its speed
+    settings = {k: v for k, v in config.items() if k not in ("seed", "env_workers")}
     blob = json.dumps([settings, backend.name()], sort_keys=True, default=str)
     return f"{label}-{hashlib.sha1(blob.encode()).hexdigest()[:8]}/s{config['seed']}"
 

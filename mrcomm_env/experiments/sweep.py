@@ -48,6 +48,7 @@ from typing import Any
 from tqdm.auto import tqdm
 
 from mrcomm_env.core import backend
+from mrcomm_env.core.sharded import WORKERS_VARIABLE
 from mrcomm_env.experiments.arguments import positive_int
 from mrcomm_env.experiments.io import atomic_write_text
 
@@ -145,6 +146,8 @@ def one_thread() -> None:
     set it)."""
     os.environ["OMP_NUM_THREADS"] = "1"
     os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
+    # the workers already share the cores: a batched run's copies step in the worker itself (core.sharded)
+    os.environ[WORKERS_VARIABLE] = "1"
     os.environ["MKL_NUM_THREADS"] = "1"
     # torch reads OMP_NUM_THREADS when it is first imported (and ``mrcomm train`` sets one thread itself); a
     # worker that already has torch loaded is told directly. Importing torch here would cost each worker ~2 s.

@@ -52,8 +52,10 @@ def make_batched_env(env_id: str, num_envs: int, **kwargs):
     """``num_envs`` copies of ``env_id`` as one TorchRL ``EnvBase`` with ``batch_size=[num_envs]``, stepped in one
     call (``torchrl_batched.BatchedTorchRLEnv``): the keys of :func:`make_env` with a leading copy axis.
 
-    ``kwargs``: ``device``, ``seed``, ``categorical_actions`` and ``return_state`` as for :func:`make_env`; every
-    other keyword goes to the env. Copy i of a batch seeded s is the PettingZoo env seeded s + i, episode after
+    ``kwargs``: ``device``, ``seed``, ``categorical_actions`` and ``return_state`` as for :func:`make_env`, and
+    ``env_workers``, the processes that step the copies (None: two on two or more cores where the copies step one
+    after another, as AsyncCL's and RendezvousMapping's do, else one; the numbers do not depend on it); every other
+    keyword goes to the env. Copy i of a batch seeded s is the PettingZoo env seeded s + i, episode after
     episode.
     """
     require("torchrl.envs", EXTRA)

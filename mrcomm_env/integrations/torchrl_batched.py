@@ -3,7 +3,8 @@
 What ``VmasEnv`` is to VMAS: TorchRL and BenchMARL step all copies in one call instead of one
 ``PettingZooWrapper`` per copy in a ``SerialEnv``. Under it is :class:`~mrcomm_env.core.batched.BatchedEnv`, so
 envs with a copy-axis world (ChannelAssociation, MapSync, MultiHop) step every copy as arrays, and the others step
-their copies in turn without TorchRL's per-copy wrapping.
+their copies in turn without TorchRL's per-copy wrapping, by default split between two processes on two or more
+cores (``env_workers``, :mod:`mrcomm_env.core.sharded`).
 
 The keys and specs are those of :func:`mrcomm_env.integrations.torchrl.make_env` with a leading copy axis: group
 ``"robot"`` holds ``observation`` ``(M, N, obs_dim)``, ``action`` ``(M, N)`` (categorical; one-hot or binary
@@ -25,6 +26,7 @@ the same observations, rewards and infos, byte for byte (``tests/integrations/te
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -32,6 +34,7 @@ from gymnasium import spaces
 
 from mrcomm_env.core.base import MASK_INFO_PREFIX, mask_info_keys
 from mrcomm_env.core.batched import BatchedEnv
+from mrcomm_env.core.sharded import stepping_batch
 from mrcomm_env.integrations import refuse_unmaskable_actions, require
 from mrcomm_env.registry import make
 
@@ -65,6 +68,7 @@ class BatchedTorchRLEnv(EnvBase):
         seed: int | None = None,
         categorical_actions: bool = True,
         return_state: bool = True,
+        env_workers: int | None = None,
         **env_kwargs: Any,
     ):
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
@@ -87,11 +91,21 @@ class BatchedTorchRLEnv(EnvBase):
         self.categorical_actions = bool(categorical_actions)
         self._mask_keys = mask_info_keys(infos)
         self._info_keys = [k for k in infos if not k.startswith(MASK_INFO_PREFIX)]
-        self.batch = BatchedEnv(lambda: make(env_id, **env_kwargs), num_envs, copy=False)
+        # the processes stepping the copies (None: two on two or more cores where the copies step one after another,
+        # ``core.sharded.default_workers``): the same numbers whatever their count
+        if env_workers is not None and (
+            isinstance(env_workers, bool) or not isinstance(env_workers, int) or not 1 <= env_workers <= num_envs
+        ):
+            raise ValueError(f"argument 'env_workers' must be None or an integer in [1, num_envs], got {env_workers!r}")
+        self._make_batch = partial(
+            stepping_batch, partial(make, env_id, **env_kwargs), num_envs, env_workers, copy=False
+        )
+        self.batch = self._make_batch()
         self.n_agents = self.batch.n_agents
         #: TorchRL's multi-agent grouping: every robot in one group (they share spaces)
         self.group_map = {GROUP: list(self.batch.possible_agents)}
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
+        self.is_closed = False  # EnvBase starts closed unless told (its wrappers say so once their env is built)
         self._make_specs(probe)
         self._seed = seed
         self._started = False
@@ -168,6 +182,10 @@ class BatchedTorchRLEnv(EnvBase):
         self._seed = seed  # applied at the next full reset: copy i gets seed + i
 
     def _reset(self, tensordict=None, **kwargs):
+        if self.is_closed:  # used again after close(): new copies, as TorchRL's ParallelEnv starts new workers
+            self.batch = self._make_batch()
+            self.is_closed, self._started = False, False
+            self._pending[:] = False
         to_reset = self._reset_mask(tensordict)
         if to_reset is None or not self._started:  # a full reset
             if self._seed is not None or not self._started:
@@ -267,8 +285,11 @@ class BatchedTorchRLEnv(EnvBase):
         return self.batch.render_copy(index)
 
     def close(self, *, raise_if_closed: bool = True) -> None:
+        """Close every copy and end the stepping processes. The env may be reset again afterwards: it then begins new
+        copies (seeded by ``set_seed``, or unseeded), as TorchRL's ``ParallelEnv`` starts new workers."""
+        if not self.is_closed:
+            self.batch.close()
         self.is_closed = True
-        self.batch.close()
 
 
 def _bounded(space: spaces.Space, lead: tuple[int, ...], device):

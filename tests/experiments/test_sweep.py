@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from helpers.processes import wait_until_gone
 
 from mrcomm_env.experiments.sweep import Runner, SweepError, Task, cancel_until_gone, current, using
 
@@ -153,19 +154,7 @@ def test_workers_die_with_a_driver_killed_by_sigkill(tmp_path):
     proc.send_signal(signal.SIGKILL)
     proc.wait()
 
-    def alive(pid):
-        try:
-            os.kill(pid, 0)
-        except ProcessLookupError:
-            return False
-        # a zombie (killed, not yet reaped by init) is gone for every purpose
-        with open(f"/proc/{pid}/stat") as fh:
-            return fh.read().split(")")[-1].split()[0] != "Z"
-
-    deadline = time.monotonic() + 10
-    while time.monotonic() < deadline and any(alive(p) for p in workers):
-        time.sleep(0.2)
-    assert not any(alive(p) for p in workers), "workers outlived their killed driver"
+    assert wait_until_gone(workers, 10), "workers outlived their killed driver"
 
 
 def test_a_corrupt_cached_result_is_run_again_with_a_warning(tmp_path):

@@ -4,6 +4,8 @@ episode boundaries, the action mask reaches the sampler, and broken infos are ca
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import torch
@@ -213,12 +215,15 @@ def test_batched_copy_i_is_the_pettingzoo_env_seeded_s_plus_i(env_id):
     assert_copies_are_single_envs(env, data, env_id, batched_args(env_id), seed)
 
 
-def test_batched_copies_that_end_apart_stay_single_envs():
+@pytest.mark.parametrize("env_workers", [1, 3])
+def test_batched_copies_that_end_apart_stay_single_envs(env_workers):
     # episodes that end by themselves at different steps: the rollout's resets name some copies and not others, and
-    # a copy whose next episode began at its last step must not be reset a second time
+    # a copy whose next episode began at its last step must not be reset a second time; the copies step in one
+    # process or in three (core.sharded), with the same numbers
     env_id, seed, steps = "RendezvousMapping-v0", 11, 120
     kwargs = {"n_vehicles": 3, "n_landmarks": 4, "k_candidates": 5, "max_cycles": 40}
-    env = make_batched_env(env_id, 4, seed=seed, **kwargs)
+    env = make_batched_env(env_id, 4, seed=seed, env_workers=env_workers, **kwargs)
+    assert getattr(env.batch, "workers", 1) == env_workers
     data = env.rollout(steps, break_when_any_done=False)  # env.rand_action: feasible actions only
     ends = [tuple(data["next", "done"][i, :, 0].nonzero().flatten().tolist()) for i in range(4)]
     assert len(set(ends)) > 1 and all(len(e) >= 2 for e in ends), f"the copies must end apart, and often: {ends}"
@@ -266,6 +271,19 @@ def test_batched_collector_crosses_episodes_with_the_mask_in_the_action_spec():
     assert (data["next", GROUP, "info", "action_feasible"] == 1).all()
 
 
+def test_a_closed_batched_env_ends_its_processes_and_begins_new_copies_when_reset_again():
+    env = make_batched_env("AsyncCL-v0", 3, seed=5, env_workers=2, n_robots=3, max_cycles=6)
+    first = env.reset()[GROUP, "observation"].clone()
+    (worker,) = env.batch.worker_pids
+    env.close()
+    with pytest.raises(ProcessLookupError):  # ended and reaped
+        os.kill(worker, 0)
+    env.set_seed(5)  # new copies, seeded as the first ones were
+    torch.testing.assert_close(env.reset()[GROUP, "observation"], first, rtol=0, atol=0)
+    assert env.batch.worker_pids != [worker]
+    env.close()
+
+
 def test_batched_one_hot_actions_and_render():
     env = make_batched_env("MapSync-v0", 2, categorical_actions=False, seed=0, **SHORT)
     check_env_specs(env, seed=0)
@@ -287,3 +305,6 @@ def test_batched_env_refuses_bad_arguments_at_construction():
         make_batched_env("NoSuchEnv-v0", 2)
     with pytest.raises(ValueError, match="MultiBinary actions.*'mask_unheld'"):
         make_batched_env("MultiHop-v0", 2, grid_side=3, mask_unheld=True)
+    for env_workers in (0, 3, True):
+        with pytest.raises(ValueError, match=r"'env_workers' must be None or an integer in \[1, num_envs\]"):
+            make_batched_env("MapSync-v0", 2, env_workers=env_workers)

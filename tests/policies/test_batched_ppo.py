@@ -20,6 +20,7 @@ from mrcomm_agents.batched_ppo import BatchedPPO, build_model, check_env, detach
 from mrcomm_agents.learned import LearnedPolicy
 from mrcomm_agents.training import CRITIC_FILE, TrainConfig, train
 from mrcomm_env.core.batched import BatchedEnv
+from mrcomm_env.experiments import runs
 from mrcomm_env.experiments.cli import main
 from mrcomm_env.registry import make
 
@@ -672,6 +673,39 @@ def test_update_threads_from_a_configuration_must_be_a_whole_count(value):
         config(ROLLOUT, update_threads=value).validate()
 
 
+def test_a_run_trains_the_same_bits_whatever_processes_step_its_copies(tmp_path):
+    """``env_workers``: the copies step in one process or in three (shards of 2, 1 and 1 copies), and the run's
+    model, statistics and training return are the same to the bit; the copies' processes are not part of the run's
+    identity."""
+    weights, statistics, returns = {}, {}, {}
+    for workers in (1, 3):
+        out = tmp_path / f"workers{workers}"
+        train(config(3 * ROLLOUT, env_workers=workers), out, progress=False)
+        with zipfile.ZipFile(out / "model.zip") as archive:
+            weights[workers] = archive.read("policy.pth")
+        statistics[workers] = (out / STATISTICS_FILE).read_bytes()
+        with open(out / "progress.csv", newline="") as handle:
+            returns[workers] = [row["rollout/ep_rew_mean"] for row in csv.DictReader(handle)]
+        assert json.loads((out / "config.json").read_text())["env_workers"] == workers
+    assert weights[1] == weights[3] and statistics[1] == statistics[3] and returns[1] == returns[3]
+    assert any(returns[1]), returns  # episodes ended while training: the returns compared are not all empty
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--algo", "ppo", "--env-workers", "2"], "argument 'env_workers' applies to ippo and mappo only"),
+        (["--algo", "ippo", "--env-workers", "0"], "--env-workers: must be an integer ≥ 1"),
+        (["--algo", "ippo", "--env-workers", "99"], "argument 'env_workers' must be at most n_envs"),
+    ],
+)
+def test_env_workers_outside_the_batched_trainer_or_its_copies_is_refused_in_one_line(tmp_path, capsys, argv, message):
+    assert main(["train", ENV, *argv, "--out", str(tmp_path / "run"), "--quiet"]) != 0
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1 and message in err, err
+    assert not (tmp_path / "run" / "config.json").exists()
+
+
 # ------------------------------------------------------------------------------------------------ kickstarting
 def emit_on_own_id_bit(seed: int):
     """A frozen policy of ChannelAssociation's spaces that emits exactly when the normalised first feature (the own
@@ -787,3 +821,11 @@ def test_bad_kickstarting_settings_are_refused_in_one_line_before_any_work(tmp_p
     err = capsys.readouterr().err.strip()
     assert "Traceback" not in err and len(err.splitlines()) == 1 and message in err, err
     assert not (tmp_path / "run" / "config.json").exists()
+
+
+def test_a_runs_folder_digest_leaves_out_its_stepping_processes_and_keeps_every_other_setting():
+    settings = {"env_id": ENV, "algo": "ippo", "seed": 0, "timesteps": 100, "n_envs": 4}
+    folder = runs.run_folder("lam=0", settings)
+    assert runs.run_folder("lam=0", {**settings, "env_workers": 2}) == folder  # the same numbers, the same run
+    assert runs.run_folder("lam=0", {**settings, "n_envs": 8}) != folder
+    assert runs.run_folder("lam=0", {**settings, "seed": 1}) == folder.replace("/s0", "/s1")

@@ -59,6 +59,15 @@ def add_parser(command) -> None:
         help="ippo/mappo: torch threads of the update (default min(2, cores)); 1 for each of two trainings sharing "
         "two cores (the trained bits depend on N, so it is kept with the run)",
     )
+    p.add_argument(
+        "--env-workers",
+        type=positive_int,
+        default=None,
+        metavar="K",
+        help="ippo/mappo: processes that step the copies, this one included (default: 2 on two or more cores where "
+        "the env's copies step one after another, as AsyncCL's and RendezvousMapping's do, else 1); the trained bits "
+        "do not depend on K",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument(
         "--trust-pickle",
@@ -138,6 +147,7 @@ def run(args: argparse.Namespace) -> int:
             ("--seeds", args.seeds),
             ("--init-from", args.init_from),
             ("--update-threads", args.update_threads),
+            ("--env-workers", args.env_workers),
         ):
             if value:
                 raise ValueError(f"{flag} cannot be used with --resume: a resumed run keeps its own settings")
@@ -156,6 +166,8 @@ def run(args: argparse.Namespace) -> int:
         run["init_from"] = args.init_from
     if args.update_threads is not None:
         run["update_threads"] = args.update_threads
+    if args.env_workers is not None:
+        run["env_workers"] = args.env_workers
     # the warm start's teacher, found once (the configuration's or --init-from's): a bad name is reported before any work
     teacher = teacher_for(env_id, run.get("init_from"))
     base = dict(env_id=env_id, algo=args.algo, timesteps=timesteps, env_kwargs=env_kwargs, hyperparams=hyper, **run)
