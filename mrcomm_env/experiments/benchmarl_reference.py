@@ -66,6 +66,7 @@ from rliable import metrics as rly_metrics
 from rliable import plot_utils
 
 from mrcomm_baselines import default_policy, make_policy
+from mrcomm_env.core.sharded import WORKERS_VARIABLE
 from mrcomm_env.core.stats import mean_ci95
 from mrcomm_env.experiments.evaluation import evaluate_policy
 from mrcomm_env.experiments.io import atomic_savefig, atomic_write_json, atomic_write_text
@@ -532,6 +533,7 @@ def run_jobs(jobs: int, *args) -> list[tuple[str, str, int]]:
 
 def _one_thread() -> None:
     os.environ["OMP_NUM_THREADS"] = "1"
+    os.environ[WORKERS_VARIABLE] = "1"  # the jobs share the cores: each steps its copies itself (core.sharded)
     torch.set_num_threads(1)
 
 
