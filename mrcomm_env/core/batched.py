@@ -286,8 +286,6 @@ class BatchedEnv:
         for env in self.envs:
             env.close()
 
-    # ----------------------------------------------------------------- helpers
-
 
 def copy_seeds(seed: int | Sequence[int | None] | None, n_copies: int) -> list[int | None]:
     """``reset``'s ``seed`` as one seed per copy: None for each (every copy continues its stream), s + i for copy i
