@@ -437,9 +437,19 @@ def margins(learned: dict, baseline: dict, lower_is_better: bool) -> tuple[float
     return metric, bits
 
 
+def clearing_criterion(metric: float | None, bits: float | None) -> str | None:
+    """Which of #42's goal 2 criteria one pair's margins clear: ``"metric"`` (:data:`METRIC_MARGIN` better, checked
+    first), ``"bits"`` (:data:`BITS_MARGIN` fewer bits) or None."""
+    if metric is not None and metric >= METRIC_MARGIN:
+        return "metric"
+    if bits is not None and bits >= BITS_MARGIN:
+        return "bits"
+    return None
+
+
 def clears_margin(metric: float | None, bits: float | None) -> bool:
     """#42's goal 2 on one pair: :data:`METRIC_MARGIN` better, or :data:`BITS_MARGIN` fewer bits."""
-    return (metric is not None and metric >= METRIC_MARGIN) or (bits is not None and bits >= BITS_MARGIN)
+    return clearing_criterion(metric, bits) is not None
 
 
 def beats(learned: dict, baseline: dict, lower_is_better: bool) -> bool:

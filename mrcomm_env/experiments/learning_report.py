@@ -27,6 +27,7 @@ from mrcomm_env.experiments.comparison import (
     baseline_on_training_heldout,
     beats,
     best_baseline,
+    clearing_criterion,
     clears_margin,
     dominates,
     finishes_some,
@@ -390,10 +391,9 @@ def margin_text(found: Margin) -> str:
 
     metric = share(found.metric, "better", "worse")
     bits = share(found.bits, "fewer bits", "more bits")
-    if found.metric is not None and found.metric >= METRIC_MARGIN:
-        return f"**{metric}**"
-    if found.bits is not None and found.bits >= BITS_MARGIN:
-        return f"**{bits}**"
+    cleared = clearing_criterion(found.metric, found.bits)
+    if cleared is not None:
+        return f"**{metric if cleared == 'metric' else bits}**"
     return f"short of it: {metric}, {bits}"
 
 

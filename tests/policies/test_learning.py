@@ -81,6 +81,9 @@ def test_a_margin_clears_goal_2_at_ten_percent_on_the_metric_or_twenty_on_bits()
     assert comparison.clears_margin(0.10, None) and comparison.clears_margin(None, 0.20)
     assert comparison.clears_margin(-0.5, 0.25) and comparison.clears_margin(0.11, -1.0)
     assert not comparison.clears_margin(0.099, 0.199) and not comparison.clears_margin(None, None)
+    # the page names the criterion a margin clears: the metric's first where both do
+    assert comparison.clearing_criterion(0.12, 0.30) == "metric" and comparison.clearing_criterion(0.05, 0.30) == "bits"
+    assert comparison.clearing_criterion(0.099, 0.199) is None
 
 
 def test_a_rule_of_ours_never_passes_for_the_papers_algorithm():
