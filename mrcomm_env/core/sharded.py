@@ -16,8 +16,8 @@ weights). Only the wall time changes.
 **Processes.** Each worker is a fresh interpreter (``python -m mrcomm_env.core.sharded``: no copy of the caller's torch
 threads or open files, and unlike multiprocessing's ``spawn`` no second import of the caller's script) that imports
 only this package's env modules; they ignore Ctrl-C, which the caller handles (the trainer saves
-its checkpoint first), and they exit when the caller closes the batch or dies (their end of the pipe closes, even
-after ``kill -9``). An exception in a worker is raised in the caller as a ``RuntimeError`` carrying the worker's
+its checkpoint first), and they exit when the caller closes the batch, drops it (garbage collection) or dies (the
+caller's end of their socket pair closes, even after ``kill -9``). An exception in a worker is raised in the caller as a ``RuntimeError`` carrying the worker's
 traceback. Each worker holds its shard's copies plus an interpreter with numpy, numba, scipy and the env modules (about
 210 MiB, ``WORKER_BYTES``), which the memory check adds to the copies' own estimate.
 """
