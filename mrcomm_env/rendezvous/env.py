@@ -636,21 +636,17 @@ def candidate_lists(utility: np.ndarray, assignment: np.ndarray, K: int) -> tupl
     slots are −1."""
     n, L = utility.shape
     k = min(K, L)
-    if backend.compiled():  # numpy's argpartition chooses the set (its tie choices); the rest in two calls
+    if backend.compiled():  # the ranking below in two calls
         kernels = _kernels()
         utility = np.ascontiguousarray(utility, dtype=np.float64)
         assignment = np.ascontiguousarray(assignment, dtype=np.int64)
-        negated = kernels.negated_work(utility, assignment)
-        top = np.argpartition(negated, k - 1, axis=1)[:, :k] if k < L else np.tile(np.arange(L), (n, 1))
-        return kernels.candidates(utility, negated, np.ascontiguousarray(top, dtype=np.int64), K)
+        return kernels.candidates(utility, kernels.negated_work(utility, assignment), k, K)
     work = utility.copy()
     rows = np.arange(n)
     has_rec = (assignment >= 0) & (utility[rows, np.maximum(assignment, 0)] > 0)
     work[rows[has_rec], assignment[has_rec]] = np.inf  # the recommendation ranks first
-    top = np.argpartition(-work, k - 1, axis=1)[:, :k] if k < L else np.tile(np.arange(L), (n, 1))
-    top_u = work[rows[:, None], top]
-    order = np.lexsort((top, -top_u), axis=1)
-    top = top[rows[:, None], order]
+    # the k best by (−work, id): a stable sort, not argpartition, whose choice among ties depends on the CPU
+    top = np.argsort(-work, axis=1, kind="stable")[:, :k]
     cand = np.full((n, K), -1, dtype=np.int64)
     cand_u = np.zeros((n, K))
     real = utility[rows[:, None], top]

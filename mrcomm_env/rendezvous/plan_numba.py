@@ -6,12 +6,12 @@ the outlier l_o (eq. 7) whose half-plane cut (eq. 8) shrinks the working set. Th
 ~90 µs of interpreter round trips per pass on 2–10 landmarks, and a 10-vehicle team at d_comms = 10 m makes
 about a dozen passes per decision phase.
 
-:func:`recommend_loop` runs the whole loop, Munkres included (:func:`lsap_max`, scipy's algorithm step for step).
-It hands back to the caller wherever the reference's own choice could matter: a row's tied best columns, which
-numpy's ``argpartition`` picks its own way, and an eq. (8) product within rounding of 0, whose sign numpy's ``@``
-(a BLAS call, rounding otherwise than two products and a sum) might round differently; the reference's passes
-then go on, each with :func:`partition_pass` (the clustering, eq. (6), l_c, eq. (7) and eq. (8)'s offsets in one
-call). l_c's eigenvector is numba's ``eigh`` (LAPACK's ``syevd`` through scipy, numpy's ``eigh`` runs the same
+:func:`recommend_loop` runs the whole loop, Munkres included (:func:`lsap_max`, scipy's algorithm step for step),
+and the candidate columns Munkres sees: every row's n best, ties to the lowest column (:func:`_best_union`, as the
+reference's stable sort). It hands back to the caller where the reference's own rounding could matter: an eq. (8)
+product within rounding of 0, whose sign numpy's ``@`` (a BLAS call, rounding otherwise than two products and a
+sum) might round differently; the reference's passes then go on, each with :func:`partition_pass` (the
+clustering, eq. (6), l_c, eq. (7) and eq. (8)'s offsets in one call). l_c's eigenvector is numba's ``eigh`` (LAPACK's ``syevd`` through scipy, numpy's ``eigh`` runs the same
 routine through its own build): it gave the reference's eigenvector bit for bit on 20,000 random and grid
 clusters here, and l_c depends on it only through a 1e-9 relative tie tolerance, so two builds could disagree only
 on entries within round-off of that tolerance. ``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares
@@ -19,8 +19,12 @@ Munkres, the eq. (8)
 signs, single passes, whole plans (also resumed from any pass) and whole seeded episodes on both backends.
 
 The phase's other per-step arrays: eq. (1)–(4)'s utility of one map per vehicle up to numpy's ``log1p``
-(:func:`utility_argument`) and the env's candidate lists around numpy's ``argpartition`` (:func:`negated_work`,
-:func:`ranked_candidates`), each compared with the numpy code byte for byte.
+(:func:`utility_argument`) and the env's candidate lists (:func:`negated_work`, :func:`ranked_candidates`), each
+compared with the numpy code byte for byte.
+
+Ties go to the lowest column or landmark id everywhere, never to numpy's ``argpartition``: numpy dispatches that to
+SIMD selection code by CPU (x86-simd-sort on AVX2 and AVX-512), whose choice among equal values differs from one
+CPU to another, so a seeded episode would too.
 
 Used when ``core.backend.compiled()`` (docs/architecture.md).
 """
@@ -193,29 +197,23 @@ def _outlier(landmark_pos, lp, labels, main, lc):
     return lo
 
 
-#: outcomes of :func:`recommend_loop`: the plan; the working set whose candidate columns the caller must choose
-#: with numpy (ties among a row's best); the working set from which the caller must run the reference's passes
-PLANNED, NEED_COLUMNS, AMBIGUOUS = 0, 1, 2
+#: outcomes of :func:`recommend_loop`: the plan; the working set from which the caller must run the reference's passes
+PLANNED, AMBIGUOUS = 0, 2
 
 #: |x·y| of eq. (8) above this many ulps of |x₀y₀| + |x₁y₁| has the same sign however the product is rounded
 _SIGN_ULPS = 4.0 * np.finfo(np.float64).eps
 
 
 @numba.njit(cache=True)
-def recommend_loop(U, landmark_pos, d_comms, working, best):
+def recommend_loop(U, landmark_pos, d_comms, working):
     """The passes of ``protocol.recommend`` (not recorded) for a group of n ≥ 2 vehicles, from the working set
     ``working``: ``(status, working, assignment, in_main, central, connected)``.
 
-    Three steps of the reference choose among ties in ways of their own, and this loop stops where one of them
-    could matter, returning the working set of the pass it stopped at:
+    Two steps of the reference could round or choose in ways of their own; this loop takes the first as the
+    reference does and stops where the second could matter, returning the working set of the pass it stopped at:
 
-    * the candidate columns Munkres runs on (``protocol.candidate_columns``): when a row's n best working columns
-      are not unique, numpy's ``argpartition`` picks among the tied ones its own way (and by CPU: numpy dispatches
-      it to SIMD sorts). NEED_COLUMNS: the caller runs that ``argpartition`` on the tied rows (:func:`tied_rows`)
-      and calls again with its positions in ``working`` as ``best``, which the first pass then adds to the other
-      rows' n best, unique and chosen here (an empty ``best``: choose here; the positions of every row, as
-      ``protocol.best_positions`` gives them, mean the same);
-    * Munkres: never, :func:`lsap_max` is scipy's algorithm step for step;
+    * Munkres: never, :func:`lsap_max` is scipy's algorithm step for step (and its candidate columns are
+      ``protocol.candidate_columns``'s, ties to the lowest column);
     * eq. (8), when a product x·y is so close to 0 that numpy's BLAS ``@`` and two products and a sum could round
       it to different signs, or fewer working landmarks than vehicles (scipy transposes that problem). AMBIGUOUS:
       the caller runs the reference's passes from ``working``.
@@ -229,18 +227,7 @@ def recommend_loop(U, landmark_pos, d_comms, working, best):
     while True:
         if len(working) < n:
             return AMBIGUOUS, working, assignment, in_main, -1, False
-        if best.size == 0:
-            ok, columns = _candidate_columns(U, working, n)
-            if not ok:
-                return NEED_COLUMNS, working, assignment, in_main, -1, False
-        else:  # the sorted union, as np.flatnonzero(np.bincount(positions.ravel())) gives it: the rows with unique n
-            # best here, the caller's argpartition picks on the tied rows (``tied_rows``)
-            chosen = np.zeros(len(working), dtype=np.bool_)
-            _clean_union(U, working, n, chosen)
-            for position in best.ravel():
-                chosen[position] = True
-            columns = working[np.flatnonzero(chosen)]
-            best = best[:0]  # later passes choose their own
+        columns = _candidate_columns(U, working, n)
         lp = _munkres(U, columns, n)
         k, labels, main, lc, lo, axis, offsets = partition_pass(U, landmark_pos, rows, lp, d_comms, working)
         if k == 1:
@@ -289,63 +276,39 @@ def _product_error(a, b, p):
 
 
 @numba.njit(cache=True)
-def _clean_union(U, working, n, chosen):
-    """Marks in ``chosen`` the n best working columns of every row whose n best are unique (its n-th best value is
-    tied with no other column); returns those tied rows, where numpy's ``argpartition`` picks among the ties."""
+def _best_union(U, working, n, chosen):
+    """Marks in ``chosen`` the n best working columns of every row: the largest utilities, a NaN after every number
+    and ties to the lowest position (``protocol.best_positions``: a stable sort of −U)."""
     W = len(working)
-    tied = np.empty(n, dtype=np.int64)
-    n_tied = 0
-    top = np.empty(n)  # the row's n largest values so far, in decreasing order (np.partition: 5 s to compile)
+    key = np.empty(n)  # the row's n best so far as (−U, position), in the order they rank
+    pos = np.empty(n, dtype=np.int64)
     for r in range(n):
-        top[:] = -np.inf
+        count = 0
         for w in range(W):
-            x = U[r, working[w]]
-            if x > top[n - 1]:
-                i = n - 1
-                while i > 0 and top[i - 1] < x:
-                    top[i] = top[i - 1]
-                    i -= 1
-                top[i] = x
-        nth = top[n - 1]  # the row's n-th largest value
-        at_least = 0
-        for w in range(W):
-            if U[r, working[w]] >= nth:
-                at_least += 1
-        if at_least != n:
-            tied[n_tied] = r
-            n_tied += 1
-            continue
-        for w in range(W):
-            if U[r, working[w]] >= nth:
-                chosen[w] = True
-    return tied[:n_tied]
+            x = -U[r, working[w]]
+            if count == n and not _ranks_before(x, w, key[n - 1], pos[n - 1]):
+                continue  # (a later position never ranks before an equal key: the lowest positions stay)
+            i = min(count, n - 1)
+            while i > 0 and _ranks_before(x, w, key[i - 1], pos[i - 1]):
+                key[i] = key[i - 1]
+                pos[i] = pos[i - 1]
+                i -= 1
+            key[i] = x
+            pos[i] = w
+            count = min(count + 1, n)
+        for i in range(count):
+            chosen[pos[i]] = True
 
 
 @numba.njit(cache=True)
 def _candidate_columns(U, working, n):
-    """``protocol.candidate_columns`` when every row's n best working columns are unique: ``(True, columns)``;
-    ``(False, …)`` when a row's n-th best value is tied with another column's."""
+    """``protocol.candidate_columns``: every working column up to n², else the sorted union of every row's n best."""
     W = len(working)
     if W <= n * n:
-        return True, working
+        return working
     chosen = np.zeros(W, dtype=np.bool_)
-    if _clean_union(U, working, n, chosen).size:
-        return False, working
-    return True, working[np.flatnonzero(chosen)]
-
-
-@numba.njit(cache=True)
-def tied_rows(U, working):
-    """After ``NEED_COLUMNS``: the rows whose n-th best working column is tied (``_clean_union``) and −U at those rows
-    and the working columns, ``(t, W)``, on which the caller runs numpy's ``argpartition`` (per row, as the reference
-    runs it on every row: a row's picks depend on that row's values only)."""
-    n = U.shape[0]
-    rows = _clean_union(U, working, n, np.zeros(len(working), dtype=np.bool_))
-    negated = np.empty((rows.size, len(working)))
-    for i in range(rows.size):
-        for w in range(len(working)):
-            negated[i, w] = -U[rows[i], working[w]]
-    return rows, negated
+    _best_union(U, working, n, chosen)
+    return working[np.flatnonzero(chosen)]
 
 
 @numba.njit(cache=True)
@@ -481,22 +444,25 @@ def negated_work(utility, assignment):
 
 
 @numba.njit(cache=True)
-def ranked_candidates(utility, negated, top, K):
-    """``env.candidate_lists`` after its ``argpartition``: each row's chosen ``top`` landmarks ranked by (−work, id)
-    as its ``lexsort``, then the ones worth something (utility > 0) first, the rest −1 (utility 0)."""
-    n, k = top.shape
+def ranked_candidates(utility, negated, k, K):
+    """``env.candidate_lists`` after −work: each row's k best landmarks by (−work, id), as its stable sort ranks
+    them, then the ones worth something (utility > 0) in their slots, the rest −1 (utility 0)."""
+    n, L = negated.shape
     cand = np.full((n, K), -1, dtype=np.int64)
     cand_u = np.zeros((n, K))
     order = np.empty(k, dtype=np.int64)
     for r in range(n):
-        for j in range(k):  # insertion sort: stable, and k is a handful
-            lm = top[r, j]
+        count = 0
+        for lm in range(L):  # insertion into the k best so far: k is a handful, and ids come in increasing order
             key = negated[r, lm]
-            i = j
+            if count == k and not _ranks_before(key, lm, negated[r, order[k - 1]], order[k - 1]):
+                continue
+            i = min(count, k - 1)
             while i > 0 and _ranks_before(key, lm, negated[r, order[i - 1]], order[i - 1]):
                 order[i] = order[i - 1]
                 i -= 1
             order[i] = lm
+            count = min(count + 1, k)
         for j in range(k):
             real = utility[r, order[j]]
             if real > 0:

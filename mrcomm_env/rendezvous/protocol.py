@@ -17,9 +17,13 @@ Action module of §V.
 * :func:`recommend` — eq. (5)–(8): cluster value J, μ_max, l_c, outlier l_o and the half-plane cut,
   repeated until the assigned landmarks are connected or fewer working landmarks than vehicles remain. On the
   compiled backend (``core.backend``) the whole loop runs as one numba call (:mod:`.plan_numba`,
-  ``recommend_loop``: Munkres as scipy computes it), with the same results; where numpy's or scipy's choice among
-  ties could matter it hands over to the passes below, whose clustering, eq. (6), l_c, eq. (7) and the offsets
-  of eq. (8) are still one numba call each.
+  ``recommend_loop``: Munkres as scipy computes it), with the same results; where numpy's rounding of eq. (8)
+  could matter it hands over to the passes below, whose clustering, eq. (6), l_c, eq. (7) and the offsets of
+  eq. (8) are still one numba call each.
+
+Ties among a row's best landmarks go to the lowest id (a stable sort), never to numpy's ``argpartition``, which
+numpy dispatches to SIMD code by CPU: its choice among equal values differs from one CPU to another, so a seeded
+episode's plan would too.
 """
 
 from __future__ import annotations
@@ -102,7 +106,7 @@ def assign(U: np.ndarray, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def candidate_columns(U: np.ndarray, columns: np.ndarray) -> np.ndarray:
     """The columns Munkres needs to see among ``columns``: all of them up to n², else the sorted union of every
-    row's n best (numpy's ``argpartition`` chooses among a row's tied n-th best)."""
+    row's n best (ties to the lowest column, :func:`best_positions`)."""
     n = U.shape[0]
     if len(columns) <= n * n:
         return columns
@@ -111,10 +115,11 @@ def candidate_columns(U: np.ndarray, columns: np.ndarray) -> np.ndarray:
 
 
 def best_positions(negated_U: np.ndarray, columns: np.ndarray) -> np.ndarray:
-    """(n, n): the positions in ``columns`` of every row's n best, from −U (a row's tied n-th best: numpy's
-    ``argpartition`` chooses; −U gathered at ``columns`` holds the same bytes as the gathered U negated)."""
+    """(n, n): the positions in ``columns`` of every row's n best, from −U: a stable sort, so ties go to the lowest
+    position and a NaN after every number. (numpy's ``argpartition`` would be O(W), but its choice among ties
+    depends on the CPU's SIMD selection code.)"""
     n = negated_U.shape[0]
-    return np.ascontiguousarray(np.argpartition(negated_U[:, columns], n - 1, axis=1)[:, :n])
+    return np.argsort(negated_U[:, columns], axis=1, kind="stable")[:, :n]
 
 
 def adjacency(pos: np.ndarray, d_comms: float) -> np.ndarray:
@@ -218,19 +223,13 @@ def recommend(U: np.ndarray, landmark_pos: np.ndarray, d_comms: float, record: b
     kernels = _plan_kernels() if backend.compiled() else None
     if kernels is not None:  # one compiled signature: a read-only or strided view would compile the kernels again
         U, landmark_pos = kernel_array(U, np.float64), kernel_array(landmark_pos, np.float64)
-    if kernels is not None and not record:  # the passes compiled, numpy choosing among ties where it would
-        positions = _NO_POSITIONS
-        while True:
-            status, working, assignment, in_main, central, connected = kernels.recommend_loop(
-                U, landmark_pos, float(d_comms), working, positions
-            )
-            if status == kernels.PLANNED:
-                return Recommendation(assignment, in_main, int(central), bool(connected), steps)
-            if status == kernels.AMBIGUOUS:  # the passes below go on from this working set
-                break
-            # numpy's argpartition on the rows whose n best are tied (the others' are unique: the kernel takes them)
-            _, negated = kernels.tied_rows(U, working)
-            positions = np.ascontiguousarray(np.argpartition(negated, n - 1, axis=1)[:, :n])
+    if kernels is not None and not record:  # the passes compiled, up to an eq. (8) sign numpy could round otherwise
+        status, working, assignment, in_main, central, connected = kernels.recommend_loop(
+            U, landmark_pos, float(d_comms), working
+        )
+        if status == kernels.PLANNED:
+            return Recommendation(assignment, in_main, int(central), bool(connected), steps)
+        # AMBIGUOUS: the passes below go on from this working set
     while True:
         rows, lp = assign(U, working)
         if kernels is None:
@@ -273,9 +272,6 @@ def _per_vehicle(n: int, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
     out = np.full(n, -1, dtype=np.int64)
     out[rows] = values
     return out
-
-
-_NO_POSITIONS = np.empty((0, 0), dtype=np.int64)  # recommend_loop's `best` when it chooses the columns itself
 
 
 @cache

@@ -200,4 +200,11 @@ class RendezvousMappingSpec(EnvSpec):
             "default 0 keeps every episode as it was); `planned_clustering(radius)`, C on the prior map the "
             "vehicles plan with",
         ),
+        (
+            "v0 rev 4",
+            "ties among a vehicle's best landmarks go to the lowest landmark id, in the columns Munkres is given "
+            "and in the observation's candidate list; they went to numpy's `argpartition`, whose choice among equal "
+            "values depends on the SIMD code numpy picks for the CPU, so a seeded episode differed from one CPU to "
+            "another (every documented configuration did, between this machine's AVX2 code and numpy's baseline)",
+        ),
     ]

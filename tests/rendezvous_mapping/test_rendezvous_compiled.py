@@ -3,6 +3,7 @@ against their numpy/scipy references, down to whole episodes."""
 
 from __future__ import annotations
 
+import importlib.util
 import math
 
 import numpy as np
@@ -150,37 +151,26 @@ def test_compiled_spanning_forest_is_scipys_dijkstra_forest_or_says_it_is_ambigu
 
 
 def test_compiled_recommendation_loop_plans_what_the_reference_plans_from_any_pass(monkeypatch):
-    """The whole loop compiled (numpy choosing a row's tied best columns when asked) gives the reference's plan,
+    """The whole loop compiled (its own candidate columns, ties to the lowest column) gives the reference's plan,
     and so does resuming it from the working set of any of the reference's passes."""
     pytest.importorskip("numba")
     from mrcomm_env.rendezvous import plan_numba
 
     def compiled_from(U, lm, d, working):
-        nonlocal chose_itself
-        best = np.empty((0, 0), dtype=np.int64)
-        chose_itself += len(working) > U.shape[0] ** 2  # a pre-selection the loop may settle itself
-        while True:
-            status, working, assignment, in_main, central, connected = plan_numba.recommend_loop(
-                U, lm, d, working, best
-            )
-            statuses[status] += 1
-            if status == plan_numba.PLANNED:
-                return assignment, in_main, central, connected
-            if status == plan_numba.AMBIGUOUS:
-                return None
-            chose_itself -= best.size == 0 and len(working) > U.shape[0] ** 2  # it could not
-            if every_row:  # numpy's picks on every row, as the reference's candidate_columns takes them
-                best = protocol.best_positions(-U, working)
-            else:  # on the tied rows only, as protocol.recommend hands them over
-                rows, negated = plan_numba.tied_rows(U, working)
-                assert rows.size and np.array_equal(negated, -U[np.ix_(rows, working)])
-                best = np.ascontiguousarray(np.argpartition(negated, len(U) - 1, axis=1)[:, : len(U)])
+        nonlocal chose_columns, tied_columns
+        if len(working) > U.shape[0] ** 2:  # a pre-selection of the columns Munkres sees
+            chose_columns += 1
+            nth = np.sort(U[:, working], axis=1)[:, -U.shape[0]]  # each row's n-th best
+            tied_columns += int(((U[:, working] == nth[:, None]).sum(axis=1) > 1).any())
+        status, working, assignment, in_main, central, connected = plan_numba.recommend_loop(U, lm, d, working)
+        statuses[status] += 1
+        return (assignment, in_main, central, connected) if status == plan_numba.PLANNED else None
 
     rng = np.random.default_rng(13)
-    chose_itself = every_row = 0
-    statuses = {plan_numba.PLANNED: 0, plan_numba.NEED_COLUMNS: 0, plan_numba.AMBIGUOUS: 0}
+    chose_columns = tied_columns = 0
+    statuses = {plan_numba.PLANNED: 0, plan_numba.AMBIGUOUS: 0}
     resumed = 0
-    for _ in range(300):  # more landmarks than a row's n best: the loop's own pre-selection, or numpy's on ties
+    for _ in range(300):  # more landmarks than a row's n best: the loop's own pre-selection, on ties too
         U, lm, d = _random_plan(rng, min_vehicles=2, max_landmarks=200, tie_probability=0.5, exhausted_share=0.8)
         _use_plan_backend(monkeypatch, False)
         want = protocol.recommend(U, lm, d, record=True)
@@ -189,16 +179,38 @@ def test_compiled_recommendation_loop_plans_what_the_reference_plans_from_any_pa
         expected = (want.assignment, want.in_main, want.central, want.connected)
         assert bit_identical(got.assignment, want.assignment) and bit_identical(got.in_main, want.in_main)
         assert (type(got.central), got.central, got.connected) == (int, want.central, want.connected)
-        for every_row, step in enumerate(want.steps):
-            every_row %= 2
+        for step in want.steps:
             plan = compiled_from(U, lm, d, step.working)
             if plan is not None:
                 resumed += 1
                 assert all(bit_identical(a, b) for a, b in zip(plan, expected, strict=True))
-    # plans finished in the loop, many that needed numpy's choice among tied columns on the way, and many whose
-    # first pass had more columns than Munkres needs and chose them itself
-    assert resumed > 500 and statuses[plan_numba.PLANNED] > 500 and statuses[plan_numba.NEED_COLUMNS] > 100
-    assert chose_itself > 100
+    # plans finished in the loop, and many whose pass had more columns than Munkres needs, with a row's n-th best
+    # tied among them
+    assert resumed > 500 and statuses[plan_numba.PLANNED] > 500
+    assert chose_columns > 100 and tied_columns > 100
+
+
+def test_candidate_columns_break_ties_to_the_lowest_column():
+    """A row's n best among tied utilities are its lowest columns, on both backends; NaN ranks after every number.
+    Worked by hand: n = 2 rows over 6 working columns (more than n² = 4, so the union is taken)."""
+    U = np.array(
+        [
+            [0.0, 0.5, 0.0, 0.5, 0.5, 0.0],  # three tied at the best: columns 1 and 3
+            [np.nan, 0.0, 0.0, 0.0, 0.0, 0.2],  # 0.2 at column 5, then the first tied 0 (column 1); NaN last
+        ]
+    )
+    working = np.arange(6)
+    want = np.array([1, 3, 5])  # the sorted union of {1, 3} and {5, 1}
+    assert np.array_equal(protocol.candidate_columns(U, working), want)
+    assert np.array_equal(protocol.best_positions(-U, working), [[1, 3], [5, 1]])
+    if importlib.util.find_spec("numba") is not None:
+        from mrcomm_env.rendezvous import plan_numba
+
+        assert np.array_equal(plan_numba._candidate_columns(U, working, 2), want)
+    # working columns in another order: ties go to the first positions in it (row 0: columns 4 and 3 before 1)
+    working = np.array([5, 4, 3, 2, 1])
+    assert np.array_equal(protocol.best_positions(-U, working), [[1, 2], [0, 1]])
+    assert np.array_equal(protocol.candidate_columns(U, working), [5, 4, 3])
 
 
 def test_recommend_resumes_the_reference_passes_where_the_compiled_loop_hands_over(monkeypatch):
@@ -219,7 +231,7 @@ def test_recommend_resumes_the_reference_passes_where_the_compiled_loop_hands_ov
         stop_at = want.steps[int(rng.integers(1, len(want.steps)))].working
         handed_over = []
 
-        def hand_over(U, landmark_pos, d_comms, working, best, stop_at=stop_at, handed_over=handed_over):
+        def hand_over(U, landmark_pos, d_comms, working, stop_at=stop_at, handed_over=handed_over):
             handed_over.append(True)
             return plan_numba.AMBIGUOUS, stop_at.copy(), np.full(len(U), -1), np.zeros(len(U), bool), -1, False
 
@@ -375,8 +387,8 @@ def test_compiled_group_fusion_is_the_references(monkeypatch):
 
 
 def test_compiled_candidate_ranking_is_numpys_bit_for_bit(monkeypatch):
-    """``candidate_lists`` on both backends (numpy's argpartition chooses the set on both): the same bytes, with tied
-    and zero utilities, recommendations worth something or nothing or absent, NaN, and K below, at and above L."""
+    """``candidate_lists`` on both backends: the same bytes, with tied and zero utilities, recommendations worth
+    something or nothing or absent, NaN, and K below, at and above L."""
     pytest.importorskip("numba")
     from mrcomm_env.rendezvous.env import candidate_lists
 
