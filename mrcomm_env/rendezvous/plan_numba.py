@@ -11,12 +11,12 @@ and the candidate columns Munkres sees: every row's n best, ties to the lowest c
 reference's stable sort). It hands back to the caller where the reference's own rounding could matter: an eq. (8)
 product within rounding of 0, whose sign numpy's ``@`` (a BLAS call, rounding otherwise than two products and a
 sum) might round differently; the reference's passes then go on, each with :func:`partition_pass` (the
-clustering, eq. (6), l_c, eq. (7) and eq. (8)'s offsets in one call). l_c's eigenvector is numba's ``eigh`` (LAPACK's ``syevd`` through scipy, numpy's ``eigh`` runs the same
-routine through its own build): it gave the reference's eigenvector bit for bit on 20,000 random and grid
-clusters here, and l_c depends on it only through a 1e-9 relative tie tolerance, so two builds could disagree only
-on entries within round-off of that tolerance. ``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares
-Munkres, the eq. (8)
-signs, single passes, whole plans (also resumed from any pass) and whole seeded episodes on both backends.
+clustering, eq. (6), l_c, eq. (7) and eq. (8)'s offsets in one call). l_c's eigenvector is numba's ``eigh``
+(LAPACK's ``syevd`` through scipy, numpy's ``eigh`` runs the same routine through its own build): it gave the
+reference's eigenvector bit for bit on 20,000 random and grid clusters here, and l_c depends on it only through a
+1e-9 relative tie tolerance, so two builds could disagree only on entries within round-off of that tolerance.
+``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares Munkres, the eq. (8) signs, single passes, whole
+plans (also resumed from any pass) and whole seeded episodes on both backends.
 
 The phase's other per-step arrays: eq. (1)–(4)'s utility of one map per vehicle up to numpy's ``log1p``
 (:func:`utility_argument`) and the env's candidate lists (:func:`negated_work`, :func:`ranked_candidates`), each
@@ -198,7 +198,7 @@ def _outlier(landmark_pos, lp, labels, main, lc):
 
 
 #: outcomes of :func:`recommend_loop`: the plan; the working set from which the caller must run the reference's passes
-PLANNED, AMBIGUOUS = 0, 2
+PLANNED, AMBIGUOUS = 0, 1
 
 #: |x·y| of eq. (8) above this many ulps of |x₀y₀| + |x₁y₁| has the same sign however the product is rounded
 _SIGN_ULPS = 4.0 * np.finfo(np.float64).eps
