@@ -26,7 +26,7 @@ from mrcomm_env.experiments.evaluation import baseline_label, evaluate_policy
 from mrcomm_env.experiments.io import atomic_write_text
 from mrcomm_env.experiments.runs import comparison_spec, run_folder, scored_policy_settings
 from mrcomm_env.experiments.sweep import Task, run_tasks
-from mrcomm_env.registry import canonical_id, short_name
+from mrcomm_env.registry import canonical_id, env_class, short_name
 
 #: the first episode seed the comparison scores every policy on (training uses its own; held-out logs 30000+)
 COMPARISON_SEEDS = 10_000
@@ -350,6 +350,9 @@ def write_model_card(env_id: str, record: dict, shipped: dict | None = None, pha
         "deterministic": bool(scored_policy_settings(spec)["deterministic"]),
         "metric": spec.get("metric"),
         "reproduce": f"mrcomm reproduce-learning {short_name(env_id)} --export-pretrained",
+        # the env revision its held-out figures below were evaluated at (docs/learning.md flags a table the env has
+        # changed since)
+        "env_revision": env_revision(env_id),
     }
     if record.get("init_from"):
         card["init_from"] = record["init_from"]
@@ -361,6 +364,22 @@ def write_model_card(env_id: str, record: dict, shipped: dict | None = None, pha
     path = pretrained_dir(env_id) / CARD_NAME
     atomic_write_text(path, json.dumps(card, indent=2) + "\n")
     return path
+
+
+def env_revision(env_id: str) -> str:
+    """The env's current revision, the last of its ``VERSION_HISTORY`` (e.g. ``"v0 rev 4"``)."""
+    return env_class(env_id).VERSION_HISTORY[-1][0]
+
+
+def stale_revision(env_id: str, rows: list[dict]) -> str | None:
+    """The revision a recorded comparison table was trained and evaluated at (its rows' ``env_revision``) when the
+    env has changed since, else None (a table written before the column was added says nothing: None)."""
+    recorded = {str(row["env_revision"]) for row in rows if row.get("env_revision")}
+    if not recorded:
+        return None
+    current = env_revision(env_id)
+    stale = sorted(recorded - {current})
+    return ", ".join(stale) if stale else None
 
 
 def comparison_row(policy: str, cost, metric_values, bits_values, n: int) -> dict:

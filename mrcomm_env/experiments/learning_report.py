@@ -15,6 +15,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from mrcomm_agents.learned import has_pretrained, model_card
 from mrcomm_agents.training import default_config
 from mrcomm_baselines import default_policy, from_paper
 from mrcomm_env.core.stats import mean_ci95
@@ -30,9 +31,11 @@ from mrcomm_env.experiments.comparison import (
     clearing_criterion,
     clears_margin,
     dominates,
+    env_revision,
     finishes_some,
     first_reach,
     margins,
+    stale_revision,
     training_heldout,
 )
 from mrcomm_env.experiments.evaluation import baseline_label
@@ -320,6 +323,7 @@ def learning_section(
             "task is no win.",
         ]
     lines += margins_paragraph(env_id, rows, spec)
+    lines += stale_paragraph(env_id, rows)
     best = best_baseline(baselines, None, spec)
     if best is not None and lower:  # the paragraph's margins are written for a metric where lower is better
         for bound in bounds:
@@ -439,6 +443,29 @@ def margins_paragraph(env_id: str, rows: list[dict], spec: dict) -> list[str]:
     return ["", text]
 
 
+def stale_paragraph(env_id: str, rows: list[dict]) -> list[str]:
+    """Where the env has changed since its table was recorded: which revisions, and what the shipped model scores at
+    the current one (its card, when it was evaluated there)."""
+    stale = stale_revision(env_id, rows)
+    if not stale:
+        return []
+    current = env_revision(env_id)
+    text = (
+        f"**Recorded at {stale}.** The env is now {current} (CHANGELOG), and the table, curves, margins and action "
+        f"shares above are {stale}'s: the summary at the top leaves them out until `mrcomm reproduce-learning "
+        f"{short_name(env_id)} --export-pretrained` trains and evaluates the comparison again."
+    )
+    card = model_card(env_id) if has_pretrained(env_id) else {}
+    if card.get("env_revision") == current and "heldout" in card and card.get("best_baseline"):
+        heldout, rule = card["heldout"], card["best_baseline"]
+        text += (
+            f" The shipped model, trained at {stale}, scores {heldout['metric']:.4g} at {heldout['bits']:.5g} bits on "
+            f"the table's {heldout['episodes']} episodes at {current}, where `{rule['policy']}` scores "
+            f"{rule['metric']:.4g} at {rule['bits']:.5g} (its card)."
+        )
+    return ["", text]
+
+
 def margins_table(docs: Path) -> list[str]:
     """The page's summary of #42's goal 2: per env, where RL starts and its margins over the two references."""
     lines = [
@@ -448,6 +475,7 @@ def margins_table(docs: Path) -> list[str]:
     ]
     cleared = dict.fromkeys(REFERENCES, 0)
     envs = 0
+    stale_envs = []
     for env_id in env_ids():
         table = docs / "learning" / f"{short_name(env_id)}.csv"
         if not table.exists():
@@ -455,6 +483,9 @@ def margins_table(docs: Path) -> list[str]:
         spec = comparison_spec(env_id)
         rows = read_rows(table)
         envs += 1
+        stale = stale_revision(env_id, rows)
+        if stale:
+            stale_envs.append(f"{short_name(env_id)}'s (recorded at {stale})")
         teacher = comparison_teacher(spec)
         cells = [short_name(env_id), f"a clone of `{teacher}`" if teacher else "random weights"]
         for reference in REFERENCES:
@@ -462,19 +493,27 @@ def margins_table(docs: Path) -> list[str]:
             if found is None:
                 cells += ["—", "—"]
                 continue
-            cleared[reference] += found.clears
+            cleared[reference] += found.clears and not stale
             setting = ""
             if spec.get("baselines_per_cost"):
                 setting = f" at {spec['cost_param']} = {found.rule['setting']:g}"
             cells += [
                 rule_text(env_id, found.rule) + setting,
-                f"{margin_text(found)} ({spec['cost_param']} = {found.learned['cost']:g})",
+                f"{margin_text(found)} ({spec['cost_param']} = {found.learned['cost']:g})"
+                + (f"; recorded at {stale}, not counted" if stale else ""),
             ]
         lines.append("| " + " | ".join(cells) + " |")
+    not_counted = ""
+    if stale_envs:
+        not_counted = (
+            f" The counts leave out {' and '.join(stale_envs)} table: the env has changed since it was recorded "
+            "(its section says how), so its margins are those of another revision until it is trained again."
+        )
     return [
         f"**Against the papers, computed from the tables below** ({GOAL_2}): the learned policy clears the margin "
         f"over the best of the paper's own algorithms on {cleared['paper']} of {envs} envs, and over the best "
-        f"scripted rule, ours included, on {cleared['any']} of {envs}. A rule is the paper's where its policy says "
+        f"scripted rule, ours included, on {cleared['any']} of {envs}.{not_counted} A rule is the paper's where "
+        "its policy says "
         'where the paper describes it (`FROM_PAPER`, the column "from the paper" of each env page\'s baselines); '
         "the others are ours or references (`random`, `never`, `silent`). Each margin is the widest of the env's "
         "learned points over the best such rule of its setting (best by the metric; bold: cleared; the env's "
@@ -530,8 +569,10 @@ def read_rows(path: Path) -> list[dict]:
 
     rows = []
     for raw in csv.DictReader(open(path)):
-        row = {k: number(v) for k, v in raw.items() if k not in ("policy",)}
+        row = {k: number(v) for k, v in raw.items() if k not in ("policy", "env_revision")}
         row["policy"], row["n"] = raw["policy"], int(float(raw["n"]))
+        if raw.get("env_revision"):  # the env revision the row was trained and evaluated at (tables since v0 rev 4)
+            row["env_revision"] = raw["env_revision"]
         rows.append(row)
     return rows
 

@@ -513,7 +513,10 @@ def test_a_shipped_models_card_agrees_with_the_learning_page(env_id):
     setting = card["env_kwargs"][spec["cost_param"]] if spec.get("baselines_per_cost") else None
     best = comparison.best_baseline([r for r in rows if r["cost"] is None], setting, spec)
     assert best is not None and best["policy"] == card["best_baseline"]["policy"]
-    assert card["best_baseline"]["metric"] == pytest.approx(best["metric"], rel=1e-9)
+    if comparison.stale_revision(env_id, rows) is None:  # the table's revision is the env's: the same episodes
+        assert card["best_baseline"]["metric"] == pytest.approx(best["metric"], rel=1e-9)
+    else:  # the env changed since the table was recorded: the card's figures are the current revision's
+        assert card["env_revision"] == comparison.env_revision(env_id)
     assert card["heldout"]["bits"] <= 1.05 * card["best_baseline"]["bits"] + 1e-9
 
 
@@ -566,3 +569,40 @@ def test_a_resumed_runs_curve_counts_the_wall_time_of_every_session(tmp_path):
     spec = {"metric": "weighted_mean_age", "bits_per": "step"}
     rows = comparison.curve_rows([{"out": str(tmp_path), "cost": 0.0, "seed": 0}], spec)
     assert [(r["agent_steps"], r["seconds"]) for r in rows] == [(0, 0.0), (200, 100.0), (400, 140.0)]
+
+
+def test_a_table_recorded_at_an_earlier_env_revision_is_flagged_and_not_counted(tmp_path):
+    """A comparison table whose rows were trained and evaluated at another revision of the env than the current one
+    (its ``env_revision`` column) is shown with that revision and left out of the summary's counts; a table at the
+    current revision, or one without the column, counts."""
+    from mrcomm_env.experiments import learning_report
+    from mrcomm_env.registry import env_class
+
+    env_id = "mrcomm/RendezvousMapping-v0"
+    current = env_class(env_id).VERSION_HISTORY[-1][0]
+    earlier = env_class(env_id).VERSION_HISTORY[-2][0]
+    assert comparison.env_revision(env_id) == current
+    assert comparison.stale_revision(env_id, [{"env_revision": current}, {"env_revision": current}]) is None
+    assert comparison.stale_revision(env_id, [{"env_revision": earlier}, {"env_revision": current}]) == earlier
+    assert comparison.stale_revision(env_id, [{"policy": "random"}]) is None  # written before the column
+
+    recorded = list(csv.DictReader(open(Path(__file__).parents[2] / "docs" / "learning" / "RendezvousMapping-v0.csv")))
+    (tmp_path / "learning").mkdir()
+
+    def summary(revision: str | None) -> str:
+        rows = [{k: v for k, v in row.items() if k != "env_revision"} for row in recorded]
+        if revision is not None:
+            rows = [{**row, "env_revision": revision} for row in rows]
+        with open(tmp_path / "learning" / "RendezvousMapping-v0.csv", "w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+        return "\n".join(learning_report.margins_table(tmp_path))
+
+    for revision in (current, None):  # the recorded table clears the margin over paper_protocol (20.8 % fewer bits)
+        text = summary(revision)
+        assert "algorithms on 1 of 1 envs" in text and "leave out" not in text and "not counted" not in text
+    text = summary(earlier)
+    assert "algorithms on 0 of 1 envs" in text and "ours included, on 0 of 1" in text
+    assert f"leave out RendezvousMapping-v0's (recorded at {earlier}) table" in text
+    assert f"recorded at {earlier}, not counted" in text

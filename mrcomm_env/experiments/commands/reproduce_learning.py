@@ -61,7 +61,10 @@ def run(args: argparse.Namespace) -> int:
         for env_id in targets:
             name = short_name(env_id)
             rows, spec = comparison.reproduce_learning(env_id, out / name, quick=args.quick, progress=not args.quiet)
-            atomic_write_csv(docs / "learning" / f"{name}.csv", rows)
+            # each row says which revision of the env it was trained and evaluated at (the page flags a table the env
+            # has changed since)
+            revision = comparison.env_revision(env_id)
+            atomic_write_csv(docs / "learning" / f"{name}.csv", [{**row, "env_revision": revision} for row in rows])
             curves = comparison.curve_rows(spec["tasks"], spec)
             if curves:
                 atomic_write_csv(docs / "learning" / f"{name}-curves.csv", curves)
