@@ -125,6 +125,12 @@ def env_class(env_id: str) -> type[MrcommParallelEnv]:
     return cls
 
 
+def env_revision(env_id: str) -> str:
+    """The env's current revision, the last of its ``VERSION_HISTORY`` (e.g. ``"v0 rev 4"``): what a recorded result
+    names so that a later change of the env's episodes shows."""
+    return env_class(env_id).VERSION_HISTORY[-1][0]
+
+
 def make(env_id: str, **kwargs: Any) -> MrcommParallelEnv:
     """Build the parallel form of any registered environment: ``mrcomm_env.make("MapSync-v0", n_robots=3)``."""
     return env_class(env_id)(**kwargs)

@@ -74,7 +74,7 @@ from mrcomm_env.experiments.runs import comparison_spec
 from mrcomm_env.integrations import require
 from mrcomm_env.integrations.benchmarl import ENV_ID_OF_TASK, MrcommTask
 from mrcomm_env.integrations.torchrl_batched import GROUP, BatchedTorchRLEnv
-from mrcomm_env.registry import env_class
+from mrcomm_env.registry import env_class, env_revision
 
 EXTRA = "benchmarl"
 torch = require("torch", EXTRA)
@@ -396,6 +396,7 @@ def run_one(
         "torch_threads": torch.get_num_threads(),
         "heldout_seed": HELDOUT_SEED,
         "heldout": heldout,
+        "env_revision": env_revision(ENV_ID_OF_TASK[task]),  # the page flags runs the env has changed since
     }
     json_path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(json_path, marl_eval, indent=1)
@@ -419,6 +420,7 @@ def ensure_references(out: Path, tasks: Sequence[str], episodes: int) -> dict:
             references[task] = {
                 "episodes": episodes,
                 "heldout_seed": HELDOUT_SEED,
+                "env_revision": env_revision(env_id),
                 **paper_spec(env_id),
                 "paper_policy": default_policy(env_id),
                 "policies": reference_results(task, episodes),
@@ -746,6 +748,7 @@ def _task_tables(records: list[dict], references: dict) -> list[str]:
                 f" | {runs[0]['frames']:,} | {_fmt([r['wall_seconds'] / 60 for r in runs], 3)} min |"
             )
         runs = [r for r in records if r["task"] == task]
+        lines += _revision_note(task, runs, ref)
         if len(runs) > 1 and all(r["heldout"] == runs[0]["heldout"] for r in runs):
             lines += [
                 "",
@@ -755,6 +758,27 @@ def _task_tables(records: list[dict], references: dict) -> list[str]:
             ]
         lines += [""]
     return lines
+
+
+def _revision_note(task: str, runs: list[dict], reference: dict) -> list[str]:
+    """A task's runs and scripted rows recorded at an earlier revision of its env (their ``env_revision``; records
+    written before the field say nothing): which, and at which revision, since they played other episodes."""
+    env_id = ENV_ID_OF_TASK[task]
+    current = env_revision(env_id)
+    earlier: dict[str, list[str]] = {}
+    for run in runs:
+        if run.get("env_revision") not in (None, current):
+            earlier.setdefault(run["env_revision"], []).append(f"{run['algorithm'].upper()} seed {run['seed']}")
+    if reference.get("env_revision") not in (None, current):
+        earlier.setdefault(reference["env_revision"], []).append("the `random` and paper rows")
+    if not earlier:
+        return []
+    parts = "; ".join(f"{', '.join(names)} at {revision}" for revision, names in sorted(earlier.items()))
+    return [
+        "",
+        f"Recorded before {env_id}'s {current} (CHANGELOG): {parts}. Where the revisions' episodes differ, these rows"
+        " played other episodes than a run at the current revision would.",
+    ]
 
 
 def _aggregate_section(records: list[dict], references: dict, out: Path, figures_link: Path) -> list[str]:

@@ -26,7 +26,7 @@ from mrcomm_env.experiments.evaluation import baseline_label, evaluate_policy
 from mrcomm_env.experiments.io import atomic_write_text
 from mrcomm_env.experiments.runs import comparison_spec, run_folder, scored_policy_settings
 from mrcomm_env.experiments.sweep import Task, run_tasks
-from mrcomm_env.registry import canonical_id, env_class, short_name
+from mrcomm_env.registry import canonical_id, env_revision, short_name
 
 #: the first episode seed the comparison scores every policy on (training uses its own; held-out logs 30000+)
 COMPARISON_SEEDS = 10_000
@@ -364,11 +364,6 @@ def write_model_card(env_id: str, record: dict, shipped: dict | None = None, pha
     path = pretrained_dir(env_id) / CARD_NAME
     atomic_write_text(path, json.dumps(card, indent=2) + "\n")
     return path
-
-
-def env_revision(env_id: str) -> str:
-    """The env's current revision, the last of its ``VERSION_HISTORY`` (e.g. ``"v0 rev 4"``)."""
-    return env_class(env_id).VERSION_HISTORY[-1][0]
 
 
 def stale_revision(env_id: str, rows: list[dict]) -> str | None:

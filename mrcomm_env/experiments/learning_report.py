@@ -41,7 +41,7 @@ from mrcomm_env.experiments.comparison import (
 from mrcomm_env.experiments.evaluation import baseline_label
 from mrcomm_env.experiments.io import atomic_write_text
 from mrcomm_env.experiments.runs import comparison_spec, comparison_teacher
-from mrcomm_env.registry import env_ids, short_name
+from mrcomm_env.registry import env_ids, env_revision, short_name
 
 
 def plot_comparison(rows: list[dict], spec: dict, title: str, path: Path) -> None:

@@ -23,7 +23,7 @@ import mrcomm_env
 from mrcomm_env.experiments import benchmarl_bench, benchmarl_reference
 from mrcomm_env.integrations.benchmarl import CONF_DIR, ENV_ID_OF_TASK, MrcommSerialClass, MrcommTask
 from mrcomm_env.integrations.torchrl_batched import BatchedTorchRLEnv
-from mrcomm_env.registry import env_class
+from mrcomm_env.registry import env_class, env_revision
 
 FRAMES_PER_BATCH = 100
 N_BATCHES = 2
@@ -201,6 +201,7 @@ def test_reference_benchmark_runs_resumes_and_writes_its_page(tmp_path, capsys):
     assert [run[k]["step_count"] for k in sorted(k for k in run if k.startswith("step_"))] == [100, 200]
     assert not record_path.with_suffix(".scratch").exists()
     references = json.loads((out / benchmarl_reference.REFERENCES).read_text())["MAPSYNC"]
+    assert record["env_revision"] == references["env_revision"] == env_revision("mrcomm/MapSync-v0")
     assert references["metric"] == "disagreement" and set(references["policies"]) == {
         "random",
         "periodic_equality_then_bisection",
@@ -236,6 +237,23 @@ def test_reference_benchmark_runs_resumes_and_writes_its_page(tmp_path, capsys):
     assert (out / "profile.png").stat().st_size > 0 and (out / "curves.png").stat().st_size > 0
     merged = json.loads((out / benchmarl_reference.MERGED).read_text())
     assert merged["mrcomm"]["mapsync"]["ippo"]["seed_0"] == run
+
+
+def test_the_page_names_runs_recorded_at_an_earlier_revision_of_their_env():
+    """Runs and scripted rows whose ``env_revision`` is not the env's current one are named with it under their
+    task's table; records without the field (written before it) and current ones are not."""
+    current = env_revision("mrcomm/MapSync-v0")
+    runs = [
+        {"algorithm": "ippo", "seed": 0, "env_revision": current},
+        {"algorithm": "mappo", "seed": 1, "env_revision": "v0 rev 0"},
+        {"algorithm": "iql", "seed": 2},
+    ]
+    assert benchmarl_reference._revision_note("MAPSYNC", [runs[0], runs[2]], {"env_revision": current}) == []
+    assert benchmarl_reference._revision_note("MAPSYNC", [runs[0]], {}) == []
+    note = " ".join(benchmarl_reference._revision_note("MAPSYNC", runs, {"env_revision": "v0 rev 0"}))
+    assert f"Recorded before mrcomm/MapSync-v0's {current}" in note
+    assert "MAPPO seed 1, the `random` and paper rows at v0 rev 0." in note
+    assert "IPPO" not in note and "IQL" not in note
 
 
 def test_an_on_policy_run_killed_midway_goes_on_from_its_newest_checkpoint(tmp_path):

@@ -15,7 +15,7 @@ from mrcomm_agents.learned import PRETRAINED_DIR, load_policy
 from mrcomm_agents.training import CONFIG_DIR
 from mrcomm_env.experiments import comparison
 from mrcomm_env.experiments.cli import main
-from mrcomm_env.registry import env_ids, short_name
+from mrcomm_env.registry import env_ids, env_revision, short_name
 
 torch.set_num_threads(1)
 
@@ -516,7 +516,7 @@ def test_a_shipped_models_card_agrees_with_the_learning_page(env_id):
     if comparison.stale_revision(env_id, rows) is None:  # the table's revision is the env's: the same episodes
         assert card["best_baseline"]["metric"] == pytest.approx(best["metric"], rel=1e-9)
     else:  # the env changed since the table was recorded: the card's figures are the current revision's
-        assert card["env_revision"] == comparison.env_revision(env_id)
+        assert card["env_revision"] == env_revision(env_id)
     assert card["heldout"]["bits"] <= 1.05 * card["best_baseline"]["bits"] + 1e-9
 
 
@@ -581,7 +581,7 @@ def test_a_table_recorded_at_an_earlier_env_revision_is_flagged_and_not_counted(
     env_id = "mrcomm/RendezvousMapping-v0"
     current = env_class(env_id).VERSION_HISTORY[-1][0]
     earlier = env_class(env_id).VERSION_HISTORY[-2][0]
-    assert comparison.env_revision(env_id) == current
+    assert env_revision(env_id) == current
     assert comparison.stale_revision(env_id, [{"env_revision": current}, {"env_revision": current}]) is None
     assert comparison.stale_revision(env_id, [{"env_revision": earlier}, {"env_revision": current}]) == earlier
     assert comparison.stale_revision(env_id, [{"policy": "random"}]) is None  # written before the column

@@ -10,7 +10,7 @@ from mrcomm_env.experiments.evaluation import limit_threads
 from mrcomm_env.experiments.io import atomic_write_csv, atomic_write_json, atomic_write_text
 from mrcomm_env.experiments.runs import agent_config_dir, comparison_spec
 from mrcomm_env.experiments.sweep import add_runner_arguments, runner_from_args, using
-from mrcomm_env.registry import canonical_id, env_ids, short_name
+from mrcomm_env.registry import canonical_id, env_ids, env_revision, short_name
 
 
 def add_parser(command) -> None:
@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
             rows, spec = comparison.reproduce_learning(env_id, out / name, quick=args.quick, progress=not args.quiet)
             # each row says which revision of the env it was trained and evaluated at (the page flags a table the env
             # has changed since)
-            revision = comparison.env_revision(env_id)
+            revision = env_revision(env_id)
             atomic_write_csv(docs / "learning" / f"{name}.csv", [{**row, "env_revision": revision} for row in rows])
             curves = comparison.curve_rows(spec["tasks"], spec)
             if curves:
