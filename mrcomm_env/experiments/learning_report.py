@@ -31,7 +31,6 @@ from mrcomm_env.experiments.comparison import (
     clearing_criterion,
     clears_margin,
     dominates,
-    env_revision,
     finishes_some,
     first_reach,
     margins,
