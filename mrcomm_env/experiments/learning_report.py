@@ -506,7 +506,7 @@ def margins_table(docs: Path) -> list[str]:
     if stale_envs:
         not_counted = (
             f" The counts leave out {' and '.join(stale_envs)} table: the env has changed since it was recorded "
-            "(its section says how), so its margins are those of another revision until it is trained again."
+            "(its section names the revisions), so its margins are those of another revision until it is trained again."
         )
     return [
         f"**Against the papers, computed from the tables below** ({GOAL_2}): the learned policy clears the margin "
