@@ -279,25 +279,31 @@ def _product_error(a, b, p):
 def _best_union(U, working, n, chosen):
     """Marks in ``chosen`` the n best working columns of every row: the largest utilities, a NaN after every number
     and ties to the lowest position (``protocol.best_positions``: a stable sort of −U)."""
-    W = len(working)
-    key = np.empty(n)  # the row's n best so far as (−U, position), in the order they rank
-    pos = np.empty(n, dtype=np.int64)
+    keys = np.empty(len(working))
+    order = np.empty(n, dtype=np.int64)
     for r in range(n):
-        count = 0
-        for w in range(W):
-            x = -U[r, working[w]]
-            if count == n and not _ranks_before(x, w, key[n - 1], pos[n - 1]):
-                continue  # (a later position never ranks before an equal key: the lowest positions stay)
-            i = min(count, n - 1)
-            while i > 0 and _ranks_before(x, w, key[i - 1], pos[i - 1]):
-                key[i] = key[i - 1]
-                pos[i] = pos[i - 1]
-                i -= 1
-            key[i] = x
-            pos[i] = w
-            count = min(count + 1, n)
-        for i in range(count):
-            chosen[pos[i]] = True
+        for w in range(len(working)):
+            keys[w] = -U[r, working[w]]
+        for i in range(_k_best(keys, n, order)):
+            chosen[order[i]] = True
+
+
+@numba.njit(cache=True)
+def _k_best(keys, k, order):
+    """The positions of the k smallest ``keys`` in the order a stable sort ranks them (a NaN after every number,
+    ties to the lower position) into ``order``, by insertion (k is a handful); returns how many, min(k, len(keys))."""
+    count = 0
+    for p in range(len(keys)):
+        key = keys[p]
+        if count == k and not _ranks_before(key, p, keys[order[k - 1]], order[k - 1]):
+            continue  # (a later position never ranks before an equal key: the lowest positions stay)
+        i = min(count, k - 1)
+        while i > 0 and _ranks_before(key, p, keys[order[i - 1]], order[i - 1]):
+            order[i] = order[i - 1]
+            i -= 1
+        order[i] = p
+        count = min(count + 1, k)
+    return count
 
 
 @numba.njit(cache=True)
@@ -452,17 +458,7 @@ def ranked_candidates(utility, negated, k, K):
     cand_u = np.zeros((n, K))
     order = np.empty(k, dtype=np.int64)
     for r in range(n):
-        count = 0
-        for lm in range(L):  # insertion into the k best so far: k is a handful, and ids come in increasing order
-            key = negated[r, lm]
-            if count == k and not _ranks_before(key, lm, negated[r, order[k - 1]], order[k - 1]):
-                continue
-            i = min(count, k - 1)
-            while i > 0 and _ranks_before(key, lm, negated[r, order[i - 1]], order[i - 1]):
-                order[i] = order[i - 1]
-                i -= 1
-            order[i] = lm
-            count = min(count + 1, k)
+        _k_best(negated[r], k, order)  # k ≤ L: all k found
         for j in range(k):
             real = utility[r, order[j]]
             if real > 0:
