@@ -433,8 +433,8 @@ def margins(learned: dict, baseline: dict, lower_is_better: bool) -> tuple[float
     """How far a learned point is ahead of a baseline, as fractions of the baseline's figures, each taken at the
     worse ends of the two 95 % intervals (:func:`metric_interval`; bits: mean ± t half-width), so a margin that is
     there holds beyond the intervals. The metric margin counts only where the learned point sends at most 5 % more
-    bits (:func:`within_bits`), the bits margin only where its metric is not worse beyond the intervals (the
-    metric half of :func:`dominates`); ``None`` where its condition fails or the baseline's end is not positive."""
+    bits (:func:`within_bits`), the bits margin only where its metric is not worse (:func:`centre_not_worse`);
+    ``None`` where its condition fails or the baseline's end is not positive."""
     low, high = metric_interval(learned)
     base_low, base_high = metric_interval(baseline)
     metric = None
@@ -444,11 +444,24 @@ def margins(learned: dict, baseline: dict, lower_is_better: bool) -> tuple[float
         elif not lower_is_better and base_high > 0:
             metric = low / base_high - 1.0
     bits = None
-    not_worse = low <= base_high if lower_is_better else high >= base_low
+    not_worse = centre_not_worse(learned, baseline, lower_is_better)
     cheapest = baseline["bits"] - baseline["bits_ci95"]
     if not_worse and cheapest > 0:
         bits = 1.0 - (learned["bits"] + learned["bits_ci95"]) / cheapest
     return metric, bits
+
+
+def centre_not_worse(learned: dict, baseline: dict, lower_is_better: bool) -> bool:
+    """#42's "at a metric not worse", for the bits margin: the learned point's own figure (the IQM whose interval
+    :func:`metric_interval` gives, else its mean) is no worse than the worse end of the baseline's 95 % interval.
+    Overlapping intervals (the test of :func:`dominates`, a match) are not enough to claim a margin: with 5 episodes
+    and 5 training seeds they passed a policy 23 % slower on average (RendezvousMapping v0 rev 4 at d_comms = 10:
+    29.8 phases, IQM 30.6 [25.2, 33.7], against `paper_protocol`'s 24.2 ± 4.3)."""
+    centre = learned.get("metric_iqm")
+    if centre is None or learned.get("n", 0) < 2:
+        centre = learned["metric"]
+    base_low, base_high = metric_interval(baseline)
+    return centre <= base_high if lower_is_better else centre >= base_low
 
 
 def clearing_criterion(metric: float | None, bits: float | None) -> str | None:

@@ -408,8 +408,8 @@ def rule_text(env_id: str, rule: dict) -> str:
 
 GOAL_2 = (
     f"#42's goal 2: {percent(METRIC_MARGIN, 0)} better on the task metric at equal bits, or "
-    f"{percent(BITS_MARGIN, 0)} fewer bits at a metric not worse, each margin at the worse ends of the two 95 % "
-    "intervals, `comparison.margins`"
+    f"{percent(BITS_MARGIN, 0)} fewer bits at a metric not worse (the learned point's IQM no worse than the worse "
+    "end of the rule's interval), each margin at the worse ends of the two 95 % intervals, `comparison.margins`"
 )
 
 

@@ -67,6 +67,19 @@ def test_beats_needs_a_margin_beyond_the_intervals(learned, baseline, expected):
         (point(60.0, 10.0, 1.0), point(50.0, 100.0, 2.0), True, (1 - 61 / 48, None)),
         # the same metric with 40 ± 5 bits against 100 ± 10: (40 + 5) against (100 − 10) at the worse ends
         (point(50.0, 40.0, 0.0, 5.0), point(50.0, 100.0, 0.0, 10.0), True, (0.0, 1 - 45 / 90)),
+        # intervals that overlap (25 ≤ 28) but a learned figure of 30, beyond the baseline's worse end of 24 + 4:
+        # worse, so no bits margin however few its bits; the metric margin 1 − 35/20 is negative
+        (point(30.0, 30.0, 5.0), point(24.0, 60.0, 4.0), True, (1 - 35 / 20, None)),
+        # the same figure just inside the baseline's interval (27.9 ≤ 28): not worse, 30 bits against 60
+        (point(27.9, 30.0, 3.1), point(24.0, 60.0, 4.0), True, (1 - 31 / 20, 1 - 30 / 60)),
+        # over training seeds the figure is the IQM, as its interval is: a mean of 26 inside the baseline's interval,
+        # but an IQM of 29 beyond its worse end, is worse
+        (
+            {**point(26.0, 30.0, 6.0), "n": 5, "metric_iqm": 29.0, "metric_iqm_low": 25.0, "metric_iqm_high": 33.0},
+            point(24.0, 60.0, 4.0),
+            True,
+            (1 - 33 / 20, None),
+        ),
         # higher is better: 0.9 ± 0.05 against 0.8 ± 0.0, 0.85 / 0.8 − 1 ahead
         (point(0.9, 10.0, 0.05), point(0.8, 10.0), False, (0.85 / 0.8 - 1, 0.0)),
     ],
