@@ -600,6 +600,13 @@ def test_a_table_recorded_at_an_earlier_env_revision_is_flagged_and_not_counted(
     assert comparison.stale_revision(env_id, [{"policy": "random"}]) is None  # written before the column
 
     recorded = list(csv.DictReader(open(Path(__file__).parents[2] / "docs" / "learning" / "RendezvousMapping-v0.csv")))
+    # a learned point at d_comms = 10 that clears the bits margin over paper_protocol whatever the recorded figures:
+    # the protocol's time with a tenth of its bits (the recorded rows give its figures at that range)
+    protocol = next(r for r in recorded if r["policy"] == "paper_protocol" and float(r["setting"]) == 10.0)
+    for row in recorded:
+        if row["policy"].startswith("learned") and float(row["setting"]) == 10.0:
+            row.update(metric=protocol["metric"], metric_iqm=protocol["metric"], metric_iqm_low=protocol["metric"])
+            row.update(metric_iqm_high=protocol["metric"], bits=float(protocol["bits"]) / 10, bits_ci95=0.0)
     (tmp_path / "learning").mkdir()
 
     def summary(revision: str | None) -> str:
@@ -612,7 +619,7 @@ def test_a_table_recorded_at_an_earlier_env_revision_is_flagged_and_not_counted(
             writer.writerows(rows)
         return "\n".join(learning_report.margins_table(tmp_path))
 
-    for revision in (current, None):  # the recorded table clears the margin over paper_protocol (20.8 % fewer bits)
+    for revision in (current, None):  # that table clears the margin over paper_protocol (90 % fewer bits)
         text = summary(revision)
         assert "algorithms on 1 of 1 envs" in text and "leave out" not in text and "not counted" not in text
     text = summary(earlier)
