@@ -458,7 +458,7 @@ def stale_paragraph(env_id: str, rows: list[dict]) -> list[str]:
     if card.get("env_revision") == current and "heldout" in card and card.get("best_baseline"):
         heldout, rule = card["heldout"], card["best_baseline"]
         text += (
-            f" The shipped model, trained at {stale}, scores {heldout['metric']:.4g} at {heldout['bits']:.5g} bits on "
+            f" The shipped model scores {heldout['metric']:.4g} at {heldout['bits']:.5g} bits on "
             f"the table's {heldout['episodes']} episodes at {current}, where `{rule['policy']}` scores "
             f"{rule['metric']:.4g} at {rule['bits']:.5g} (its card)."
         )
