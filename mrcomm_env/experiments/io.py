@@ -21,6 +21,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
 
+import numpy as np
+
 #: temporary files are named ``.<destination name>.<random>`` + this suffix, so they are easy to spot and skip
 TEMP_SUFFIX = ".partial"
 
@@ -34,9 +36,12 @@ def _umask() -> int:
 
 
 def json_safe(obj: Any) -> Any:
-    """``obj`` with every non-finite float (NaN, ±inf) made None, so that it is written as strict JSON (null)."""
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
+    """``obj`` with every non-finite float (NaN, ±inf; numpy's too, and inside numpy arrays) made None, so that it is
+    written as strict JSON (null), which every JSON parser reads (``NaN`` is Python's extension, not JSON)."""
+    if isinstance(obj, np.ndarray):
+        obj = obj.tolist()
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if math.isfinite(obj) else None
     if isinstance(obj, dict):
         return {k: json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
@@ -80,8 +85,9 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
 
 
 def atomic_write_json(path: str | os.PathLike, obj: Any, **dump_kwargs: Any) -> None:
-    """``json.dump(obj, …, **dump_kwargs)`` into ``path``; the object is serialised before the file is touched."""
-    atomic_write_text(path, json.dumps(obj, **dump_kwargs))
+    """``json.dump(obj, …, **dump_kwargs)`` into ``path`` as strict JSON: a non-finite float is written as null
+    (:func:`json_safe`); the object is serialised before the file is touched."""
+    atomic_write_text(path, json.dumps(json_safe(obj), allow_nan=False, **dump_kwargs))
 
 
 def atomic_write_csv(path: str | os.PathLike, rows: list[dict[str, Any]]) -> None:

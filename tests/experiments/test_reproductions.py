@@ -140,6 +140,33 @@ def test_atomic_csv_reads_back_as_the_rows_it_was_given(tmp_path):
     assert sorted(tmp_path.iterdir()) == [tmp_path / "table.csv"]
 
 
+def test_atomic_json_is_strict_json_with_non_finite_numbers_as_null(tmp_path):
+    """NaN and ±inf, Python's floats and numpy's, alone or in an array, are written as null: a strict parser (one
+    that refuses Python's NaN extension, as JavaScript's and jq's do) reads the file."""
+    import numpy as np
+
+    record = {
+        "propagation_time_8x8": float("nan"),
+        "ceiling": [float("inf"), -float("inf"), 1.5],
+        "float32": np.float32("nan"),
+        "array": np.array([np.nan, 2.0]),
+        "kept": {"bits": 758.8, "episodes": 5, "name": "age_aware", "none": None},
+    }
+    io.atomic_write_json(tmp_path / "result.json", record, indent=1)
+
+    def refuse(constant):
+        raise ValueError(f"not strict JSON: {constant}")
+
+    back = json.loads((tmp_path / "result.json").read_text(), parse_constant=refuse)
+    assert back == {
+        "propagation_time_8x8": None,
+        "ceiling": [None, None, 1.5],
+        "float32": None,
+        "array": [None, 2.0],
+        "kept": {"bits": 758.8, "episodes": 5, "name": "age_aware", "none": None},
+    }
+
+
 def test_atomic_savefig_writes_a_complete_png(tmp_path):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure

@@ -11,7 +11,7 @@ from mrcomm_env.core import backend
 from mrcomm_env.experiments import bench
 from mrcomm_env.experiments.arguments import nonnegative_seconds, parse_params, positive_int, positive_seconds
 from mrcomm_env.experiments.evaluation import limit_threads
-from mrcomm_env.experiments.io import atomic_write_json, check_writable_file, json_safe
+from mrcomm_env.experiments.io import atomic_write_json, check_writable_file
 from mrcomm_env.registry import canonical_id, env_ids, make
 
 
@@ -128,6 +128,6 @@ def _sweep(args: argparse.Namespace, params: dict, out: Path) -> int:
     env_id = canonical_id(args.env_ids[0]) if args.env_ids else bench.SWEEP_ENV
     make(env_id, **params).close()  # bad --param values fail here, before the first timed run
     results = {"sweep": bench.sweep_section(env_id, bench.SWEEP_TASKS, args.runs, params)}
-    atomic_write_json(out, json_safe(results), indent=2)
+    atomic_write_json(out, results, indent=2)
     print(f"wrote {out} (median of {args.runs} runs per backend)")
     return 0

@@ -7,7 +7,7 @@ import sys
 
 from mrcomm_env.experiments.arguments import add_episode_arguments, parse_params
 from mrcomm_env.experiments.evaluation import acting_setting, evaluate, limit_threads, make_any_policy
-from mrcomm_env.experiments.io import atomic_write_json, check_writable_dir, check_writable_file, json_safe
+from mrcomm_env.experiments.io import atomic_write_json, check_writable_dir, check_writable_file
 from mrcomm_env.experiments.record import record_episode
 from mrcomm_env.registry import canonical_id, make, short_name
 
@@ -63,6 +63,6 @@ def run(args: argparse.Namespace) -> int:
             "metrics": metrics,
         }
         # NaN (a metric undefined in an episode, e.g. a subgraph that never completed) becomes null: strict JSON
-        atomic_write_json(json_path, json_safe(record), indent=2, allow_nan=False)
+        atomic_write_json(json_path, record, indent=2)
         print(f"wrote {json_path}")
     return 0
