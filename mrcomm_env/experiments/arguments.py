@@ -1,11 +1,15 @@
-"""Argument types of the ``mrcomm`` commands: a leaf module every command's module imports (none imports another
-command's module for them)."""
+"""Argument types of the ``mrcomm`` commands, and the checks of their output paths: a leaf module every command's
+module imports (none imports another command's module for them)."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import math
+import tempfile
+from pathlib import Path
+
+from mrcomm_env.experiments.io import TEMP_SUFFIX
 
 
 def parse_params(pairs: list[str] | None, flag: str = "--param") -> dict:
@@ -101,3 +105,35 @@ def add_episode_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="load a learned model's run written before the safe formats (it unpickles: only a run you made)",
     )
+
+
+def check_writable_file(path: str | Path, flag: str) -> Path:
+    """Fail early, before any work, when ``path`` cannot be written: ``ValueError`` naming ``flag``.
+
+    Creates the missing parent directories (as the write itself would) and tries a temporary file there,
+    so permissions, read-only file systems and a directory in the way are all caught up front.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{flag} {str(path)!r} is a directory; give a file name")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", suffix=TEMP_SUFFIX):
+            pass
+    except OSError as exc:
+        raise ValueError(f"{flag} {str(path)!r} is not writable: {exc.strerror or exc}") from exc
+    return path
+
+
+def check_writable_dir(path: str | Path, flag: str) -> Path:
+    """Like :func:`check_writable_file` for an output directory (created when missing)."""
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path, prefix=".write-check.", suffix=TEMP_SUFFIX):
+            pass
+    except FileExistsError as exc:
+        raise ValueError(f"{flag} {str(path)!r} is a file, not a directory") from exc
+    except OSError as exc:
+        raise ValueError(f"{flag} {str(path)!r} is not writable: {exc.strerror or exc}") from exc
+    return path

@@ -53,6 +53,26 @@ def acting_setting(policy, params: dict) -> dict:
     return params
 
 
+def prepared_policy(
+    env_id: str, name: str, params: dict, policy_params: dict, seed: int, trust_pickle: bool = False
+) -> tuple[str, dict, Any]:
+    """``(canonical id, env arguments, policy)`` for ``mrcomm evaluate``: every part a bad argument could break, built
+    once before the first episode. The threads are limited first (:func:`limit_threads`); the policy named ``name``
+    with ``policy_params`` is made, the env arguments it acts in are ``params`` over its own (:func:`acting_setting`),
+    and it is reset once against that env seeded ``seed`` (where it refuses an env, e.g. a mode it needs)."""
+    limit_threads()
+    env_id = canonical_id(env_id)
+    policy = make_any_policy(env_id, name, trust_pickle=trust_pickle, **policy_params)
+    params = acting_setting(policy, params)
+    probe = make(env_id, **params)
+    try:
+        probe.reset(seed=seed)
+        policy.reset(probe.local_views(), seed)
+    finally:
+        probe.close()
+    return env_id, params, policy
+
+
 def limit_threads() -> None:
     """One BLAS/torch thread per process: PPO here ran 45× slower with torch's default of 2 threads."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")

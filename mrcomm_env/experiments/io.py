@@ -110,35 +110,3 @@ def atomic_remove(path: str | os.PathLike) -> None:
     """Remove ``path`` if it exists (a single unlink: the file is there whole or not at all)."""
     with contextlib.suppress(FileNotFoundError):
         os.unlink(path)
-
-
-def check_writable_file(path: str | os.PathLike, flag: str) -> Path:
-    """Fail early, before any work, when ``path`` cannot be written: ``ValueError`` naming ``flag``.
-
-    Creates the missing parent directories (as the write itself would) and tries a temporary file there,
-    so permissions, read-only file systems and a directory in the way are all caught up front.
-    """
-    path = Path(path)
-    if path.is_dir():
-        raise ValueError(f"{flag} {str(path)!r} is a directory; give a file name")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", suffix=TEMP_SUFFIX):
-            pass
-    except OSError as exc:
-        raise ValueError(f"{flag} {str(path)!r} is not writable: {exc.strerror or exc}") from exc
-    return path
-
-
-def check_writable_dir(path: str | os.PathLike, flag: str) -> Path:
-    """Like :func:`check_writable_file` for an output directory (created when missing)."""
-    path = Path(path)
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=path, prefix=".write-check.", suffix=TEMP_SUFFIX):
-            pass
-    except FileExistsError as exc:
-        raise ValueError(f"{flag} {str(path)!r} is a file, not a directory") from exc
-    except OSError as exc:
-        raise ValueError(f"{flag} {str(path)!r} is not writable: {exc.strerror or exc}") from exc
-    return path

@@ -78,6 +78,34 @@ def run_folder(label: str, config: dict) -> str:
     return f"{label}-{hashlib.sha1(blob.encode()).hexdigest()[:8]}/s{config['seed']}"
 
 
+def train_settings(
+    env_id: str,
+    algo: str,
+    params: dict,
+    timesteps: int | None = None,
+    config_file: str | None = None,
+    **overrides,
+) -> tuple[dict, Policy | None]:
+    """What ``mrcomm train`` trains, and the teacher of its warm start: ``(settings, teacher)``, the settings being
+    :class:`~mrcomm_agents.training.TrainConfig`'s arguments but the seed. They are the env's shipped settings for
+    ``algo`` (``agents/configs/<Name>-v0.json``), a ``--config`` file's over them, the env arguments with ``params``
+    (``--param``) over the file's, ``timesteps`` where given, and each of ``overrides`` that is not None (``init_from``,
+    ``update_threads``, ``env_workers``). The teacher is found once, from the configuration's ``init_from`` or
+    ``--init-from``'s, so that a bad name is reported before any work."""
+    from mrcomm_agents.training import default_config, load_config_file, split_settings  # extra "train"
+
+    settings = default_config(env_id, algo)
+    if config_file:
+        settings = {**settings, **load_config_file(config_file, algo)}
+    run, hyper = split_settings(settings)
+    env_kwargs = {**run.pop("env_kwargs", {}), **params}
+    shipped_timesteps = run.pop("timesteps", 200_000)
+    run.update({key: value for key, value in overrides.items() if value is not None})
+    teacher = teacher_for(env_id, run.get("init_from"))
+    timesteps = shipped_timesteps if timesteps is None else timesteps
+    return dict(env_id=env_id, algo=algo, timesteps=timesteps, env_kwargs=env_kwargs, hyperparams=hyper, **run), teacher
+
+
 def teacher_for(env_id: str, init_from: str | None) -> Policy | None:
     """The scripted policy ``--init-from baseline:NAME`` names (``None`` for none); unknown names raise
     ``ValueError`` listing the valid ones."""

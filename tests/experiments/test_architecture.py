@@ -395,3 +395,82 @@ def test_the_inner_import_check_knows_an_extra_from_a_required_package(tmp_path,
     count, bad = inner_import_report(sorted(package.glob("*.py")))
     assert count == 4
     assert [entry.split(" ")[0] for entry in bad] == ["mrcomm_env/thing/uses.py:6", "mrcomm_env/thing/uses.py:8"]
+
+
+# ------------------------------------------------------------------------------ commands on their way down
+def command_stops(run_function, call) -> tuple[list[str], object]:
+    """``(stops, what call() returned)``: the modules of ours that ``run_function`` calls into while ``call()`` runs, in order, a module repeated only when
+    the command left it for another in between (#44: "enter each module once on their way down"; the issue counted
+    `mrcomm evaluate`'s as 12 stops in 6 modules, 6 of them returns). Only the calls ``run_function``'s own body
+    makes count: what those modules do below is their business."""
+    code, own = run_function.__code__, run_function.__module__
+    stops: list[str] = []
+
+    def profile(frame, event, arg):
+        if event != "call" or frame.f_back is None or frame.f_back.f_code is not code:
+            return
+        module = frame.f_globals.get("__name__", "")
+        if module.startswith(PACKAGES) and module != own and (not stops or stops[-1] != module):
+            stops.append(module)
+
+    sys.setprofile(profile)
+    try:
+        value = call()
+    finally:
+        sys.setprofile(None)
+    return stops, value
+
+
+def returns_of(stops: list[str]) -> list[str]:
+    """The stops at a module the command had already called into and left."""
+    return [module for i, module in enumerate(stops) if module in stops[:i]]
+
+
+def test_the_stop_count_catches_a_command_that_returns_to_a_module(tmp_path, monkeypatch):
+    (tmp_path / "zigzag_command.py").write_text(
+        "from mrcomm_env.experiments import arguments, io\n"
+        "def run():\n"
+        "    arguments.parse_params(None)\n"
+        "    io.json_safe(1.0)\n"
+        "    io.json_safe(2.0)\n"  # the same module again at once: one stop
+        "    arguments.parse_params(['a=1'])\n"  # back after leaving it: a return
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    zigzag = importlib.import_module("zigzag_command")
+    stops, _ = command_stops(zigzag.run, zigzag.run)
+    assert stops == [
+        "mrcomm_env.experiments.arguments",
+        "mrcomm_env.experiments.io",
+        "mrcomm_env.experiments.arguments",
+    ]
+    assert returns_of(stops) == ["mrcomm_env.experiments.arguments"]
+
+
+def test_evaluate_enters_each_module_once(tmp_path):
+    from mrcomm_env.experiments.cli import main
+    from mrcomm_env.experiments.commands import evaluate
+
+    argv = ["evaluate", "ChannelAssociation-v0", "--policy", "coin_flip", "--episodes", "2", "--param", "max_cycles=4"]
+    argv += ["--json", str(tmp_path / "eval.json"), "--video", str(tmp_path), "--quiet"]
+    stops, exit_code = command_stops(evaluate.run, lambda: main(argv))
+    assert exit_code == 0
+    assert (tmp_path / "eval.json").exists() and list(tmp_path.glob("*.gif"))  # the whole way down was taken
+    assert len(stops) >= 4 and not returns_of(stops), stops
+
+
+@pytest.mark.parametrize("mode", ["new", "sweep", "resume"])
+def test_train_enters_each_module_once(tmp_path, mode):
+    from mrcomm_env.experiments.cli import main
+    from mrcomm_env.experiments.commands import train
+
+    argv = ["train", "ChannelAssociation-v0", "--timesteps", "64", "--param", "max_cycles=4", "--quiet"]
+    if mode == "sweep":
+        argv += ["--seeds", "0,1", "--workers", "1", "--out", str(tmp_path / "sweep")]
+    else:
+        argv += ["--out", str(tmp_path / "run")]
+    if mode == "resume":  # a finished run extended: the path a resumed run takes
+        assert main(argv) == 0
+        argv = [*argv[:3], "20000", *argv[4:], "--resume"]  # past the first run's whole rollouts
+    stops, exit_code = command_stops(train.run, lambda: main(argv))
+    assert exit_code == 0
+    assert len(stops) >= 4 and not returns_of(stops), stops

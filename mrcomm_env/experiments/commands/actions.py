@@ -7,9 +7,9 @@ import argparse
 
 from mrcomm_baselines import policy_names
 from mrcomm_env.experiments.actions import context_table, profile_actions, profile_table
-from mrcomm_env.experiments.arguments import add_episode_arguments, parse_params, split_values
+from mrcomm_env.experiments.arguments import add_episode_arguments, check_writable_file, parse_params, split_values
 from mrcomm_env.experiments.evaluation import acting_setting, baseline_label, limit_threads, make_any_policy
-from mrcomm_env.experiments.io import atomic_write_json, check_writable_file
+from mrcomm_env.experiments.io import atomic_write_json
 from mrcomm_env.registry import canonical_id
 
 

@@ -9,9 +9,15 @@ from pathlib import Path
 
 from mrcomm_env.core import backend
 from mrcomm_env.experiments import bench
-from mrcomm_env.experiments.arguments import nonnegative_seconds, parse_params, positive_int, positive_seconds
+from mrcomm_env.experiments.arguments import (
+    check_writable_file,
+    nonnegative_seconds,
+    parse_params,
+    positive_int,
+    positive_seconds,
+)
 from mrcomm_env.experiments.evaluation import limit_threads
-from mrcomm_env.experiments.io import atomic_write_json, check_writable_file
+from mrcomm_env.experiments.io import atomic_write_json
 from mrcomm_env.registry import canonical_id, env_ids, make
 
 

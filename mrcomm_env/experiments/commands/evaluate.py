@@ -4,12 +4,18 @@ from __future__ import annotations
 
 import argparse
 import sys
+from functools import partial
 
-from mrcomm_env.experiments.arguments import add_episode_arguments, parse_params
-from mrcomm_env.experiments.evaluation import acting_setting, evaluate, limit_threads, make_any_policy
-from mrcomm_env.experiments.io import atomic_write_json, check_writable_dir, check_writable_file
+from mrcomm_env.experiments.arguments import (
+    add_episode_arguments,
+    check_writable_dir,
+    check_writable_file,
+    parse_params,
+)
+from mrcomm_env.experiments.evaluation import evaluate, prepared_policy
+from mrcomm_env.experiments.io import atomic_write_json
 from mrcomm_env.experiments.record import record_episode
-from mrcomm_env.registry import canonical_id, make, short_name
+from mrcomm_env.registry import make, short_name
 
 
 def add_parser(command) -> None:
@@ -25,33 +31,26 @@ def add_parser(command) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    limit_threads()
-    env_id = canonical_id(args.env_id)
+    # down through each module once: the arguments and output paths checked, the policy built against its env and
+    # its episodes played, the first one recorded where asked, the summary written
     params = parse_params(args.param)
     policy_params = parse_params(args.policy_param, "--policy-param")
     json_path = check_writable_file(args.json, "--json") if args.json else None
-    # everything a bad argument could break is built once before the first episode: the env with its
-    # params, the policy with its params, and the policy's reset against this env (e.g. a mode it needs)
-    policy = make_any_policy(env_id, args.policy, trust_pickle=args.trust_pickle, **policy_params)
-    params = acting_setting(policy, params)
-    probe = make(env_id, **params)
-    try:
-        probe.reset(seed=args.seed)
-        policy.reset(probe.local_views(), args.seed)
-    finally:
-        probe.close()
-    if args.video:
-        folder = check_writable_dir(args.video, "--video")
-        name = f"{short_name(env_id)}-{args.policy.replace(':', '_').replace('/', '_')}.gif"
-        video = record_episode(
-            env_id, [args.policy], args.seed, folder / name, params, policy_params, trust_pickle=args.trust_pickle
-        )
-        print(f"recorded the first episode: {video['path']}", file=sys.stderr)
-    metrics = evaluate(lambda: make(env_id, **params), policy, args.episodes, args.seed, progress=not args.quiet)
+    video_dir = check_writable_dir(args.video, "--video") if args.video else None
+    env_id, params, policy = prepared_policy(
+        args.env_id, args.policy, params, policy_params, args.seed, trust_pickle=args.trust_pickle
+    )
+    metrics = evaluate(partial(make, env_id, **params), policy, args.episodes, args.seed, progress=not args.quiet)
     width = max(len(name) for name in metrics)
     print(f"{env_id}  policy={args.policy}  episodes={args.episodes}  seed={args.seed}  params={params}")
     for name, m in metrics.items():
         print(f"  {name:<{width}}  {m['mean']:>14.6g} ± {m['ci95']:.3g}")
+    if video_dir is not None:
+        name = f"{short_name(env_id)}-{args.policy.replace(':', '_').replace('/', '_')}.gif"
+        video = record_episode(
+            env_id, [args.policy], args.seed, video_dir / name, params, policy_params, trust_pickle=args.trust_pickle
+        )
+        print(f"recorded the first episode: {video['path']}", file=sys.stderr)
     if json_path is not None:
         record = {
             "env": env_id,

@@ -4,9 +4,14 @@ from __future__ import annotations
 
 import argparse
 
-from mrcomm_env.experiments.arguments import parse_params, positive_int, positive_seconds, seed_type
+from mrcomm_env.experiments.arguments import (
+    check_writable_file,
+    parse_params,
+    positive_int,
+    positive_seconds,
+    seed_type,
+)
 from mrcomm_env.experiments.evaluation import limit_threads
-from mrcomm_env.experiments.io import check_writable_file
 from mrcomm_env.experiments.record import record_episode
 
 

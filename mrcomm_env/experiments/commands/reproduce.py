@@ -6,8 +6,9 @@ import argparse
 import time
 
 from mrcomm_env.core import backend
+from mrcomm_env.experiments.arguments import check_writable_dir
 from mrcomm_env.experiments.evaluation import limit_threads
-from mrcomm_env.experiments.io import atomic_remove, atomic_write_text, check_writable_dir
+from mrcomm_env.experiments.io import atomic_remove, atomic_write_text
 from mrcomm_env.experiments.reproductions import run_reproduction
 from mrcomm_env.experiments.sweep import add_runner_arguments, runner_from_args, using
 from mrcomm_env.registry import canonical_id, env_ids, short_name

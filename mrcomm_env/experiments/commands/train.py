@@ -10,7 +10,7 @@ from pathlib import Path
 
 from mrcomm_env.experiments.arguments import parse_params, positive_int, seed_type, split_values
 from mrcomm_env.experiments.evaluation import limit_threads
-from mrcomm_env.experiments.runs import teacher_for
+from mrcomm_env.experiments.runs import train_settings
 from mrcomm_env.experiments.sweep import add_runner_arguments
 from mrcomm_env.registry import canonical_id, short_name
 
@@ -129,7 +129,7 @@ def parse_grid(pairs: list[str] | None) -> dict[str, list]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mrcomm_agents.training import TrainConfig, default_config, load_config_file, split_settings, train  # "train"
+    from mrcomm_agents.training import TrainConfig, train  # extra "train"
     from mrcomm_env.experiments.train import train_sweep  # the "train" extra, as above
 
     limit_threads()
@@ -137,7 +137,8 @@ def run(args: argparse.Namespace) -> int:
     explicit = {"algo": args.algo, "seed": args.seed}  # None where the user named nothing
     args.algo = args.algo or "ppo"
     args.seed = 0 if args.seed is None else args.seed
-    out = Path(args.out or f"runs/{short_name(env_id)}-{args.algo}-s{args.seed}")
+    name = short_name(env_id)
+    out = Path(args.out or f"runs/{name}-{args.algo}-s{args.seed}")
     if args.trust_pickle and not args.resume:
         raise ValueError("--trust-pickle applies to --resume only: a new run writes no pickle")
     if args.resume:
@@ -155,25 +156,20 @@ def run(args: argparse.Namespace) -> int:
         train(None, out, resume=True, progress=not args.quiet, requested=requested, trust_pickle=args.trust_pickle)
         print(f"resumed and finished {out}")
         return 0
-    settings = default_config(env_id, args.algo)
-    if args.config:
-        settings = {**settings, **load_config_file(args.config, args.algo)}
-    run, hyper = split_settings(settings)
-    env_kwargs = {**run.pop("env_kwargs", {}), **parse_params(args.param)}
-    timesteps = args.timesteps if args.timesteps is not None else run.pop("timesteps", 200_000)
-    run.pop("timesteps", None)
-    if args.init_from is not None:
-        run["init_from"] = args.init_from
-    if args.update_threads is not None:
-        run["update_threads"] = args.update_threads
-    if args.env_workers is not None:
-        run["env_workers"] = args.env_workers
-    # the warm start's teacher, found once (the configuration's or --init-from's): a bad name is reported before any work
-    teacher = teacher_for(env_id, run.get("init_from"))
-    base = dict(env_id=env_id, algo=args.algo, timesteps=timesteps, env_kwargs=env_kwargs, hyperparams=hyper, **run)
+    params = parse_params(args.param)
+    base, teacher = train_settings(
+        env_id,
+        args.algo,
+        params,
+        args.timesteps,
+        args.config,
+        init_from=args.init_from,
+        update_threads=args.update_threads,
+        env_workers=args.env_workers,
+    )
     if args.seeds is not None or args.grid:
-        default_out = f"runs/{short_name(env_id)}-{args.algo}-sweep"
-        return train_sweep(base, args.seeds or [args.seed], parse_grid(args.grid), Path(args.out or default_out), args)
+        sweep_out = Path(args.out or f"runs/{name}-{args.algo}-sweep")
+        return train_sweep(base, args.seeds or [args.seed], parse_grid(args.grid), sweep_out, args)
     config = TrainConfig(seed=args.seed, **base)
     train(config, out, progress=not args.quiet, teacher=teacher)
     print(f"wrote {out}/model.zip, {out}/config.json, {out}/progress.csv")
