@@ -399,10 +399,10 @@ def test_the_inner_import_check_knows_an_extra_from_a_required_package(tmp_path,
 
 # ------------------------------------------------------------------------------ commands on their way down
 def command_stops(run_function, call) -> tuple[list[str], object]:
-    """``(stops, what call() returned)``: the modules of ours that ``run_function`` calls into while ``call()`` runs, in order, a module repeated only when
-    the command left it for another in between (#44: "enter each module once on their way down"; the issue counted
-    `mrcomm evaluate`'s as 12 stops in 6 modules, 6 of them returns). Only the calls ``run_function``'s own body
-    makes count: what those modules do below is their business."""
+    """``(stops, what call() returned)``. The stops are the modules of ours that ``run_function`` calls into while
+    ``call()`` runs, in order, a module repeated only when the command left it for another in between (#44: "enter
+    each module once on their way down"; the issue counted `mrcomm evaluate`'s as 12 stops in 6 modules, 6 of them
+    returns). Only the calls ``run_function``'s own body makes count: what those modules do below is their business."""
     code, own = run_function.__code__, run_function.__module__
     stops: list[str] = []
 
