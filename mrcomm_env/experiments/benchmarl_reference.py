@@ -29,7 +29,7 @@ evaluations logged before it put back into the run's marl-eval JSON; its episode
 (BenchMARL's checkpoint holds no env generator), so a resumed run is not the one an unbroken run would have been,
 and its record says where it resumed (``resumed_at_frames``). An IQL run, and an on-policy run without a checkpoint,
 starts again: IQL's replay buffer (up to 1,000,000 frames) would have to be saved with it, and those
-runs take under an hour.
+runs took 19 to 102 minutes here (their records' ``wall_seconds``).
 
 **Held-out evaluation.** BenchMARL's own evaluations (the curves) draw their episodes at random. The final policy of
 each run, and the two references (``random`` and the paper's algorithm, the env's default baseline), also play 10
