@@ -19,7 +19,7 @@ the single env seeded ``s + i``, episode after episode, byte for byte (``tests/c
 **Two ways to step.** By default each copy runs the env's own ``reset_arrays``/``step_arrays``, which are
 its ``reset``/``step`` without the per-agent dictionaries: M Python objects stepped in turn. An env class
 whose world is also written with a copy axis says so with ``copy_axis_world(cfg)`` (ChannelAssociation's
-scenes on bit sets, ``channel_association/copy_axis.py``; MultiHop's static scenes, ``multihop/copy_axis.py``;
+scenes on bit sets, ``channel_association/copy_axis.py``; MultiHop's grids and fields, ``multihop/copy_axis.py``;
 MapSync's links without a bit budget, ``mapsync/copy_axis.py``); the batch then steps all copies as arrays and uses
 the env objects only to reset a copy (its own ``reset_arrays``, from its own generator) and to read a copy's
 metrics (the world writes the copy's state back first: :meth:`BatchedEnv.sync_copies`); a world with

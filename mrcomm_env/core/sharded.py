@@ -382,9 +382,9 @@ def default_workers(env: MrcommParallelEnv, n_copies: int) -> int:
     set, else two (at most the usable cores and the copies) where the copies step in turn, one env object after
     another, and one where a copy-axis world steps them all as arrays. Measured on two cores (docs/performance.md,
     "stepping processes"): two processes stepped copies that step in turn 1.5–2.0× as fast as one (AsyncCL,
-    RendezvousMapping, MapSync's limited links, MultiHop's moving robots, ChannelAssociation's miss tolerance), and
-    the copy-axis worlds of ChannelAssociation, MapSync and MultiHop 0.3–0.7× as fast (a step of theirs costs less
-    than the exchange with a worker)."""
+    RendezvousMapping, MapSync's limited links, MultiHop's moving robots before they had a world, ChannelAssociation's
+    miss tolerance), and the copy-axis worlds of ChannelAssociation, MapSync and MultiHop 0.3–0.7× as fast (a step
+    of theirs costs less than the exchange with a worker)."""
     given = os.environ.get(WORKERS_VARIABLE)
     if given:
         try:

@@ -66,15 +66,15 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
 
     @classmethod
     def copy_axis_world(cls, cfg):
-        """A static topology (the grid, or a field with ``speed`` 0), in either layout, with either reward and with or
-        without ``observe_heard``, on the compiled backend, steps M copies as one batch of arrays (:mod:`.copy_axis`);
-        moving robots and the coverage controller step their copies in turn."""
-        static = cfg.scene == "grid" or (cfg.scene == "field" and cfg.speed == 0)
-        if not static or not backend.compiled():
+        """Every scene (the grid, the field with robots still or moving, the coverage controller), in either layout,
+        with either reward and, on static links, with or without ``observe_heard``, steps M copies as one batch of
+        arrays (:mod:`.copy_axis`) on the compiled backend."""
+        if not backend.compiled():
             return None
-        from mrcomm_env.multihop.copy_axis import StaticFrameBatch  # numba is imported with it
+        from mrcomm_env.multihop import copy_axis  # numba is imported with it
 
-        return StaticFrameBatch
+        moving = cfg.scene == "coverage" or (cfg.scene == "field" and cfg.speed > 0)
+        return copy_axis.MovingBatch if moving else copy_axis.StaticFrameBatch
 
     # ----------------------------------------------------------------- setup
     def _setup(self) -> None:
@@ -184,8 +184,8 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         self._ranked_known: np.ndarray | None = None
         if self._relative:
             self._rank_candidates()
-        # a static team scene on the compiled backend steps as a copy-axis world of this one copy
-        # (copy_axis.py, the code a batch of M copies runs), built at the first step; the code below is the reference
+        # every scene on the compiled backend steps as a copy-axis world of this one copy (copy_axis.py, the code a
+        # batch of M copies runs), built at the first step; the code below is the reference
         self._world_eligible = type(self).copy_axis_world(c) is not None
         self._world_obs: np.ndarray | None = None  # the observation and infos of the world's last frame
         self._world_infos: dict | None = None
@@ -205,25 +205,16 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         self._hop_masks = [hops == 1, hops == 2, hops == 3, (hops >= 4) & ~self._eye]
 
     def _reward_weights(self) -> None:
-        """Eq. (1) weights of the reward, ``d_ij^-α`` divided by the largest one (the reward is a weighted mean,
-        so the scale cancels). Log form: raw ``d^-α`` underflowed to 0 for every pair at α = 300 (a reward of
-        −0.0) and overflowed to inf at α = 200 in a 1 m arena (NaN)."""
-        d = np.linalg.norm(self.pos[:, None] - self.pos[None], axis=-1)
-        log_d = np.log(np.maximum(d, proto.MIN_DIST))
-        off = ~self._eye
-        nearest = float(log_d[off].min()) if off.any() else 0.0
-        # ≤ 1 off the diagonal, = 1 for the nearest pair (the diagonal, clipped to 1 here, is zeroed below)
-        w = np.exp(-self.cfg.alpha * np.maximum(log_d - nearest, 0.0))
-        w[self._eye] = 0.0
-        self._w = w
-        self._wsum = float(w.sum())  # ≥ 1: the nearest pair weighs 1
+        """Eq. (1)'s weights of the reward at the positions now (:func:`.protocol.reward_weights`)."""
+        self._w, total = proto.reward_weights(self.pos, self.cfg.alpha)
+        self._wsum = float(total)
 
     # ----------------------------------------------------------------- dynamics
     def _step_world(self, actions: list) -> float | np.ndarray:
         if self._world_eligible:
             return self._step_one_copy(actions)
-        # moving robots, or any scene on the numpy backend: the frame slot by slot (the reference the copy-axis world
-        # is tested against, tests/multihop/test_multihop_world.py)
+        # the numpy backend: the frame slot by slot (the reference the copy-axis world is tested against,
+        # tests/multihop/test_multihop_world.py)
         n, m, b = self.n_agents, self.m, self.cfg.bits_per_estimate
         stamps, est, t = self.stamps, self.est, self.t
         # a robot's priorities are fixed for the frame; its candidate list is ranked once, filtered to the
@@ -274,9 +265,18 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
     # ----------------------------------------------------------------- what its copy-axis world reads and writes
     def world_constants(self) -> dict:
         """Constants of one configuration that its copy-axis world (:mod:`.copy_axis`) computes with: the bits a
-        frame can carry, the reward's unit of age, the observation's width and its features per candidate."""
+        frame can carry, the reward's unit of age, the observation's width and its features per candidate; in the
+        coverage scene, the controller's Euler steps per slot and the points its cells are sampled on."""
         obs_dim = int(np.prod(self._obs_space.shape or (1,)))  # a flat Box
-        return {"capacity": self._capacity, "age_unit": self._age_unit, "obs_dim": obs_dim, "features": self._features}
+        constants = {
+            "capacity": self._capacity,
+            "age_unit": self._age_unit,
+            "obs_dim": obs_dim,
+            "features": self._features,
+        }
+        if self.cfg.scene == "coverage":
+            constants.update(control_steps=self._control_steps(self.slot_dur), control_points=self._ctrl_points)
+        return constants
 
     def world_arrays(self) -> dict:
         """The episode's fixed arrays and its ranking, which a copy-axis world copies into its rows at a reset:
@@ -295,6 +295,13 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         }
         if self.heard is not None:
             arrays.update(heard=self.heard)
+        if self._moving:
+            # where the robots are, where they head and what each holds of the others' positions; the hop buckets
+            # of the links now (a world of one copy keeps the links in its rows, not the buckets)
+            self._hops()
+            arrays.update(hop_masks=self._hop_masks, pos=self.pos, est=self.est)
+            if self.cfg.scene == "field":
+                arrays.update(waypoint=self.waypoint)
         if self.cfg.layout == "relative":  # the absolute layout ranks no candidates
             arrays.update(dist=self._dist, candidates=self._candidates, ranked_known=self._ranked_known)
         return arrays
@@ -330,6 +337,17 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         # of one copy: its arrays are no longer that world's rows)
         self._world_obs = self._world_infos = None
 
+    def load_world_motion(self, pos: np.ndarray, est: np.ndarray, waypoint: np.ndarray | None = None) -> None:
+        """Take over where a copy-axis world moved the robots of an episode it stepped (``pos``; in the field, their
+        ``waypoint``) and the positions their estimates carry (``est``): the links, eq. (1)'s weights and the hop
+        buckets follow from them, as at the end of the env's own frame."""
+        self.pos, self.est = pos, est
+        if waypoint is not None:
+            self.waypoint = waypoint
+        self._links()
+        self._reward_weights()
+        self._hops()
+
     def _take_counters(self, counters: dict) -> None:
         """:meth:`world_counters` written back, as a copy-axis world hands them over (its ``counters``)."""
         self._all_known = bool(counters["all_known"])
@@ -343,6 +361,9 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
     #: the env's arrays that are rows of its world of one copy (views), as :meth:`_bind_one_copy` binds them (and
     #: ``heard`` with ``observe_heard``)
     _WORLD_VIEWS = ("stamps", "first_known", "sent_stamp", "last_sent", "_ranked_known", "_candidates", "heard")
+    #: … and of robots that move: the env's arrays of the motion, the links and what follows from them (the world's
+    #: ``pos``, ``est``, ``adj``, ``dist`` and ``weights``; in the field, ``waypoint`` too)
+    _MOVING_VIEWS = ("pos", "est", "adj", "_dist", "_w")
 
     def _bind_one_copy(self) -> None:
         """Take this episode's state into the one-copy world, whose rows then are this env's arrays (views): what
@@ -351,8 +372,16 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         world.adopt(0)
         views = (world.stamps, world.first_known, world.sent_stamp, world.last_sent, world.ranked_known)
         heard = world.heard[0] if world.heard is not None else None
-        self._world_views = (*(rows[0] for rows in (*views, world.candidates)), heard)
-        for name, view in zip(self._WORLD_VIEWS, self._world_views, strict=True):
+        rows = [view[0] for view in (*views, world.candidates)] + [heard]
+        names = list(self._WORLD_VIEWS)
+        if self._moving:
+            rows += [view[0] for view in (world.pos, world.est, world.adj, world.dist, world.weights)]
+            names += self._MOVING_VIEWS
+            if world.waypoint is not None:
+                rows.append(world.waypoint[0])
+                names.append("waypoint")
+        self._world_views, self._view_names = tuple(rows), tuple(names)
+        for name, view in zip(self._view_names, self._world_views, strict=True):
             setattr(self, name, view)
 
     def _step_one_copy(self, actions) -> float | np.ndarray:
@@ -361,13 +390,15 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         if self.__dict__.get("_one_copy") is None:
             self._one_copy = type(self).copy_axis_world(self.cfg)([self])
             self._bind_one_copy()
-        elif any(getattr(self, name) is not view for name, view in zip(self._WORLD_VIEWS, self._world_views)):
+        elif any(getattr(self, name) is not view for name, view in zip(self._view_names, self._world_views)):
             self._bind_one_copy()  # an array replaced from outside (a batch writing a copy back, a user): take it in
         else:
             self._one_copy.adopt_counters(0)  # the clock, time averages and bits as the env holds them now
         world = self._one_copy
         obs, rewards, _, _, infos = world.step(np.asarray(actions)[None])
         self.t = float(world.t[0])
+        if self._moving:
+            self._wsum = float(world.weight_sum[0])
         self._take_counters(world.counters(0))
         self.ledger.record(self._step_bits, messages=self.n_agents)
         self._world_obs = obs[0]
@@ -444,11 +475,16 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         else:
             # control period at most 0.25 s so slow frames (m = 9) are integrated as finely as fast ones; a slot
             # longer than MAX_CONTROL_STEPS × 0.25 s (a very slow channel) takes MAX_CONTROL_STEPS longer steps
-            sub = min(max(1, math.ceil(duration / CONTROL_PERIOD - 1e-9)), MAX_CONTROL_STEPS)
+            sub = self._control_steps(duration)
             known = self.stamps > proto.UNKNOWN
             for _ in range(sub):
                 target = cov.centroids(self._ctrl_points, self.pos, self.est, known)
                 self.pos = cov.control_step(self.pos, target, c.control_gain, c.max_speed, duration / sub, self.side)
+
+    @staticmethod
+    def _control_steps(duration: float) -> int:
+        """The coverage controller's Euler steps over ``duration`` seconds (see ``_move``)."""
+        return min(max(1, math.ceil(duration / CONTROL_PERIOD - 1e-9)), MAX_CONTROL_STEPS)
 
     def _receivers(self, sender: int) -> np.ndarray:
         """Robots within ``comm_range`` of ``sender`` now: its row of ``disk_links``."""

@@ -1,4 +1,4 @@
-"""Compiled twin (numba) of MultiHop's TDMA frame on a static topology: the slot loop of ``MultiHopEnv._step_world``.
+"""Compiled twin (numba) of MultiHop's TDMA frame: the slot loop of ``MultiHopEnv._step_world``.
 
 The numpy reference runs the frame slot by slot in Python, a handful of numpy calls per slot
 (``protocol.deliver_one``): about 4 ms of the 5 ms a 100-robot frame takes. This twin runs the whole frame in
@@ -7,8 +7,9 @@ time; it sends its own estimate and the first ``m − 1`` further candidates of 
 each neighbour keeps the newer time stamp per robot; a first arrival is dated at the end of the slot). Every
 number it writes is the reference's, bit for bit: the clock is advanced by the same float additions, and
 the rest are copies and comparisons (``tests/multihop/test_multihop.py`` compares whole seeded episodes on both
-backends). Only static topologies: while robots move, each slot's links and the robots' motion come
-first, and the reference runs.
+backends). While robots move (the ``field`` scene with ``speed`` above 0), each slot's links and the robots' motion
+come first (:func:`slot_receivers`, :func:`move_to_waypoints`), then :func:`send_moving_slots`; the coverage
+controller moves the robots between slots, since where it flies depends on what was received.
 
 Arrays carry a leading copy axis M so that a batch of copies can be run in one call; the env passes its own
 state as M = 1 views. Used when ``core.backend.compiled()`` (docs/architecture.md).
@@ -23,6 +24,27 @@ from mrcomm_env.core.backend import configure_numba_cache
 from mrcomm_env.core.sums_numba import numpy_sum
 
 configure_numba_cache()  # before the @njit(cache=True) below: never cache into the package
+
+
+@numba.njit(cache=True)
+def _fill_slot(stamps, s, now, ranked, count, m, picked, last_sent, sent_stamp):
+    """Sender ``s``'s slot in one copy (§2.1): it stamps its own estimate with ``now`` and sends it and the first
+    ``m − 1`` further candidates of its ranked list (``ranked``, of which ``count`` are selected) that it holds, into
+    ``picked``; marks them in ``last_sent`` and ``sent_stamp``. Returns how many it sends."""
+    stamps[s, s] = now  # own state is always current
+    held = 0
+    for q in range(count):
+        if held == m:
+            break
+        j = ranked[q]
+        if stamps[s, j] > -np.inf:
+            picked[held] = j
+            held += 1
+    for q in range(held):
+        j = picked[q]
+        last_sent[s, j] = True
+        sent_stamp[s, j] = stamps[s, j]
+    return held
 
 
 @numba.njit(cache=True)
@@ -48,20 +70,8 @@ def send_frame(
                 last_sent[c, i, j] = False
         for k in range(n):
             s = order[c, k]
-            stamps[c, s, s] = now  # own state is always current
-            held = 0
-            for q in range(count[c, s]):
-                if held == m:
-                    break
-                j = rank[c, s, q]
-                if stamps[c, s, j] > -np.inf:
-                    picked[held] = j
-                    held += 1
+            held = _fill_slot(stamps[c], s, now, rank[c, s], count[c, s], m, picked, last_sent[c], sent_stamp[c])
             sent[c, s] = held
-            for q in range(held):
-                j = picked[q]
-                last_sent[c, s, j] = True
-                sent_stamp[c, s, j] = stamps[c, s, j]
             now += slot_dur
             for e in range(nbr_ptr[c, s], nbr_ptr[c, s + 1]):
                 r = nbr_idx[c, e]
@@ -74,6 +84,177 @@ def send_frame(
                         if track and old == -np.inf:
                             first_known[c, r, j] = now
         t[c] = now
+
+
+@numba.njit(cache=True)
+def send_moving_slots(
+    stamps,
+    est,
+    order,
+    rank,
+    count,
+    m,
+    t,
+    slot_dur,
+    receivers,
+    sender_pos,
+    first_known,
+    track_first,
+    last_sent,
+    sent_stamp,
+    sent,
+    first,
+    last,
+):
+    """Slots ``first`` to ``last − 1`` of a frame of robots that move (a ``field`` with ``speed`` above 0, or the
+    ``coverage`` scene), as :func:`send_frame` sends a whole frame, in place: the links of each slot are where the
+    robots are at that slot, and every estimate carries the position it was stamped with.
+
+    ``est`` (M, n, n, 2) each robot's estimate of each position; ``receivers`` (M, n, n) bool: who is within range
+    of the k-th slot's sender at that slot; ``sender_pos`` (M, n, 2): that sender's position then (its own estimate
+    is stamped there, as ``MultiHopEnv._step_world`` does). The rest as :func:`send_frame`: the same selection,
+    clock and first arrivals, and a receiver takes a position with each newer stamp (``protocol.deliver_one``).
+    ``last_sent`` is cleared at the frame's first slot; ``t`` (M,) ends at the last slot sent."""
+    n_copies, n = order.shape
+    for c in range(n_copies):
+        now = t[c]
+        track = track_first[c]
+        picked = np.empty(m, dtype=np.int64)
+        if first == 0:
+            for i in range(n):
+                for j in range(n):
+                    last_sent[c, i, j] = False
+        for k in range(first, last):
+            s = order[c, k]
+            held = _fill_slot(stamps[c], s, now, rank[c, s], count[c, s], m, picked, last_sent[c], sent_stamp[c])
+            sent[c, s] = held
+            now += slot_dur
+            est[c, s, s, 0] = sender_pos[c, k, 0]
+            est[c, s, s, 1] = sender_pos[c, k, 1]
+            for r in range(n):
+                if not receivers[c, k, r]:
+                    continue
+                for q in range(held):
+                    j = picked[q]
+                    new = stamps[c, s, j]
+                    old = stamps[c, r, j]
+                    if new > old:
+                        stamps[c, r, j] = new
+                        est[c, r, j, 0] = est[c, s, j, 0]
+                        est[c, r, j, 1] = est[c, s, j, 1]
+                        if track and old == -np.inf:
+                            first_known[c, r, j] = now
+        t[c] = now
+
+
+@numba.njit(cache=True)
+def slot_receivers(pos, senders, r2, receivers, sender_pos):
+    """Who is within range (squared: ``r2``) of each copy's slot sender (``senders`` (M,)) where the robots ``pos``
+    (M, n, 2) are now, into ``receivers`` (M, n), and the sender's position into ``sender_pos`` (M, 2)
+    (``MultiHopEnv._receivers``). A squared distance is ``dx·dx + dy·dy``, as numpy's ``einsum`` sums two squares."""
+    n_copies, n, _ = pos.shape
+    for c in range(n_copies):
+        s = senders[c]
+        sx, sy = pos[c, s, 0], pos[c, s, 1]
+        sender_pos[c, 0], sender_pos[c, 1] = sx, sy
+        for r in range(n):
+            dx, dy = pos[c, r, 0] - sx, pos[c, r, 1] - sy
+            receivers[c, r] = r != s and dx * dx + dy * dy <= r2
+
+
+@numba.njit(cache=True)
+def move_to_waypoints(pos, waypoint, step, arrived):
+    """One slot of the field's random-waypoint motion in every copy (``MultiHopEnv._move``), in place: every robot
+    moves ``step`` toward its waypoint, arriving exactly where it is closer than that. ``arrived`` (M, n) says who
+    arrived, and the return value how many; the caller draws their next waypoints from each copy's generator
+    (nothing here draws). The env's float operations in its order (``linalg.norm`` of two components is the square
+    root of ``dx·dx + dy·dy``)."""
+    n_copies, n, _ = pos.shape
+    arrivals = 0
+    for c in range(n_copies):
+        for r in range(n):
+            dx, dy = waypoint[c, r, 0] - pos[c, r, 0], waypoint[c, r, 1] - pos[c, r, 1]
+            dist = np.sqrt(dx * dx + dy * dy)
+            arrived[c, r] = dist <= step
+            if arrived[c, r]:
+                pos[c, r, 0], pos[c, r, 1] = waypoint[c, r, 0], waypoint[c, r, 1]
+                arrivals += 1
+            else:
+                scale = step / max(dist, 1e-12)
+                pos[c, r, 0] += dx * scale
+                pos[c, r, 1] += dy * scale
+    return arrivals
+
+
+@numba.njit(cache=True)
+def _next_level(rows, frontier, size, seen, level, found):
+    """One level of a breadth-first search over links as 64-bit words: the robots linked to any of the ``size``
+    robots of ``frontier`` and not yet ``seen`` (a bit set, updated) into ``found``; returns how many."""
+    one = np.uint64(1)
+    level[:] = 0
+    for f in range(size):
+        u = frontier[f]
+        for w in range(level.size):
+            level[w] |= rows[u, w]
+    count = 0
+    for w in range(level.size):
+        new = level[w] & ~seen[w]
+        seen[w] |= new
+        while new:
+            low = new & (~new + one)  # the lowest set bit
+            bit = 0
+            while (low >> np.uint64(bit)) != one:
+                bit += 1
+            found[count] = (w << 6) + bit
+            count += 1
+            new ^= low
+    return count
+
+
+@numba.njit(cache=True)
+def hop_buckets(adj, hop_flat, hop_bounds):
+    """Each copy's pairs by hop distance over its links ``adj`` (M, n, n) bool, as ``MultiHopEnv._hops`` buckets them
+    (1, 2, 3, and 4 or more or never reached; not a robot with itself): the flat pair indices of bucket after bucket,
+    each bucket in ascending order, into ``hop_flat`` (M, n(n − 1)) with bounds ``hop_bounds`` (M, 5). A
+    breadth-first search from every robot over the links as 64-bit words (a level is the union of its robots' rows,
+    n/64 words each: n³/64 word operations for a copy whose robots all hear each other, where one robot at a time cost
+    n³): hop counts are integers, so they are ``scipy``'s shortest paths exactly
+    (``tests/multihop/test_multihop_world.py`` compares the buckets with scipy's)."""
+    n_copies, n, _ = adj.shape
+    words = (n + 63) // 64
+    rows = np.zeros((n, words), dtype=np.uint64)
+    seen = np.empty(words, dtype=np.uint64)
+    level = np.empty(words, dtype=np.uint64)
+    frontier = np.empty(n, dtype=np.int64)
+    found = np.empty(n, dtype=np.int64)
+    bucket = np.empty(n * n, dtype=np.int8)
+    one = np.uint64(1)
+    for c in range(n_copies):
+        rows[:] = 0
+        for u in range(n):
+            for v in range(n):
+                if adj[c, u, v]:
+                    rows[u, v >> 6] |= one << np.uint64(v & 63)
+        for i in range(n):
+            bucket[i * n : (i + 1) * n] = 3  # 4 or more hops, or never reached
+            bucket[i * n + i] = -1
+            seen[:] = 0
+            seen[i >> 6] |= one << np.uint64(i & 63)
+            frontier[0] = i
+            size = 1
+            for hops in range(1, 4):  # levels 1–3 are buckets of their own; the rest is bucket 3 already
+                size = _next_level(rows, frontier, size, seen, level, found)
+                for f in range(size):
+                    bucket[i * n + found[f]] = hops - 1
+                    frontier[f] = found[f]
+        e = 0
+        hop_bounds[c, 0] = 0
+        for k in range(4):
+            for f in range(n * n):
+                if bucket[f] == k:
+                    hop_flat[c, e] = f
+                    e += 1
+            hop_bounds[c, k + 1] = e
 
 
 def neighbour_lists(adjacency: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -308,3 +308,24 @@ def neighbourhood_staleness(weighted_ages: np.ndarray, weights: np.ndarray, adj:
     own = weighted_ages.sum(axis=1) / np.maximum(weights.sum(axis=1), 1e-300)
     deg = adj.sum(axis=1)
     return np.where(deg > 0, (adj @ own) / np.maximum(deg, 1), own)
+
+
+def reward_weights(pos: np.ndarray, alpha: float) -> tuple[np.ndarray, float | np.ndarray]:
+    """Eq. (1)'s weights of the reward at positions ``pos`` (n, 2): ``d_ij^-α`` divided by the largest one (the reward
+    is a weighted mean, so the scale cancels), 0 on the diagonal, and their sum. Log form: raw ``d^-α`` underflowed
+    to 0 for every pair at α = 300 (a reward of −0.0) and overflowed to inf at α = 200 in a 1 m arena (NaN).
+
+    With a leading copy axis (``pos`` (M, n, 2)) every copy's weights (M, n, n) and sums (M,) at once, each copy's
+    the numbers it has alone: elementwise float64 operations, an exact minimum, and numpy's row sums of a C-ordered
+    (M, n²) array (each row summed as numpy sums it alone)."""
+    n = pos.shape[-2]
+    eye = np.eye(n, dtype=bool)
+    d = np.linalg.norm(pos[..., :, None, :] - pos[..., None, :, :], axis=-1)
+    log_d = np.log(np.maximum(d, MIN_DIST))
+    # n ≥ 2 in every scene, so every copy has a nearest pair
+    nearest = log_d[..., ~eye].min(axis=-1)[..., None, None]
+    # ≤ 1 off the diagonal, = 1 for the nearest pair (the diagonal, clipped to 1 here, is zeroed below)
+    w = np.exp(-alpha * np.maximum(log_d - nearest, 0.0))
+    w[..., eye] = 0.0
+    total = w.reshape(*w.shape[:-2], n * n).sum(axis=-1)  # ≥ 1: the nearest pair weighs 1
+    return w, (float(total) if pos.ndim == 2 else total)

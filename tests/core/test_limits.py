@@ -162,7 +162,7 @@ def test_multihop_coverage_reward_at_steep_importance_is_the_nearest_pairs_age()
     mean of ages is then the mean age of the nearest pair's two estimates, up to the other pairs' weights."""
     alpha = 300.0
     env, rewards = _run("MultiHop-v0", 3, scene="coverage", alpha=alpha)
-    pos, ages, n = env.pos, env._ages, env.n_agents
+    pos, ages, n = env.pos, env.ages(), env.n_agents
     d = np.linalg.norm(pos[:, None] - pos[None], axis=-1)
     d[np.eye(n, dtype=bool)] = np.inf
     i, j = np.unravel_index(np.argmin(d), d.shape)

@@ -483,7 +483,9 @@ def _use_frame_backend(monkeypatch, compiled: bool) -> None:
         ({"grid_side": 4, "slot_size": 1, "max_cycles": 12}, "random"),  # no hop
         ({"scene": "field", "n_robots": 15, "speed": 0.0, "max_cycles": 15}, "age_aware"),  # static disk links
         ({"grid_side": 4, "layout": "absolute", "reward_mode": "neighbourhood", "max_cycles": 15}, "random"),
-        ({"scene": "field", "n_robots": 8, "speed": 2.0, "max_cycles": 6}, "random"),  # moving: the reference on both
+        ({"scene": "field", "n_robots": 8, "speed": 2.0, "max_cycles": 6}, "random"),  # moving: each slot's links
+        ({"scene": "field", "n_robots": 12, "speed": 2.0, "comm_range": 35.0, "max_cycles": 30}, "location_based"),
+        ({"scene": "coverage", "max_cycles": 4}, "random"),  # the coverage controller flies between slots
     ],
 )
 def test_whole_episodes_are_identical_with_the_compiled_frame(monkeypatch, kwargs, policy):
@@ -497,7 +499,7 @@ def test_whole_episodes_are_identical_with_the_compiled_frame(monkeypatch, kwarg
         views = env.local_views()
         obs, infos = env.reset(seed=23)
         pol.reset(views, 23)
-        assert env._world_eligible == (compiled and not env._moving)  # the world of one copy, or the reference
+        assert env._world_eligible == compiled  # the world of one copy, or the reference
         trace = [(obs, infos)]
         while env.agents:
             obs, rewards, _, _, infos = env.step(pol.act(obs, views))

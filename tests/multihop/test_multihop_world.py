@@ -34,6 +34,19 @@ MULTIHOP_COPY_AXIS_CASES = [
     # mask_unheld: the masks in the infos (the world's from its observation, the reference's from the stamps)
     {"grid_side": 4, "slot_size": 4, "max_cycles": 20, "observe_heard": True, "mask_unheld": True},
     {"scene": "field", "n_robots": 9, "comm_range": 8.0, "arena_size": 60.0, "max_cycles": 12, "mask_unheld": True},
+    # robots that move (random waypoints): each slot's links where the robots are then, new waypoints drawn from each
+    # copy's generator; the documented configuration, the absolute layout, the neighbourhood reward with a bit cost,
+    # and robots fast enough in a small arena to reach a waypoint in most slots
+    {"scene": "field", "n_robots": 12, "speed": 2.0, "comm_range": 35.0, "max_cycles": 25},
+    {"scene": "field", "n_robots": 9, "speed": 5.0, "comm_range": 20.0, "max_cycles": 15, "layout": "absolute"},
+    {"scene": "field", "n_robots": 10, "speed": 3.0, "max_cycles": 15, "reward_mode": "neighbourhood", "lam": 0.3},
+    {"scene": "field", "n_robots": 8, "speed": 400.0, "arena_size": 10.0, "comm_range": 4.0, "max_cycles": 10},
+    {"scene": "field", "n_robots": 9, "speed": 2.0, "max_cycles": 12, "mask_unheld": True, "slot_size": 9},
+    # the coverage controller (the paper's flying robots, Fig. 3): each robot flies on what it holds, between slots;
+    # the default team, a slow channel (several Euler steps a slot), the absolute layout with each robot's reward
+    {"scene": "coverage", "max_cycles": 12},
+    {"scene": "coverage", "n_robots": 6, "baud": 300.0, "slot_size": 2, "max_cycles": 6, "lam": 0.4},
+    {"scene": "coverage", "n_robots": 7, "max_cycles": 8, "layout": "absolute", "reward_mode": "neighbourhood"},
 ]
 
 
@@ -50,7 +63,7 @@ class ReferenceMultiHop(MultiHopEnv):
 def test_a_multihop_copy_axis_world_gives_each_copy_the_single_env_episodes(kwargs):
     env_id = "mrcomm/MultiHop-v0"
     batch = mrcomm_env.make_batched(env_id, 3, **kwargs)
-    assert batch.world is not None  # compiled backend (extra "fast"), static scene
+    assert batch.world is not None  # compiled backend (extra "fast"), a grid or a field
     horizon = 2 * kwargs["max_cycles"] + 3
     singles = assert_copies_are_single_envs(batch, env_id, kwargs, horizon, lambda: ReferenceMultiHop(**kwargs))
     assert not singles[0]._world_eligible  # the reference, not the world of one copy
@@ -62,8 +75,13 @@ def test_a_multihop_copy_axis_world_gives_each_copy_the_single_env_episodes(kwar
         if kwargs.get("observe_heard"):
             assert as_bytes(copy.heard) == as_bytes(single.heard)
         assert as_bytes(copy.ages()) == as_bytes(single.ages())
+        moving = kwargs.get("speed", 0.0) > 0.0 or kwargs.get("scene") == "coverage"
+        if moving:  # where the robots are (and head, in the field), and the positions their estimates carry
+            for name in ("pos", "est", "adj") + (("waypoint",) if kwargs.get("scene") == "field" else ()):
+                assert as_bytes(getattr(copy, name)) == as_bytes(getattr(single, name)), name
         if kwargs.get("layout", "relative") == "relative":  # the candidates' ranking is the relative layout's
-            assert as_bytes(copy._ranked_known) == as_bytes(single._ranked_known)
+            if not moving:  # a static scene ranks again only when what is held changes
+                assert as_bytes(copy._ranked_known) == as_bytes(single._ranked_known)
             assert as_bytes(copy._candidates.astype(np.int64)) == as_bytes(single._candidates.astype(np.int64))
         mine, theirs = copy.metrics(), single.metrics()
         assert mine.keys() == theirs.keys()
@@ -72,9 +90,10 @@ def test_a_multihop_copy_axis_world_gives_each_copy_the_single_env_episodes(kwar
 
 @st.composite
 def _multihop_world_scenes(draw):
-    """MultiHop arguments its copy-axis world takes (a static grid or field, either layout, either reward, with or
-    without what each robot heard): grids with partial rows, fields with their own links, every slot size from no
-    hop to flooding, bit costs."""
+    """MultiHop arguments its copy-axis world takes (a grid, or a field static or moving, either layout, either
+    reward, with or without what each robot heard): grids with partial rows, fields with their own links, robots
+    from still to fast enough to reach a waypoint in most slots, every slot size from no hop to flooding, bit
+    costs."""
     common = {
         "alpha": draw(st.sampled_from([0.25, 1.0, 3.0])),
         "bits_per_estimate": draw(st.sampled_from([8, 192])),
@@ -99,6 +118,8 @@ def _multihop_world_scenes(draw):
             "comm_range": draw(st.sampled_from([5.0, 35.0, 200.0])),
             **common,
         }
+        if not kwargs.get("observe_heard"):  # what a robot heard is observed on static links only
+            kwargs["speed"] = draw(st.sampled_from([0.0, 0.5, 5.0, 300.0]))
     return {**kwargs, "slot_size": draw(st.integers(1, n))}
 
 
@@ -147,6 +168,33 @@ def test_the_multihop_world_sums_as_numpy_sums():
     for size in [*range(0, 300), 8191, 8192, 8193, 9900, 65536, 1023 * 1024]:
         values = rng.random(size + 5) * 10.0 ** rng.uniform(-3, 6, size + 5)
         assert numpy_sum(values, 3, size) == values[3 : 3 + size].sum(), size
+
+
+@pytest.mark.parametrize(
+    ("n", "density"),
+    [(2, 1.0), (5, 0.3), (20, 0.1), (64, 0.05), (65, 0.05), (130, 0.02), (200, 0.5), (300, 1.0), (300, 0.004)],
+)
+def test_the_moving_world_buckets_pairs_by_hops_as_scipy_does(n, density):
+    """The hop buckets a moving world takes at every frame's end (``frame_numba.hop_buckets``, a breadth-first
+    search over 64-bit words) against scipy's shortest paths, bucketed as the env buckets them: chains, islands and
+    whole cliques, across the 64-robot word boundary."""
+    from scipy.sparse.csgraph import shortest_path
+
+    from mrcomm_env.multihop import frame_numba
+
+    rng = np.random.default_rng(n)
+    links = rng.random((3, n, n)) < density
+    links |= links.transpose(0, 2, 1)
+    links[:, np.arange(n), np.arange(n)] = False
+    flat, bounds = np.zeros((3, n * (n - 1)), dtype=np.int32), np.zeros((3, 5), dtype=np.int64)
+    frame_numba.hop_buckets(links, flat, bounds)
+    eye = np.eye(n, dtype=bool)
+    for copy in range(3):
+        hops = shortest_path(links[copy], unweighted=True, directed=False)
+        masks = [hops == 1, hops == 2, hops == 3, (hops >= 4) & ~eye]
+        want = [np.flatnonzero(mask.ravel()) for mask in masks]
+        assert bounds[copy].tolist() == np.cumsum([0] + [w.size for w in want]).tolist()
+        assert flat[copy, : bounds[copy, -1]].tolist() == np.concatenate(want).tolist()
 
 
 def test_the_multihop_world_refuses_what_the_env_refuses_and_steps_as_the_copies_in_turn():
