@@ -453,8 +453,7 @@ class MovingBatch(StaticFrameBatch):
             self.adj[c] = disk_links(pos[c], self.comm_range)
         self.weights[:], self.weight_sum[:] = proto.reward_weights(pos, self.alpha)
         frame_numba.hop_buckets(self.adj, self.hop_flat, self.hop_bounds)
-        delta = self.est - pos[:, :, None, :]  # MultiHopEnv.estimated_distances
-        self.dist[:] = np.sqrt(np.einsum("mijk,mijk->mij", delta, delta))
+        self.dist[:] = proto.estimated_distances(self.est, pos)
 
     def _find_receivers(self, k: int) -> None:
         """Slot ``k``'s receivers and its sender's position in every copy, where the robots are now."""
@@ -499,10 +498,7 @@ class MovingBatch(StaticFrameBatch):
 
     def _rank_candidates(self) -> None:
         """``MultiHopEnv._rank_candidates`` of robots that move: every frame, each robot's others by estimated
-        distance (held) or slot phase (not held), with the env's stable sort."""
-        n = self.n
+        distance (held) or slot phase (not held), with the env's stable sort (:func:`~.protocol.ranked_candidates`)."""
         known = self.stamps > proto.UNKNOWN
-        key = np.where(known, self.dist / self.diag, 2.0 + self.phase)
-        key[:, self.eye] = np.inf
-        self.candidates[:] = np.argsort(key, axis=-1, kind="stable")[..., : n - 1]
+        self.candidates[:] = proto.ranked_candidates(known, self.dist, self.diag, self.phase)
         self.ranked_known[:] = known

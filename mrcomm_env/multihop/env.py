@@ -296,10 +296,9 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         if self.heard is not None:
             arrays.update(heard=self.heard)
         if self._moving:
-            # where the robots are, where they head and what each holds of the others' positions; the hop buckets
-            # of the links now (a world of one copy keeps the links in its rows, not the buckets)
-            self._hops()
-            arrays.update(hop_masks=self._hop_masks, pos=self.pos, est=self.est)
+            # where the robots are, where they head and what each holds of the others' positions (the links, weights
+            # and hop buckets above a moving world computes again at every frame's end, from the positions then)
+            arrays.update(pos=self.pos, est=self.est)
             if self.cfg.scene == "field":
                 arrays.update(waypoint=self.waypoint)
         if self.cfg.layout == "relative":  # the absolute layout ranks no candidates
@@ -441,10 +440,8 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         return prio
 
     def _rank_candidates(self) -> None:
-        """Each robot's others, nearest estimated first; estimates it lacks last, by slot order after its own.
-
-        Agent-relative: nothing in the ranking depends on absolute robot indices (slot phases are distinct).
-        """
+        """Each robot's others, nearest estimated first; estimates it lacks last, by slot order after its own
+        (:func:`.protocol.ranked_candidates`)."""
         n = self.n_agents
         known = self.stamps > proto.UNKNOWN
         if not self._moving:
@@ -454,9 +451,7 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
                 return
             self._ranked_known = known
         self._dist = self.estimated_distances()  # reused by this frame's observation
-        key = np.where(known, self._dist / self.diag, 2.0 + self._phase)
-        key[self._eye] = np.inf
-        self._candidates = np.argsort(key, axis=1, kind="stable")[:, : n - 1]
+        self._candidates = proto.ranked_candidates(known, self._dist, self.diag, self._phase)
         #: flat (robot, candidate) indices into an (N·N,) array: one gather per feature block
         self._cand_flat = (self._candidates + np.arange(n)[:, None] * n).ravel()
 
@@ -530,8 +525,7 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
     # ----------------------------------------------------------------- views
     def estimated_distances(self) -> np.ndarray:
         """(n, n) distance from each robot's own position to its estimate of each other robot."""
-        delta = self.est - self.pos[:, None, :]
-        return np.sqrt(np.einsum("ijk,ijk->ij", delta, delta))
+        return proto.estimated_distances(self.est, self.pos)
 
     def _local_view(self) -> dict:
         return {

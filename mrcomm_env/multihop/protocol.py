@@ -329,3 +329,21 @@ def reward_weights(pos: np.ndarray, alpha: float) -> tuple[np.ndarray, float | n
     w[..., eye] = 0.0
     total = w.reshape(*w.shape[:-2], n * n).sum(axis=-1)  # ≥ 1: the nearest pair weighs 1
     return w, (float(total) if pos.ndim == 2 else total)
+
+
+def estimated_distances(est: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """(…, n, n) distance from each robot's own position ``pos`` (…, n, 2) to its estimate ``est`` (…, n, n, 2) of
+    each other robot, for one team or with a leading copy axis (two squares summed, the same in either)."""
+    delta = est - pos[..., :, None, :]
+    return np.sqrt(np.einsum("...ijk,...ijk->...ij", delta, delta))
+
+
+def ranked_candidates(known: np.ndarray, dist: np.ndarray, diag: float, phase: np.ndarray) -> np.ndarray:
+    """(…, n, n − 1) each robot's others, nearest estimated first (``dist`` over the arena's ``diag``, at most 1);
+    those whose estimate it lacks (``known`` False) last, by slot ``phase`` after its own (at least 2), with a stable
+    sort: for one team or with a leading copy axis. Agent-relative: nothing in the ranking depends on absolute robot
+    indices (slot phases are distinct)."""
+    n = known.shape[-1]
+    key = np.where(known, dist / diag, 2.0 + phase)
+    key[..., np.eye(n, dtype=bool)] = np.inf
+    return np.argsort(key, axis=-1, kind="stable")[..., : n - 1]
