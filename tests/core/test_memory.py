@@ -46,10 +46,10 @@ def test_estimate_within_a_factor_of_two_of_the_measured_peak(env_id, name, monk
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["field_768", "grid_32x32", "masked_32x32", "heard_16x16"])
+@pytest.mark.parametrize("name", ["field_768", "moving_768", "grid_32x32", "masked_32x32", "heard_16x16"])
 def test_a_multihop_env_stepping_as_a_world_of_one_copy_counts_it(name, monkeypatch):
-    """On the compiled backend a static MultiHop scene steps as the copy-axis world of one copy, which holds more
-    than the reference (numba's kernels, the world's rows): its estimate says so."""
+    """On the compiled backend a MultiHop scene, still or moving, steps as the copy-axis world of one copy, which
+    holds more than the reference (numba's kernels, the world's rows): its estimate says so."""
     _assert_estimate_near_the_peak(
         "mrcomm/MultiHop-v0", env_class("MultiHop-v0").MEMORY_PROBES[name], "auto", monkeypatch
     )
