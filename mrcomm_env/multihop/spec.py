@@ -10,7 +10,8 @@ from mrcomm_env.multihop import protocol as proto
 
 SUBGRAPHS = (2, 4, 6, 8)
 # Documented limits, measured on one core (``mrcomm_env/experiments/limits.py``, random actions): n = 1024
-# runs a grid or static field frame (1024 slots) in 0.3–0.5 s and a moving field frame in about 1 s, in 0.3–0.5 GB;
+# runs a flooding grid frame (1024 slots, `max_grid_flooding`) in 0.05–0.07 s and a moving field frame in about 1 s,
+# in 0.4–0.5 GB (`mrcomm bench MultiHop-v0 --limits`, 2026-12-07);
 # the coverage controller re-partitions the square for every robot at every slot, O(n³ · points) per frame:
 # n = 25 takes 0.8 s per frame, n = 50 2.5–5.5 s, n = 100 over a minute.
 MAX_COVERAGE_ROBOTS = 25
