@@ -13,7 +13,8 @@ SUBGRAPHS = (2, 4, 6, 8)
 # runs a flooding grid frame (1024 slots, `max_grid_flooding`) in 0.05–0.07 s and a moving field frame in about 1 s,
 # in 0.4–0.5 GB (`mrcomm bench MultiHop-v0 --limits`, 2026-12-07);
 # the coverage controller re-partitions the square for every robot at every slot, O(n³ · points) per frame:
-# n = 25 takes 0.8 s per frame, n = 50 2.5–5.5 s, n = 100 over a minute.
+# n = 25 takes 0.3 s per frame (`max_coverage`; 0.8 s when the cap was set), n = 50 took 2.5–5.5 s and n = 100 over
+# a minute.
 MAX_COVERAGE_ROBOTS = 25
 MAX_ALPHA = 1000.0
 MAX_SPEED = 1000.0  # m/s: faster than any robot; keeps speed × slot time finite for the slowest channel
