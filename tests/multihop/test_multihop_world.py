@@ -63,7 +63,7 @@ class ReferenceMultiHop(MultiHopEnv):
 def test_a_multihop_copy_axis_world_gives_each_copy_the_single_env_episodes(kwargs):
     env_id = "mrcomm/MultiHop-v0"
     batch = mrcomm_env.make_batched(env_id, 3, **kwargs)
-    assert batch.world is not None  # compiled backend (extra "fast"), a grid or a field
+    assert batch.world is not None  # compiled backend (extra "fast"): every scene
     horizon = 2 * kwargs["max_cycles"] + 3
     singles = assert_copies_are_single_envs(batch, env_id, kwargs, horizon, lambda: ReferenceMultiHop(**kwargs))
     assert not singles[0]._world_eligible  # the reference, not the world of one copy
