@@ -119,9 +119,10 @@ benchmark-page: .venv-benchmarl/.installed
 docs: $(STAMP)
 	$(BIN)/mrcomm docs
 
-# learned policies against every baseline at equal bits: trains 5 seeds per cost value and env, every run from random
-# weights (about 4.5 hours on two cores: MultiHop 165 minutes for its 5 MAPPO runs, RendezvousMapping 53 for its 15
-# runs, ChannelAssociation 22, AsyncCL 13, MapSync 12), then
+# learned policies against every baseline at equal bits: trains 5 seeds per cost value and env, from random weights or,
+# where the section names `init_from` (MultiHop, RendezvousMapping), from a clone of that rule (about 4 hours on two
+# cores: MultiHop 165 minutes for its 5 MAPPO runs, RendezvousMapping 31 for its 15 runs, ChannelAssociation 22,
+# AsyncCL 13, MapSync 12), then
 # regenerates docs/learning.md with its curves (add --export-pretrained to ship the best runs); reruns skip the
 # runs already done
 learn: $(STAMP)
