@@ -36,7 +36,9 @@ each run, and the two references (``random`` and the paper's algorithm, the env'
 episodes seeded 100,000, 100,001, … (``HELDOUT_SEED``) that no run trained on: the return as BenchMARL counts it
 (the robots' mean reward, summed over the episode), the paper's metric (the learned-against-scripted comparison's,
 ``agents/configs``) and the bits sent per robot. The normalised score is ``(return − random's) / (paper's −
-random's)``: 0 is ``random``, 1 the paper's algorithm.
+random's)``: 0 is ``random``, 1 the paper's algorithm. When an env changes revision (its ``VERSION_HISTORY``, so
+its episodes may differ), its references are played again and the earlier revision's are kept: a run is normalised
+against the references of the revision it ran at (its record's ``env_revision``).
 
 **The page.** rliable's interquartile mean of the normalised final scores across tasks and seeds, with stratified-
 bootstrap 95 % intervals, its performance profile, the sample-efficiency curves from BenchMARL's evaluations, the
@@ -407,23 +409,33 @@ def run_one(
 
 def ensure_references(out: Path, tasks: Sequence[str], episodes: int) -> dict:
     """``references.json``: ``random`` and the paper's algorithm on each task's held-out episodes, computed for the
-    tasks that lack them (one process at a time)."""
+    tasks that lack them or whose env has changed revision since (one process at a time).
+
+    A task's record is its env's current revision; the records of earlier revisions stay under ``"earlier"``
+    (revision → record), since runs recorded at a revision are scored against that revision's references
+    (:func:`reference_of`). A record written before records named their revision is taken as it is."""
     lock = RunLock(out / "references.lock")
     lock.acquire(wait=True)
     try:
         path = out / REFERENCES
         references = json.loads(path.read_text()) if path.exists() else {}
         for task in tasks:
-            if task in references and references[task]["episodes"] == episodes:
-                continue
             env_id = ENV_ID_OF_TASK[task]
+            revision = env_revision(env_id)
+            old = references.get(task)
+            if old is not None and old["episodes"] == episodes and old.get("env_revision") in (None, revision):
+                continue
+            earlier = dict(old.get("earlier", {})) if old is not None else {}
+            if old is not None and old.get("env_revision") not in (None, revision):
+                earlier[old["env_revision"]] = {key: value for key, value in old.items() if key != "earlier"}
             references[task] = {
                 "episodes": episodes,
                 "heldout_seed": HELDOUT_SEED,
-                "env_revision": env_revision(env_id),
+                "env_revision": revision,
                 **paper_spec(env_id),
                 "paper_policy": default_policy(env_id),
                 "policies": reference_results(task, episodes),
+                **({"earlier": earlier} if earlier else {}),
             }
             atomic_write_json(path, references, indent=1)
         return references
@@ -555,10 +567,29 @@ def normalised(value: float | np.ndarray, random_return: float, paper_return: fl
     return (np.asarray(value, dtype=float) - random_return) / (paper_return - random_return)
 
 
-def reference_returns(references: dict, task: str) -> tuple[float, float]:
-    policies = references[task]["policies"]
-    paper = policies[references[task]["paper_policy"]]
+def reference_of(references: dict, task: str, revision: str | None = None) -> dict:
+    """``task``'s references at its env's ``revision``: the current record, or the one of an earlier revision that
+    ``ensure_references`` kept. A run recorded without a revision, or at one with no record, gets the current one
+    (the page names such runs, ``_revision_note``)."""
+    current = references[task]
+    if revision is None or current.get("env_revision") in (None, revision):
+        return current
+    return current.get("earlier", {}).get(revision, current)
+
+
+def reference_returns(references: dict, task: str, revision: str | None = None) -> tuple[float, float]:
+    """The mean held-out returns of ``random`` and of the paper's algorithm on ``task`` at ``revision``."""
+    reference = reference_of(references, task, revision)
+    policies = reference["policies"]
+    paper = policies[reference["paper_policy"]]
     return float(np.mean(policies["random"]["return"])), float(np.mean(paper["return"]))
+
+
+def run_score(record: dict, references: dict, values=None):
+    """A run's held-out mean return (or ``values``), normalised by the references of the revision it ran at."""
+    random_return, paper_return = reference_returns(references, record["task"], record.get("env_revision"))
+    value = np.mean(record["heldout"]["return"]) if values is None else values
+    return normalised(value, random_return, paper_return)
 
 
 def curve(record: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -581,8 +612,7 @@ def score_matrices(records: list[dict], references: dict) -> tuple[dict[str, np.
     than cutting every task down to its seeds, which reduced IQL to one run a task and a zero-width interval."""
     by_algorithm: dict[str, dict[str, dict[int, float]]] = {}
     for record in records:
-        random_return, paper_return = reference_returns(references, record["task"])
-        score = float(normalised(np.mean(record["heldout"]["return"]), random_return, paper_return))
+        score = float(run_score(record, references))
         by_algorithm.setdefault(record["algorithm"], {}).setdefault(record["task"], {})[record["seed"]] = score
     matrices, tasks_of = {}, {}
     for algorithm, per_task in by_algorithm.items():
@@ -716,7 +746,6 @@ def _task_tables(records: list[dict], references: dict) -> list[str]:
     tasks, algorithms = _tasks_and_algorithms(records)
     for task in tasks:
         ref = references[task]
-        random_return, paper_return = reference_returns(references, task)
         arrow = "lower is better" if ref.get("lower_is_better") else "higher is better"
         config = next(r for r in records if r["task"] == task)["env_config"]
         lines += [
@@ -727,20 +756,29 @@ def _task_tables(records: list[dict], references: dict) -> list[str]:
             f"| policy | seeds | return | normalised | `{ref['metric']}` | bits per robot | frames | wall time per run |",
             "| --- | --- | --- | --- | --- | --- | --- | --- |",
         ]
-        for name in ("random", ref["paper_policy"]):
-            values = ref["policies"][name]
-            label = f"`{name}`" + (" (paper)" if name == ref["paper_policy"] else "")
-            score = float(normalised(np.mean(values["return"]), random_return, paper_return))
-            lines.append(
-                f"| {label} | – | {_fmt(values['return'])} | {score:.3g} | {_fmt(values['metric'])}"
-                f" | {_fmt(values['bits'])} | – | – |"
-            )
+        # the scripted rows of the current revision, then of each earlier one that some run was recorded at
+        shown = [ref] + [
+            ref["earlier"][revision]
+            for revision in sorted({r.get("env_revision") for r in records if r["task"] == task} - {None})
+            if revision in ref.get("earlier", {})
+        ]
+        for reference in shown:
+            for name in ("random", reference["paper_policy"]):
+                values = reference["policies"][name]
+                notes = ["paper"] if name == reference["paper_policy"] else []
+                notes += [] if reference is ref else [reference["env_revision"]]
+                label = f"`{name}`" + (f" ({', '.join(notes)})" if notes else "")
+                score = float(normalised(np.mean(values["return"]), *reference_returns({task: reference}, task)))
+                lines.append(
+                    f"| {label} | – | {_fmt(values['return'])} | {score:.3g} | {_fmt(values['metric'])}"
+                    f" | {_fmt(values['bits'])} | – | – |"
+                )
         for algorithm in algorithms:
             runs = [r for r in records if r["task"] == task and r["algorithm"] == algorithm]
             if not runs:
                 continue
             returns = [float(np.mean(r["heldout"]["return"])) for r in runs]
-            scores = [float(normalised(v, random_return, paper_return)) for v in returns]
+            scores = [float(run_score(r, references)) for r in runs]
             lines.append(
                 f"| {algorithm.upper()} (BenchMARL) | {len(runs)} | {_fmt(returns)} | {_fmt(scores, 3)}"
                 f" | {_fmt([float(np.mean(r['heldout']['metric'])) for r in runs])}"
@@ -774,11 +812,17 @@ def _revision_note(task: str, runs: list[dict], reference: dict) -> list[str]:
     if not earlier:
         return []
     parts = "; ".join(f"{', '.join(names)} at {revision}" for revision, names in sorted(earlier.items()))
-    return [
-        "",
+    note = (
         f"Recorded before {env_id}'s {current} (CHANGELOG): {parts}. Where the revisions' episodes differ, these rows"
-        " played other episodes than a run at the current revision would.",
-    ]
+        " played other episodes than a run at the current revision would."
+    )
+    kept = sorted(set(earlier) & set(reference.get("earlier", {})))
+    if kept:
+        note += (
+            f" Their scripted rows at {', '.join(kept)} are kept (labelled with it above), and a run recorded there is"
+            " normalised against them: `random` and the paper's algorithm on that revision's episodes."
+        )
+    return ["", note]
 
 
 def _aggregate_section(records: list[dict], references: dict, out: Path, figures_link: Path) -> list[str]:
@@ -839,7 +883,6 @@ def _curves_section(records: list[dict], references: dict, out: Path, figures_li
     tasks, algorithms = _tasks_and_algorithms(records)
     fig, axes = plt.subplots(1, len(tasks), figsize=(3.2 * len(tasks), 3.0), squeeze=False)
     for ax, task in zip(axes[0], tasks):
-        random_return, paper_return = reference_returns(references, task)
         for algorithm in algorithms:
             runs = [r for r in records if r["task"] == task and r["algorithm"] == algorithm]
             if not runs:
@@ -847,7 +890,7 @@ def _curves_section(records: list[dict], references: dict, out: Path, figures_li
             curves = [curve(r) for r in runs]
             length = min(len(c[0]) for c in curves)
             frames = curves[0][0][:length]
-            scores = np.array([normalised(c[1][:length], random_return, paper_return) for c in curves])
+            scores = np.array([run_score(r, references, c[1][:length]) for r, c in zip(runs, curves, strict=True)])
             ax.plot(frames, scores.mean(0), label=algorithm.upper())
             ax.fill_between(frames, scores.min(0), scores.max(0), alpha=0.2)
         ax.axhline(1.0, color="grey", lw=0.8, ls="--")

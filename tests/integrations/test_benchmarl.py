@@ -256,6 +256,61 @@ def test_the_page_names_runs_recorded_at_an_earlier_revision_of_their_env():
     assert "IPPO" not in note and "IQL" not in note
 
 
+def test_references_of_an_earlier_revision_are_kept_and_score_the_runs_recorded_there(tmp_path, monkeypatch):
+    """A task whose env changed revision gets its references computed again; the old ones stay under ``earlier``,
+    and a run is normalised against the references of the revision it ran at (the current ones when it names none
+    or one with no record). Its task table shows the kept revision's scripted rows, labelled with it."""
+    paper = benchmarl_reference.default_policy("mrcomm/MapSync-v0")
+    computed: list[str] = []
+
+    def results(task, episodes):  # each computation gives other returns: 1 and 3, then 2 and 4, ...
+        computed.append(task)
+        offset = float(len(computed))
+        return {
+            name: {"return": [base + offset], "metric": [0.0], "bits": [0.0]}
+            for name, base in (("random", 0.0), (paper, 2.0))
+        }
+
+    monkeypatch.setattr(benchmarl_reference, "reference_results", results)
+    monkeypatch.setattr(benchmarl_reference, "env_revision", lambda env_id: "v0 rev 0")
+    out = tmp_path / "benchmark"
+    benchmarl_reference.ensure_references(out, ["MAPSYNC"], 2)
+    benchmarl_reference.ensure_references(out, ["MAPSYNC"], 2)
+    assert computed == ["MAPSYNC"]  # same revision, same episodes: kept
+    monkeypatch.setattr(benchmarl_reference, "env_revision", lambda env_id: "v0 rev 1")
+    references = benchmarl_reference.ensure_references(out, ["MAPSYNC"], 2)
+    assert computed == ["MAPSYNC"] * 2
+    assert references == json.loads((out / benchmarl_reference.REFERENCES).read_text())
+    assert references["MAPSYNC"]["env_revision"] == "v0 rev 1"
+    assert references["MAPSYNC"]["earlier"]["v0 rev 0"]["policies"]["random"]["return"] == [1.0]
+
+    def run(revision):
+        record = {"task": "MAPSYNC", "algorithm": "ippo", "seed": 0, "heldout": {"return": [3.0]}}
+        return record if revision is None else {**record, "env_revision": revision}
+
+    assert float(benchmarl_reference.run_score(run("v0 rev 0"), references)) == 1.0  # (3 - 1) / (3 - 1)
+    assert float(benchmarl_reference.run_score(run("v0 rev 1"), references)) == 0.5  # (3 - 2) / (4 - 2)
+    assert float(benchmarl_reference.run_score(run(None), references)) == 0.5
+    assert float(benchmarl_reference.run_score(run("v0 rev 9"), references)) == 0.5
+
+    records = [
+        {**run(revision), "seed": seed, "env_config": {}, "frames": 10, "wall_seconds": 60.0}
+        for seed, revision in enumerate(("v0 rev 0", "v0 rev 1"))
+    ]
+    for record in records:
+        record["heldout"].update(metric=[0.0], bits=[0.0])
+    text = "\n".join(benchmarl_reference._task_tables(records, references))
+    assert "| `random` (v0 rev 0) | – | 1 |" in text and f"| `{paper}` (paper, v0 rev 0) | – | 3 |" in text
+    assert "| `random` | – | 2 |" in text and f"| `{paper}` (paper) | – | 4 |" in text
+    assert "| IPPO (BenchMARL) | 2 |" in text and "| 0.75" in text  # seeds 1.0 and 0.5
+    assert "Their scripted rows at v0 rev 0 are kept" in text
+
+    monkeypatch.setattr(benchmarl_reference, "env_revision", lambda env_id: "v0 rev 2")
+    references = benchmarl_reference.ensure_references(out, ["MAPSYNC"], 2)
+    assert set(references["MAPSYNC"]["earlier"]) == {"v0 rev 0", "v0 rev 1"}
+    assert "earlier" not in references["MAPSYNC"]["earlier"]["v0 rev 1"]
+
+
 def test_an_on_policy_run_killed_midway_goes_on_from_its_newest_checkpoint(tmp_path):
     """``kill -9`` once the third of eight batches is checkpointed: the next attempt goes on from a checkpoint, and
     the run's record and marl-eval JSON hold all eight iterations and evaluations, each once. The kill waits for the
