@@ -759,7 +759,7 @@ def _task_tables(records: list[dict], references: dict) -> list[str]:
         # the scripted rows of the current revision, then of each earlier one that some run was recorded at
         shown = [ref] + [
             ref["earlier"][revision]
-            for revision in sorted({r.get("env_revision") for r in records if r["task"] == task} - {None})
+            for revision in sorted({r["env_revision"] for r in records if r["task"] == task and r.get("env_revision")})
             if revision in ref.get("earlier", {})
         ]
         for reference in shown:
