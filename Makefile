@@ -13,7 +13,7 @@ export OMP_NUM_THREADS := 1
 export MKL_NUM_THREADS := 1
 export MPLBACKEND := Agg
 
-EXTRAS := train,dev,bench,fast
+EXTRAS := train,dev,bench
 
 .PHONY: demo test fuzz docs-site docs-serve test-wheel install bench bench-benchmarl benchmark benchmark-page docs learn sweep lint format lock clean test-torchrl test-rllib test-benchmarl \
 	test-ray

@@ -34,6 +34,7 @@ from functools import cache
 import numpy as np
 from numpy.linalg import _umath_linalg
 
+from mrcomm_env.asynccl import ekf_numba
 from mrcomm_env.core.backend import name as backend_name
 
 TWO_PI = 2.0 * np.pi
@@ -222,10 +223,7 @@ def backend(name: str | None = None) -> types.SimpleNamespace:
     """The EKF kernels (``propagate``, ``information``, ``inv``, ``update``, ``column``): the numba twins of ``ekf_numba.py``
     when ``core.backend`` says compiled code runs (or ``name="numba"``), this module's otherwise."""
     name = name or backend_name()
-    if name == "numba":
-        from mrcomm_env.asynccl import ekf_numba as module
-    else:
-        module = sys.modules[__name__]
+    module = ekf_numba if name == "numba" else sys.modules[__name__]
     return types.SimpleNamespace(
         name=name,
         propagate=module.propagate,

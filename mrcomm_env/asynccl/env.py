@@ -58,7 +58,7 @@ step: header first, then packets oldest step first. ``q_rule`` selects the readi
 time steps" (only the Table I discussion uses the variants). ``max_history`` bounds memory: a robot
 that never completed a step which leaves memory abandons it and restarts from its causal estimate.
 
-**Speed**: with numba installed (``mrcomm-env[fast]``), the EKF column steps and the table exchange run
+**Speed**: the EKF column steps and the table exchange run
 compiled twins of their numpy code (``core.backend``; ``MRCOMM_BACKEND=numpy`` forces numpy). Tables,
 bits and delays are identical on both. Estimates differ by rounding (LU versus Cholesky inverses), within
 β·‖x‖ where β = 2·3·(3N + 2m)·ε·Σ_k κ_k adds up the condition numbers κ_k of the matrices each column step
@@ -82,7 +82,7 @@ import numpy as np
 from gymnasium import spaces
 from numpy.linalg import _umath_linalg
 
-from mrcomm_env.asynccl import mrclam
+from mrcomm_env.asynccl import env_numba, mrclam
 from mrcomm_env.asynccl.estimator import Estimators
 from mrcomm_env.asynccl.spec import (  # noqa: F401 — the limits are part of this module's API
     _SCHEME2_Q,
@@ -115,13 +115,6 @@ OTHER_FEATURES, OWN_FEATURES = 3, 5  # per other robot: linked, row lag, what it
 KBIT = 1000.0
 EPS = float(np.finfo(np.float64).eps)  # a condition number beyond 1/ε means a numerically singular covariance
 _sum = np.add.reduce  # = ndarray.sum without its two Python frames per call (tiny arrays: half the cost)
-
-
-def _kernels():
-    """The compiled observation and errors (``env_numba``), imported on first use: numba is optional."""
-    from mrcomm_env.asynccl import env_numba
-
-    return env_numba
 
 
 def mode_code(name: str) -> int:
@@ -292,7 +285,7 @@ class AsyncCLEnv(AsyncCLSpec, MrcommParallelEnv):
     def _errors(self) -> None:
         n = self.n_agents
         if backend.compiled():  # the same sums in the same order, in one call (env_numba.errors)
-            self._err_pos, self._err_ori, mean_pos, mean_ori = _kernels().errors(self.est.X, self.world.x)
+            self._err_pos, self._err_ori, mean_pos, mean_ori = env_numba.errors(self.est.X, self.world.x)
             self._mean_pos = mean_pos
             self._sum_pos += mean_pos
             self._sum_ori += mean_ori
@@ -329,7 +322,7 @@ class AsyncCLEnv(AsyncCLSpec, MrcommParallelEnv):
         k = OTHER_FEATURES * (n - 1)
         out = np.empty((n, k + OWN_FEATURES), dtype=np.float32)
         if backend.compiled():  # every column but the trace's log scale in one call (env_numba.observe)
-            kernels = _kernels()
+            kernels = env_numba
             clock = min(t / self.cfg["max_cycles"], 1.0)
             kernels.observe(
                 out, self.adj, tab.latest, tab.known, tab.c, t, clock, self.neighbours, self._ema, AGE_SCALE, BITS_SCALE

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from mrcomm_env.asynccl.table_numba import exchange_dense
 from mrcomm_env.asynccl.world import HEADER_BITS, LIST_ENTRY_BITS
 from mrcomm_env.core import backend
 
@@ -145,8 +146,6 @@ class InfoTables:
 
     def _exchange_dense_compiled(self, modes, adj, delivered):
         """``_exchange_dense`` through its numba twin (``table_numba.py``)."""
-        from mrcomm_env.asynccl.table_numba import exchange_dense
-
         bits, links, latest, known, c, disc, self.delay_sum, added, any_link = exchange_dense(
             np.asarray(modes, dtype=np.int64),
             adj,

@@ -1,12 +1,10 @@
-"""Which implementation of an env's hot loops runs: compiled (numba) or numpy.
+"""Which implementation of an env's hot loops runs: compiled (numba, the default) or numpy.
 
-Some envs keep a numba twin of their innermost kernels (AsyncCL's EKF column steps and table
-exchange). The numpy code is the reference; the twin computes the same thing with far fewer
-interpreter round trips, and tests check that both agree. numba is optional
-(``pip install mrcomm-env[fast]``): without it everything runs on numpy.
-
-``MRCOMM_BACKEND=numpy`` forces the reference even when numba is installed, ``MRCOMM_BACKEND=numba``
-requires numba. The choice is made once per process.
+numba is a required dependency. Every env's hot loops are compiled kernels; MultiHop's frame exists only compiled
+(its copy-axis world; the slot-by-slot numpy frame it is checked against lives under ``tests/helpers``). AsyncCL,
+ChannelAssociation, MapSync and RendezvousMapping still keep their numpy references in the package beside their
+kernels: ``MRCOMM_BACKEND=numpy`` runs those (the tests compare both), ``auto`` or ``numba`` the kernels. The choice
+is made once per process.
 
 Compiled kernels are cached on disk (``cache=True``) so that only the first process compiles them. numba's
 own default writes the cache beside the source, into the installed package: that fails on a read-only
@@ -20,6 +18,7 @@ import os
 from functools import cache
 from pathlib import Path
 
+import numba
 import numpy as np
 
 VARIABLE = "MRCOMM_BACKEND"
@@ -28,26 +27,16 @@ CHOICES = ("auto", "numba", "numpy")
 
 @cache
 def compiled() -> bool:
-    """True when the numba twins run (numba importable and ``MRCOMM_BACKEND`` is not ``numpy``)."""
+    """True unless ``MRCOMM_BACKEND=numpy`` asks for the numpy references (of the envs that still keep them)."""
     choice = os.environ.get(VARIABLE, "auto") or "auto"
     if choice not in CHOICES:
         raise ValueError(f"environment variable {VARIABLE} must be one of {CHOICES}, got {choice!r}")
-    if choice == "numpy":
-        return False
-    try:
-        import numba  # noqa: F401
-    except ImportError:
-        if choice == "numba":
-            raise ValueError(f"{VARIABLE}=numba needs numba: pip install mrcomm-env[fast]") from None
-        return False
     configure_numba_cache()
-    return True
+    return choice != "numpy"
 
 
 def configure_numba_cache() -> None:
     """Point numba's on-disk cache at ``NUMBA_CACHE_DIR`` or the user cache folder; call before ``@njit``."""
-    import numba
-
     numba.config.CACHE_DIR = os.environ.get("NUMBA_CACHE_DIR") or str(user_cache_dir())
 
 

@@ -47,11 +47,11 @@ from gymnasium import spaces
 
 from mrcomm_env.core import BitLedger, MrcommParallelEnv, backend
 from mrcomm_env.core import render as rendering
-from mrcomm_env.mapsync import world
+from mrcomm_env.mapsync import kernels_numba, world
 from mrcomm_env.mapsync.actions import ACTIONS, BISECTION, EQUALITY, FULL, IDLE, SKETCH  # noqa: F401 (the module API)
+from mrcomm_env.mapsync.copy_axis import UnlimitedLinkBatch
 from mrcomm_env.mapsync.dynamics import WorldDynamics
 from mrcomm_env.mapsync.philox import SharedStrings
-from mrcomm_env.mapsync.protocol import compiled_kernels
 from mrcomm_env.mapsync.sessions import (  # noqa: F401 — the action and test codes are part of this module's API
     _STALE_ALL,
     _STALE_KNOWN,
@@ -86,8 +86,6 @@ class MapSyncEnv(MapSyncSpec, WorldDynamics, SyncSessions, MrcommParallelEnv):
             return None
         if not backend.compiled():
             return None
-        from mrcomm_env.mapsync.copy_axis import UnlimitedLinkBatch  # numba is optional
-
         return UnlimitedLinkBatch
 
     # ----------------------------------------------------------------- setup
@@ -234,10 +232,10 @@ class MapSyncEnv(MapSyncSpec, WorldDynamics, SyncSessions, MrcommParallelEnv):
         self._dirty = True
         # the compiled twin of the walk and the sensing, or the numpy reference (docs/architecture.md)
         compiled = backend.compiled()
-        self._walk_and_sense = compiled_kernels().walk_and_sense if compiled else None
-        self._observe_compiled = compiled_kernels().observe if compiled else None
-        self._change_world_compiled = compiled_kernels().change_world if compiled else None
-        self._disagreement_compiled = compiled_kernels().disagreement if compiled else None
+        self._walk_and_sense = kernels_numba.walk_and_sense if compiled else None
+        self._observe_compiled = kernels_numba.observe if compiled else None
+        self._change_world_compiled = kernels_numba.change_world if compiled else None
+        self._disagreement_compiled = kernels_numba.disagreement if compiled else None
         self._no_progress = np.zeros(N)
         self._move_and_sense(0, walk=False)
         self._update_disagreement()

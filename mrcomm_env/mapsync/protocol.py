@@ -37,11 +37,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 
-from mrcomm_env.core import backend
-from mrcomm_env.mapsync import pinsketch, theory
+from mrcomm_env.core import backend, pcg64_numba
+from mrcomm_env.mapsync import kernels_numba, pinsketch, theory
 from mrcomm_env.mapsync.philox import DOMAIN_DATABASE, DOMAIN_PARITY, SharedStrings, seed_key, stream_words
 
 PROTOCOLS = ("equality", "bisection", "full", "sketch")
@@ -49,13 +50,6 @@ STEP4_RULES = ("fixed", "as_printed")
 
 #: parity bits a sketch candidate is verified against below n = 1024 (a wrong candidate passes w.p. 2^−v)
 SKETCH_VERIFY_SMALL = 8
-
-
-def compiled_kernels():
-    """The compiled twins (``kernels_numba``), imported on first use: numba is optional (``core.backend``)."""
-    from mrcomm_env.mapsync import kernels_numba
-
-    return kernels_numba
 
 
 def sketch_verify_bits(n: int) -> int:
@@ -99,7 +93,7 @@ _FROM_BIT = np.array([(0xFFFFFFFF << b) & 0xFFFFFFFF for b in range(32)], dtype=
 _TO_BIT = np.array([0xFFFFFFFF >> (31 - b) for b in range(32)], dtype=np.uint32)  # bits ≤ b
 
 
-def kernel_strings(strings) -> tuple:
+def kernel_strings(strings) -> tuple[np.ndarray, bool, Any, Any, int, int, int]:
     """The shared strings as the compiled kernels take them: (database, use_database, key0, key1, domain,
     words_per_string, last_mask); a 1×1 dummy database when r_i are generated on demand."""
     use_db = strings.database is not None
@@ -128,8 +122,6 @@ def segment_inner_products(
     hi = np.asarray(hi, dtype=np.int64)
     index = np.asarray(index, dtype=np.int64)
     if backend.compiled():
-        kernels_numba = compiled_kernels()
-
         out = kernels_numba.inner_products(
             np.stack(maps),
             *kernel_strings(strings),
@@ -206,8 +198,6 @@ def equality(
         return EqualityResult(True, 0, theory.protocol1_bits(n, k), 1)
     same_shape = np.shape(x) == np.shape(y) == (n,)  # the kernel indexes both maps without checks
     if step4 == "fixed" and same_shape and backend.compiled():  # protocol1_batch on the whole map in one call
-        kernels_numba = compiled_kernels()
-
         picks = _alice_picks(strings, 1, k, rng)[0]
         database, use_database, key0, key1, domain, words, last_mask = kernel_strings(strings)
         x_plain, y_plain = np.ascontiguousarray(x, dtype=bool), np.ascontiguousarray(y, dtype=bool)
@@ -381,9 +371,6 @@ def _bisection_compiled(x, y, strings: SharedStrings, k: int, res: int, rng: np.
     advanced by exactly those, so that it ends where the reference leaves it. None when more than ``_POOL_MAX``
     picks would be drawn ahead.
     """
-    from mrcomm_env.core import pcg64_numba
-
-    kernels_numba = compiled_kernels()
 
     n = x.size
     pcg64 = isinstance(rng.bit_generator, np.random.PCG64)
@@ -442,8 +429,6 @@ def parity_strings(seed: int, nonce: int, n: int, count: int) -> np.ndarray:
     n_words = (n + 31) // 32
     index = np.array([(nonce * count + j) % (1 << 32) for j in range(count)], dtype=np.uint64)
     if backend.compiled():  # the same words from the compiled generator (~10× faster at these sizes)
-        kernels_numba = compiled_kernels()
-
         k0, k1 = seed_key(seed)
         words = kernels_numba.stream_words(k0, k1, index, np.zeros(count, np.int64), n_words, DOMAIN_PARITY)
     else:
@@ -484,8 +469,6 @@ def sketch(
     m = pinsketch.field_bits(n)
     gf = pinsketch.field(m)
     if x.shape == y.shape == (n,) and backend.compiled():  # the steps below in one call, integer for integer
-        kernels_numba = compiled_kernels()
-
         k0, k1 = seed_key(seed)
         found, stats = kernels_numba.sketch(
             np.ascontiguousarray(x),

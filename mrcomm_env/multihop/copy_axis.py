@@ -1,6 +1,6 @@
 """M copies of a MultiHop scene stepped as arrays with a leading copy axis (the copy-axis world).
 
-What :class:`~mrcomm_env.core.batched.BatchedEnv` steps instead of M env objects on the compiled backend
+What :class:`~mrcomm_env.core.batched.BatchedEnv` steps instead of M env objects
 (:meth:`MultiHopEnv.copy_axis_world`): the grid or a still field (:class:`StaticFrameBatch`), or robots that move,
 in a field or under the coverage controller (:class:`MovingBatch`), in either layout, with either reward and, on
 static links, with or without ``observe_heard``. The frame is one
@@ -16,8 +16,9 @@ for bit: elementwise work is the env's float64 operations in the same order, and
 over the same elements in the same order, either :func:`~mrcomm_env.core.sums_numba.numpy_sum` on a copy's scratch
 row or numpy's own row reduction of a C-ordered ``(M, K)`` array (which sums each row as numpy sums that row alone).
 ``tests/multihop/test_multihop_world.py`` compares
-every copy with the env's reference code over whole episodes. A single env of such a scene steps as this world of
-one copy (``MultiHopEnv._step_one_copy``): the batch's code at M = 1.
+every copy with the frame written slot by slot in numpy over whole episodes (``ReferenceMultiHop``, under
+``tests/helpers``). A single env steps as this world of one copy (``MultiHopEnv._step_world``): the batch's code at
+M = 1; it is MultiHop's only implementation of the frame.
 
 Each copy keeps its env object: its own ``reset_arrays`` lays out the episode from its own generator (slot order,
 positions), :meth:`StaticFrameBatch.adopt` copies that start into the copy's rows and :meth:`StaticFrameBatch.store`
@@ -271,7 +272,7 @@ class StaticFrameBatch:
         return self.obs, rewards, np.zeros(m, dtype=bool), truncated, infos
 
     def _send_frame(self) -> None:
-        """``MultiHopEnv._step_world``: the whole frame of every copy in one compiled call."""
+        """``ReferenceMultiHop._step_world``: the whole frame of every copy in one compiled call."""
         frame_numba.send_frame(
             self.stamps,
             self.order,
@@ -316,7 +317,7 @@ class StaticFrameBatch:
         return actions != 0
 
     def _priorities(self, actions: np.ndarray) -> np.ndarray:
-        """The priorities as float64, after the float32 of the env's Box (``MultiHopEnv._priorities`` of its checked
+        """The priorities as float64, after the float32 of the env's Box (``ReferenceMultiHop._priorities`` of its checked
         action), refusing what the env's Box check refuses: a non-real array, or entries not finite or outside
         [0, 1]."""
         if actions.dtype.kind not in "iuf" or actions.shape[2:] != self.act_shape:
@@ -334,7 +335,7 @@ class StaticFrameBatch:
         return priority.astype(np.float64)
 
     def _frame_end(self) -> np.ndarray:
-        """``MultiHopEnv._frame_end`` of every copy: the time averages and per-hop ages (``frame_numba.close_frames``,
+        """``ReferenceMultiHop._frame_end`` of every copy: the time averages and per-hop ages (``frame_numba.close_frames``,
         which also ends the frame's slots), what each robot heard (``observe_heard``), the candidates re-ranked where
         what a copy's robots hold changed, and the rewards (M, N)."""
         frame_numba.close_frames(
@@ -358,7 +359,7 @@ class StaticFrameBatch:
         if not self.neighbourhood:
             team = -self.wage / self.age_unit - self.lam * self.step_bits.sum(axis=1) / self.capacity
             return np.repeat(team[:, None], self.n, axis=1)
-        # each robot: the weighted age its neighbours hold (MultiHopEnv._frame_end's ages, as the env computes them)
+        # each robot: the weighted age its neighbours hold (ReferenceMultiHop._frame_end's ages, as the env computes them)
         rewards = np.empty((self.n_copies, self.n))
         for i in range(self.n_copies):
             ages = np.where(self.stamps[i] > proto.UNKNOWN, self.t[i] - self.stamps[i], self.t[i])
@@ -378,7 +379,7 @@ class MovingBatch(StaticFrameBatch):
     others). The static world's frame lists, observation and time averages, with each slot's links taken where the
     robots are at that slot.
 
-    ``MultiHopEnv._step_world`` moves every robot after each slot. In the field nothing else in a frame draws and the
+    ``ReferenceMultiHop._step_world`` moves every robot after each slot. In the field nothing else in a frame draws and the
     motion does not depend on what is sent, so the frame's motion comes first, slot by slot for all copies
     (:func:`~.frame_numba.slot_receivers`, :func:`~.frame_numba.move_to_waypoints`; only the copies where a robot
     arrived draw its next waypoint, each from its own env's generator, in the env's order), and one compiled call
@@ -482,7 +483,7 @@ class MovingBatch(StaticFrameBatch):
         )
 
     def _fly(self) -> None:
-        """One slot of the coverage controller in every copy (``MultiHopEnv._move``): its Euler steps toward each
+        """One slot of the coverage controller in every copy (``ReferenceMultiHop._move``): its Euler steps toward each
         robot's centroid as the robot sees the partition, on what it holds now."""
         known = self.stamps > proto.UNKNOWN
         dt = self.slot_dur / self.control_steps

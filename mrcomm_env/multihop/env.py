@@ -38,12 +38,12 @@ from matplotlib.collections import LineCollection
 from matplotlib.colors import LogNorm
 from scipy.sparse.csgraph import shortest_path
 
-from mrcomm_env.core import BitLedger, MrcommParallelEnv, TDMASchedule, backend, disk_links, grid_links
+from mrcomm_env.core import BitLedger, MrcommParallelEnv, TDMASchedule, disk_links, grid_links
 from mrcomm_env.core import render as rendering
 from mrcomm_env.core.base import MASK_INFO_PREFIX
+from mrcomm_env.multihop import copy_axis, frame_numba, theory
 from mrcomm_env.multihop import coverage as cov
 from mrcomm_env.multihop import protocol as proto
-from mrcomm_env.multihop import theory
 from mrcomm_env.multihop.spec import (  # noqa: F401 — the limits are part of this module's API
     HOP_BUCKETS,
     MAX_ALPHA,
@@ -68,11 +68,7 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
     def copy_axis_world(cls, cfg):
         """Every scene (the grid, the field with robots still or moving, the coverage controller), in either layout,
         with either reward and, on static links, with or without ``observe_heard``, steps M copies as one batch of
-        arrays (:mod:`.copy_axis`) on the compiled backend."""
-        if not backend.compiled():
-            return None
-        from mrcomm_env.multihop import copy_axis  # numba is imported with it
-
+        arrays (:mod:`.copy_axis`); the env itself steps as that world of its one copy."""
         moving = cfg.scene == "coverage" or (cfg.scene == "field" and cfg.speed > 0)
         return copy_axis.MovingBatch if moving else copy_axis.StaticFrameBatch
 
@@ -184,9 +180,8 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         self._ranked_known: np.ndarray | None = None
         if self._relative:
             self._rank_candidates()
-        # every scene on the compiled backend steps as a copy-axis world of this one copy (copy_axis.py, the code a
-        # batch of M copies runs), built at the first step; the code below is the reference
-        self._world_eligible = type(self).copy_axis_world(c) is not None
+        # every scene steps as a copy-axis world of this one copy (copy_axis.py, the code a batch of M copies runs),
+        # built at the first step; the frame slot by slot in numpy is its test oracle (tests/helpers/multihop_reference.py)
         self._world_obs: np.ndarray | None = None  # the observation and infos of the world's last frame
         self._world_infos: dict | None = None
         if self.__dict__.get("_one_copy") is not None:
@@ -197,7 +192,6 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
             self.adj = self._static_adj
         else:
             self.adj = disk_links(self.pos, self.cfg.comm_range)
-        self._nbrs = [np.flatnonzero(row) for row in self.adj]
 
     def _hops(self) -> None:
         """Hop-distance buckets of the current topology (for the max-age-by-hop metrics)."""
@@ -211,56 +205,24 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
 
     # ----------------------------------------------------------------- dynamics
     def _step_world(self, actions: list) -> float | np.ndarray:
-        if self._world_eligible:
-            return self._step_one_copy(actions)
-        # the numpy backend: the frame slot by slot (the reference the copy-axis world is tested against,
-        # tests/multihop/test_multihop_world.py)
-        n, m, b = self.n_agents, self.m, self.cfg.bits_per_estimate
-        stamps, est, t = self.stamps, self.est, self.t
-        # a robot's priorities are fixed for the frame; its candidate list is ranked once, filtered to the
-        # estimates it holds at its own slot (protocol.priority_select, vectorised over the frame)
-        rank, count = proto.priority_ranking(self._priorities(actions))
-        sent_counts = np.zeros(n)
-        last_sent, sent_stamp = self.last_sent, self.sent_stamp
-        last_sent[:] = False
-        fk = None if self._all_known else self.first_known.reshape(-1)
-        all_known = self._all_known
-        moving = self._moving
-        for s in self.tdma.order.tolist():
-            row = stamps[s]
-            row[s] = t  # own state is always current (t_ii = t)
-            cand = rank[s, : count[s]]
-            idx = cand[:m] if all_known else cand[row[cand] > proto.UNKNOWN][:m]
-            sent_counts[s] = idx.size
-            last_sent[s, idx] = True
-            sent_stamp[s, idx] = row[idx]
-            t += self.slot_dur
-            # moving robots: the links of this slot, from the positions now (only the sender's row is needed, so
-            # a frame costs O(n²) instead of a full link matrix per slot; the matrix is rebuilt at frame end)
-            rcv = self._receivers(s) if moving else self._nbrs[s]
-            if rcv.size:
-                if moving:
-                    est[s, s] = self.pos[s]
-                    flat, old, upd = proto.deliver_one(stamps, s, rcv, idx, est)
-                else:
-                    flat, old, upd = proto.deliver_one(stamps, s, rcv, idx)
-                if fk is not None:
-                    fk[flat[upd & (old == proto.UNKNOWN)]] = t  # first arrival: end of this slot
-            if moving:
-                self.t = t
-                self._move(self.slot_dur)
-        self.t = t
-        stamps[self._eye] = t
-        if moving:
-            est[self._eye] = self.pos
-            self._links()
-            self._reward_weights()
-            self._hops()
-        if not self._all_known:
-            self._all_known = bool(np.isfinite(self.first_known).all())
-        self._step_bits = sent_counts * b
-        self.ledger.record(self._step_bits, messages=n)
-        return self._frame_end()
+        """One frame as the copy-axis world of this one copy (:mod:`.copy_axis`)."""
+        if self.__dict__.get("_one_copy") is None:
+            self._one_copy = type(self).copy_axis_world(self.cfg)([self])
+            self._bind_one_copy()
+        elif any(getattr(self, name) is not view for name, view in zip(self._view_names, self._world_views)):
+            self._bind_one_copy()  # an array replaced from outside (a batch writing a copy back, a user): take it in
+        else:
+            self._one_copy.adopt_counters(0)  # the clock, time averages and bits as the env holds them now
+        world = self._one_copy
+        obs, rewards, _, _, infos = world.step(np.asarray(actions)[None])
+        self.t = float(world.t[0])
+        if self._moving:
+            self._wsum = float(world.weight_sum[0])
+        self._take_counters(world.counters(0))
+        self.ledger.record(self._step_bits, messages=self.n_agents)
+        self._world_obs = obs[0]
+        self._world_infos = {key: column[0] for key, column in infos.items()}
+        return rewards[0].copy() if self.cfg.reward_mode == "neighbourhood" else float(rewards[0, 0])
 
     # ----------------------------------------------------------------- what its copy-axis world reads and writes
     def world_constants(self) -> dict:
@@ -283,7 +245,7 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         slot phases, eq. (1)'s weights and their sum, the hop buckets' pair masks, the links (the matrix, and its
         rows as CSR pointer and indices) and, in the relative layout, the estimated distances of its last ranking, the
         ranked candidates and whether each is held; with ``observe_heard``, what each robot heard. The env's own arrays: copy what is kept."""
-        ptr, idx = _frame_kernels().neighbour_lists(self.adj)
+        ptr, idx = frame_numba.neighbour_lists(self.adj)
         arrays = {
             "phase": self._phase,
             "weights": self._w,
@@ -383,27 +345,6 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         for name, view in zip(self._view_names, self._world_views, strict=True):
             setattr(self, name, view)
 
-    def _step_one_copy(self, actions) -> float | np.ndarray:
-        """One frame as the copy-axis world of this one copy (the same numbers as the reference below, bit for bit:
-        ``tests/multihop/test_multihop.py`` compares whole episodes of both)."""
-        if self.__dict__.get("_one_copy") is None:
-            self._one_copy = type(self).copy_axis_world(self.cfg)([self])
-            self._bind_one_copy()
-        elif any(getattr(self, name) is not view for name, view in zip(self._view_names, self._world_views)):
-            self._bind_one_copy()  # an array replaced from outside (a batch writing a copy back, a user): take it in
-        else:
-            self._one_copy.adopt_counters(0)  # the clock, time averages and bits as the env holds them now
-        world = self._one_copy
-        obs, rewards, _, _, infos = world.step(np.asarray(actions)[None])
-        self.t = float(world.t[0])
-        if self._moving:
-            self._wsum = float(world.weight_sum[0])
-        self._take_counters(world.counters(0))
-        self.ledger.record(self._step_bits, messages=self.n_agents)
-        self._world_obs = obs[0]
-        self._world_infos = {key: column[0] for key, column in infos.items()}
-        return rewards[0].copy() if self.cfg.reward_mode == "neighbourhood" else float(rewards[0, 0])
-
     def ages(self) -> np.ndarray:
         """(n, n) age (s) of every robot's estimate of every robot at the last frame end (unknown: the time since
         the start; 0 before the first frame)."""
@@ -428,17 +369,6 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
             "choose": self.m - 1,
         }
 
-    def _priorities(self, actions) -> np.ndarray:
-        """(N, N) priorities of the frame: the v0 action itself, or the selected candidates by rank."""
-        if not self._relative:
-            return np.asarray(actions, dtype=np.float64)
-        n = self.n_agents
-        selected = np.asarray(actions, dtype=bool)
-        prio = np.zeros((n, n))
-        rows = np.repeat(np.arange(n), n - 1)
-        prio[rows, self._candidates.ravel()] = np.where(selected, self._rank_priority, 0.0).ravel()
-        return prio
-
     def _rank_candidates(self) -> None:
         """Each robot's others, nearest estimated first; estimates it lacks last, by slot order after its own
         (:func:`.protocol.ranked_candidates`)."""
@@ -455,65 +385,12 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         #: flat (robot, candidate) indices into an (N·N,) array: one gather per feature block
         self._cand_flat = (self._candidates + np.arange(n)[:, None] * n).ravel()
 
-    def _move(self, duration: float) -> None:
-        c = self.cfg
-        if c.scene == "field":
-            delta = self.waypoint - self.pos
-            dist = np.linalg.norm(delta, axis=1)
-            step = c.speed * duration
-            arrive = dist <= step
-            self.pos = np.where(
-                arrive[:, None], self.waypoint, self.pos + delta * (step / np.maximum(dist, 1e-12))[:, None]
-            )
-            if arrive.any():
-                self.waypoint[arrive] = self.np_random.uniform(0.0, self.side, size=(int(arrive.sum()), 2))
-        else:
-            # control period at most 0.25 s so slow frames (m = 9) are integrated as finely as fast ones; a slot
-            # longer than MAX_CONTROL_STEPS × 0.25 s (a very slow channel) takes MAX_CONTROL_STEPS longer steps
-            sub = self._control_steps(duration)
-            known = self.stamps > proto.UNKNOWN
-            for _ in range(sub):
-                target = cov.centroids(self._ctrl_points, self.pos, self.est, known)
-                self.pos = cov.control_step(self.pos, target, c.control_gain, c.max_speed, duration / sub, self.side)
-
     @staticmethod
     def _control_steps(duration: float) -> int:
-        """The coverage controller's Euler steps over ``duration`` seconds (see ``_move``)."""
+        """The coverage controller's Euler steps over ``duration`` seconds: at most ``CONTROL_PERIOD`` each, so that slow
+        frames are integrated as finely as fast ones, and at most ``MAX_CONTROL_STEPS`` (a very slow channel takes
+        longer steps)."""
         return min(max(1, math.ceil(duration / CONTROL_PERIOD - 1e-9)), MAX_CONTROL_STEPS)
-
-    def _receivers(self, sender: int) -> np.ndarray:
-        """Robots within ``comm_range`` of ``sender`` now: its row of ``disk_links``."""
-        diff = self.pos - self.pos[sender]
-        r = self.cfg.comm_range
-        within = np.einsum("ij,ij->i", diff, diff) <= r * r
-        within[sender] = False
-        return np.flatnonzero(within)
-
-    def _frame_end(self) -> float:
-        ages = np.where(self.stamps > proto.UNKNOWN, self.t - self.stamps, self.t)  # unknown: age since start
-        self._ages = ages
-        off = ~self._eye
-        self._frames += 1
-        self._sum_age += float(ages[off].mean())
-        weighted = self._w * ages
-        wage = float(weighted.sum()) / self._wsum
-        self._sum_wage += wage
-        for k, mask in enumerate(self._hop_masks):
-            if mask.any():
-                sel = ages[mask]
-                self._max_age[k] = max(self._max_age[k], float(sel.max()))
-                self._sum_age_hop[k] += float(sel.mean())
-        if self.heard is not None:
-            proto.hear(self.heard, self.last_sent, self.sent_stamp, self.adj)
-        if self._relative:
-            self._rank_candidates()
-        age_unit = self._age_unit
-        bit_unit = self.m * self.cfg.bits_per_estimate
-        if self.cfg.reward_mode == "team":
-            return -wage / age_unit - self.cfg.lam * float(self._step_bits.sum()) / self._capacity
-        # neighbourhood: robot k's own weighted staleness, averaged over the neighbours i's broadcast reaches
-        near = proto.neighbourhood_staleness(weighted, self._w, self.adj)
-        return -near / age_unit - self.cfg.lam * self._step_bits / bit_unit
 
     def neighbour_lack(self) -> np.ndarray:
         """(n, n) ``observe_heard``'s feature (:func:`.protocol.neighbour_lack`): for robot i and estimate j, the mean
@@ -674,10 +551,3 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
         ax.set_ylim(-0.05 * self.side - 0.5, 1.05 * self.side + 0.5)
         ax.set_aspect("equal")
         ax.set_title(f"{self.cfg.scene}: m={self.m}, frame {self.step_count}, t={self.t:.1f} s")
-
-
-def _frame_kernels():
-    """The compiled frame (numba is imported only when it runs)."""
-    from mrcomm_env.multihop import frame_numba
-
-    return frame_numba

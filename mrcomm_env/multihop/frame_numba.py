@@ -1,18 +1,18 @@
-"""Compiled twin (numba) of MultiHop's TDMA frame: the slot loop of ``MultiHopEnv._step_world``.
+"""MultiHop's TDMA frame compiled (numba) over a copy axis: what the copy-axis world (:mod:`.copy_axis`) calls.
 
-The numpy reference runs the frame slot by slot in Python, a handful of numpy calls per slot
-(``protocol.deliver_one``): about 4 ms of the 5 ms a 100-robot frame takes. This twin runs the whole frame in
-one call, with the same rules in the same order (§2.1: every sender stamps its own estimate with the current
-time; it sends its own estimate and the first ``m − 1`` further candidates of its ranked list that it holds;
-each neighbour keeps the newer time stamp per robot; a first arrival is dated at the end of the slot). Every
-number it writes is the reference's, bit for bit: the clock is advanced by the same float additions, and
-the rest are copies and comparisons (``tests/multihop/test_multihop.py`` compares whole seeded episodes on both
-backends). While robots move (the ``field`` scene with ``speed`` above 0), each slot's links and the robots' motion
-come first (:func:`slot_receivers`, :func:`move_to_waypoints`), then :func:`send_moving_slots`; the coverage
-controller moves the robots between slots, since where it flies depends on what was received.
+Written slot by slot in numpy (the test oracle, ``tests/helpers/multihop_reference.py``), the frame is a handful of
+numpy calls per slot (``protocol.deliver_one``): about 4 ms of the 5 ms a 100-robot frame took. This runs the whole
+frame in one call, with the same rules in the same order (§2.1: every sender stamps its own estimate with the
+current time; it sends its own estimate and the first ``m − 1`` further candidates of its ranked list that it holds;
+each neighbour keeps the newer time stamp per robot; a first arrival is dated at the end of the slot). Every number
+it writes is the oracle's, bit for bit: the clock is advanced by the same float additions, and the rest are copies
+and comparisons (``tests/multihop/test_multihop.py`` and ``test_multihop_world.py`` compare whole seeded episodes).
+While robots move (the ``field`` scene with ``speed`` above 0), each slot's links and the robots' motion come first
+(:func:`slot_receivers`, :func:`move_to_waypoints`), then :func:`send_moving_slots`; the coverage controller moves
+the robots between slots, since where it flies depends on what was received.
 
-Arrays carry a leading copy axis M so that a batch of copies can be run in one call; the env passes its own
-state as M = 1 views. Used when ``core.backend.compiled()`` (docs/architecture.md).
+Arrays carry a leading copy axis M so that a batch of copies is run in one call; a single env is the world of its
+one copy (M = 1).
 """
 
 from __future__ import annotations
@@ -112,7 +112,7 @@ def send_moving_slots(
 
     ``est`` (M, n, n, 2) each robot's estimate of each position; ``receivers`` (M, n, n) bool: who is within range
     of the k-th slot's sender at that slot; ``sender_pos`` (M, n, 2): that sender's position then (its own estimate
-    is stamped there, as ``MultiHopEnv._step_world`` does). The rest as :func:`send_frame`: the same selection,
+    is stamped there, as ``ReferenceMultiHop._step_world`` does). The rest as :func:`send_frame`: the same selection,
     clock and first arrivals, and a receiver takes a position with each newer stamp (``protocol.deliver_one``).
     ``last_sent`` is cleared at the frame's first slot; ``t`` (M,) ends at the last slot sent."""
     n_copies, n = order.shape
@@ -151,7 +151,7 @@ def send_moving_slots(
 def slot_receivers(pos, senders, r2, receivers, sender_pos):
     """Who is within range (squared: ``r2``) of each copy's slot sender (``senders`` (M,)) where the robots ``pos``
     (M, n, 2) are now, into ``receivers`` (M, n), and the sender's position into ``sender_pos`` (M, 2)
-    (``MultiHopEnv._receivers``). A squared distance is ``dx·dx + dy·dy``, as numpy's ``einsum`` sums two squares."""
+    (``ReferenceMultiHop._receivers``). A squared distance is ``dx·dx + dy·dy``, as numpy's ``einsum`` sums two squares."""
     n_copies, n, _ = pos.shape
     for c in range(n_copies):
         s = senders[c]
@@ -164,7 +164,7 @@ def slot_receivers(pos, senders, r2, receivers, sender_pos):
 
 @numba.njit(cache=True)
 def move_to_waypoints(pos, waypoint, step, arrived):
-    """One slot of the field's random-waypoint motion in every copy (``MultiHopEnv._move``), in place: every robot
+    """One slot of the field's random-waypoint motion in every copy (``ReferenceMultiHop._move``), in place: every robot
     moves ``step`` toward its waypoint, arriving exactly where it is closer than that. ``arrived`` (M, n) says who
     arrived, and the return value how many; the caller draws their next waypoints from each copy's generator
     (nothing here draws). The env's float operations in its order (``linalg.norm`` of two components is the square
@@ -267,7 +267,7 @@ def neighbour_lists(adjacency: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @numba.njit(cache=True)
 def selected_ranks(candidates, selected, rank, count):
-    """The ``relative`` layout's frame lists of every copy (``MultiHopEnv._priorities`` then
+    """The ``relative`` layout's frame lists of every copy (``ReferenceMultiHop._priorities`` then
     ``protocol.priority_ranking``): each robot's own index, then its selected candidates in candidate order.
     The selected ranks' priorities fall strictly with the rank, so that order is the descending one.
 

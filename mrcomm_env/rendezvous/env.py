@@ -59,7 +59,7 @@ from matplotlib.collections import LineCollection
 from mrcomm_env.core import BitLedger, MrcommParallelEnv, backend
 from mrcomm_env.core import render as rendering
 from mrcomm_env.core.base import MASK_INFO_PREFIX
-from mrcomm_env.rendezvous import filters, protocol, theory, world
+from mrcomm_env.rendezvous import filters, observe_numba, plan_numba, protocol, theory, window_numba, world
 from mrcomm_env.rendezvous.spec import RendezvousMappingSpec
 
 #: action kinds reported in the infos
@@ -619,8 +619,6 @@ class RendezvousMappingEnv(RendezvousMappingSpec, MrcommParallelEnv):
 def _kernels() -> SimpleNamespace:
     """The compiled window, packets, observation and candidate ranking (``window_numba``, ``observe_numba``,
     ``plan_numba``), imported on first use: numba is optional."""
-    from mrcomm_env.rendezvous import observe_numba, plan_numba, window_numba
-
     return SimpleNamespace(
         window=window_numba.window,
         packets=window_numba.group_observations,

@@ -31,12 +31,12 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
-from functools import cache
 
 import numpy as np
 
 from mrcomm_env.core import backend
 from mrcomm_env.core.backend import kernel_array
+from mrcomm_env.rendezvous import fusion_numba
 
 #: bits of one float sent over the air
 FLOAT_BITS = 32
@@ -52,7 +52,7 @@ def logdet2(Y: np.ndarray) -> np.ndarray:
 def mean_of(Y: np.ndarray, y: np.ndarray) -> np.ndarray:
     """μ = Y⁻¹ y for stacks of 2×2 information matrices (closed-form inverse)."""
     if backend.compiled() and Y.dtype == y.dtype == np.float64 and Y.flags.c_contiguous and y.flags.c_contiguous:
-        return _fusion_kernels().mean_of(Y.reshape(-1, 2, 2), y.reshape(-1, 2)).reshape(y.shape)
+        return fusion_numba.mean_of(Y.reshape(-1, 2, 2), y.reshape(-1, 2)).reshape(y.shape)
     a, b, c, d = Y[..., 0, 0], Y[..., 0, 1], Y[..., 1, 0], Y[..., 1, 1]
     det = a * d - b * c
     return np.stack([(d * y[..., 0] - b * y[..., 1]) / det, (a * y[..., 1] - c * y[..., 0]) / det], axis=-1)
@@ -288,7 +288,7 @@ class TeamMaps:
             firsts = list(sides)
             side_starts = np.zeros(len(firsts) + 1, dtype=np.int64)
             np.cumsum([len(sides[a]) for a in firsts], out=side_starts[1:])
-            per_edge = _fusion_kernels().edge_bits(
+            per_edge = fusion_numba.edge_bits(
                 self.known,
                 np.ascontiguousarray(members, dtype=np.int64),
                 side_starts,
@@ -374,7 +374,7 @@ def _add_entries(
     """Add entries (in order: a landmark may repeat) into one map ``Y`` (L, 2, 2), ``y`` (L, 2), ``count`` (L,),
     in place: ``dcount · R_inv`` (``R_inv`` (2, 2)), ``dy`` (m, 2) and ``dcount`` (m,) at ``landmarks`` (m,)."""
     if backend.compiled():  # the same additions in the same order, in one call (fusion_numba)
-        _fusion_kernels().add_counted(
+        fusion_numba.add_counted(
             Y,
             y,
             count,
@@ -387,14 +387,6 @@ def _add_entries(
     np.add.at(Y, landmarks, dcount[:, None, None] * R_inv)
     np.add.at(y, landmarks, dy)
     np.add.at(count, landmarks, dcount)
-
-
-@cache
-def _fusion_kernels():
-    """The compiled fusion (``fusion_numba``), imported on first use: numba is optional."""
-    from mrcomm_env.rendezvous import fusion_numba
-
-    return fusion_numba
 
 
 def subtree_sides(members: np.ndarray, parent: np.ndarray) -> dict[int, np.ndarray]:

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from functools import cache
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -39,6 +38,7 @@ from scipy.sparse.csgraph import connected_components, maximum_bipartite_matchin
 
 from mrcomm_env.core import backend
 from mrcomm_env.core.backend import kernel_array
+from mrcomm_env.rendezvous import plan_numba
 from mrcomm_env.rendezvous.world import dense_components
 
 #: ε of §IV-A: the observation time (s) credited to a landmark that cannot be reached within the window,
@@ -70,7 +70,7 @@ def utility_matrix(
     # one map per vehicle, shapes exactly as the env's (the kernel indexes them without numpy's broadcasting)
     per_vehicle = np.shape(Y) == (n, L, 2, 2) and np.shape(count) == (n, L) and np.shape(landmark_pos) == (n, L, 2)
     if per_vehicle and np.shape(vehicle_pos) == (n, 2) and backend.compiled():  # one call, up to numpy's log1p
-        argument = _plan_kernels().utility_argument(
+        argument = plan_numba.utility_argument(
             kernel_array(Y, np.float64),
             kernel_array(count, np.int64),
             kernel_array(vehicle_pos, np.float64),
@@ -220,7 +220,7 @@ def recommend(U: np.ndarray, landmark_pos: np.ndarray, d_comms: float, record: b
     if n == 1 and not record:  # one vehicle: its best landmark is a connected cluster of one (shortcut)
         best = int(np.argmax(U[0]))
         return Recommendation(np.array([best]), np.array([True]), best, True, steps)
-    kernels = _plan_kernels() if backend.compiled() else None
+    kernels = plan_numba if backend.compiled() else None
     if kernels is not None:  # one compiled signature: a read-only or strided view would compile the kernels again
         U, landmark_pos = kernel_array(U, np.float64), kernel_array(landmark_pos, np.float64)
     if kernels is not None and not record:  # the passes compiled, up to an eq. (8) sign numpy could round otherwise
@@ -272,11 +272,3 @@ def _per_vehicle(n: int, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
     out = np.full(n, -1, dtype=np.int64)
     out[rows] = values
     return out
-
-
-@cache
-def _plan_kernels():
-    """The compiled pass (imported on first use: numba compiles or loads its cache then)."""
-    from mrcomm_env.rendezvous import plan_numba
-
-    return plan_numba

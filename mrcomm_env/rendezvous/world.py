@@ -14,7 +14,6 @@ algorithm (§III).
 from __future__ import annotations
 
 import math
-from functools import cache
 
 import numpy as np
 from scipy.sparse import csr_matrix
@@ -22,6 +21,7 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from mrcomm_env.core import backend
+from mrcomm_env.rendezvous import forest_numba
 
 #: added to every link length so that co-located vehicles (distance 0) still form an edge: scipy's sparse
 #: graphs read a stored 0 as "no edge"
@@ -161,7 +161,7 @@ def spanning_forest(pos: np.ndarray, links: np.ndarray) -> tuple[np.ndarray, np.
     if n == 1:
         return np.zeros(1, dtype=np.int64), np.full(1, -1, dtype=np.int64)
     if backend.compiled():  # the same trees without scipy's set-up, unless equal path lengths make them ambiguous
-        labels, parent, ambiguous = _forest_kernels().spanning_forest(pos, links, LINK_LENGTH_FLOOR)
+        labels, parent, ambiguous = forest_numba.spanning_forest(pos, links, LINK_LENGTH_FLOOR)
         if not ambiguous:
             return labels, parent
     d = np.sqrt(((pos[:, None, :] - pos[None, :, :]) ** 2).sum(-1)) + LINK_LENGTH_FLOOR
@@ -174,11 +174,3 @@ def spanning_forest(pos: np.ndarray, links: np.ndarray) -> tuple[np.ndarray, np.
     _, pred, _ = dijkstra(graph, directed=False, indices=roots, return_predecessors=True, min_only=True)
     parent = np.where(pred < 0, -1, pred).astype(np.int64)
     return labels, parent
-
-
-@cache
-def _forest_kernels():
-    """The compiled search (imported on first use: numba compiles or loads its cache then)."""
-    from mrcomm_env.rendezvous import forest_numba
-
-    return forest_numba

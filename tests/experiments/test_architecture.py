@@ -384,7 +384,7 @@ def test_the_inner_import_check_knows_an_extra_from_a_required_package(tmp_path,
     package = tmp_path / "mrcomm_env" / "thing"
     package.mkdir(parents=True)
     (package / "__init__.py").write_text("")
-    (package / "twin.py").write_text("import numba\n")  # one of ours that needs the "fast" extra
+    (package / "twin.py").write_text("import torch\n")  # one of ours that needs the "train" extra
     (package / "plain.py").write_text("import numpy\n")
     (package / "uses.py").write_text(
         "def a():\n    import torch\n"  # an extra's package: fine

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers.multihop_reference import ReferenceMultiHop
 from helpers.numerics import assert_close_conditioned, bit_identical, tolerance
 
 from mrcomm_baselines.multihop import POLICIES
@@ -466,15 +467,6 @@ def test_the_render_colour_scale_is_fixed_for_the_episode():
     assert len(set(limits)) == 1 and limits[0][0] < limits[0][1]
 
 
-def _use_frame_backend(monkeypatch, compiled: bool) -> None:
-    """The compiled frame or the numpy reference (decided by the env at reset)."""
-    import types
-
-    from mrcomm_env.multihop import env as env_module
-
-    monkeypatch.setattr(env_module, "backend", types.SimpleNamespace(compiled=lambda: compiled))
-
-
 @pytest.mark.parametrize(
     ("kwargs", "policy"),
     [
@@ -488,18 +480,16 @@ def _use_frame_backend(monkeypatch, compiled: bool) -> None:
         ({"scene": "coverage", "max_cycles": 4}, "random"),  # the coverage controller flies between slots
     ],
 )
-def test_whole_episodes_are_identical_with_the_compiled_frame(monkeypatch, kwargs, policy):
-    pytest.importorskip("numba")
+def test_whole_episodes_are_identical_with_the_compiled_frame(kwargs, policy):
+    """The env (its world of one copy) plays the episodes of the frame written slot by slot in numpy."""
     from mrcomm_baselines import make_policy
 
     def episode(compiled):
-        _use_frame_backend(monkeypatch, compiled)
-        env = MultiHopEnv(**kwargs)
+        env = MultiHopEnv(**kwargs) if compiled else ReferenceMultiHop(**kwargs)
         pol = make_policy("MultiHop-v0", policy)
         views = env.local_views()
         obs, infos = env.reset(seed=23)
         pol.reset(views, 23)
-        assert env._world_eligible == compiled  # the world of one copy, or the reference
         trace = [(obs, infos)]
         while env.agents:
             obs, rewards, _, _, infos = env.step(pol.act(obs, views))

@@ -3,7 +3,6 @@ against their numpy/scipy references, down to whole episodes."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
 
 import numpy as np
@@ -14,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linear_sum_assignment
 
-from mrcomm_env.rendezvous import filters, protocol, world
+from mrcomm_env.rendezvous import filters, plan_numba, protocol, world
 from mrcomm_env.rendezvous.env import RendezvousMappingEnv
 
 
@@ -203,10 +202,7 @@ def test_candidate_columns_break_ties_to_the_lowest_column():
     want = np.array([1, 3, 5])  # the sorted union of {1, 3} and {5, 1}
     assert np.array_equal(protocol.candidate_columns(U, working), want)
     assert np.array_equal(protocol.best_positions(-U, working), [[1, 3], [5, 1]])
-    if importlib.util.find_spec("numba") is not None:
-        from mrcomm_env.rendezvous import plan_numba
-
-        assert np.array_equal(plan_numba._candidate_columns(U, working, 2), want)
+    assert np.array_equal(plan_numba._candidate_columns(U, working, 2), want)
     # working columns in another order: ties go to the first positions in it (row 0: columns 4 and 3 before 1)
     working = np.array([5, 4, 3, 2, 1])
     assert np.array_equal(protocol.best_positions(-U, working), [[1, 2], [0, 1]])

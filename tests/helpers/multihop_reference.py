@@ -1,0 +1,136 @@
+"""MultiHop's frame written slot by slot in numpy: the oracle its copy-axis world is checked against.
+
+The env steps every scene as the world of its one copy (``mrcomm_env/multihop/copy_axis.py``, compiled); this is
+the frame as the paper states it (§2.1, Algorithm 1's selection at each robot's slot, eq. (1)'s weighted age),
+kept here and not in the package (#44: one implementation in the package, the reference under tests/). It reads
+and writes the env's own state, so a ``ReferenceMultiHop`` and a ``MultiHopEnv`` seeded alike can be compared
+whole episodes at a time (``tests/multihop/test_multihop_world.py``, ``test_multihop.py``)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mrcomm_env.multihop import coverage as cov
+from mrcomm_env.multihop import protocol as proto
+from mrcomm_env.multihop.env import MultiHopEnv
+
+
+class ReferenceMultiHop(MultiHopEnv):
+    """MultiHop stepped by the numpy frame below, not as the copy-axis world of one copy."""
+
+    @classmethod
+    def copy_axis_world(cls, cfg):
+        return None  # a batch of these steps its copies in turn, each through the frame below
+
+    def _step_world(self, actions) -> float | np.ndarray:
+        n, m, b = self.n_agents, self.m, self.cfg.bits_per_estimate
+        stamps, est, t = self.stamps, self.est, self.t
+        # a robot's priorities are fixed for the frame; its candidate list is ranked once, filtered to the
+        # estimates it holds at its own slot (protocol.priority_select, vectorised over the frame)
+        rank, count = proto.priority_ranking(self._priorities(actions))
+        sent_counts = np.zeros(n)
+        last_sent, sent_stamp = self.last_sent, self.sent_stamp
+        last_sent[:] = False
+        fk = None if self._all_known else self.first_known.reshape(-1)
+        all_known = self._all_known
+        moving = self._moving
+        neighbours = [np.flatnonzero(row) for row in self.adj]
+        for s in self.tdma.order.tolist():
+            row = stamps[s]
+            row[s] = t  # own state is always current (t_ii = t)
+            cand = rank[s, : count[s]]
+            idx = cand[:m] if all_known else cand[row[cand] > proto.UNKNOWN][:m]
+            sent_counts[s] = idx.size
+            last_sent[s, idx] = True
+            sent_stamp[s, idx] = row[idx]
+            t += self.slot_dur
+            # moving robots: the links of this slot, from the positions now (the sender's row only)
+            rcv = self._receivers(s) if moving else neighbours[s]
+            if rcv.size:
+                if moving:
+                    est[s, s] = self.pos[s]
+                    flat, old, upd = proto.deliver_one(stamps, s, rcv, idx, est)
+                else:
+                    flat, old, upd = proto.deliver_one(stamps, s, rcv, idx)
+                if fk is not None:
+                    fk[flat[upd & (old == proto.UNKNOWN)]] = t  # first arrival: end of this slot
+            if moving:
+                self.t = t
+                self._move(self.slot_dur)
+        self.t = t
+        stamps[self._eye] = t
+        if moving:
+            est[self._eye] = self.pos
+            self._links()
+            self._reward_weights()
+            self._hops()
+        if not self._all_known:
+            self._all_known = bool(np.isfinite(self.first_known).all())
+        self._step_bits = sent_counts * b
+        self.ledger.record(self._step_bits, messages=n)
+        return self._frame_end()
+
+    def _priorities(self, actions) -> np.ndarray:
+        """(N, N) priorities of the frame: the v0 action itself, or the selected candidates by rank."""
+        if not self._relative:
+            return np.asarray(actions, dtype=np.float64)
+        n = self.n_agents
+        selected = np.asarray(actions, dtype=bool)
+        prio = np.zeros((n, n))
+        rows = np.repeat(np.arange(n), n - 1)
+        prio[rows, self._candidates.ravel()] = np.where(selected, self._rank_priority, 0.0).ravel()
+        return prio
+
+    def _move(self, duration: float) -> None:
+        c = self.cfg
+        if c.scene == "field":
+            delta = self.waypoint - self.pos
+            dist = np.linalg.norm(delta, axis=1)
+            step = c.speed * duration
+            arrive = dist <= step
+            self.pos = np.where(
+                arrive[:, None], self.waypoint, self.pos + delta * (step / np.maximum(dist, 1e-12))[:, None]
+            )
+            if arrive.any():
+                self.waypoint[arrive] = self.np_random.uniform(0.0, self.side, size=(int(arrive.sum()), 2))
+        else:
+            # the coverage controller's Euler steps (MultiHopEnv._control_steps: at most 0.25 s each)
+            sub = self._control_steps(duration)
+            known = self.stamps > proto.UNKNOWN
+            for _ in range(sub):
+                target = cov.centroids(self._ctrl_points, self.pos, self.est, known)
+                self.pos = cov.control_step(self.pos, target, c.control_gain, c.max_speed, duration / sub, self.side)
+
+    def _receivers(self, sender: int) -> np.ndarray:
+        """Robots within ``comm_range`` of ``sender`` now: its row of ``disk_links``."""
+        diff = self.pos - self.pos[sender]
+        r = self.cfg.comm_range
+        within = np.einsum("ij,ij->i", diff, diff) <= r * r
+        within[sender] = False
+        return np.flatnonzero(within)
+
+    def _frame_end(self) -> float | np.ndarray:
+        ages = np.where(self.stamps > proto.UNKNOWN, self.t - self.stamps, self.t)  # unknown: age since start
+        self._ages = ages
+        off = ~self._eye
+        self._frames += 1
+        self._sum_age += float(ages[off].mean())
+        weighted = self._w * ages
+        wage = float(weighted.sum()) / self._wsum
+        self._sum_wage += wage
+        for k, mask in enumerate(self._hop_masks):
+            if mask.any():
+                sel = ages[mask]
+                self._max_age[k] = max(self._max_age[k], float(sel.max()))
+                self._sum_age_hop[k] += float(sel.mean())
+        if self.heard is not None:
+            proto.hear(self.heard, self.last_sent, self.sent_stamp, self.adj)
+        if self._relative:
+            self._rank_candidates()
+        age_unit = self._age_unit
+        bit_unit = self.m * self.cfg.bits_per_estimate
+        if self.cfg.reward_mode == "team":
+            return -wage / age_unit - self.cfg.lam * float(self._step_bits.sum()) / self._capacity
+        # neighbourhood: robot k's own weighted staleness, averaged over the neighbours i's broadcast reaches
+        near = proto.neighbourhood_staleness(weighted, self._w, self.adj)
+        return -near / age_unit - self.cfg.lam * self._step_bits / bit_unit
