@@ -58,9 +58,9 @@ step: header first, then packets oldest step first. ``q_rule`` selects the readi
 time steps" (only the Table I discussion uses the variants). ``max_history`` bounds memory: a robot
 that never completed a step which leaves memory abandons it and restarts from its causal estimate.
 
-**Speed**: the EKF column steps and the table exchange run
-compiled twins of their numpy code (``core.backend``; ``MRCOMM_BACKEND=numpy`` forces numpy). Tables,
-bits and delays are identical on both. Estimates differ by rounding (LU versus Cholesky inverses), within
+**Speed**: the table exchange of teams of up to 24 robots without a budget, the observation and the team's errors
+are compiled (numba); the EKF column steps run compiled twins of their numpy code (``core.backend``;
+``MRCOMM_BACKEND=numpy`` runs the numpy code). Tables, bits and delays are identical on both. Estimates differ by rounding (LU versus Cholesky inverses), within
 β·‖x‖ where β = 2·3·(3N + 2m)·ε·Σ_k κ_k adds up the condition numbers κ_k of the matrices each column step
 inverts (P⁻ and the information matrix Y, eq. (2)). They agree to round-off while β ≪ 1: over 150 steps
 β ≈ 2·10⁻⁷ with the defaults (estimates 10⁻¹⁴ m apart), 2·10⁻⁴ with near-noiseless sensing
@@ -102,7 +102,6 @@ from mrcomm_env.core import (
     BitLedger,
     MrcommParallelEnv,
     apply_packet_loss,
-    backend,
     bernoulli_links,
     combined_links,
     disk_links,
@@ -162,9 +161,6 @@ class AsyncCLEnv(AsyncCLSpec, MrcommParallelEnv):
         self.mode_names = tuple(cfg["modes"])
         self._codes = np.array([mode_code(m) for m in self.mode_names], dtype=np.int64)
         self._obs_space = spaces.Box(0.0, 1.0, shape=(OTHER_FEATURES * (n - 1) + OWN_FEATURES,), dtype=np.float32)
-        # robot i sees robot (i + k) mod N in block k - 1: the same layout for every robot (agent-relative)
-        self._others = (np.arange(n)[:, None] + np.arange(1, n)[None, :]) % n
-        self._others_flat = (self._others + np.arange(n)[:, None] * n).ravel()
         self._act_space = spaces.Discrete(len(self.mode_names))
         source = None
         if cfg["trajectory"] == "mrclam":
@@ -193,9 +189,6 @@ class AsyncCLEnv(AsyncCLSpec, MrcommParallelEnv):
         self.tables = InfoTables(n, cfg["max_history"], cfg["q_rule"])
         self.est = Estimators(n, cfg["dt"], *(max(s, SIGMA_FLOOR) for s in self.noise), cfg["max_history"])
         self.ledger = BitLedger(n)
-        # flat index of P_i[3i+d, 3i+d] in robot i's covariance: the diagonal of its own-pose block
-        self._own_rows = np.arange(n)[:, None]
-        self._own_flat = (np.arange(n)[:, None] * 3 + np.arange(3)[None, :]) * (3 * n + 1)
 
     # ------------------------------------------------------------------ episode
     def _reset_world(self) -> None:
@@ -283,26 +276,9 @@ class AsyncCLEnv(AsyncCLSpec, MrcommParallelEnv):
             self._max_cond = cond
 
     def _errors(self) -> None:
-        n = self.n_agents
-        if backend.compiled():  # the same sums in the same order, in one call (env_numba.errors)
-            self._err_pos, self._err_ori, mean_pos, mean_ori = env_numba.errors(self.est.X, self.world.x)
-            self._mean_pos = mean_pos
-            self._sum_pos += mean_pos
-            self._sum_ori += mean_ori
-            self._n_err += 1
-            return
-        E = self.est.X.reshape(n, n, 3) - self.world.x
-        th = E[:, :, 2]  # heading errors wrapped into (-π, π] in place (``wrap``)
-        th += np.pi
-        np.remainder(th, 2.0 * np.pi, out=th)
-        th -= np.pi
-        E *= E
-        S = _sum(E, axis=1)  # (robot, [Σx², Σy², Σφ²]) over the team
-        S[:, 0] += S[:, 1]
-        S *= 1.0 / n
-        R = np.sqrt(S, out=S)  # (robot, [RMS position, ·, RMS orientation])
-        self._err_pos, self._err_ori = R[:, 0], R[:, 2]
-        mean_pos, _, mean_ori = (_sum(R, axis=0) * (1.0 / n)).tolist()
+        """Every robot's RMS position and orientation errors over the team, and their means, in one compiled call
+        (``env_numba.errors``; its numpy oracle is ``tests/helpers/asynccl_reference.py``)."""
+        self._err_pos, self._err_ori, mean_pos, mean_ori = env_numba.errors(self.est.X, self.world.x)
         self._mean_pos = mean_pos
         self._sum_pos += mean_pos
         self._sum_ori += mean_ori
@@ -317,40 +293,22 @@ class AsyncCLEnv(AsyncCLSpec, MrcommParallelEnv):
 
     # ------------------------------------------------------------------ views
     def _observe(self) -> np.ndarray:
+        """The observation of the module's table: every column but the trace's log scale in one compiled call
+        (``env_numba.observe``; its numpy oracle is ``tests/helpers/asynccl_reference.py``)."""
         tab, n = self.tables, self.n_agents
         t = tab.t
         k = OTHER_FEATURES * (n - 1)
         out = np.empty((n, k + OWN_FEATURES), dtype=np.float32)
-        if backend.compiled():  # every column but the trace's log scale in one call (env_numba.observe)
-            kernels = env_numba
-            clock = min(t / self.cfg["max_cycles"], 1.0)
-            kernels.observe(
-                out, self.adj, tab.latest, tab.known, tab.c, t, clock, self.neighbours, self._ema, AGE_SCALE, BITS_SCALE
-            )
-            if self.cfg["estimation"]:
-                trace = kernels.own_pose_traces(self.est.P)
-                out[:, k + 2] = np.clip((np.log10(np.maximum(trace, 1e-12)) + 6.0) / 8.0, 0.0, 1.0)
-            else:
-                out[:, k + 2] = 0.0
-            return out
-        blocks = out[:, :k].reshape(n, n - 1, OTHER_FEATURES)
-        flat = self._others_flat
-        behind = (t - tab.latest).reshape(-1)[flat]  # steps my copy of each other row lags
-        lacks = (t - tab.known).reshape(-1)[flat]  # how far each other robot's frontier lags, as far as I know
-        blocks[:, :, 0] = self.adj.reshape(-1)[flat].reshape(n, n - 1)
-        blocks[:, :, 1] = (behind / (behind + AGE_SCALE)).reshape(n, n - 1)
-        blocks[:, :, 2] = (lacks / (lacks + AGE_SCALE)).reshape(n, n - 1)
-        delay = t - 1 - tab.c  # age of the oldest incomplete column
-        out[:, k] = delay / (delay + AGE_SCALE)
-        out[:, k + 1] = min(t / self.cfg["max_cycles"], 1.0)
+        clock = min(t / self.cfg["max_cycles"], 1.0)
+        env_numba.observe(
+            out, self.adj, tab.latest, tab.known, tab.c, t, clock, self.neighbours, self._ema, AGE_SCALE, BITS_SCALE
+        )
         if self.cfg["estimation"]:
-            trace = _sum(self.est.P.reshape(n, -1)[self._own_rows, self._own_flat], axis=1)  # own-pose trace
+            trace = env_numba.own_pose_traces(self.est.P)
             # a log scale: the trace spans 1e-6 (well localised) to 1e2 (lost); tr/(tr+1) was flat at 1e-3
             out[:, k + 2] = np.clip((np.log10(np.maximum(trace, 1e-12)) + 6.0) / 8.0, 0.0, 1.0)
         else:
             out[:, k + 2] = 0.0
-        out[:, k + 3] = self.neighbours / (n - 1)
-        out[:, k + 4] = self._ema / (self._ema + BITS_SCALE)
         return out
 
     def _local_view(self) -> dict:

@@ -33,13 +33,12 @@ import numpy as np
 
 from mrcomm_env.asynccl.table_numba import exchange_dense
 from mrcomm_env.asynccl.world import HEADER_BITS, LIST_ENTRY_BITS
-from mrcomm_env.core import backend
 
 SILENT, SCHEME1, QINF = -1, 0, 1 << 40  # mode codes: -1 silent, 0 Scheme 1, q ≥ 1 Scheme 2 (QINF = ∞)
 DENSE_MAX_N = 24  # up to this team size the exchange runs on dense (sender, receiver, row) arrays
 # ufunc reductions called directly: ndarray.sum/min/max/any add two Python frames per call, as much as the
 # reduction itself on these tiny arrays (same numpy routine, same result)
-_sum, _min, _max, _any = np.add.reduce, np.minimum.reduce, np.maximum.reduce, np.logical_or.reduce
+_sum, _min, _any = np.add.reduce, np.minimum.reduce, np.logical_or.reduce
 
 
 class InfoTables:
@@ -95,8 +94,6 @@ class InfoTables:
         Returns (bits sent per robot, number of links used per robot).
         """
         if self.n <= DENSE_MAX_N and budget is None and self.q_rule != "receiver":
-            if backend.compiled():
-                return self._exchange_dense_compiled(modes, adj, delivered)
             return self._exchange_dense(modes, adj, delivered)
         return self._exchange_pairs(modes, adj, delivered, budget)
 
@@ -114,38 +111,9 @@ class InfoTables:
         return hi_s
 
     def _exchange_dense(self, modes, adj, delivered):
-        """Same exchange as ``_exchange_pairs`` on dense (sender, receiver, row) arrays: faster for small N."""
-        n, t, W = self.n, self.t, self.W
-        latest, disc = self.latest, self.disc
-        all_qinf = _min(modes, axis=None) >= QINF  # q = ∞ everywhere (the default): everyone sends its whole table
-        T = adj if all_qinf else adj & (modes != SILENT)[:, None]  # T[j, i]: j transmits to i
-        links = _sum(T, axis=1, dtype=float)
-        if not _any(links, axis=None):
-            return np.zeros(n), links
-        hi_s = latest if all_qinf else self._offers(modes)
-        rows = self._rows
-        cum_lo = self.cum_bits[rows, (latest + 1) % W]
-        cum_hi = cum_lo if all_qinf else self.cum_bits[rows, (hi_s + 1) % W]
-        gain = (hi_s[:, None, :] > latest[None, :, :]) & T[:, :, None]
-        payload = _sum(np.where(gain, cum_hi[:, None, :] - cum_lo[None, :, :], 0.0), axis=(1, 2))
-        list_bits = HEADER_BITS + LIST_ENTRY_BITS * _sum(latest > disc[:, None], axis=1)
-        header = list_bits if all_qinf else np.where(modes >= QINF, list_bits, HEADER_BITS)
-        bits = payload + header * links
-        D = T if delivered is adj and T is adj else delivered & T  # (no packet loss: delivered is adj)
-        if D is T or _any(D, axis=None):  # (D is T: some link is used, checked above)
-            c_pre = self.c
-            h = np.where(D[:, :, None], hi_s[:, None, :], -1)  # (j, i, v)
-            self.latest = np.maximum(latest, _max(h, axis=0))
-            DT = D.T
-            known = np.maximum(self.known, np.where(DT, c_pre[None, :], -1))
-            known = np.maximum(known, _max(np.where(DT, disc[None, :], -1), axis=1)[:, None])
-            after = _min(np.maximum(latest[None, :, :], h), axis=2)  # (j, i): what j knows i now holds
-            self.known = np.maximum(known, np.where(D, after, -1))
-        self._settle(t)
-        return bits, links
-
-    def _exchange_dense_compiled(self, modes, adj, delivered):
-        """``_exchange_dense`` through its numba twin (``table_numba.py``)."""
+        """The exchange of ``_exchange_pairs`` for a small team without a budget, in one compiled call on dense
+        (sender, receiver, row) arrays (``table_numba.exchange_dense``); ``_exchange_pairs``, which handles every
+        case, is its oracle in the tests."""
         bits, links, latest, known, c, disc, self.delay_sum, added, any_link = exchange_dense(
             np.asarray(modes, dtype=np.int64),
             adj,
@@ -166,7 +134,7 @@ class InfoTables:
             self.delay_sum,
             self.q_rule == "oracle",
         )
-        if any_link:  # (with no link nothing changes, and ``_exchange_dense`` does not settle either)
+        if any_link:  # (with no link nothing changes: the frontiers settle only after an exchange)
             self.latest, self.known, self.c, self.disc = latest, known, c, disc
             self.delay_count += added
         return bits, links

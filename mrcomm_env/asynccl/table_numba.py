@@ -1,9 +1,10 @@
-"""Compiled twin (numba) of ``InfoTables._exchange_dense`` and the ``_settle`` that follows it: one exchange of
-eq. (4)-(5) over all links, then the new complete frontiers, delay statistics (eq. (7)) and discard rule.
+"""One exchange of eq. (4)-(5) over all links of a small team, compiled (numba): ``InfoTables._exchange_dense``,
+then the new complete frontiers, delay statistics (eq. (7)) and discard rule (``InfoTables._settle``).
 
-Same inputs, same integer bookkeeping, same bit counts (sums of whole bits, exact in float64), written
-as loops over (sender j, receiver i, row v) instead of ~40 numpy calls on (N, N, N) arrays. The numpy
-method is the reference; ``tests/asynccl/test_asynccl.py`` checks that both give identical tables and bits.
+The same integer bookkeeping and bit counts (sums of whole bits, exact in float64) as the pairwise exchange
+``InfoTables._exchange_pairs``, written as loops over (sender j, receiver i, row v). The pairwise exchange handles
+every case (any N, budgets, the q-rule variants) and is this kernel's oracle: ``tests/asynccl/test_asynccl.py``
+checks that both give identical tables and bits.
 """
 
 from __future__ import annotations

@@ -1,10 +1,10 @@
 """Which implementation of an env's hot loops runs: compiled (numba, the default) or numpy.
 
-numba is a required dependency. Every env's hot loops are compiled kernels; MultiHop's frame exists only compiled
-(its copy-axis world; the slot-by-slot numpy frame it is checked against lives under ``tests/helpers``). AsyncCL,
-ChannelAssociation, MapSync and RendezvousMapping still keep their numpy references in the package beside their
-kernels: ``MRCOMM_BACKEND=numpy`` runs those (the tests compare both), ``auto`` or ``numba`` the kernels. The choice
-is made once per process.
+numba is a required dependency. Every env's hot loops are compiled kernels. MultiHop's frame (its copy-axis world)
+and AsyncCL's table exchange, observation and team errors exist only compiled; the numpy code they are checked
+against lives under ``tests/helpers``. AsyncCL's EKF, MapSync's and RendezvousMapping's kernels still keep their
+numpy references in the package: ``MRCOMM_BACKEND=numpy`` runs those (the tests compare both), ``auto`` or
+``numba`` the kernels. The choice is made once per process.
 
 Compiled kernels are cached on disk (``cache=True``) so that only the first process compiles them. numba's
 own default writes the cache beside the source, into the installed package: that fails on a read-only

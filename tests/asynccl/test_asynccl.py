@@ -6,10 +6,11 @@ import copy
 
 import numpy as np
 import pytest
+from helpers.asynccl_reference import own_pose_traces, reference_errors, reference_observation
 from helpers.numerics import assert_close_conditioned, tolerance
 
 from mrcomm_baselines import make_policy
-from mrcomm_env.asynccl import theory
+from mrcomm_env.asynccl import env_numba, theory
 from mrcomm_env.asynccl.table import QINF, SCHEME1, SILENT, InfoTables
 from mrcomm_env.asynccl.world import HEADER_BITS, LIST_ENTRY_BITS
 from mrcomm_env.asynccl_v0 import parallel_env
@@ -108,12 +109,9 @@ def test_q1_sends_only_the_oldest_column_and_discards_bound_the_table():
     assert tab.table_size().max() < 3 * (tab.t - tab.disc.min() + 1)
 
 
-@pytest.mark.parametrize("compiled", [False, True], ids=["numpy", "numba"])
-def test_dense_pairwise_and_compiled_exchanges_agree(compiled):
-    """The dense exchange, the pairwise one (any N, budgets) and, with numba, the compiled twin of the dense one
+def test_dense_and_pairwise_exchanges_agree():
+    """The compiled dense exchange (small teams without a budget) and the pairwise one (any N, budgets, its oracle)
     give identical tables and bits, under mixed modes, all-q=∞ steps, packet loss and silent steps."""
-    if compiled:
-        pytest.importorskip("numba")
     rng = np.random.default_rng(0)
     for run in range(8):
         n, hist = int(rng.integers(2, 8)), int(rng.integers(3, 30))
@@ -125,7 +123,7 @@ def test_dense_pairwise_and_compiled_exchanges_agree(compiled):
             d = apply_packet_loss(rng, adj, 0.2 if step % 2 else 0.0)
             b = copy.deepcopy(a)
             r1 = a._exchange_dense(modes, adj, d)
-            r2 = b._exchange_dense_compiled(modes, adj, d) if compiled else b._exchange_pairs(modes, adj, d, None)
+            r2 = b._exchange_pairs(modes, adj, d, None)
             np.testing.assert_array_equal(r1[0], r2[0])
             np.testing.assert_array_equal(r1[1], r2[1])
             for f in ("latest", "c", "disc", "known"):
@@ -326,37 +324,28 @@ def test_observation_is_agent_relative():
         {"n_robots": 12, "estimation": False},  # the delay-only bookkeeping: no trace, no errors
     ],
 )
-def test_compiled_observation_and_errors_are_the_numpy_codes_bit_for_bit(monkeypatch, kwargs):
-    """The same state observed, and its errors measured, by both backends: byte for byte, every step."""
-    pytest.importorskip("numba")
-    import types
-
-    from mrcomm_env.asynccl import env as env_module
-
+def test_compiled_observation_and_errors_are_the_numpy_codes_bit_for_bit(kwargs):
+    """The same state observed, and its errors measured, by the env (compiled) and by their numpy oracles: byte for
+    byte, every step."""
     env = parallel_env(max_cycles=40, **kwargs)
     env.reset(seed=6)
     rng = np.random.default_rng(8)
-    accumulators = ("_mean_pos", "_sum_pos", "_sum_ori", "_n_err") if env.cfg["estimation"] else ()
     steps = 0
     while env.agents:
         env.step({a: int(rng.integers(env.action_space(a).n)) for a in env.agents})
-        runs = []
-        for compiled in (False, True):
-            monkeypatch.setattr(env_module, "backend", types.SimpleNamespace(compiled=lambda flag=compiled: flag))
-            kept = [getattr(env, name) for name in accumulators]
-            if env.cfg["estimation"]:
-                env._errors()
-            runs.append([env._observe(), env._err_pos, env._err_ori] + [getattr(env, name) for name in accumulators])
-            for name, value in zip(accumulators, kept):
-                setattr(env, name, value)
-        if env.cfg["estimation"]:  # the own-pose traces in float64, before the observation's log scale
-            from mrcomm_env.asynccl import env_numba
-
-            n = env.n_agents
-            runs[0].append(np.add.reduce(env.est.P.reshape(n, -1)[env._own_rows, env._own_flat], axis=1))
-            runs[1].append(env_numba.own_pose_traces(env.est.P))
-        for want, got in zip(*runs):
-            assert np.asarray(want).dtype == np.asarray(got).dtype
-            assert np.asarray(want).tobytes() == np.asarray(got).tobytes()
+        want, got = [reference_observation(env)], [env._observe()]
+        if env.cfg["estimation"]:
+            pos, ori, mean_pos, mean_ori = reference_errors(env)
+            kept = (env._sum_pos, env._sum_ori, env._n_err)
+            env._errors()  # measured again on the state the step left (the world has moved on to the next step)
+            want += [pos, ori, kept[0] + mean_pos, kept[1] + mean_ori, kept[2] + 1, mean_pos]
+            got += [env._err_pos, env._err_ori, env._sum_pos, env._sum_ori, env._n_err, env._mean_pos]
+            env._sum_pos, env._sum_ori, env._n_err = kept
+            # the own-pose traces in float64, before the observation's log scale
+            want.append(own_pose_traces(env))
+            got.append(env_numba.own_pose_traces(env.est.P))
+        for expected, value in zip(want, got, strict=True):
+            assert np.asarray(expected).dtype == np.asarray(value).dtype
+            assert np.asarray(expected).tobytes() == np.asarray(value).tobytes()
         steps += 1
     assert steps > 10

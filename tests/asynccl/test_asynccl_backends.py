@@ -33,7 +33,6 @@ from helpers.numerics import (  # noqa: E402
 )
 
 from mrcomm_env.asynccl import ekf, ekf_numba  # noqa: E402
-from mrcomm_env.asynccl import table as table_mod  # noqa: E402
 from mrcomm_env.asynccl_v0 import parallel_env  # noqa: E402
 from mrcomm_env.core import backend  # noqa: E402
 
@@ -273,7 +272,7 @@ def _episode(seed, kw, compiled, monkeypatch, log=None, ulp=False):
     """A seeded episode on one backend; ``log`` (a ``ConditionLog``) records κ of what its kernels invert, ``ulp``
     moves the prior mean by one ulp (to measure how sensitive the problem itself is)."""
     with monkeypatch.context() as m:  # whatever MRCOMM_BACKEND says, run the backend asked for
-        m.setattr(table_mod.backend, "compiled", lambda: compiled)
+        m.setattr(backend, "compiled", lambda: compiled)
         env = parallel_env(**kw)
         env.reset(seed=seed)
         kernels = ekf.backend("numba" if compiled else "numpy")
