@@ -60,8 +60,8 @@ that never completed a step which leaves memory abandons it and restarts from it
 
 **Speed**: the table exchange of teams of up to 24 robots without a budget, the observation and the team's errors
 are compiled (numba); the EKF column steps run compiled twins of their numpy code (``core.backend``;
-``MRCOMM_BACKEND=numpy`` runs the numpy code). Tables, bits and delays are identical on both. Estimates differ by rounding (LU versus Cholesky inverses), within
-β·‖x‖ where β = 2·3·(3N + 2m)·ε·Σ_k κ_k adds up the condition numbers κ_k of the matrices each column step
+``MRCOMM_BACKEND=numpy`` runs the numpy code). Tables, bits and delays are identical on both. Estimates differ by
+rounding (LU versus Cholesky inverses), within β·‖x‖ where β = 2·3·(3N + 2m)·ε·Σ_k κ_k adds up the condition numbers κ_k of the matrices each column step
 inverts (P⁻ and the information matrix Y, eq. (2)). They agree to round-off while β ≪ 1: over 150 steps
 β ≈ 2·10⁻⁷ with the defaults (estimates 10⁻¹⁴ m apart), 2·10⁻⁴ with near-noiseless sensing
 (``sigma_d=0.001``, ``sigma_theta_deg=0.01``, 4·10⁻¹⁰ m apart). Only the prior fixes the team's rigid

@@ -371,7 +371,6 @@ def _bisection_compiled(x, y, strings: SharedStrings, k: int, res: int, rng: np.
     advanced by exactly those, so that it ends where the reference leaves it. None when more than ``_POOL_MAX``
     picks would be drawn ahead.
     """
-
     n = x.size
     pcg64 = isinstance(rng.bit_generator, np.random.PCG64)
     saved: dict = {}

@@ -136,8 +136,6 @@ class MultiHopEnv(MultiHopSpec, MrcommParallelEnv):
             self._act_space = spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float32)
         self._eye = np.eye(n, dtype=bool)
         self._others = ~self._eye
-        #: priority of the candidate at rank k when selected: above 0 and decreasing with the rank
-        self._rank_priority = 1.0 - np.arange(n - 1) / (2.0 * n)
         self._capacity = n * self.m * c.bits_per_estimate  # bits one frame can carry
         self.ledger = BitLedger(n)
 

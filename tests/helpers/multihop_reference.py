@@ -78,7 +78,8 @@ class ReferenceMultiHop(MultiHopEnv):
         selected = np.asarray(actions, dtype=bool)
         prio = np.zeros((n, n))
         rows = np.repeat(np.arange(n), n - 1)
-        prio[rows, self._candidates.ravel()] = np.where(selected, self._rank_priority, 0.0).ravel()
+        rank_priority = 1.0 - np.arange(n - 1) / (2.0 * n)  # a selected candidate's: above 0, falling with the rank
+        prio[rows, self._candidates.ravel()] = np.where(selected, rank_priority, 0.0).ravel()
         return prio
 
     def _move(self, duration: float) -> None:
