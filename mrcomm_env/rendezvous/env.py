@@ -618,7 +618,7 @@ class RendezvousMappingEnv(RendezvousMappingSpec, MrcommParallelEnv):
 @cache
 def _kernels() -> SimpleNamespace:
     """The compiled window, packets, observation and candidate ranking (``window_numba``, ``observe_numba``,
-    ``plan_numba``), imported on first use: numba is optional."""
+    ``plan_numba``) under the names the env calls them by."""
     return SimpleNamespace(
         window=window_numba.window,
         packets=window_numba.group_observations,
