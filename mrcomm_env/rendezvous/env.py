@@ -49,8 +49,6 @@ linked only when co-located, i.e. after a rendezvous at the same landmark.
 from __future__ import annotations
 
 import math
-from functools import cache
-from types import SimpleNamespace
 
 import numpy as np
 from gymnasium import spaces
@@ -155,27 +153,7 @@ class RendezvousMappingEnv(RendezvousMappingSpec, MrcommParallelEnv):
 
     # ----------------------------------------------------------------- dynamics
     def _step_world(self, actions: list) -> float:
-        if backend.compiled():  # the same window in one call (window_numba)
-            new_pos, new_at, vehicles, observed = _kernels().window(
-                np.asarray(actions, dtype=np.int64),
-                self.mask,
-                self.candidates,
-                self.assignment,
-                self.central,
-                self.rendezvous_point,
-                self.at_landmark,
-                self.pos,
-                self._estimates,
-                self.ticks,
-                self.cfg.t_window,
-                self.cfg.speed,
-                self.world_count,
-                self.cfg.obs_per_landmark,
-                self.action_kind,
-                self.action_ok,
-            )
-        else:
-            new_pos, new_at, vehicles, observed = self._window(actions)
+        new_pos, new_at, vehicles, observed = self._window(actions)
         kind = self.action_kind
         self.rendezvous_windows += int(np.count_nonzero((kind == DETOUR_RENDEZVOUS) | (kind == RENDEZVOUS)))
         self._apply_observations(vehicles, observed)
@@ -190,81 +168,30 @@ class RendezvousMappingEnv(RendezvousMappingSpec, MrcommParallelEnv):
         return (self.fused_gain - before) / self.reward_scale
 
     def _window(self, actions: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The numpy reference of the window: every vehicle's route, and the observations its landmarks still
-        yield (``_useful_events``). Returns the new positions, landmarks stayed at, and the kept observations'
-        vehicles and landmarks in time order. Sets ``action_kind`` and ``action_ok``."""
-        n, c = self.n_agents, self.cfg
-        T, u = c.t_window, c.speed
-        est = self._estimates
-        events_t, events_v, events_l = [], [], []
-        new_pos = self.pos.copy()
-        new_at = np.full(n, -1, dtype=np.int64)
-        for v, a in enumerate(actions):
-            ok = bool(self.mask[v, a])
-            self.action_ok[v] = ok
-            if not ok:
-                a = self.K + 1
-            here, t, final = self.pos[v], 0.0, -1
-            for target, landmark, leave in self._route(v, a, est[v]):  # leave: departure time, None: stay
-                dist = float(np.hypot(*(target - here)))
-                arrive = t + dist / u
-                if arrive > T + 1e-9:  # out of reach: travel towards it for the rest of the window
-                    here, final = here + (target - here) * ((T - t) * u / dist), -1
-                    break
-                end = T if leave is None else leave
-                sel = self.ticks[(self.ticks >= arrive - 1e-9) & (self.ticks <= end + 1e-9)]
-                events_t.append(sel)
-                events_v.append(np.full(len(sel), v))
-                events_l.append(np.full(len(sel), landmark))
-                here, t, final = target, end, landmark
-            new_pos[v] = here
-            new_at[v] = final
-        vehicles, observed = self._useful_events(events_t, events_v, events_l)
-        return new_pos, new_at, vehicles, observed
-
-    def _route(self, v: int, a: int, est: np.ndarray) -> list:
-        """The legs (target position, landmark observed there or −1, departure time or None) of action a."""
+        """The window in one compiled call (``window_numba.window``; its numpy oracle is
+        ``tests/helpers/rendezvous_reference.py``): every vehicle's route (Fig. 5: a candidate landmark, the
+        rendezvous with a detour over its recommended landmark when it fits, or holding), and the observations its
+        landmarks still yield under the sensor floor. Returns the new positions, landmarks stayed at, and the kept
+        observations' vehicles and landmarks in time order. Sets ``action_kind`` and ``action_ok``."""
         c = self.cfg
-        if a < self.K:
-            lm = int(self.candidates[v, a])
-            self.action_kind[v] = GO
-            return [(est[lm], lm, None)]
-        if a == self.K:
-            lp, lc = int(self.assignment[v]), int(self.central[v])
-            meet = self.rendezvous_point[v]
-            if lp >= 0 and lp != lc:
-                d1 = float(np.hypot(*(est[lp] - self.pos[v])))
-                d2 = float(np.hypot(*(meet - est[lp])))
-                if d1 + d2 < c.speed * c.t_window:  # Fig. 5 condition 4: observe l_p(v), then reach l_c in time
-                    self.action_kind[v] = DETOUR_RENDEZVOUS
-                    return [(est[lp], lp, c.t_window - d2 / c.speed), (meet, lc, None)]
-            self.action_kind[v] = RENDEZVOUS
-            return [(meet, lc, None)]
-        self.action_kind[v] = HOLD
-        lm = int(self.at_landmark[v])
-        return [(self.pos[v], lm, None)] if lm >= 0 else []
-
-    def _useful_events(self, events_t, events_v, events_l) -> tuple[np.ndarray, np.ndarray]:
-        """The window's observations in time order (ties: vehicle id, then the vehicle's leg) that their
-        landmarks still yield: each landmark yields at most ``obs_per_landmark`` independent observations in
-        total (the sensor floor). Returns their vehicles and landmarks."""
-        none = np.empty(0, dtype=np.int64)
-        if not events_t:
-            return none, none
-        t = np.concatenate(events_t)
-        v = np.concatenate(events_v).astype(np.int64)
-        lm = np.concatenate(events_l).astype(np.int64)
-        if len(t) == 0:
-            return none, none
-        order = np.lexsort((v, t))
-        v, lm = v[order], lm[order]
-        by_lm = np.argsort(lm, kind="stable")
-        sorted_lm = lm[by_lm]
-        start = np.searchsorted(sorted_lm, sorted_lm, side="left")
-        rank = np.empty(len(lm), dtype=np.int64)
-        rank[by_lm] = np.arange(len(lm)) - start  # earlier observations of the same landmark this window
-        useful = self.world_count[lm] + rank < self.cfg.obs_per_landmark
-        return v[useful], lm[useful]
+        return window_numba.window(
+            np.asarray(actions, dtype=np.int64),
+            self.mask,
+            self.candidates,
+            self.assignment,
+            self.central,
+            self.rendezvous_point,
+            self.at_landmark,
+            self.pos,
+            self._estimates,
+            self.ticks,
+            c.t_window,
+            c.speed,
+            self.world_count,
+            c.obs_per_landmark,
+            self.action_kind,
+            self.action_ok,
+        )
 
     def _apply_observations(self, v: np.ndarray, lm: np.ndarray) -> None:
         """The kept observations (vehicles ``v`` of landmarks ``lm``, in time order), drawn and added to the
@@ -275,25 +202,17 @@ class RendezvousMappingEnv(RendezvousMappingSpec, MrcommParallelEnv):
             return
         np.add.at(self.world_count, lm, 1)
         z = self.landmarks[lm] + self.np_random.normal(0.0, c.obs_sigma, size=(len(lm), 2))
-        L = c.n_landmarks
-        if backend.compiled():  # the same packets from one call (window_numba.group_observations)
-            owners, bounds, ids, counts, dy, per_vehicle = _kernels().packets(v, lm, z * self.r_info, L, self.n_agents)
-            for owner, start, end in zip(owners.tolist(), bounds[:-1].tolist(), bounds[1:].tolist()):
-                self.maps.add_own(owner, filters.Packet(ids[start:end], dy[start:end], counts[start:end]))
-            self.step_obs[:] = per_vehicle
-            return
-        # every observing vehicle's packet, its landmarks in increasing order, from one grouping of the (vehicle,
-        # landmark) pairs; np.add.at sums each pair's observations in time order, as a per-vehicle sum would
-        pairs, inverse, counts = np.unique(v * L + lm, return_inverse=True, return_counts=True)
-        dy = np.zeros((len(pairs), 2))
-        np.add.at(dy, inverse, z * self.r_info)
-        owner, ids = np.divmod(pairs, L)
-        bounds = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1], True]).tolist()
-        for start, end in zip(bounds[:-1], bounds[1:]):  # vehicles in increasing order: the order packets are kept
-            span = slice(start, end)
-            packet = filters.Packet(ids[span], dy[span], counts[span])
-            self.maps.add_own(int(owner[start]), packet)
-        self.step_obs[:] = np.bincount(v, minlength=self.n_agents)
+        owners, bounds, ids, counts, dy, per_vehicle = self._packets(v, lm, z * self.r_info)
+        for owner, start, end in zip(owners.tolist(), bounds[:-1].tolist(), bounds[1:].tolist()):
+            self.maps.add_own(owner, filters.Packet(ids[start:end], dy[start:end], counts[start:end]))
+        self.step_obs[:] = per_vehicle
+
+    def _packets(self, v: np.ndarray, lm: np.ndarray, weighted: np.ndarray) -> tuple:
+        """Every observing vehicle's packet, its landmarks in increasing order, each pair's observations summed in
+        time order, in one compiled call (``window_numba.group_observations``; its numpy oracle is
+        ``tests/helpers/rendezvous_reference.py``): the owners in increasing order, their bounds into the packets'
+        landmark ids, counts and summed information vectors, and each vehicle's observations."""
+        return window_numba.group_observations(v, lm, weighted, self.cfg.n_landmarks, self.n_agents)
 
     def _decision_phase(self) -> None:
         """Fuse over each group's Dijkstra tree, share positions and utilities, update the fused map, plan."""
@@ -467,95 +386,31 @@ class RendezvousMappingEnv(RendezvousMappingSpec, MrcommParallelEnv):
         return self._views
 
     def _observe(self) -> np.ndarray:
-        n, K, c = self.n_agents, self.K, self.cfg
-        side, T, u = self.side, c.t_window, c.speed
-        if backend.compiled():  # the same formulas in one call (observe_numba)
-            return _kernels().observe(
-                self.pos,
-                side,
-                min(self.phases / c.max_cycles, 1.0),
-                self.group,
-                self.n_groups == 1,
-                self.own_info_fraction(),
-                self.candidates,
-                self.candidate_utility,
-                self.u_max,
-                self._estimates,
-                self.in_main,
-                self.assignment,
-                self.rendezvous_point,
-                self.plan_connected,
-                self.known_pos,
-                self.known_phase,
-                self.phases,
-                u,
-                T,
-                self.d_max,
-            )
-        # the numpy reference
-        rows = np.arange(n)
-
-        def rel(d):  # relative offsets to [0, 1], 0.5 = here
-            return np.clip(d / (2.0 * side) + 0.5, 0.0, 1.0)
-
-        def travel(dist):  # travel time over (travel time + window): 0 here, 0.5 at d_max, → 1 far away
-            t = dist / u
-            return t / (t + T)
-
-        head = np.column_stack(
-            [
-                np.clip(self.pos / side, 0.0, 1.0),
-                np.full(n, min(self.phases / c.max_cycles, 1.0)),
-                self.group.sum(1) / n,
-                np.full(n, float(self.n_groups == 1)),
-                np.clip(self.own_info_fraction(), 0.0, 1.0),
-            ]
+        """The observation of the module's table in one compiled call (``observe_numba.observe``; its numpy oracle is
+        ``tests/helpers/rendezvous_reference.py``)."""
+        c = self.cfg
+        return observe_numba.observe(
+            self.pos,
+            self.side,
+            min(self.phases / c.max_cycles, 1.0),
+            self.group,
+            self.n_groups == 1,
+            self.own_info_fraction(),
+            self.candidates,
+            self.candidate_utility,
+            self.u_max,
+            self._estimates,
+            self.in_main,
+            self.assignment,
+            self.rendezvous_point,
+            self.plan_connected,
+            self.known_pos,
+            self.known_phase,
+            self.phases,
+            c.speed,
+            c.t_window,
+            self.d_max,
         )
-        valid = self.candidates >= 0
-        cand = np.where(valid, self.candidates, 0)
-        cpos = self._estimates[rows[:, None], cand]  # (n, K, 2)
-        off = cpos - self.pos[:, None, :]
-        cand_feats = (
-            np.concatenate(
-                [
-                    rel(off),
-                    np.clip(self.candidate_utility / self.u_max, 0.0, 1.0)[..., None],
-                    travel(np.hypot(off[..., 0], off[..., 1]))[..., None],
-                    self.in_main[:, None].repeat(K, 1)[..., None] & (cand == self.assignment[:, None])[..., None],
-                    (cand == self.assignment[:, None])[..., None],
-                    valid[..., None],
-                ],
-                axis=-1,
-            )
-            * valid[..., None]
-        )
-        lc = self.rendezvous_point
-        lp = self._estimates[rows, np.maximum(self.assignment, 0)]
-        d1 = np.hypot(*(lp - self.pos).T)
-        d2 = np.hypot(*(lc - lp).T)
-        fits = (self.assignment >= 0) & (d1 + d2 < self.d_max)
-        lc_off = lc - self.pos
-        rdv = np.column_stack([rel(lc_off), travel(np.hypot(*lc_off.T)), fits, self.plan_connected])
-        # the K nearest other vehicles at their last known positions
-        others = self.known_pos - self.pos[:, None, :]
-        dist = np.hypot(others[..., 0], others[..., 1])
-        dist[rows, rows] = np.inf
-        order = np.argsort(dist, axis=1, kind="stable")[:, :K]
-        k_real = min(K, n - 1)
-        near = np.zeros((n, K, 5))
-        if k_real > 0:
-            idx = order[:, :k_real]
-            age = self.phases - self.known_phase[rows[:, None], idx]
-            near[:, :k_real] = np.concatenate(
-                [
-                    rel(others[rows[:, None], idx]),
-                    self.group[rows[:, None], idx][..., None],
-                    (age / (age + 1.0))[..., None],
-                    np.ones((n, k_real, 1)),
-                ],
-                axis=-1,
-            )
-        return np.concatenate([head, cand_feats.reshape(n, -1), rdv, near.reshape(n, -1)], axis=1).astype(np.float32)
 
     def _agent_infos(self) -> dict:
         out = {
@@ -615,19 +470,6 @@ class RendezvousMappingEnv(RendezvousMappingSpec, MrcommParallelEnv):
         )
 
 
-@cache
-def _kernels() -> SimpleNamespace:
-    """The compiled window, packets, observation and candidate ranking (``window_numba``, ``observe_numba``,
-    ``plan_numba``) under the names the env calls them by."""
-    return SimpleNamespace(
-        window=window_numba.window,
-        packets=window_numba.group_observations,
-        observe=observe_numba.observe,
-        negated_work=plan_numba.negated_work,
-        candidates=plan_numba.ranked_candidates,
-    )
-
-
 def candidate_lists(utility: np.ndarray, assignment: np.ndarray, K: int) -> tuple[np.ndarray, np.ndarray]:
     """(n, K) candidate landmarks and their utilities: the recommended landmark first (when assigned and worth
     anything), then the highest-utility others; landmarks worth nothing (believed exhausted) are left out, empty
@@ -635,10 +477,9 @@ def candidate_lists(utility: np.ndarray, assignment: np.ndarray, K: int) -> tupl
     n, L = utility.shape
     k = min(K, L)
     if backend.compiled():  # the ranking below in two calls
-        kernels = _kernels()
         utility = np.ascontiguousarray(utility, dtype=np.float64)
         assignment = np.ascontiguousarray(assignment, dtype=np.int64)
-        return kernels.candidates(utility, kernels.negated_work(utility, assignment), k, K)
+        return plan_numba.ranked_candidates(utility, plan_numba.negated_work(utility, assignment), k, K)
     work = utility.copy()
     rows = np.arange(n)
     has_rec = (assignment >= 0) & (utility[rows, np.maximum(assignment, 0)] > 0)

@@ -135,10 +135,10 @@ class RendezvousMappingSpec(EnvSpec):
     #: configurations at the documented maxima (``tests/core/test_limits.py``, ``mrcomm bench --limits``)
     MEMORY_FORMULA = (
         "18 MiB + 140·`n_vehicles`·`n_landmarks` (every vehicle's information map and utility row) + "
-        "(10 + 92·`n_vehicles`)·⌊`t_window`·`obs_rate`⌋ (the observation instants of a window and each "
-        "vehicle's observation events in it) + 60·`n_landmarks`·`obs_per_landmark` (the packets some vehicle "
-        "still lacks, at most one entry per observation the sensor floor allows: reached only by a team split "
-        "for the whole of a long episode)"
+        "12·⌊`t_window`·`obs_rate`⌋ (the observation instants of a window; the compiled window walks each leg's "
+        "run of them without listing its observations) + 60·`n_landmarks`·`obs_per_landmark` (the packets some "
+        "vehicle still lacks, at most one entry per observation the sensor floor allows: reached only by a team "
+        "split for the whole of a long episode)"
     )
 
     MEMORY_SHARED = 18.0 * 2**20  # the formula's constant term: working memory the copies of a batch share
@@ -146,19 +146,32 @@ class RendezvousMappingSpec(EnvSpec):
     MEMORY_ARGS = ("n_vehicles", "n_landmarks", "t_window", "obs_rate", "obs_per_landmark")
 
     MEMORY_PROBES = {
-        "ten_vehicles_30k_instants": {"t_window": 300.0, "obs_rate": 100.0, "max_cycles": 3},
-        "ten_vehicles_150k_instants": {"t_window": 1500.0, "obs_rate": 100.0, "max_cycles": 3},
-        "thirty_vehicles_300k_instants": {"t_window": 3000.0, "obs_rate": 100.0, "n_vehicles": 30, "max_cycles": 3},
+        "default": {"max_cycles": 3},
+        "thirty_vehicles_2000_landmarks_1m_instants": {
+            "n_vehicles": 30,
+            "n_landmarks": 2000,
+            "t_window": 10_000.0,
+            "obs_rate": 100.0,
+            "max_cycles": 3,
+        },
+        "largest_team_and_map_3m_instants": {
+            "n_vehicles": 64,
+            "n_landmarks": 5000,
+            "t_window": 30_000.0,
+            "obs_rate": 100.0,
+            "max_cycles": 3,
+        },
     }
 
     @classmethod
     def memory_estimate(cls, cfg) -> float:
-        # measured (tests/core/test_memory.py): ~140 B per vehicle × landmark, ~92 B per vehicle × observation instant;
-        # the packet logs by their bound (filters.STORED_ENTRY_BYTES per entry, an entry per observation at most)
+        # measured (tests/core/test_memory.py): ~140 B per vehicle × landmark, ~12 B per observation instant (the
+        # window's instants, 8 B each, and their making); the packet logs by their bound (filters.STORED_ENTRY_BYTES
+        # per entry, an entry per observation at most)
         instants = math.floor(cfg.t_window * cfg.obs_rate + 1e-9)
         n, landmarks = float(cfg.n_vehicles), float(cfg.n_landmarks)
         packets = filters.STORED_ENTRY_BYTES * landmarks * cfg.obs_per_landmark
-        return cls.MEMORY_SHARED + 140.0 * n * landmarks + (10.0 + 92.0 * n) * instants + packets
+        return cls.MEMORY_SHARED + 140.0 * n * landmarks + 12.0 * instants + packets
 
     LIMIT_CONFIGS = {
         "largest_team_and_map": {

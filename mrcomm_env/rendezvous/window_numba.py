@@ -1,7 +1,8 @@
-"""Compiled twin (numba) of RendezvousMapping's window: where each vehicle's action takes it, and which of the
-window's observations its landmarks still yield (``RendezvousMappingEnv._step_world`` and ``_useful_events``).
+"""RendezvousMapping's window, compiled (numba): where each vehicle's action takes it, and which of the window's
+observations its landmarks still yield (``RendezvousMappingEnv._window``, its only implementation in the package).
 
-The reference walks each vehicle's legs in Python (``_route``), lists every observation instant of every leg,
+The reference (the numpy oracle, ``tests/helpers/rendezvous_reference.py``) walks each vehicle's legs in Python
+(``_route``), lists every observation instant of every leg,
 sorts all of them by time (ties: vehicle id, then leg) and keeps, per landmark, those within the sensor floor.
 This twin computes the legs with the reference's formulas, in the same floating-point operations and order, and
 never lists the instants: a leg observes a contiguous run of the window's sorted instants (the reference's
@@ -10,10 +11,7 @@ drops a leg once its landmark has reached the floor. What it returns, the kept (
 reference's order, is what the reference keeps, and it never visits an observation it does not keep (no sort: its
 kernels compile in a fraction of the time numba's sorts take); the noise of each observation is drawn by the caller, in that
 order, as the reference draws it. ``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares whole seeded
-episodes on both
-backends, and this window alone on crowded, tied and out-of-reach windows.
-
-Used when ``core.backend.compiled()`` (docs/architecture.md).
+episodes with the oracle's, and this window alone on crowded, tied and out-of-reach windows.
 """
 
 from __future__ import annotations
@@ -87,7 +85,7 @@ def _route(
     v, a, candidates, assignment, central, rendezvous_point, at_landmark, pos, estimates, T, u, targets, landmarks,
     leaves,
 ):  # fmt: skip
-    """Vehicle v's legs for action a (``env._route``) into ``targets``/``landmarks``/``leaves``:
+    """Vehicle v's legs for action a (the oracle's ``_route``) into ``targets``/``landmarks``/``leaves``:
     ``(action kind, legs)``."""
     K = candidates.shape[1]
     if a < K:

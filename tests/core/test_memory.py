@@ -4,6 +4,9 @@ The estimate is held to the measured peak within a factor of 2 at three sizes pe
 peak is what Python and numpy allocate from construction through reset and a few steps (``tracemalloc`` in a
 fresh process on the numpy backend, whose arrays ``tracemalloc`` sees; the compiled twins allocate the same state,
 except MultiHop's copy-axis world of one copy, whose estimate is measured on the compiled backend as well).
+Kernels that exist only compiled hold their state in arrays the env allocates in numpy; what they allocate inside a
+call (RendezvousMapping's window: its legs and the observations it keeps, bounded by the team and the sensor floor)
+``tracemalloc`` does not see, and their memory models say why it is small.
 """
 
 from __future__ import annotations

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from helpers.numerics import bit_identical
 from helpers.rendezvous import make_packet, random_spd
+from helpers.rendezvous_reference import ReferenceRendezvous, reference_observation, reference_packets, reference_window
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linear_sum_assignment
@@ -263,7 +264,7 @@ def test_compiled_observation_is_the_reference_at_every_step(monkeypatch, kwargs
         both = []
         for compiled in (False, True):
             _use_plan_backend(monkeypatch, compiled)
-            both.append(env._observe())
+            both.append(env._observe() if compiled else reference_observation(env))
         reference, twin = both
         assert twin.dtype == reference.dtype == np.float32 and twin.shape == reference.shape
         assert twin.tobytes() == reference.tobytes(), np.argwhere(twin != reference)[:5]
@@ -306,7 +307,7 @@ def test_compiled_window_is_the_reference_at_every_step(monkeypatch, kwargs):
     while env.agents:
         actions = [int(rng.integers(env.K + 2)) for _ in env.agents]
         kind_before, ok_before = env.action_kind.copy(), env.action_ok.copy()
-        want = env._window(actions)
+        want = reference_window(env, actions)
         want_kind, want_ok = env.action_kind.copy(), env.action_ok.copy()
         env.action_kind[:], env.action_ok[:] = kind_before, ok_before
         got = window_numba.window(
@@ -477,6 +478,8 @@ def test_compiled_packets_of_a_window_are_the_references(monkeypatch):
         for compiled in (False, True):
             _use_plan_backend(monkeypatch, compiled)
             twin = copy.deepcopy(env)
+            if not compiled:  # the numpy grouping of the packets (an instance attribute: this twin only)
+                twin._packets = lambda v, lm, w, twin=twin: reference_packets(v, lm, w, 30, twin.n_agents)
             twin._apply_observations(v, lm)
             runs.append(twin)
         want, got = runs
@@ -547,7 +550,7 @@ def _assert_backends_agree(monkeypatch, kwargs, policy, seed):
 
     def episode(compiled):
         _use_plan_backend(monkeypatch, compiled)
-        env = RendezvousMappingEnv(**kwargs)
+        env = (RendezvousMappingEnv if compiled else ReferenceRendezvous)(**kwargs)
         pol = make_policy("RendezvousMapping-v0", policy)
         views = env.local_views()
         obs, infos = env.reset(seed=seed)

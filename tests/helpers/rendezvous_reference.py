@@ -1,0 +1,188 @@
+"""RendezvousMapping's window, packets and observation written in numpy: the oracles of their compiled kernels.
+
+The env computes each in one compiled call (``RendezvousMappingEnv._window``, ``_packets``, ``_observe``:
+``window_numba``, ``observe_numba``); these are the same formulas as §IV–V and the module's table state them, kept
+here and not in the package (#44: one implementation in the package, the reference under tests/).
+``ReferenceRendezvous`` steps whole episodes with them, and ``tests/rendezvous_mapping/test_rendezvous_compiled.py``
+compares those with the env's byte for byte (with ``protocol``'s, ``world``'s and ``filters``' numpy paths too)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mrcomm_env.rendezvous.env import DETOUR_RENDEZVOUS, GO, HOLD, RENDEZVOUS, RendezvousMappingEnv
+
+
+def reference_window(env, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``RendezvousMappingEnv._window`` in numpy: every vehicle's route, and the observations its landmarks still
+    yield (``_useful_events``). Returns the new positions, landmarks stayed at, and the kept observations'
+    vehicles and landmarks in time order. Sets the env's ``action_kind`` and ``action_ok``."""
+    n, c = env.n_agents, env.cfg
+    T, u = c.t_window, c.speed
+    est = env._estimates
+    events_t, events_v, events_l = [], [], []
+    new_pos = env.pos.copy()
+    new_at = np.full(n, -1, dtype=np.int64)
+    for v, a in enumerate(actions):
+        ok = bool(env.mask[v, a])
+        env.action_ok[v] = ok
+        if not ok:
+            a = env.K + 1
+        here, t, final = env.pos[v], 0.0, -1
+        for target, landmark, leave in _route(env, v, a, est[v]):  # leave: departure time, None: stay
+            dist = float(np.hypot(*(target - here)))
+            arrive = t + dist / u
+            if arrive > T + 1e-9:  # out of reach: travel towards it for the rest of the window
+                here, final = here + (target - here) * ((T - t) * u / dist), -1
+                break
+            end = T if leave is None else leave
+            sel = env.ticks[(env.ticks >= arrive - 1e-9) & (env.ticks <= end + 1e-9)]
+            events_t.append(sel)
+            events_v.append(np.full(len(sel), v))
+            events_l.append(np.full(len(sel), landmark))
+            here, t, final = target, end, landmark
+        new_pos[v] = here
+        new_at[v] = final
+    vehicles, observed = _useful_events(env, events_t, events_v, events_l)
+    return new_pos, new_at, vehicles, observed
+
+
+def _route(env, v: int, a: int, est: np.ndarray) -> list:
+    """The legs (target position, landmark observed there or −1, departure time or None) of action a."""
+    c = env.cfg
+    if a < env.K:
+        lm = int(env.candidates[v, a])
+        env.action_kind[v] = GO
+        return [(est[lm], lm, None)]
+    if a == env.K:
+        lp, lc = int(env.assignment[v]), int(env.central[v])
+        meet = env.rendezvous_point[v]
+        if lp >= 0 and lp != lc:
+            d1 = float(np.hypot(*(est[lp] - env.pos[v])))
+            d2 = float(np.hypot(*(meet - est[lp])))
+            if d1 + d2 < c.speed * c.t_window:  # Fig. 5 condition 4: observe l_p(v), then reach l_c in time
+                env.action_kind[v] = DETOUR_RENDEZVOUS
+                return [(est[lp], lp, c.t_window - d2 / c.speed), (meet, lc, None)]
+        env.action_kind[v] = RENDEZVOUS
+        return [(meet, lc, None)]
+    env.action_kind[v] = HOLD
+    lm = int(env.at_landmark[v])
+    return [(env.pos[v], lm, None)] if lm >= 0 else []
+
+
+def _useful_events(env, events_t, events_v, events_l) -> tuple[np.ndarray, np.ndarray]:
+    """The window's observations in time order (ties: vehicle id, then the vehicle's leg) that their landmarks still
+    yield: each landmark yields at most ``obs_per_landmark`` independent observations in total (the sensor floor).
+    Returns their vehicles and landmarks."""
+    none = np.empty(0, dtype=np.int64)
+    if not events_t:
+        return none, none
+    t = np.concatenate(events_t)
+    v = np.concatenate(events_v).astype(np.int64)
+    lm = np.concatenate(events_l).astype(np.int64)
+    if len(t) == 0:
+        return none, none
+    order = np.lexsort((v, t))
+    v, lm = v[order], lm[order]
+    by_lm = np.argsort(lm, kind="stable")
+    sorted_lm = lm[by_lm]
+    start = np.searchsorted(sorted_lm, sorted_lm, side="left")
+    rank = np.empty(len(lm), dtype=np.int64)
+    rank[by_lm] = np.arange(len(lm)) - start  # earlier observations of the same landmark this window
+    useful = env.world_count[lm] + rank < env.cfg.obs_per_landmark
+    return v[useful], lm[useful]
+
+
+def reference_packets(v: np.ndarray, lm: np.ndarray, weighted: np.ndarray, n_landmarks: int, n_vehicles: int):
+    """``RendezvousMappingEnv._packets`` in numpy: one grouping of the (vehicle, landmark) pairs, each pair's
+    observations summed in time order by ``np.add.at`` (as a per-vehicle sum would). Returns the owners, their
+    bounds, the landmark ids, counts and summed vectors, and each vehicle's observations."""
+    pairs, inverse, counts = np.unique(v * n_landmarks + lm, return_inverse=True, return_counts=True)
+    dy = np.zeros((len(pairs), 2))
+    np.add.at(dy, inverse, weighted)
+    owner, ids = np.divmod(pairs, n_landmarks)
+    bounds = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1], True])  # vehicles in increasing order
+    return owner[bounds[:-1]], bounds, ids, counts, dy, np.bincount(v, minlength=n_vehicles)
+
+
+def reference_observation(env) -> np.ndarray:
+    """``RendezvousMappingEnv._observe`` in numpy: the head (position, clock, group, connected, own information),
+    the K candidates, the rendezvous and the K nearest other vehicles at their last known positions."""
+    n, K, c = env.n_agents, env.K, env.cfg
+    side, T, u = env.side, c.t_window, c.speed
+    rows = np.arange(n)
+
+    def rel(d):  # relative offsets to [0, 1], 0.5 = here
+        return np.clip(d / (2.0 * side) + 0.5, 0.0, 1.0)
+
+    def travel(dist):  # travel time over (travel time + window): 0 here, 0.5 at d_max, → 1 far away
+        t = dist / u
+        return t / (t + T)
+
+    head = np.column_stack(
+        [
+            np.clip(env.pos / side, 0.0, 1.0),
+            np.full(n, min(env.phases / c.max_cycles, 1.0)),
+            env.group.sum(1) / n,
+            np.full(n, float(env.n_groups == 1)),
+            np.clip(env.own_info_fraction(), 0.0, 1.0),
+        ]
+    )
+    valid = env.candidates >= 0
+    cand = np.where(valid, env.candidates, 0)
+    cpos = env._estimates[rows[:, None], cand]  # (n, K, 2)
+    off = cpos - env.pos[:, None, :]
+    cand_feats = (
+        np.concatenate(
+            [
+                rel(off),
+                np.clip(env.candidate_utility / env.u_max, 0.0, 1.0)[..., None],
+                travel(np.hypot(off[..., 0], off[..., 1]))[..., None],
+                env.in_main[:, None].repeat(K, 1)[..., None] & (cand == env.assignment[:, None])[..., None],
+                (cand == env.assignment[:, None])[..., None],
+                valid[..., None],
+            ],
+            axis=-1,
+        )
+        * valid[..., None]
+    )
+    lc = env.rendezvous_point
+    lp = env._estimates[rows, np.maximum(env.assignment, 0)]
+    d1 = np.hypot(*(lp - env.pos).T)
+    d2 = np.hypot(*(lc - lp).T)
+    fits = (env.assignment >= 0) & (d1 + d2 < env.d_max)
+    lc_off = lc - env.pos
+    rdv = np.column_stack([rel(lc_off), travel(np.hypot(*lc_off.T)), fits, env.plan_connected])
+    # the K nearest other vehicles at their last known positions
+    others = env.known_pos - env.pos[:, None, :]
+    dist = np.hypot(others[..., 0], others[..., 1])
+    dist[rows, rows] = np.inf
+    order = np.argsort(dist, axis=1, kind="stable")[:, :K]
+    k_real = min(K, n - 1)
+    near = np.zeros((n, K, 5))
+    if k_real > 0:
+        idx = order[:, :k_real]
+        age = env.phases - env.known_phase[rows[:, None], idx]
+        near[:, :k_real] = np.concatenate(
+            [
+                rel(others[rows[:, None], idx]),
+                env.group[rows[:, None], idx][..., None],
+                (age / (age + 1.0))[..., None],
+                np.ones((n, k_real, 1)),
+            ],
+            axis=-1,
+        )
+    return np.concatenate([head, cand_feats.reshape(n, -1), rdv, near.reshape(n, -1)], axis=1).astype(np.float32)
+
+
+class ReferenceRendezvous(RendezvousMappingEnv):
+    """RendezvousMapping whose window, packets and observation are the numpy oracles above."""
+
+    def _window(self, actions):
+        return reference_window(self, actions)
+
+    def _packets(self, v, lm, weighted):
+        return reference_packets(v, lm, weighted, self.cfg.n_landmarks, self.n_agents)
+
+    def _observe(self):
+        return reference_observation(self)
