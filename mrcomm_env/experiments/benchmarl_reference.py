@@ -413,7 +413,7 @@ def ensure_references(out: Path, tasks: Sequence[str], episodes: int) -> dict:
 
     A task's record is its env's current revision; the records of earlier revisions stay under ``"earlier"``
     (revision → record), since runs recorded at a revision are scored against that revision's references
-    (:func:`reference_of`). A record written before records named their revision is taken as it is."""
+    (:func:`reference_of`). A record that names no revision is computed again: which episodes it played is unknown."""
     lock = RunLock(out / "references.lock")
     lock.acquire(wait=True)
     try:
@@ -423,7 +423,7 @@ def ensure_references(out: Path, tasks: Sequence[str], episodes: int) -> dict:
             env_id = ENV_ID_OF_TASK[task]
             revision = env_revision(env_id)
             old = references.get(task)
-            if old is not None and old["episodes"] == episodes and old.get("env_revision") in (None, revision):
+            if old is not None and old["episodes"] == episodes and old.get("env_revision") == revision:
                 continue
             earlier = dict(old.get("earlier", {})) if old is not None else {}
             if old is not None and old.get("env_revision") not in (None, revision):
@@ -553,10 +553,13 @@ def _one_thread() -> None:
 
 # ---------------------------------------------------------------------------------------------------- the page
 def load_runs(out: Path) -> list[dict]:
-    """Every finished run's record, with its marl-eval JSON under ``"marl_eval"``."""
+    """Every finished run's record, with its marl-eval JSON under ``"marl_eval"``. Each names the env revision it
+    was recorded at (``env_revision``), by which it is scored: a record without one is refused, naming it."""
     records = []
     for record_path in sorted((out / RUNS).glob("*/*/seed_*[0-9].json")):
         record = json.loads(record_path.read_text())
+        if "env_revision" not in record:
+            raise ValueError(f"{record_path}: the run record names no 'env_revision' (the env revision it ran at)")
         record["marl_eval"] = json.loads(record_path.with_suffix(".marl-eval.json").read_text())
         records.append(record)
     return records
@@ -567,17 +570,17 @@ def normalised(value: float | np.ndarray, random_return: float, paper_return: fl
     return (np.asarray(value, dtype=float) - random_return) / (paper_return - random_return)
 
 
-def reference_of(references: dict, task: str, revision: str | None = None) -> dict:
+def reference_of(references: dict, task: str, revision: str) -> dict:
     """``task``'s references at its env's ``revision``: the current record, or the one of an earlier revision that
-    ``ensure_references`` kept. A run recorded without a revision, or at one with no record, gets the current one
-    (the page names such runs, ``_revision_note``)."""
+    ``ensure_references`` kept. A run recorded at a revision with no record gets the current one (the page names
+    such runs, ``_revision_note``)."""
     current = references[task]
-    if revision is None or current.get("env_revision") in (None, revision):
+    if current["env_revision"] == revision:
         return current
     return current.get("earlier", {}).get(revision, current)
 
 
-def reference_returns(references: dict, task: str, revision: str | None = None) -> tuple[float, float]:
+def reference_returns(references: dict, task: str, revision: str) -> tuple[float, float]:
     """The mean held-out returns of ``random`` and of the paper's algorithm on ``task`` at ``revision``."""
     reference = reference_of(references, task, revision)
     policies = reference["policies"]
@@ -587,7 +590,7 @@ def reference_returns(references: dict, task: str, revision: str | None = None) 
 
 def run_score(record: dict, references: dict, values=None):
     """A run's held-out mean return (or ``values``), normalised by the references of the revision it ran at."""
-    random_return, paper_return = reference_returns(references, record["task"], record.get("env_revision"))
+    random_return, paper_return = reference_returns(references, record["task"], record["env_revision"])
     value = np.mean(record["heldout"]["return"]) if values is None else values
     return normalised(value, random_return, paper_return)
 
@@ -759,7 +762,7 @@ def _task_tables(records: list[dict], references: dict) -> list[str]:
         # the scripted rows of the current revision, then of each earlier one that some run was recorded at
         shown = [ref] + [
             ref["earlier"][revision]
-            for revision in sorted({r["env_revision"] for r in records if r["task"] == task and r.get("env_revision")})
+            for revision in sorted({r["env_revision"] for r in records if r["task"] == task})
             if revision in ref.get("earlier", {})
         ]
         for reference in shown:
@@ -768,7 +771,8 @@ def _task_tables(records: list[dict], references: dict) -> list[str]:
                 notes = ["paper"] if name == reference["paper_policy"] else []
                 notes += [] if reference is ref else [reference["env_revision"]]
                 label = f"`{name}`" + (f" ({', '.join(notes)})" if notes else "")
-                score = float(normalised(np.mean(values["return"]), *reference_returns({task: reference}, task)))
+                random_and_paper = reference_returns({task: reference}, task, reference["env_revision"])
+                score = float(normalised(np.mean(values["return"]), *random_and_paper))
                 lines.append(
                     f"| {label} | – | {_fmt(values['return'])} | {score:.3g} | {_fmt(values['metric'])}"
                     f" | {_fmt(values['bits'])} | – | – |"
@@ -799,15 +803,15 @@ def _task_tables(records: list[dict], references: dict) -> list[str]:
 
 
 def _revision_note(task: str, runs: list[dict], reference: dict) -> list[str]:
-    """A task's runs and scripted rows recorded at an earlier revision of its env (their ``env_revision``; records
-    written before the field say nothing): which, and at which revision, since they played other episodes."""
+    """A task's runs and scripted rows recorded at an earlier revision of its env (their ``env_revision``): which,
+    and at which revision, since they played other episodes."""
     env_id = ENV_ID_OF_TASK[task]
     current = env_revision(env_id)
     earlier: dict[str, list[str]] = {}
     for run in runs:
-        if run.get("env_revision") not in (None, current):
+        if run["env_revision"] != current:
             earlier.setdefault(run["env_revision"], []).append(f"{run['algorithm'].upper()} seed {run['seed']}")
-    if reference.get("env_revision") not in (None, current):
+    if reference["env_revision"] != current:
         earlier.setdefault(reference["env_revision"], []).append("the `random` and paper rows")
     if not earlier:
         return []

@@ -241,15 +241,14 @@ def test_reference_benchmark_runs_resumes_and_writes_its_page(tmp_path, capsys):
 
 def test_the_page_names_runs_recorded_at_an_earlier_revision_of_their_env():
     """Runs and scripted rows whose ``env_revision`` is not the env's current one are named with it under their
-    task's table; records without the field (written before it) and current ones are not."""
+    task's table; current ones are not."""
     current = env_revision("mrcomm/MapSync-v0")
     runs = [
         {"algorithm": "ippo", "seed": 0, "env_revision": current},
         {"algorithm": "mappo", "seed": 1, "env_revision": "v0 rev 0"},
-        {"algorithm": "iql", "seed": 2},
+        {"algorithm": "iql", "seed": 2, "env_revision": current},
     ]
     assert benchmarl_reference._revision_note("MAPSYNC", [runs[0], runs[2]], {"env_revision": current}) == []
-    assert benchmarl_reference._revision_note("MAPSYNC", [runs[0]], {}) == []
     note = " ".join(benchmarl_reference._revision_note("MAPSYNC", runs, {"env_revision": "v0 rev 0"}))
     assert f"Recorded before mrcomm/MapSync-v0's {current}" in note
     assert "MAPPO seed 1, the `random` and paper rows at v0 rev 0." in note
@@ -258,8 +257,9 @@ def test_the_page_names_runs_recorded_at_an_earlier_revision_of_their_env():
 
 def test_references_of_an_earlier_revision_are_kept_and_score_the_runs_recorded_there(tmp_path, monkeypatch):
     """A task whose env changed revision gets its references computed again; the old ones stay under ``earlier``,
-    and a run is normalised against the references of the revision it ran at (the current ones when it names none
-    or one with no record). Its task table shows the kept revision's scripted rows, labelled with it."""
+    and a run is normalised against the references of the revision it ran at (the current ones when that revision
+    has no record). A record that names no revision is computed again, and a run record without one is refused. Its
+    task table shows the kept revision's scripted rows, labelled with it."""
     paper = benchmarl_reference.default_policy("mrcomm/MapSync-v0")
     computed: list[str] = []
 
@@ -285,12 +285,16 @@ def test_references_of_an_earlier_revision_are_kept_and_score_the_runs_recorded_
     assert references["MAPSYNC"]["earlier"]["v0 rev 0"]["policies"]["random"]["return"] == [1.0]
 
     def run(revision):
-        record = {"task": "MAPSYNC", "algorithm": "ippo", "seed": 0, "heldout": {"return": [3.0]}}
-        return record if revision is None else {**record, "env_revision": revision}
+        return {
+            "task": "MAPSYNC",
+            "algorithm": "ippo",
+            "seed": 0,
+            "heldout": {"return": [3.0]},
+            "env_revision": revision,
+        }
 
     assert float(benchmarl_reference.run_score(run("v0 rev 0"), references)) == 1.0  # (3 - 1) / (3 - 1)
     assert float(benchmarl_reference.run_score(run("v0 rev 1"), references)) == 0.5  # (3 - 2) / (4 - 2)
-    assert float(benchmarl_reference.run_score(run(None), references)) == 0.5
     assert float(benchmarl_reference.run_score(run("v0 rev 9"), references)) == 0.5
 
     records = [
@@ -309,6 +313,20 @@ def test_references_of_an_earlier_revision_are_kept_and_score_the_runs_recorded_
     references = benchmarl_reference.ensure_references(out, ["MAPSYNC"], 2)
     assert set(references["MAPSYNC"]["earlier"]) == {"v0 rev 0", "v0 rev 1"}
     assert "earlier" not in references["MAPSYNC"]["earlier"]["v0 rev 1"]
+
+    # a record that names no revision played unknown episodes: it is computed again, not kept as current
+    unnamed = {key: value for key, value in references["MAPSYNC"].items() if key not in ("env_revision", "earlier")}
+    (out / benchmarl_reference.REFERENCES).write_text(json.dumps({"MAPSYNC": unnamed}))
+    references = benchmarl_reference.ensure_references(out, ["MAPSYNC"], 2)
+    assert computed == ["MAPSYNC"] * 4 and references["MAPSYNC"]["env_revision"] == "v0 rev 2"
+
+    # a run record without its revision is refused when the page loads it, naming the file
+    record_path, json_path = benchmarl_reference.run_paths(out, "MAPSYNC", "ippo", 0)
+    record_path.parent.mkdir(parents=True)
+    record_path.write_text(json.dumps({key: value for key, value in records[0].items() if key != "env_revision"}))
+    json_path.write_text("{}")
+    with pytest.raises(ValueError, match=r"seed_0\.json: the run record names no 'env_revision'"):
+        benchmarl_reference.load_runs(out)
 
 
 def test_an_on_policy_run_killed_midway_goes_on_from_its_newest_checkpoint(tmp_path):
