@@ -14,12 +14,7 @@ import os
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
-pytest.importorskip("numba")
-
-from helpers.numerics import (  # noqa: E402
+from helpers.numerics import (
     EPS,
     HEADINGS,
     ConditionLog,
@@ -31,10 +26,12 @@ from helpers.numerics import (  # noqa: E402
     solve_tolerance,
     tolerance,
 )
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from mrcomm_env.asynccl import ekf, ekf_numba  # noqa: E402
-from mrcomm_env.asynccl_v0 import parallel_env  # noqa: E402
-from mrcomm_env.core import backend  # noqa: E402
+from mrcomm_env.asynccl import ekf, ekf_numba
+from mrcomm_env.asynccl_v0 import parallel_env
+from mrcomm_env.core import backend
 
 SD, STH = 0.02, np.radians(1.0)
 

@@ -80,7 +80,6 @@ def test_compiled_restart_chains_are_the_loop_bit_for_bit(seed, kw, before_every
     (``ekf_numba.group_filters``): four envs, the fused call with the compiled and the Python grouping, the restart
     call alone and the loop, give the same bytes. ``before_every_source``: some restart runs while a robot has no
     odometry yet (the ring's standstill slot)."""
-    pytest.importorskip("numba")
     import types
 
     from mrcomm_env.asynccl import ekf

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pcg = pytest.importorskip("mrcomm_env.core.pcg64_numba")
+from mrcomm_env.core import pcg64_numba as pcg
 
 
 @pytest.mark.parametrize("trial", range(20))

@@ -7,8 +7,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
-
 import mrcomm_env
 
 PACKAGE = Path(mrcomm_env.__file__).resolve().parent
@@ -19,7 +17,6 @@ def package_files() -> set[Path]:
 
 
 def test_compiled_kernels_are_cached_outside_the_package(tmp_path):
-    pytest.importorskip("numba")
     before = package_files()
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
     env.update(XDG_CACHE_HOME=str(tmp_path), MRCOMM_BACKEND="numba")
@@ -39,7 +36,6 @@ def test_every_kernel_module_caches_outside_the_package_even_when_imported_first
     """numba fixes a kernel's cache folder when its ``@njit(cache=True)`` runs, at import: a kernel module imported
     before anything has called ``configure_numba_cache`` (a test, a script, a user's import) must still cache in
     the user folder. Every module of the package with cached kernels, each in a fresh process."""
-    pytest.importorskip("numba")
     modules = sorted(
         ".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts)
         for path in PACKAGE.rglob("*.py")

@@ -14,7 +14,7 @@ from scipy import stats
 import mrcomm_env
 from mrcomm_baselines import make_policy
 from mrcomm_env.experiments.evaluation import run_episode
-from mrcomm_env.mapsync import pinsketch, theory, world
+from mrcomm_env.mapsync import kernels_numba, pinsketch, theory, world
 from mrcomm_env.mapsync import protocol as proto
 from mrcomm_env.mapsync.env import _STALE_KNOWN, EQUALITY, FULL, IDLE, SKETCH, MapSyncEnv
 from mrcomm_env.mapsync.philox import SharedStrings, philox4x32
@@ -473,7 +473,7 @@ def test_separate_test_variant_runs_bisection_only_after_a_difference():
 @pytest.mark.parametrize("n", [16, 45, 77, 256, 1024, 4096])
 @pytest.mark.parametrize("cached", [False, True])
 def test_compiled_inner_products_equal_the_numpy_reference(n, cached):
-    kernels = pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    kernels = kernels_numba
     rng = np.random.default_rng(n)
     strings = SharedStrings(n, 42, cache=cached)
     maps = [proto.pack(rng.random(n) < 0.5), proto.pack(rng.random(n) < 0.5)]
@@ -504,7 +504,7 @@ def test_compiled_inner_products_equal_the_numpy_reference(n, cached):
 @pytest.mark.parametrize("domain", [0, 1])
 def test_compiled_stream_words_equal_the_numpy_generator(domain):
     """Aligned and unaligned starts, runs shorter and longer than a block, indices up to 2^32 − 1, 64-bit seeds."""
-    kernels = pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    kernels = kernels_numba
     from mrcomm_env.mapsync.philox import seed_key, stream_words
 
     rng = np.random.default_rng(31 + domain)
@@ -533,7 +533,6 @@ def test_compiled_sketch_is_the_reference_step_for_step(monkeypatch):
     """The sketch on both backends (``kernels_numba.sketch``): the same cells, bits, rounds and record, over maps with
     no, few and more differences than the syndromes can decode (Alice falls back to her map), cell 0 differing or
     not, map sizes off and on word boundaries, and one or two parity bits, so that wrong guesses pass them."""
-    pytest.importorskip("numba")
     rng = np.random.default_rng(21)
     outcomes: dict[str, int] = {}
     for trial in range(600):
@@ -572,7 +571,6 @@ def test_compiled_sketch_is_the_reference_step_for_step(monkeypatch):
 def test_compiled_equality_is_the_reference(monkeypatch, cached):
     """Protocol 1 on whole maps on both backends (``kernels_numba.equality_counter``): the same verdict, counter and
     bits, and the generator left in the same state, with few rounds (differences missed) and with many."""
-    pytest.importorskip("numba")
     rng = np.random.default_rng(31)
     verdicts = {True: 0, False: 0}
     for trial in range(300):
@@ -598,7 +596,6 @@ def test_compiled_equality_is_the_reference(monkeypatch, cached):
 @pytest.mark.parametrize("cached", [False, True])
 @pytest.mark.parametrize("bit_generator", ["PCG64", "MT19937"])  # drawn by the twin itself, or drawn ahead for it
 def test_compiled_bisection_equals_the_reference(monkeypatch, n, res, k, d, cached, bit_generator):
-    pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
     rng = np.random.default_rng(100 * n + d)
     x, y, _ = maps_with_differences(rng, n, d)
     strings = SharedStrings(n, 9, cache=cached)
@@ -620,8 +617,6 @@ def test_compiled_bisection_equals_the_reference(monkeypatch, n, res, k, d, cach
 def test_protocol1_and_algorithm1_on_equal_maps_return_and_draw_what_the_full_run_does(monkeypatch, compiled):
     """Equal maps are answered without computing inner products (they are known to agree); the results and the
     generator's state afterwards must be those of the full computation, Alice's picks included."""
-    if compiled:
-        pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
     _use_backend(monkeypatch, compiled)
     rng = np.random.default_rng(5)
     # res ≥ n: the whole map is one EQUALLINEAR segment, sent without a Protocol 1 test or a pick
@@ -655,7 +650,7 @@ def test_protocol1_and_algorithm1_on_equal_maps_return_and_draw_what_the_full_ru
 def test_bisection_tests_counts_algorithm1s_protocol1_calls_when_no_test_errs(monkeypatch):
     """What the compiled bisection draws ahead: exactly the reference's Protocol 1 calls when no test errs (k = 40), and
     never fewer when tests do err (k = 1: a differing segment then often tests "same" and is not split)."""
-    kernels = pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    kernels = kernels_numba
     _use_backend(monkeypatch, False)
     rng = np.random.default_rng(7)
     fewer = 0
@@ -673,7 +668,6 @@ def test_bisection_tests_counts_algorithm1s_protocol1_calls_when_no_test_errs(mo
 @pytest.mark.parametrize("n", [4, 64, 300])
 def test_compiled_bisection_never_runs_out_of_picks(n):
     """Every cell differs: the most Protocol 1 calls Algorithm 1 can make fit in the picks drawn ahead."""
-    pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
     x = np.zeros(n, dtype=bool)
     y = ~x
     k, rng = 40, np.random.default_rng(n)  # a test misses a difference w.p. ≤ 2^−40: the run is exact
@@ -685,7 +679,7 @@ def test_compiled_bisection_never_runs_out_of_picks(n):
 
 def test_compiled_walk_and_sense_equals_the_reference():
     """The twin against ``world.random_walk`` + ``MapSyncEnv._sense`` from states with stale, wrong and unseen bits."""
-    kernels = pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    kernels = kernels_numba
     env = MapSyncEnv(grid_size=7, n_robots=4, n_obstacles=0)
     env.reset(seed=0)
     n, n_robots = env.n, env.n_agents
@@ -718,7 +712,7 @@ def test_compiled_walk_and_sense_equals_the_reference():
 def test_compiled_disagreement_equals_the_reference(grid_size, n_robots):
     """The twin of ``_update_disagreement`` against the reference, to the last bit: maps of every density, rows of
     distances under and over numpy's 8-way unrolling, pairs past one 128-value block, n not a multiple of 64."""
-    kernels = pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    kernels = kernels_numba
     env = MapSyncEnv(grid_size=grid_size, n_robots=n_robots, n_obstacles=0)
     env.reset(seed=0)
     env._disagreement_compiled = None  # the numpy reference
@@ -738,7 +732,7 @@ def test_compiled_disagreement_equals_the_reference(grid_size, n_robots):
 def test_compiled_change_world_equals_the_reference():
     """The twin of ``_change_world`` from the same generator: the same cells appear and vanish (never where a robot
     stands), the generator ends in the same state (two draws of n keys are one draw of 2n), 'changed' is told."""
-    kernels = pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    kernels = kernels_numba
     env = MapSyncEnv(grid_size=9, n_robots=5, n_obstacles=0, appear_rate=0.1, vanish_rate=0.3)
     env.reset(seed=0)
     env._change_world_compiled = None  # the numpy reference
@@ -768,7 +762,7 @@ def test_compiled_change_world_equals_the_reference():
 
 def test_compiled_observation_equals_the_reference_at_every_step():
     """Syncs in flight over a narrow link (progress), links that break, verdicts, a changing world."""
-    kernels = pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
+    kernels = kernels_numba
     env = MapSyncEnv(n_robots=5, bits_per_step=30, link_prob=0.6, comm_range=6.0, appear_rate=0.01, vanish_rate=0.05)
     env.reset(seed=4)
     rng = np.random.default_rng(1)
@@ -794,7 +788,6 @@ def test_compiled_observation_equals_the_reference_at_every_step():
     ],
 )
 def test_whole_episodes_are_identical_on_both_backends(monkeypatch, cfg, policy):
-    pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
     _assert_backends_agree(monkeypatch, cfg, policy, seed=17)
 
 
@@ -822,7 +815,6 @@ def _drawn_configs(draw):
 @given(cfg=_drawn_configs(), seed=st.integers(0, 2**16))
 def test_whole_episodes_of_drawn_configurations_are_identical_on_both_backends(cfg, seed):
     """The fixed cases above, and drawn ones under random actions (25 per run, the same ones in ``make test``)."""
-    pytest.importorskip("mrcomm_env.mapsync.kernels_numba")
     with pytest.MonkeyPatch.context() as monkeypatch:
         _assert_backends_agree(monkeypatch, cfg, "random", seed)
 

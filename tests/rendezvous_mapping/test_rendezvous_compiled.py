@@ -57,7 +57,6 @@ def _random_plan(rng, min_vehicles: int, max_landmarks: int, tie_probability: fl
 
 
 def test_compiled_partition_pass_plans_what_the_reference_plans(monkeypatch):
-    pytest.importorskip("numba")
     rng = np.random.default_rng(11)
     passes = ties = eigenvectors = 0
     for _ in range(400):
@@ -82,7 +81,6 @@ def test_compiled_partition_pass_plans_what_the_reference_plans(monkeypatch):
 
 
 def test_compiled_munkres_is_scipys_linear_sum_assignment_including_its_ties():
-    pytest.importorskip("numba")
     from mrcomm_env.rendezvous import plan_numba
 
     rng = np.random.default_rng(3)
@@ -99,7 +97,6 @@ def test_compiled_munkres_is_scipys_linear_sum_assignment_including_its_ties():
 
 
 def test_compiled_eq8_sign_is_numpys_or_says_rounding_could_change_it():
-    pytest.importorskip("numba")
     from mrcomm_env.rendezvous import plan_numba
 
     rng = np.random.default_rng(8)
@@ -119,7 +116,6 @@ def test_compiled_eq8_sign_is_numpys_or_says_rounding_could_change_it():
 
 
 def test_compiled_spanning_forest_is_scipys_dijkstra_forest_or_says_it_is_ambiguous(monkeypatch):
-    pytest.importorskip("numba")
     from mrcomm_env.rendezvous import forest_numba
 
     rng = np.random.default_rng(5)
@@ -153,7 +149,6 @@ def test_compiled_spanning_forest_is_scipys_dijkstra_forest_or_says_it_is_ambigu
 def test_compiled_recommendation_loop_plans_what_the_reference_plans_from_any_pass(monkeypatch):
     """The whole loop compiled (its own candidate columns, ties to the lowest column) gives the reference's plan,
     and so does resuming it from the working set of any of the reference's passes."""
-    pytest.importorskip("numba")
     from mrcomm_env.rendezvous import plan_numba
 
     def compiled_from(U, lm, d, working):
@@ -214,7 +209,6 @@ def test_recommend_resumes_the_reference_passes_where_the_compiled_loop_hands_ov
     """The compiled loop stops when an eq. (8) sign could round either way (rare in random plans, so forced here):
     ``protocol.recommend`` then runs the reference's passes from the working set it stopped at, and plans what the
     reference plans."""
-    pytest.importorskip("numba")
     from mrcomm_env.rendezvous import plan_numba
 
     rng = np.random.default_rng(17)
@@ -255,7 +249,6 @@ def test_recommend_resumes_the_reference_passes_where_the_compiled_loop_hands_ov
 )
 def test_compiled_observation_is_the_reference_at_every_step(monkeypatch, kwargs):
     """The same state observed by both backends, byte for byte, over whole episodes of random actions."""
-    pytest.importorskip("numba")
     env = RendezvousMappingEnv(max_cycles=30, **kwargs)
     env.reset(seed=8)
     rng = np.random.default_rng(3)
@@ -290,7 +283,6 @@ def test_compiled_observation_is_the_reference_at_every_step(monkeypatch, kwargs
 def test_compiled_window_is_the_reference_at_every_step(monkeypatch, kwargs):
     """The same window by both backends: positions, landmarks stayed at, action kinds and feasibility, and the
     kept observations in order (random actions, infeasible ones included)."""
-    pytest.importorskip("numba")
     from mrcomm_env.rendezvous import env as env_module
     from mrcomm_env.rendezvous import window_numba
 
@@ -327,7 +319,6 @@ def test_compiled_window_is_the_reference_at_every_step(monkeypatch, kwargs):
 def test_compiled_fusion_adds_packets_and_takes_means_as_numpy_does(monkeypatch):
     """Entries with repeated landmarks (np.add.at's order matters), added into one map on both backends, and the
     means of the maps: bit for bit."""
-    pytest.importorskip("numba")
     rng = np.random.default_rng(4)
     L = 12
     for trial in range(300):
@@ -351,7 +342,6 @@ def test_compiled_group_fusion_is_the_references(monkeypatch):
     """Groups fused over random trees in random meeting sequences, with packets piling up past the cumulative table's
     first size: the bits each tree edge carries both ways (``fusion_numba.edge_bits``) and every member's map and
     version vector after the exchange, the same bytes on both backends."""
-    pytest.importorskip("numba")
     rng = np.random.default_rng(17)
     L, edges, silent = 9, 0, 0
     for _ in range(20):
@@ -386,7 +376,6 @@ def test_compiled_group_fusion_is_the_references(monkeypatch):
 def test_compiled_candidate_ranking_is_numpys_bit_for_bit(monkeypatch):
     """``candidate_lists`` on both backends: the same bytes, with tied and zero utilities, recommendations worth
     something or nothing or absent, NaN, and K below, at and above L."""
-    pytest.importorskip("numba")
     from mrcomm_env.rendezvous.env import candidate_lists
 
     rng = np.random.default_rng(12)
@@ -416,7 +405,6 @@ def test_compiled_candidate_ranking_is_numpys_bit_for_bit(monkeypatch):
 def test_compiled_utility_is_numpys_bit_for_bit(monkeypatch):
     """Eq. (1)–(4) of one map per vehicle on both backends: the same bytes, with landmarks out of reach (ε), exhausted
     or over-observed (worth 0), exactly at the window's edge, at distance 0, and under a nearly singular Y."""
-    pytest.importorskip("numba")
     rng = np.random.default_rng(9)
     edges = reaches = exhausted = 0
     for trial in range(200):
@@ -453,8 +441,6 @@ def test_compiled_utility_is_numpys_bit_for_bit(monkeypatch):
 
 @pytest.mark.parametrize("compiled", [False, True])
 def test_a_packet_outside_the_map_raises_on_both_backends(monkeypatch, compiled):
-    if compiled:
-        pytest.importorskip("numba")
     _use_plan_backend(monkeypatch, compiled)
     Y, y, count = np.ones((4, 2, 2)), np.ones((4, 2)), np.zeros(4, dtype=np.int64)
     with pytest.raises(IndexError):
@@ -464,7 +450,6 @@ def test_a_packet_outside_the_map_raises_on_both_backends(monkeypatch, compiled)
 def test_compiled_packets_of_a_window_are_the_references(monkeypatch):
     """Random kept observations (repeated pairs, vehicles out of order, a vehicle with none) become the same
     packets, maps and counts on both backends, to the last bit."""
-    pytest.importorskip("numba")
     import copy
 
     rng = np.random.default_rng(11)
@@ -509,7 +494,6 @@ def test_compiled_packets_of_a_window_are_the_references(monkeypatch):
 )
 @pytest.mark.parametrize("policy", ["paper_protocol", "random"])
 def test_whole_episodes_are_identical_with_the_compiled_plan_and_forest(monkeypatch, kwargs, policy):
-    pytest.importorskip("numba")
     _assert_backends_agree(monkeypatch, {"n_landmarks": 80, "area": 3600.0, "max_cycles": 25, **kwargs}, policy, 29)
 
 
@@ -538,7 +522,6 @@ def _drawn_configs(draw):
 @given(kwargs=_drawn_configs(), policy=st.sampled_from(["paper_protocol", "random"]), seed=st.integers(0, 2**16))
 def test_whole_episodes_of_drawn_configurations_are_identical_with_the_compiled_plan_and_forest(kwargs, policy, seed):
     """The fixed cases above, and drawn ones (25 per run, the same ones in ``make test``)."""
-    pytest.importorskip("numba")
     with pytest.MonkeyPatch.context() as monkeypatch:
         _assert_backends_agree(monkeypatch, kwargs, policy, seed)
 
