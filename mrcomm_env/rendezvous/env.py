@@ -54,7 +54,7 @@ import numpy as np
 from gymnasium import spaces
 from matplotlib.collections import LineCollection
 
-from mrcomm_env.core import BitLedger, MrcommParallelEnv, backend
+from mrcomm_env.core import BitLedger, MrcommParallelEnv
 from mrcomm_env.core import render as rendering
 from mrcomm_env.core.base import MASK_INFO_PREFIX
 from mrcomm_env.rendezvous import filters, observe_numba, plan_numba, protocol, theory, window_numba, world
@@ -472,25 +472,11 @@ class RendezvousMappingEnv(RendezvousMappingSpec, MrcommParallelEnv):
 
 def candidate_lists(utility: np.ndarray, assignment: np.ndarray, K: int) -> tuple[np.ndarray, np.ndarray]:
     """(n, K) candidate landmarks and their utilities: the recommended landmark first (when assigned and worth
-    anything), then the highest-utility others; landmarks worth nothing (believed exhausted) are left out, empty
-    slots are −1."""
-    n, L = utility.shape
-    k = min(K, L)
-    if backend.compiled():  # the ranking below in two calls
-        utility = np.ascontiguousarray(utility, dtype=np.float64)
-        assignment = np.ascontiguousarray(assignment, dtype=np.int64)
-        return plan_numba.ranked_candidates(utility, plan_numba.negated_work(utility, assignment), k, K)
-    work = utility.copy()
-    rows = np.arange(n)
-    has_rec = (assignment >= 0) & (utility[rows, np.maximum(assignment, 0)] > 0)
-    work[rows[has_rec], assignment[has_rec]] = np.inf  # the recommendation ranks first
-    # the k best by (−work, id): a stable sort, not argpartition, whose choice among ties depends on the CPU
-    top = np.argsort(-work, axis=1, kind="stable")[:, :k]
-    cand = np.full((n, K), -1, dtype=np.int64)
-    cand_u = np.zeros((n, K))
-    real = utility[rows[:, None], top]
-    keep = real > 0
-    cand[:, :k] = np.where(keep, top, -1)
-    cand_u[:, :k] = np.where(keep, real, 0.0)
-    # compact: valid slots first (the ordering keeps them first already, as utility ≤ 0 sorts last)
-    return cand, cand_u
+    anything), then the highest-utility others by (utility, lowest id: a stable ranking, never one whose choice
+    among ties depends on the CPU); landmarks worth nothing (believed exhausted) are left out, empty slots are −1.
+    Two compiled calls (``plan_numba.negated_work``, ``ranked_candidates``; their numpy oracle is
+    ``tests/helpers/rendezvous_reference.py``). A recommendation that is no landmark raises ``IndexError``."""
+    k = min(K, utility.shape[1])
+    utility = np.ascontiguousarray(utility, dtype=np.float64)
+    assignment = np.ascontiguousarray(assignment, dtype=np.int64)
+    return plan_numba.ranked_candidates(utility, plan_numba.negated_work(utility, assignment), k, K)

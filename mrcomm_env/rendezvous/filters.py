@@ -4,7 +4,8 @@
 ([13], §III). Landmarks are static, so prediction is the identity, and an observation ``z = x + v``,
 ``v ~ N(0, R)`` adds ``Y += R⁻¹``, ``y += R⁻¹ z``. All landmarks of all holders are updated at once
 (numpy, ``(..., L, 2, 2)`` arrays); ``tests/rendezvous_mapping/test_rendezvous_fusion.py`` checks the result against
-filterpy's ``InformationFilter`` on the same observations.
+filterpy's ``InformationFilter`` on the same observations. The sums of packets into maps, the means and the bits of
+each tree edge are compiled (``fusion_numba``); their numpy oracles are ``tests/helpers/rendezvous_reference.py``.
 
 **Fusion.** Information is additive, so a vehicle's map is the common prior plus the sum of the
 *packets* it holds: packet k of vehicle u is the information u gathered in its k-th observing window
@@ -34,7 +35,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mrcomm_env.core import backend
 from mrcomm_env.core.backend import kernel_array
 from mrcomm_env.rendezvous import fusion_numba
 
@@ -50,12 +50,9 @@ def logdet2(Y: np.ndarray) -> np.ndarray:
 
 
 def mean_of(Y: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """μ = Y⁻¹ y for stacks of 2×2 information matrices (closed-form inverse)."""
-    if backend.compiled() and Y.dtype == y.dtype == np.float64 and Y.flags.c_contiguous and y.flags.c_contiguous:
-        return fusion_numba.mean_of(Y.reshape(-1, 2, 2), y.reshape(-1, 2)).reshape(y.shape)
-    a, b, c, d = Y[..., 0, 0], Y[..., 0, 1], Y[..., 1, 0], Y[..., 1, 1]
-    det = a * d - b * c
-    return np.stack([(d * y[..., 0] - b * y[..., 1]) / det, (a * y[..., 1] - c * y[..., 0]) / det], axis=-1)
+    """μ = Y⁻¹ y for stacks of 2×2 information matrices (closed-form inverse), in float64."""
+    Y, y = kernel_array(Y, np.float64), kernel_array(y, np.float64)
+    return fusion_numba.mean_of(Y.reshape(-1, 2, 2), y.reshape(-1, 2)).reshape(y.shape)
 
 
 def observe(Y: np.ndarray, y: np.ndarray, landmarks: np.ndarray, z: np.ndarray, R_inv: np.ndarray) -> None:
@@ -239,14 +236,6 @@ class TeamMaps:
         _add_entries(self.Y[w], self.y[w], self.count[w], landmarks, dy, count, self.R_inv)
 
     # ------------------------------------------------------------------ fusion
-    def missing_bits(self, have: np.ndarray, want: np.ndarray) -> int:
-        """Bits of the packets in ``want`` (a version vector) beyond ``have``."""
-        return sum(
-            log.bits_before(w) - log.bits_before(h)
-            for log, h, w in zip(self.logs, have.tolist(), want.tolist())
-            if w > h
-        )
-
     def fuse_group(
         self, members: np.ndarray, parent: np.ndarray, sides: dict[int, np.ndarray] | None = None
     ) -> dict[tuple[int, int], int]:
@@ -275,39 +264,29 @@ class TeamMaps:
     def _edge_bits(
         self, members: np.ndarray, parent: np.ndarray, sides: dict[int, np.ndarray]
     ) -> dict[tuple[int, int], int]:
-        """Bits over each tree edge of a group, both ways: the packets one side holds beyond the other's."""
+        """Bits over each tree edge of a group, both ways: the packets one side holds beyond the other's (the
+        logs' cumulative bits between the two sides' version vectors, in one call: ``fusion_numba.edge_bits``)."""
         sent: dict[tuple[int, int], int] = {}
-        if backend.compiled():  # the loop below in one call (fusion_numba.edge_bits), the same whole numbers
-            if self._bits_table is None:
-                origin, at = [], 0
-                for log in self.logs:
-                    origin.append(at - log.first)
-                    at += log.kept + 1
-                kept = np.concatenate([log.cum_bits[: log.kept + 1] for log in self.logs])
-                self._bits_table = (kept, np.array(origin, dtype=np.int64))
-            firsts = list(sides)
-            side_starts = np.zeros(len(firsts) + 1, dtype=np.int64)
-            np.cumsum([len(sides[a]) for a in firsts], out=side_starts[1:])
-            per_edge = fusion_numba.edge_bits(
-                self.known,
-                np.ascontiguousarray(members, dtype=np.int64),
-                side_starts,
-                np.concatenate([sides[a] for a in firsts]).astype(np.int64, copy=False),
-                *self._bits_table,
-            )
-            for a, (forth, back) in zip(firsts, per_edge.tolist()):
-                b = int(parent[a])
-                sent[(a, b)], sent[(b, a)] = forth, back
-            return sent
-        in_group = np.zeros(self.n, dtype=bool)
-        in_group[members] = True
-        for a, side_a in sides.items():
+        if self._bits_table is None:
+            origin, at = [], 0
+            for log in self.logs:
+                origin.append(at - log.first)
+                at += log.kept + 1
+            kept = np.concatenate([log.cum_bits[: log.kept + 1] for log in self.logs])
+            self._bits_table = (kept, np.array(origin, dtype=np.int64))
+        firsts = list(sides)
+        side_starts = np.zeros(len(firsts) + 1, dtype=np.int64)
+        np.cumsum([len(sides[a]) for a in firsts], out=side_starts[1:])
+        per_edge = fusion_numba.edge_bits(
+            self.known,
+            np.ascontiguousarray(members, dtype=np.int64),
+            side_starts,
+            np.concatenate([sides[a] for a in firsts]).astype(np.int64, copy=False),
+            *self._bits_table,
+        )
+        for a, (forth, back) in zip(firsts, per_edge.tolist()):
             b = int(parent[a])
-            other = in_group.copy()
-            other[side_a] = False
-            union_a, union_b = self.known[side_a].max(0), self.known[other].max(0)
-            sent[(a, b)] = self.missing_bits(union_b, union_a)
-            sent[(b, a)] = self.missing_bits(union_a, union_b)
+            sent[(a, b)], sent[(b, a)] = forth, back
         return sent
 
     def update_common(self) -> bool:
@@ -372,21 +351,18 @@ def _add_entries(
     R_inv: np.ndarray,
 ) -> None:
     """Add entries (in order: a landmark may repeat) into one map ``Y`` (L, 2, 2), ``y`` (L, 2), ``count`` (L,),
-    in place: ``dcount · R_inv`` (``R_inv`` (2, 2)), ``dy`` (m, 2) and ``dcount`` (m,) at ``landmarks`` (m,)."""
-    if backend.compiled():  # the same additions in the same order, in one call (fusion_numba)
-        fusion_numba.add_counted(
-            Y,
-            y,
-            count,
-            kernel_array(landmarks, np.int32),
-            kernel_array(dy, np.float64),
-            kernel_array(dcount, np.int32),
-            kernel_array(R_inv, np.float64),
-        )
-        return
-    np.add.at(Y, landmarks, dcount[:, None, None] * R_inv)
-    np.add.at(y, landmarks, dy)
-    np.add.at(count, landmarks, dcount)
+    in place: ``dcount · R_inv`` (``R_inv`` (2, 2)), ``dy`` (m, 2) and ``dcount`` (m,) at ``landmarks`` (m,), in
+    order, as ``np.add.at`` adds them (``fusion_numba.add_counted``). A landmark outside the map raises
+    ``IndexError``."""
+    fusion_numba.add_counted(
+        Y,
+        y,
+        count,
+        kernel_array(landmarks, np.int32),
+        kernel_array(dy, np.float64),
+        kernel_array(dcount, np.int32),
+        kernel_array(R_inv, np.float64),
+    )
 
 
 def subtree_sides(members: np.ndarray, parent: np.ndarray) -> dict[int, np.ndarray]:

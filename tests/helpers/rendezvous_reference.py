@@ -1,16 +1,20 @@
-"""RendezvousMapping's window, packets and observation written in numpy: the oracles of their compiled kernels.
+"""RendezvousMapping's window, packets, observation, candidate lists and map fusion written in numpy: the oracles of
+their compiled kernels.
 
-The env computes each in one compiled call (``RendezvousMappingEnv._window``, ``_packets``, ``_observe``:
-``window_numba``, ``observe_numba``); these are the same formulas as §IV–V and the module's table state them, kept
+The env computes each in compiled calls (``RendezvousMappingEnv._window``, ``_packets``, ``_observe``,
+``candidate_lists``, and ``filters``' sums of packets, means and tree-edge bits: ``window_numba``, ``observe_numba``,
+``plan_numba``, ``fusion_numba``); these are the same formulas as §III–V and the module's table state them, kept
 here and not in the package (#44: one implementation in the package, the reference under tests/).
-``ReferenceRendezvous`` steps whole episodes with them, and ``tests/rendezvous_mapping/test_rendezvous_compiled.py``
-compares those with the env's byte for byte (with ``protocol``'s, ``world``'s and ``filters``' numpy paths too)."""
+``ReferenceRendezvous`` steps whole episodes with them, ``ReferenceTeamMaps`` fuses maps with them, and
+``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares those with the package's byte for byte (with
+``protocol``'s and ``world``'s numpy paths too)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from mrcomm_env.rendezvous.env import DETOUR_RENDEZVOUS, GO, HOLD, RENDEZVOUS, RendezvousMappingEnv
+from mrcomm_env.rendezvous.filters import TeamMaps
 
 
 def reference_window(env, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -186,3 +190,72 @@ class ReferenceRendezvous(RendezvousMappingEnv):
 
     def _observe(self):
         return reference_observation(self)
+
+
+def reference_candidate_lists(utility: np.ndarray, assignment: np.ndarray, K: int) -> tuple[np.ndarray, np.ndarray]:
+    """``env.candidate_lists`` in numpy: the recommendation first (when assigned and worth anything), then the k best
+    by (−work, id), landmarks worth nothing left out, empty slots −1."""
+    n, L = utility.shape
+    k = min(K, L)
+    work = utility.copy()
+    rows = np.arange(n)
+    has_rec = (assignment >= 0) & (utility[rows, np.maximum(assignment, 0)] > 0)
+    work[rows[has_rec], assignment[has_rec]] = np.inf  # the recommendation ranks first
+    # the k best by (−work, id): a stable sort, not argpartition, whose choice among ties depends on the CPU
+    top = np.argsort(-work, axis=1, kind="stable")[:, :k]
+    cand = np.full((n, K), -1, dtype=np.int64)
+    cand_u = np.zeros((n, K))
+    real = utility[rows[:, None], top]
+    keep = real > 0
+    cand[:, :k] = np.where(keep, top, -1)
+    cand_u[:, :k] = np.where(keep, real, 0.0)
+    return cand, cand_u
+
+
+def reference_add_entries(Y, y, count, landmarks, dy, dcount, R_inv) -> None:
+    """``filters._add_entries`` in numpy: ``dcount · R_inv``, ``dy`` and ``dcount`` added at ``landmarks``, in place,
+    repeats in order (``np.add.at``)."""
+    np.add.at(Y, landmarks, dcount[:, None, None] * R_inv)
+    np.add.at(y, landmarks, dy)
+    np.add.at(count, landmarks, dcount)
+
+
+def reference_mean_of(Y: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``filters.mean_of`` in numpy: μ = Y⁻¹ y by the closed-form inverse of each 2×2 Y."""
+    a, b, c, d = Y[..., 0, 0], Y[..., 0, 1], Y[..., 1, 0], Y[..., 1, 1]
+    det = a * d - b * c
+    return np.stack([(d * y[..., 0] - b * y[..., 1]) / det, (a * y[..., 1] - c * y[..., 0]) / det], axis=-1)
+
+
+def missing_bits(maps: TeamMaps, have: np.ndarray, want: np.ndarray) -> int:
+    """Bits of the packets in ``want`` (a version vector) beyond ``have``."""
+    return sum(
+        log.bits_before(w) - log.bits_before(h) for log, h, w in zip(maps.logs, have.tolist(), want.tolist()) if w > h
+    )
+
+
+def reference_edge_bits(maps: TeamMaps, members, parent, sides) -> dict[tuple[int, int], int]:
+    """``TeamMaps._edge_bits`` in numpy: over each tree edge (a, parent[a]) of a group, the bits of the packets a's
+    side holds beyond the other side's, and back."""
+    sent: dict[tuple[int, int], int] = {}
+    in_group = np.zeros(maps.n, dtype=bool)
+    in_group[members] = True
+    for a, side_a in sides.items():
+        b = int(parent[a])
+        other = in_group.copy()
+        other[side_a] = False
+        union_a, union_b = maps.known[side_a].max(0), maps.known[other].max(0)
+        sent[(a, b)] = missing_bits(maps, union_b, union_a)
+        sent[(b, a)] = missing_bits(maps, union_a, union_b)
+    return sent
+
+
+class ReferenceTeamMaps(TeamMaps):
+    """:class:`~mrcomm_env.rendezvous.filters.TeamMaps` whose sums into the vehicles' maps and tree-edge bits are the
+    numpy oracles above."""
+
+    def _add(self, w, landmarks, dy, count):
+        reference_add_entries(self.Y[w], self.y[w], self.count[w], landmarks, dy, count, self.R_inv)
+
+    def _edge_bits(self, members, parent, sides):
+        return reference_edge_bits(self, members, parent, sides)

@@ -9,7 +9,16 @@ import numpy as np
 import pytest
 from helpers.numerics import bit_identical
 from helpers.rendezvous import make_packet, random_spd
-from helpers.rendezvous_reference import ReferenceRendezvous, reference_observation, reference_packets, reference_window
+from helpers.rendezvous_reference import (
+    ReferenceRendezvous,
+    ReferenceTeamMaps,
+    reference_add_entries,
+    reference_candidate_lists,
+    reference_mean_of,
+    reference_observation,
+    reference_packets,
+    reference_window,
+)
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linear_sum_assignment
@@ -20,17 +29,13 @@ from mrcomm_env.rendezvous.env import RendezvousMappingEnv
 
 # ------------------------------------------------------------------------------------------------ compiled plan
 def _use_plan_backend(monkeypatch, compiled: bool) -> None:
-    """The compiled partition pass, spanning forest, observation, window and fusion, or the numpy/scipy reference
-    (``protocol.recommend``, ``world.spanning_forest``, the env and ``filters`` ask at every call)."""
+    """The compiled partition pass, utility and spanning forest, or the numpy/scipy reference (``protocol`` and
+    ``world`` ask at every call)."""
     import types
-
-    from mrcomm_env.rendezvous import env as env_module
 
     choice = types.SimpleNamespace(compiled=lambda: compiled)
     monkeypatch.setattr(protocol, "backend", choice)
     monkeypatch.setattr(world, "backend", choice)
-    monkeypatch.setattr(env_module, "backend", choice)
-    monkeypatch.setattr(filters, "backend", choice)
 
 
 def _tied_layout(rng, L: int) -> np.ndarray:
@@ -316,9 +321,9 @@ def test_compiled_window_is_the_reference_at_every_step(monkeypatch, kwargs):
     assert kept > 0 and len(kinds) >= 3
 
 
-def test_compiled_fusion_adds_packets_and_takes_means_as_numpy_does(monkeypatch):
-    """Entries with repeated landmarks (np.add.at's order matters), added into one map on both backends, and the
-    means of the maps: bit for bit."""
+def test_compiled_fusion_adds_packets_and_takes_means_as_numpy_does():
+    """Entries with repeated landmarks (np.add.at's order matters), added into one map by the kernel and by numpy's
+    ``np.add.at``, and the means of the maps: bit for bit."""
     rng = np.random.default_rng(4)
     L = 12
     for trial in range(300):
@@ -329,26 +334,26 @@ def test_compiled_fusion_adds_packets_and_takes_means_as_numpy_does(monkeypatch)
         dy = rng.normal(0.0, 10.0 ** rng.integers(-3, 6), (m, 2))
         start = (np.eye(2) * rng.uniform(1e-4, 1e6, (L, 1, 1)), rng.normal(0.0, 100.0, (L, 2)))
         maps = []
-        for compiled in (False, True):
-            _use_plan_backend(monkeypatch, compiled)
+        for add, mean in ((reference_add_entries, reference_mean_of), (filters._add_entries, filters.mean_of)):
             Y, y, count = start[0].copy(), start[1].copy(), np.zeros(L, dtype=np.int64)
-            filters._add_entries(Y, y, count, landmarks, dy, dcount, R_inv)
-            maps.append((Y, y, count, filters.mean_of(Y[None], y[None])))
+            add(Y, y, count, landmarks, dy, dcount, R_inv)
+            maps.append((Y, y, count, mean(Y[None], y[None])))
         for want, got in zip(*maps):
             assert want.dtype == got.dtype and want.tobytes() == got.tobytes()
 
 
-def test_compiled_group_fusion_is_the_references(monkeypatch):
+def test_compiled_group_fusion_is_the_references():
     """Groups fused over random trees in random meeting sequences, with packets piling up past the cumulative table's
     first size: the bits each tree edge carries both ways (``fusion_numba.edge_bits``) and every member's map and
-    version vector after the exchange, the same bytes on both backends."""
+    version vector after the exchange, the same bytes as the numpy oracles' (``ReferenceTeamMaps``)."""
     rng = np.random.default_rng(17)
     L, edges, silent = 9, 0, 0
     for _ in range(20):
         n = int(rng.integers(2, 9))
         R_inv = random_spd(rng)
         both = [
-            filters.TeamMaps(n, np.broadcast_to(np.eye(2), (L, 2, 2)).copy(), np.zeros((L, 2)), R_inv) for _ in range(2)
+            maps_class(n, np.broadcast_to(np.eye(2), (L, 2, 2)).copy(), np.zeros((L, 2)), R_inv)
+            for maps_class in (ReferenceTeamMaps, filters.TeamMaps)
         ]
         for _ in range(int(rng.integers(5, 40))):
             for v in range(n):
@@ -360,10 +365,7 @@ def test_compiled_group_fusion_is_the_references(monkeypatch):
             labels, parent = world.spanning_forest(pos, world.vehicle_links(pos, float(rng.uniform(0, 30))))
             for g in range(labels.max() + 1):
                 members = np.flatnonzero(labels == g)
-                sent = []
-                for compiled, maps in zip((False, True), both):
-                    _use_plan_backend(monkeypatch, compiled)
-                    sent.append(maps.fuse_group(members, parent))
+                sent = [maps.fuse_group(members, parent) for maps in both]
                 assert sent[0] == sent[1] and list(sent[0]) == list(sent[1])
                 assert all(type(bits) is int for bits in sent[1].values())
                 edges += len(sent[0])
@@ -373,8 +375,8 @@ def test_compiled_group_fusion_is_the_references(monkeypatch):
     assert edges > 300 and 0 < silent < edges
 
 
-def test_compiled_candidate_ranking_is_numpys_bit_for_bit(monkeypatch):
-    """``candidate_lists`` on both backends: the same bytes, with tied and zero utilities, recommendations worth
+def test_compiled_candidate_ranking_is_numpys_bit_for_bit():
+    """``candidate_lists`` and its numpy oracle: the same bytes, with tied and zero utilities, recommendations worth
     something or nothing or absent, NaN, and K below, at and above L."""
     from mrcomm_env.rendezvous.env import candidate_lists
 
@@ -387,19 +389,15 @@ def test_compiled_candidate_ranking_is_numpys_bit_for_bit(monkeypatch):
         if trial % 7 == 0:
             utility[rng.random((n, L)) < 0.05] = np.nan
         assignment = rng.integers(-1, L, n)
-        got = []
-        for compiled in (False, True):
-            _use_plan_backend(monkeypatch, compiled)
-            got.append(candidate_lists(utility, assignment, K))
+        got = [ranking(utility, assignment, K) for ranking in (reference_candidate_lists, candidate_lists)]
         for want, have in zip(*got):
             assert want.dtype == have.dtype and want.tobytes() == have.tobytes()
         ties += int(sum(len(np.unique(row)) < L for row in utility))
         nans += int(np.isnan(utility).any())
     assert ties > 200 and nans > 20
-    for compiled in (False, True):  # a recommendation that is no landmark: numpy's IndexError on both backends
-        _use_plan_backend(monkeypatch, compiled)
+    for ranking in (reference_candidate_lists, candidate_lists):  # a recommendation that is no landmark: IndexError
         with pytest.raises(IndexError):
-            candidate_lists(np.ones((2, 5)), np.array([0, 5]), 3)
+            ranking(np.ones((2, 5)), np.array([0, 5]), 3)
 
 
 def test_compiled_utility_is_numpys_bit_for_bit(monkeypatch):
@@ -439,12 +437,12 @@ def test_compiled_utility_is_numpys_bit_for_bit(monkeypatch):
     assert shared[0].shape == (n, L) and shared[0].tobytes() == shared[1].tobytes()
 
 
-@pytest.mark.parametrize("compiled", [False, True])
-def test_a_packet_outside_the_map_raises_on_both_backends(monkeypatch, compiled):
-    _use_plan_backend(monkeypatch, compiled)
+@pytest.mark.parametrize("add", [reference_add_entries, filters._add_entries], ids=["numpy", "compiled"])
+def test_a_packet_outside_the_map_raises_and_adds_nothing(add):
     Y, y, count = np.ones((4, 2, 2)), np.ones((4, 2)), np.zeros(4, dtype=np.int64)
     with pytest.raises(IndexError):
-        filters._add_entries(Y, y, count, np.array([1, 4], np.int32), np.ones((2, 2)), np.ones(2, np.int32), np.eye(2))
+        add(Y, y, count, np.array([1, 4], np.int32), np.ones((2, 2)), np.ones(2, np.int32), np.eye(2))
+    assert (Y == 1).all() and (y == 1).all() and (count == 0).all()
 
 
 def test_compiled_packets_of_a_window_are_the_references(monkeypatch):
