@@ -1,9 +1,10 @@
 """Which implementation of an env's hot loops runs: compiled (numba, the default) or numpy.
 
 numba is a required dependency. Every env's hot loops are compiled kernels. MultiHop's frame (its copy-axis world),
-AsyncCL's table exchange, observation and team errors and RendezvousMapping's window, packets, observation,
-candidate lists and map fusion exist only compiled; the numpy code they are checked against lives under ``tests/helpers``. AsyncCL's EKF, MapSync's
-kernels and RendezvousMapping's plan and forest still keep their numpy references in the
+AsyncCL's table exchange, observation and team errors, MapSync's walk, sensing, changing world, disagreement and
+observation, and RendezvousMapping's window, packets, observation, candidate lists and map fusion exist only
+compiled; the numpy code they are checked against lives under ``tests/helpers``. AsyncCL's EKF, MapSync's
+protocols and RendezvousMapping's plan and forest still keep their numpy references in the
 package: ``MRCOMM_BACKEND=numpy`` runs those (the tests compare both), ``auto`` or
 ``numba`` the kernels. The choice is made once per process.
 

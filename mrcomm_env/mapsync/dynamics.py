@@ -2,7 +2,8 @@
 sensing (§V-C), and how far the robots' maps disagree (the reward's term and Fig. 7's measure).
 
 A mixin of :class:`mrcomm_env.mapsync.env.MapSyncEnv`, which owns the state; the attributes it reads and writes
-are declared below. The numba twins of the walk and the sensing are chosen by the env at reset (``backend``).
+are declared below. The world's changes, the walk with the sensing and the disagreement are compiled
+(``kernels_numba``); their numpy oracles are ``tests/helpers/mapsync_reference.py``.
 """
 
 from __future__ import annotations
@@ -12,16 +13,13 @@ from typing import Any
 import numpy as np
 
 from mrcomm_env.core import bernoulli_links, disk_links
-from mrcomm_env.mapsync import world
-from mrcomm_env.mapsync.sessions import _STALE_KNOWN, _STALE_NEW
+from mrcomm_env.mapsync import kernels_numba
 
 
 class WorldDynamics:
     """Links, world changes, walking and sensing, and the maps' disagreement."""
 
-    _change_world_compiled: Any
     _dirty: Any
-    _disagreement_compiled: Any
     _disagreement_column: Any
     _disagreement_mean: Any
     _error_mean: Any
@@ -29,18 +27,12 @@ class WorldDynamics:
     _events: Any
     _eye: Any
     _map_version: Any
-    _maps_flat: Any
     _neighbour_table: Any
-    _neighbours: Any
     _no_keys: Any
     _pairs: Any
-    _row_offsets: Any
     _sensed: Any
     _sensed_distinct: Any
-    _stale: Any
-    _stamps_flat: Any
     _static_links: Any
-    _walk_and_sense: Any
     cfg: Any
     known: Any
     linked: Any
@@ -69,28 +61,18 @@ class WorldDynamics:
 
     def _change_world(self) -> bool:
         """Obstacles appear on free, unoccupied cells and vanish, each cell independently (§I); returns whether
-        any cell changed (the maps' errors against the world are recomputed only then)."""
-        c, rng, truth = self.cfg, self.np_random, self.truth
-        if self._change_world_compiled is not None:  # the same keys, drawn in one call (one stream)
-            draws = rng.random(2 * self.n)
-            return bool(self._change_world_compiled(truth, self.pos, draws, c.appear_rate, c.vanish_rate))
-        occupied = np.zeros(self.n, dtype=bool)
-        occupied[self.pos] = True
-        appear = (~truth) & (~occupied) & (rng.random(self.n) < c.appear_rate)
-        vanish = truth & (rng.random(self.n) < c.vanish_rate)
-        truth[appear] = True
-        truth[vanish] = False
-        return bool(appear.any() or vanish.any())
+        any cell changed (the maps' errors against the world are recomputed only then). The keys are drawn in one
+        call, 2n uniforms: n for appearing, then n for vanishing."""
+        c = self.cfg
+        draws = self.np_random.random(2 * self.n)
+        return bool(kernels_numba.change_world(self.truth, self.pos, draws, c.appear_rate, c.vanish_rate))
 
     def _move_and_sense(self, stamp: int, walk: bool) -> None:
-        """Every robot moves one step (when ``walk``), then senses its cell and the 4-neighbours (§V-C)."""
-        if self._walk_and_sense is None:
-            if walk:
-                self.pos = world.random_walk(self.np_random, self.pos, self._neighbours, self.truth)
-            self._sense(stamp)
-            return
-        keys = self.np_random.random((self.n_agents, 4)) if walk else self._no_keys  # as random_walk draws them
-        self.pos, flags = self._walk_and_sense(
+        """Every robot moves one step (when ``walk``) to a uniformly drawn free 4-neighbour (one uniform key per robot
+        and direction, the largest key among the free ones wins; a boxed-in robot stays), then senses its cell and
+        the 4-neighbours (§V-C)."""
+        keys = self.np_random.random((self.n_agents, 4)) if walk else self._no_keys
+        self.pos, flags = kernels_numba.walk_and_sense(
             walk,
             keys,
             self.pos,
@@ -104,53 +86,18 @@ class WorldDynamics:
             self.new_cells,
             stamp,
         )
-        if flags & 1:  # as _sense: a cell observed for the first time
+        if flags & 1:  # a cell observed for the first time
             self._events += 1
-            self._stale |= _STALE_KNOWN
         if flags & 2:  # a bit of a map changed
             self._dirty = True
             self._events += 1
-            self._stale |= _STALE_NEW
-
-    def _sense(self, stamp: int) -> None:
-        """Numpy reference of the sensing (compiled twin: ``kernels_numba.walk_and_sense``)."""
-        cells = self._sensed.take(self.pos, axis=0)  # (N, 5): off-grid neighbours repeat the own cell
-        flat = cells + self._row_offsets  # into the flattened (N, n) maps and stamps
-        seen = self.truth.take(cells)
-        maps, stamps = self._maps_flat, self._stamps_flat
-        changed = maps.take(flat) != seen
-        before = stamps.take(flat)
-        if before.min() < 0:  # a cell never observed before
-            unseen = before < 0
-            self.known += np.count_nonzero(unseen & self._sensed_distinct.take(self.pos, axis=0), axis=1)
-            self._events += 1
-            self._stale |= _STALE_KNOWN
-        if changed.any():
-            # own sensing changed these cells: new since the last sync with every peer
-            self.new_cells += np.count_nonzero(changed & self._sensed_distinct.take(self.pos, axis=0), axis=1)[:, None]
-            np.fill_diagonal(self.new_cells, 0)
-            maps.put(flat, seen)
-            self._dirty = True
-            self._events += 1
-            self._stale |= _STALE_NEW
-        stamps.put(flat, stamp)
 
     def _update_disagreement(self) -> None:
         if not self._dirty:
             return
         self._dirty = False
         self._map_version += 1
-        if self._disagreement_compiled is not None:
-            rows, cols = self._pairs
-            column, mean, errors, error_mean = self._disagreement_compiled(self.maps, self.truth, rows, cols)
-            self._disagreement_column, self._disagreement_mean = column, float(mean)
-            self._errors, self._error_mean = errors, float(error_mean)
-            return
-        maps = self.maps.astype(np.float64)
-        ones = maps.sum(axis=1)
-        ham = (ones[:, None] + ones[None, :] - 2.0 * (maps @ maps.T)) / self.n
-        self._disagreement_column = ham.sum(axis=1) / (self.n_agents - 1)
-        pairs = ham[self._pairs]
-        self._disagreement_mean = float(pairs.sum()) / pairs.size  # what .mean() computes, without its overhead
-        self._errors = (self.maps != self.truth).sum(axis=1) / self.n
-        self._error_mean = float(self._errors.sum()) / self.n_agents
+        rows, cols = self._pairs
+        column, mean, errors, error_mean = kernels_numba.disagreement(self.maps, self.truth, rows, cols)
+        self._disagreement_column, self._disagreement_mean = column, float(mean)
+        self._errors, self._error_mean = errors, float(error_mean)

@@ -53,13 +53,6 @@ from mrcomm_env.mapsync.copy_axis import UnlimitedLinkBatch
 from mrcomm_env.mapsync.dynamics import WorldDynamics
 from mrcomm_env.mapsync.philox import SharedStrings
 from mrcomm_env.mapsync.sessions import (  # noqa: F401 — the action and test codes are part of this module's API
-    _STALE_ALL,
-    _STALE_KNOWN,
-    _STALE_LINKS,
-    _STALE_NEW,
-    _STALE_RECENT,
-    _STALE_SESSIONS,
-    _TEST_CODE,
     DETECTIONS_KEPT,
     TEST_DIFFERENT,
     TEST_NONE,
@@ -114,7 +107,6 @@ class MapSyncEnv(MapSyncSpec, WorldDynamics, SyncSessions, MrcommParallelEnv):
         self.n_agents = c.n_robots
         N = self.n_agents
         table = world.neighbour_table(self.size)
-        self._neighbours = table.tolist()
         self._neighbour_table = table
         self._no_keys = np.zeros((0, 4))  # the walk's keys when the robots only sense (reset)
         self._sensed, self._sensed_distinct = world.sensing_table(table)
@@ -129,52 +121,11 @@ class MapSyncEnv(MapSyncSpec, WorldDynamics, SyncSessions, MrcommParallelEnv):
         self._k, self._res, self._cap = c.k, c.res, c.bits_per_step
         self._eye = np.eye(N, dtype=bool)
         self._pairs = np.triu_indices(N, 1)
-        self._row_offsets = np.arange(N)[:, None] * self.n  # row i of the flattened (N, n) maps starts at i·n
-        self._peer_flat = np.arange(N)[:, None] * N + self._peer_order  # (N, N−1) flat (i, j) of each peer slot
         self._horizon = c.max_cycles
         self._bit_scale = self.n * N  # the reward prices team bits in units of n bits per robot (Reward scale)
         self._changing = c.appear_rate > 0.0 or c.vanish_rate > 0.0
-        self._obs_buf = np.zeros((N, 4 * (N - 1) + 5), dtype=np.float32)
-        self._make_views()
+        self._obs_buf = np.zeros((N, 4 * (N - 1) + 5), dtype=np.float32)  # written in place by _observe
         self.ledger = BitLedger(N)
-
-    #: attributes that are views into other arrays: a pickle or deepcopy would make them independent copies,
-    #: so they are left out of the state and made again from the arrays they view
-    _VIEWS = (
-        "_maps_flat",
-        "_stamps_flat",
-        "_obs_age",
-        "_obs_new",
-        "_obs_link",
-        "_obs_test",
-        "_obs_recent",
-        "_obs_known",
-        "_obs_busy",
-        "_obs_progress",
-        "_obs_clock",
-    )
-
-    def _make_views(self) -> None:
-        N = self.n_agents
-        # the observation buffer column by column, written in place by _observe
-        per_peer = self._obs_buf[:, : 4 * (N - 1)].reshape(N, N - 1, 4)
-        own = self._obs_buf[:, 4 * (N - 1) :]
-        self._obs_age, self._obs_new, self._obs_link, self._obs_test = (per_peer[..., f] for f in range(4))
-        self._obs_recent, self._obs_known, self._obs_busy, self._obs_progress, self._obs_clock = (
-            own[:, f] for f in range(5)
-        )
-        if "maps" in self.__dict__:  # after the first reset
-            self._maps_flat, self._stamps_flat = self.maps.reshape(-1), self.stamps.reshape(-1)  # for _sense
-
-    def __getstate__(self):
-        state = super().__getstate__()
-        for name in self._VIEWS:
-            state.pop(name, None)
-        return state
-
-    def __setstate__(self, state):
-        super().__setstate__(state)
-        self._make_views()
 
     # ----------------------------------------------------------------- episode
     def _reset_world(self) -> None:
@@ -189,12 +140,10 @@ class MapSyncEnv(MapSyncSpec, WorldDynamics, SyncSessions, MrcommParallelEnv):
             self.pos = rng.choice(free, size=N, replace=free.size < N).astype(np.int64)
         self.truth = truth
         self.maps = np.zeros((N, n), dtype=bool)
-        # int64: a stamp is a step number, up to max_cycles ≤ 2^53 (int32 would overflow at step 2^31: the numpy
-        # path raises OverflowError, the compiled one wraps to negative stamps, read as "never observed")
+        # int64: a stamp is a step number, up to max_cycles ≤ 2^53 (int32 would wrap to negative stamps at step
+        # 2^31, read as "never observed")
         self.stamps = np.full((N, n), -1, dtype=np.int64)
-        self._make_views()
         self.last_sync = np.zeros((N, N), dtype=np.int64)  # step at which each pair's maps were last made equal
-        self._last_sync_peers = np.zeros((N, N - 1), dtype=np.int64)  # last_sync in observation order
         self.new_cells = np.zeros((N, N), dtype=np.int64)
         self.last_test = np.full((N, N), TEST_NONE, dtype=np.int64)
         self.linked = ~self._eye
@@ -224,18 +173,11 @@ class MapSyncEnv(MapSyncSpec, WorldDynamics, SyncSessions, MrcommParallelEnv):
         #: DETECTIONS_KEPT of them
         self.detections: deque[tuple[int, int, int, str]] = deque(maxlen=DETECTIONS_KEPT)
         self.known = np.zeros(N, dtype=np.int64)
-        self._events = 0  # counts changes of anything the observation shows besides the clock
-        self._stale = _STALE_ALL  # which parts of the observation must be recomputed
+        self._events = 0  # counts changes of anything the infos show (they are made anew only then)
         self._map_version = 0
         self._infos_key = None
         self._infos_charged = False  # the cached infos show bits sent
         self._dirty = True
-        # the compiled twin of the walk and the sensing, or the numpy reference (docs/architecture.md)
-        compiled = backend.compiled()
-        self._walk_and_sense = kernels_numba.walk_and_sense if compiled else None
-        self._observe_compiled = kernels_numba.observe if compiled else None
-        self._change_world_compiled = kernels_numba.change_world if compiled else None
-        self._disagreement_compiled = kernels_numba.disagreement if compiled else None
         self._no_progress = np.zeros(N)
         self._move_and_sense(0, walk=False)
         self._update_disagreement()
@@ -287,8 +229,6 @@ class MapSyncEnv(MapSyncSpec, WorldDynamics, SyncSessions, MrcommParallelEnv):
         """Take over :meth:`world_counters` of an episode a copy-axis world stepped, as if this env had stepped it.
         The caller has written the maps, stamps, world, positions, sync records, ledger, recent bits, step count
         and generator; the observation and infos are made anew from that state."""
-        self._make_views()
-        self._last_sync_peers = self.last_sync.take(self._peer_flat)
         self._charged = bool(self.ledger.step_bits.any())
         self._counts = dict(counters["counts"])
         self._corrected, self._to_correct = int(counters["corrected"]), int(counters["to_correct"])
@@ -303,7 +243,6 @@ class MapSyncEnv(MapSyncSpec, WorldDynamics, SyncSessions, MrcommParallelEnv):
         self._next_session = int(counters["next_session"])
         self._state_version += 1
         self._events += 1
-        self._stale = _STALE_ALL
         self._infos_key = None
 
     # ----------------------------------------------------------------- dynamics
@@ -342,7 +281,6 @@ class MapSyncEnv(MapSyncSpec, WorldDynamics, SyncSessions, MrcommParallelEnv):
                 recent[:] = 0.0
                 self._recent_max = 0.0
                 self._events += 1
-                self._stale |= _STALE_RECENT
         self._steps += 1
         self._sum_disagreement += self._disagreement_mean
         self._sum_error += self._error_mean
@@ -368,60 +306,28 @@ class MapSyncEnv(MapSyncSpec, WorldDynamics, SyncSessions, MrcommParallelEnv):
         }
 
     def _observe(self) -> np.ndarray:
+        """Every column of the module's table in one compiled call (``kernels_numba.observe``; its numpy oracle is
+        ``tests/helpers/mapsync_reference.py``)."""
         t = self.step_count
-        if self._observe_compiled is not None:  # every column in one call (kernels_numba.observe)
-            progress = self._no_progress
-            if self.sessions:
-                progress = np.zeros(self.n_agents)
-                for s in self.sessions.values():
-                    progress[[s.alice, s.bob]] = s.sent / max(s.total, 1)
-            self._observe_compiled(
-                self._obs_buf,
-                t,
-                min(t / self._horizon, 1.0),
-                self.last_sync,
-                self.new_cells,
-                self.linked,
-                self.last_test,
-                self.session_of,
-                progress,
-                self.recent_bits,
-                self.known,
-                self.n,
-            )
-            return self._obs_buf.copy()
-        # the numpy reference: only the columns whose inputs changed since the last call
-        # s/(s+10) of the steps s since the last sync, computed per step: a table over every possible s would grow
-        # with max_cycles
-        ages = t - self._last_sync_peers
-        self._obs_age[:] = ages / (ages + 10.0)
-        self._obs_clock[:] = min(t / self._horizon, 1.0)
-        stale = self._stale
+        progress = self._no_progress
         if self.sessions:
-            stale |= _STALE_SESSIONS
-        if self._recent_any:
-            stale |= _STALE_RECENT
-        if not self._static_links:
-            stale |= _STALE_LINKS
-        self._stale = 0
-        if not stale:
-            return self._obs_buf.copy()  # only the clock moved
-        flat = self._peer_flat
-        if stale & _STALE_NEW:
-            new = self.new_cells.take(flat)
-            self._obs_new[:] = new / (new + 10.0)
-        if stale & _STALE_LINKS:
-            self._obs_link[:] = self.linked.take(flat)
-        if stale & _STALE_SESSIONS:  # a sync ended: verdicts, busy flags, progress (and counters reset)
-            self._obs_test[:] = _TEST_CODE.take(self.last_test.take(flat) + 1)
-            self._obs_busy[:] = self.session_of >= 0
-            self._obs_progress[:] = 0.0
+            progress = np.zeros(self.n_agents)
             for s in self.sessions.values():
-                self._obs_progress[[s.alice, s.bob]] = s.sent / max(s.total, 1)
-        if stale & _STALE_RECENT:
-            self._obs_recent[:] = self.recent_bits / (self.recent_bits + self.n)
-        if stale & _STALE_KNOWN:
-            self._obs_known[:] = self.known / self.n
+                progress[[s.alice, s.bob]] = s.sent / max(s.total, 1)
+        kernels_numba.observe(
+            self._obs_buf,
+            t,
+            min(t / self._horizon, 1.0),
+            self.last_sync,
+            self.new_cells,
+            self.linked,
+            self.last_test,
+            self.session_of,
+            progress,
+            self.recent_bits,
+            self.known,
+            self.n,
+        )
         return self._obs_buf.copy()
 
     def _agent_infos(self) -> dict:

@@ -8,8 +8,8 @@ Algorithm 1); this twin computes the same parities in one call: for every segmen
 :func:`philox.stream_words`), ANDed with each robot's map, popcount, parity. ``tests/mapsync/test_mapsync.py``
 compares both kernel by kernel, bit for bit. Used when ``core.backend.compiled()`` (docs/architecture.md).
 
-The env's other hot loops have twins here too (the walk and sensing, the changing world, the disagreement, the
-observation), and the copy-axis world of ``copy_axis.py`` steps M copies through :func:`open_syncs`,
+The env's other hot loops are here too, and only here (the walk and sensing, the changing world, the disagreement,
+the observation: their numpy oracles are ``tests/helpers/mapsync_reference.py``), and the copy-axis world of ``copy_axis.py`` steps M copies through :func:`open_syncs`,
 :func:`settle_syncs` and :func:`advance_copies`, which run those twins and the protocols' on every copy's rows.
 """
 
@@ -299,9 +299,10 @@ def bisection(
 
 @numba.njit(cache=True)
 def walk_and_sense(walk, keys, pos, neighbours, truth, sensed, distinct, maps, stamps, known, new_cells, stamp):
-    """Twin of ``world.random_walk`` (when ``walk``) followed by ``MapSyncEnv._sense``, robot by robot.
+    """The walk (when ``walk``) followed by the sensing, robot by robot (``WorldDynamics._move_and_sense``; numpy
+    oracles: ``random_walk`` and ``reference_sense`` of ``tests/helpers/mapsync_reference.py``).
 
-    ``keys`` are the walk's uniform keys (``rng.random((N, 4))``, drawn by the caller as the reference draws
+    ``keys`` are the walk's uniform keys (``rng.random((N, 4))``, drawn by the caller as the oracle draws
     them). Updates ``maps``, ``stamps``, ``known`` and ``new_cells`` in place and returns ``(positions, flags)``:
     flag 1 = a robot observed a cell for the first time, 2 = a robot's sensing changed a bit of its map.
     """
@@ -355,8 +356,8 @@ def _popcount64(v):
 
 @numba.njit(cache=True)
 def change_world(truth, pos, draws, appear_rate, vanish_rate):
-    """Twin of ``WorldDynamics._change_world`` after its draws: ``draws`` holds the appearance keys of every cell,
-    then the vanishing keys (``rng.random(2n)``, the reference's two ``rng.random(n)`` in one call: one stream).
+    """``WorldDynamics._change_world`` after its draws: ``draws`` holds the appearance keys of every cell, then the
+    vanishing keys (``rng.random(2n)``, the numpy oracle's two ``rng.random(n)`` in one call: one stream).
     A free cell no robot occupies becomes an obstacle when its key is below ``appear_rate``; an obstacle vanishes
     when its key is below ``vanish_rate``. Both read the world as it was (a cell cannot do both). Updates
     ``truth`` in place and returns whether any cell changed."""
@@ -378,7 +379,7 @@ def change_world(truth, pos, draws, appear_rate, vanish_rate):
 
 @numba.njit(cache=True)
 def disagreement(maps, truth, pair_rows, pair_cols):
-    """Twin of ``WorldDynamics._update_disagreement``: ``(column, mean, errors, error_mean)``.
+    """``WorldDynamics._update_disagreement``: ``(column, mean, errors, error_mean)``.
 
     The reference's Hamming distances ``(|x| + |y| − 2 x·y) / n`` are whole numbers of cells before the division
     (float64 holds them exactly), so counting the differing cells gives the same quotients; its sums (each row of
@@ -448,7 +449,7 @@ def _disagreement_sums(ham, errors, pair_rows, pair_cols):
 
 @numba.njit(cache=True)
 def observe(out, t, clock, last_sync, new_cells, linked, last_test, session_of, progress, recent, known, n):
-    """Twin of ``MapSyncEnv._observe``, every column recomputed: writes the (N, 4(N−1) + 5) float32 ``out``.
+    """``MapSyncEnv._observe``, every column computed: writes the (N, 4(N−1) + 5) float32 ``out``.
 
     Per peer j = i+1, i+2, … (mod N): s/(s+10) for the steps s since the last sync,
     c/(c+10) for the new cells c, the link, the last verdict (none 0, different 1, same ½); then the robot's

@@ -21,10 +21,6 @@ from mrcomm_env.mapsync.actions import ACTIONS, IDLE
 #: list of every one would grow with the episode without bound
 DETECTIONS_KEPT = 10_000
 TEST_NONE, TEST_SAME, TEST_DIFFERENT = -1, 1, 0  # last_test: Protocol 1's return values, −1 = no test yet
-_TEST_CODE = np.array([0.0, 1.0, 0.5])  # observation of last_test + 1: none 0, different 1, same ½
-# parts of the observation recomputed only after they change (the clock columns are updated every step)
-_STALE_NEW, _STALE_LINKS, _STALE_SESSIONS, _STALE_RECENT, _STALE_KNOWN = 1, 2, 4, 8, 16
-_STALE_ALL = 31
 
 
 def choose_peer(peers: list[int], session_of, linked_row, last_sync_row) -> int:
@@ -60,7 +56,6 @@ class SyncSessions:
     _counts: Any
     _dirty: Any
     _events: Any
-    _last_sync_peers: Any
     _latency_sum: Any
     _latency_count: Any
     _cap: Any
@@ -68,10 +63,8 @@ class SyncSessions:
     _lww: Any
     _next_session: Any
     _res: Any
-    _peer_flat: Any
     _peer_lists: Any
     _peer_order: Any
-    _stale: Any
     _stamp_bits: Any
     _to_correct: Any
     cfg: Any
@@ -114,7 +107,6 @@ class SyncSessions:
         self.sessions[nonce] = session
         self.session_of[a] = self.session_of[b] = nonce
         self._events += 1  # the infos' busy column is made from session_of when they are next read
-        self._stale |= _STALE_SESSIONS
 
     def _run_protocol(self, a: int, b: int, name: str, nonce: int) -> tuple[Any, list, dict[str, Any]]:
         """Alice ``a`` runs ``name`` with Bob ``b`` on their maps as they are now: the outcome (EqualityResult or
@@ -188,7 +180,6 @@ class SyncSessions:
             self._finish(a, b, name, t, outcome, snapshot, t)
             session_of[a] = session_of[b] = -1
         self._events += 2 * len(opened)  # each sync opens and closes (the infos are made anew)
-        self._stale |= _STALE_SESSIONS | _STALE_NEW | _STALE_KNOWN
 
     def _charge(self, messages: list) -> None:
         """Charge (sender, bits) ``messages`` (a whole transcript, or the parts a step delivers), one ledger entry of
@@ -240,7 +231,6 @@ class SyncSessions:
         s = self.sessions.pop(key)
         self.session_of[s.alice] = self.session_of[s.bob] = -1
         self._events += 1
-        self._stale |= _STALE_SESSIONS | _STALE_NEW | _STALE_KNOWN
 
     def _complete(self, s: Session, t: int) -> None:
         self._finish(s.alice, s.bob, s.protocol, s.start_step, s.outcome, s.snapshot, t)
@@ -265,7 +255,6 @@ class SyncSessions:
         if synced:
             self.last_sync[a, b] = self.last_sync[b, a] = t + 1
             self.new_cells[a, b] = self.new_cells[b, a] = 0
-            self._last_sync_peers = self.last_sync.take(self._peer_flat)
 
     def _verdict(self, a: int, b: int, name: str, start_step: int, snapshot: dict, equal: bool) -> bool:
         self._counts["equality_tests"] += 1

@@ -37,24 +37,6 @@ def neighbour_table(size: int) -> np.ndarray:
     return table
 
 
-def random_walk(rng: np.random.Generator, pos: np.ndarray, neighbours: list, blocked: np.ndarray) -> np.ndarray:
-    """One step of every robot to a uniformly drawn free neighbour (stays when boxed in).
-
-    ``neighbours`` is :func:`neighbour_table` as nested lists: a handful of robots is faster in plain Python
-    than through a dozen numpy calls. One uniform key per (robot, direction); the free neighbour with the
-    largest key is taken, which is a uniform choice among the free ones.
-    """
-    keys = rng.random((pos.size, 4)).tolist()
-    out = pos.copy()
-    for i, here in enumerate(pos.tolist()):
-        best, best_key = here, -1.0
-        for cell, key in zip(neighbours[here], keys[i]):
-            if cell >= 0 and key > best_key and not blocked[cell]:
-                best, best_key = cell, key
-        out[i] = best
-    return out
-
-
 def sensing_table(neighbours: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(n, 5) cells sensed from each cell (itself and its 4-neighbours; outside the grid: itself again) and
     (n, 5) which of them are distinct (to count each sensed cell once)."""

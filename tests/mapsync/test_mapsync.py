@@ -7,6 +7,14 @@ import pickle
 
 import numpy as np
 import pytest
+from helpers.mapsync_reference import (
+    ReferenceMapSync,
+    random_walk,
+    reference_change_world,
+    reference_disagreement,
+    reference_observation,
+    reference_sense,
+)
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
@@ -16,7 +24,7 @@ from mrcomm_baselines import make_policy
 from mrcomm_env.experiments.evaluation import run_episode
 from mrcomm_env.mapsync import kernels_numba, pinsketch, theory, world
 from mrcomm_env.mapsync import protocol as proto
-from mrcomm_env.mapsync.env import _STALE_KNOWN, EQUALITY, FULL, IDLE, SKETCH, MapSyncEnv
+from mrcomm_env.mapsync.env import EQUALITY, FULL, IDLE, SKETCH, MapSyncEnv
 from mrcomm_env.mapsync.philox import SharedStrings, philox4x32
 
 
@@ -353,8 +361,7 @@ def test_gossip_converges_once_the_world_stops_changing():
     env.cfg["appear_rate"] = env.cfg["vanish_rate"] = 0.0
     env._changing = False
     env.pos[:] = env.pos[0]  # gather the robots in one cell so that they all sense the same cells from now on
-    # and keep them there (both walks: the numpy reference and its compiled twin): no new cells are seen
-    env._neighbours = [[-1, -1, -1, -1]] * env.n
+    # and keep them there (the walk reads the neighbour table): no new cells are seen
     env._neighbour_table = np.full((env.n, 4), -1, dtype=np.int64)
     # what gossip must converge to: each cell's newest observation by any robot (the gathering cell and its
     # neighbours are sensed again from now on, and the frozen world is what they see)
@@ -519,7 +526,8 @@ def test_compiled_stream_words_equal_the_numpy_generator(domain):
 
 
 def _use_backend(monkeypatch, compiled: bool) -> None:
-    """Pick the compiled twins or the numpy reference for the protocols and the env (decided at reset)."""
+    """Pick the compiled twins or the numpy reference for the protocols, and whether batches step the copy-axis
+    world."""
     import types
 
     from mrcomm_env.mapsync import env as env_module
@@ -678,7 +686,8 @@ def test_compiled_bisection_never_runs_out_of_picks(n):
 
 
 def test_compiled_walk_and_sense_equals_the_reference():
-    """The twin against ``world.random_walk`` + ``MapSyncEnv._sense`` from states with stale, wrong and unseen bits."""
+    """The kernel against the numpy walk and sensing (``random_walk``, ``reference_sense``) from states with stale,
+    wrong and unseen bits."""
     kernels = kernels_numba
     env = MapSyncEnv(grid_size=7, n_robots=4, n_obstacles=0)
     env.reset(seed=0)
@@ -694,63 +703,60 @@ def test_compiled_walk_and_sense_equals_the_reference():
         before = [a.copy() for a in (env.pos, env.truth, env.maps, env.stamps, env.known, env.new_cells)]
         pos, truth, maps, stamps, known, new_cells = (a.copy() for a in before)
 
-        env._stale, env._dirty = 0, False
-        env.pos = world.random_walk(np.random.default_rng(trial), env.pos, env._neighbours, env.truth)
-        env._sense(60)
+        env.pos = random_walk(np.random.default_rng(trial), env.pos, env._neighbour_table, env.truth)
+        flags = reference_sense(env, 60)
         keys = np.random.default_rng(trial).random((n_robots, 4))  # the keys random_walk drew
-        out, flags = kernels.walk_and_sense(
+        out, twin_flags = kernels.walk_and_sense(
             True, keys, pos, env._neighbour_table, truth, env._sensed, env._sensed_distinct, maps, stamps, known,
             new_cells, 60,
         )  # fmt: skip
-        assert np.array_equal(out, env.pos)
-        assert bool(flags & 1) == bool(env._stale & _STALE_KNOWN) and bool(flags & 2) == env._dirty
+        assert np.array_equal(out, env.pos) and twin_flags == flags
         for twin, reference in zip((maps, stamps, known, new_cells), (env.maps, env.stamps, env.known, env.new_cells)):
             assert np.array_equal(twin, reference)
 
 
 @pytest.mark.parametrize(("grid_size", "n_robots"), [(2, 2), (5, 3), (8, 7), (9, 8), (16, 9), (13, 17), (100, 64)])
 def test_compiled_disagreement_equals_the_reference(grid_size, n_robots):
-    """The twin of ``_update_disagreement`` against the reference, to the last bit: maps of every density, rows of
-    distances under and over numpy's 8-way unrolling, pairs past one 128-value block, n not a multiple of 64."""
+    """The kernel of ``_update_disagreement`` against its numpy oracle, to the last bit: maps of every density, rows
+    of distances under and over numpy's 8-way unrolling, pairs past one 128-value block, n not a multiple of 64."""
     kernels = kernels_numba
     env = MapSyncEnv(grid_size=grid_size, n_robots=n_robots, n_obstacles=0)
     env.reset(seed=0)
-    env._disagreement_compiled = None  # the numpy reference
     rng = np.random.default_rng(grid_size * 100 + n_robots)
     rows, cols = env._pairs
     for _ in range(20):
         density = rng.random(n_robots)[:, None]
         env.maps[:] = rng.random((n_robots, env.n)) < density  # some rows nearly empty, some nearly full
         env.truth[:] = rng.random(env.n) < rng.random()
-        env._dirty = True
-        env._update_disagreement()
+        want_column, want_mean, want_errors, want_error_mean = reference_disagreement(env)
         column, mean, errors, error_mean = kernels.disagreement(env.maps, env.truth, rows, cols)
-        assert np.array_equal(column, env._disagreement_column) and np.array_equal(errors, env._errors)
-        assert mean == env._disagreement_mean and error_mean == env._error_mean
+        assert np.array_equal(column, want_column) and np.array_equal(errors, want_errors)
+        assert mean == want_mean and error_mean == want_error_mean
 
 
 def test_compiled_change_world_equals_the_reference():
-    """The twin of ``_change_world`` from the same generator: the same cells appear and vanish (never where a robot
-    stands), the generator ends in the same state (two draws of n keys are one draw of 2n), 'changed' is told."""
-    kernels = kernels_numba
+    """``_change_world`` against its numpy oracle from the same generator: the same cells appear and vanish (never
+    where a robot stands), the generator ends in the same state (two draws of n keys are one draw of 2n), 'changed'
+    is told."""
     env = MapSyncEnv(grid_size=9, n_robots=5, n_obstacles=0, appear_rate=0.1, vanish_rate=0.3)
     env.reset(seed=0)
-    env._change_world_compiled = None  # the numpy reference
     rng = np.random.default_rng(5)
     outcomes = set()
     for trial in range(200):
         env.cfg["appear_rate"], env.cfg["vanish_rate"] = [0.0, 1e-3, 0.1, 1.0][trial % 4], [0.0, 0.3, 1.0][trial % 3]
         env.truth[:] = rng.random(env.n) < rng.random()
         env.pos = rng.integers(0, env.n, env.n_agents)
-        before, truth = env.truth.copy(), env.truth.copy()
+        before = env.truth.copy()
         env.np_random = np.random.default_rng(trial)
-        changed = env._change_world()
-        draws = np.random.default_rng(trial)
-        twin_changed = kernels.change_world(truth, env.pos, draws.random(2 * env.n), env.cfg.appear_rate,
-                                            env.cfg.vanish_rate)  # fmt: skip
-        assert np.array_equal(truth, env.truth) and twin_changed == changed == (not np.array_equal(truth, before))
-        assert draws.bit_generator.state == env.np_random.bit_generator.state
-        appeared = truth & ~before
+        changed = reference_change_world(env)
+        reference_truth, reference_state = env.truth.copy(), env.np_random.bit_generator.state
+        env.truth[:] = before
+        env.np_random = np.random.default_rng(trial)
+        twin_changed = env._change_world()
+        assert np.array_equal(env.truth, reference_truth) and twin_changed == changed
+        assert changed == (not np.array_equal(env.truth, before))
+        assert env.np_random.bit_generator.state == reference_state
+        appeared = env.truth & ~before
         assert not appeared[env.pos].any()
         if env.cfg.appear_rate == 1.0:  # every free cell nobody stands on
             occupied = np.zeros(env.n, dtype=bool)
@@ -762,18 +768,16 @@ def test_compiled_change_world_equals_the_reference():
 
 def test_compiled_observation_equals_the_reference_at_every_step():
     """Syncs in flight over a narrow link (progress), links that break, verdicts, a changing world."""
-    kernels = kernels_numba
     env = MapSyncEnv(n_robots=5, bits_per_step=30, link_prob=0.6, comm_range=6.0, appear_rate=0.01, vanish_rate=0.05)
-    env.reset(seed=4)
+    obs, _ = env.reset(seed=4)
+    assert np.array_equal(np.stack(list(obs.values())), reference_observation(env))
     rng = np.random.default_rng(1)
     in_flight = 0
     while env.agents:
-        env.step({a: int(rng.integers(1, 5)) if rng.random() < 0.2 else IDLE for a in env.agents})
+        obs, *_ = env.step({a: int(rng.integers(1, 5)) if rng.random() < 0.2 else IDLE for a in env.agents})
         in_flight += bool(env.sessions)
-        env._observe_compiled, env._stale = None, 31  # the numpy reference, every column recomputed
-        reference = env._observe()
-        env._observe_compiled = kernels.observe
-        assert np.array_equal(env._observe(), reference)
+        if env.agents:
+            assert np.array_equal(np.stack(list(obs.values())), reference_observation(env))
     assert in_flight > 10, "the episode must hold syncs in flight for the progress column to be tested"
 
 
@@ -820,12 +824,13 @@ def test_whole_episodes_of_drawn_configurations_are_identical_on_both_backends(c
 
 
 def _assert_backends_agree(monkeypatch, cfg, policy, seed):
-    """One seeded episode of ``cfg`` under the baseline ``policy`` on each backend: every observation, reward, info
-    and stamp, the metrics, detections, maps, world, bits and the generator's final state are the same."""
+    """One seeded episode of ``cfg`` under the baseline ``policy`` with the numpy protocols and the numpy oracles of
+    the env's kernels (``ReferenceMapSync``), and one compiled: every observation, reward, info and stamp, the
+    metrics, detections, maps, world, bits and the generator's final state are the same."""
 
     def episode(compiled):
         _use_backend(monkeypatch, compiled)
-        env = mrcomm_env.make("MapSync-v0", **cfg)
+        env = (MapSyncEnv if compiled else ReferenceMapSync)(**cfg)
         pol = make_policy("MapSync-v0", policy)
         views = env.local_views()
         obs, infos = env.reset(seed=seed)
@@ -868,20 +873,23 @@ def _assert_backends_agree(monkeypatch, cfg, policy, seed):
         {"n_robots": 4, "comm_range": 5.0, "link_prob": 0.7, "bits_per_step": 30},
     ],
 )
-def test_incremental_observation_and_infos_equal_a_full_recompute(monkeypatch, cfg):
-    _use_backend(monkeypatch, False)  # the numpy reference is the incremental one (the twin recomputes all)
+def test_cached_infos_and_tracked_maximum_equal_a_full_recompute(cfg):
+    """The infos are made anew only when something they show changed, and the recent bits' maximum is tracked without
+    a reduction on most steps: both equal what a full recompute gives at every step."""
     env = MapSyncEnv(**cfg)
     env.reset(seed=1)
     rng = np.random.default_rng(0)
+    steps = 0
     while env.agents:
         actions = {a: int(rng.integers(1, 5)) if rng.random() < 0.05 else IDLE for a in env.agents}
-        obs, _, _, _, infos = env.step(actions)
+        _, _, _, _, infos = env.step(actions)
         if not env.agents:
             break
-        assert env._recent_max == env.recent_bits.max()  # tracked without a reduction on most steps
-        env._stale, env._infos_key = 31, None  # forget every cache
-        assert np.array_equal(np.stack(list(obs.values())), env._observe())
+        steps += 1
+        assert env._recent_max == env.recent_bits.max()
+        env._infos_key = None  # forget the cache
         assert infos == env._infos()
+    assert steps > 10
 
 
 @pytest.mark.parametrize("backend_name", ["numba", "numpy"])
