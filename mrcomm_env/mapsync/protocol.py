@@ -43,7 +43,7 @@ import numpy as np
 
 from mrcomm_env.core import backend, pcg64_numba
 from mrcomm_env.mapsync import kernels_numba, pinsketch, theory
-from mrcomm_env.mapsync.philox import DOMAIN_DATABASE, DOMAIN_PARITY, SharedStrings, seed_key, stream_words
+from mrcomm_env.mapsync.philox import DOMAIN_DATABASE, DOMAIN_PARITY, SharedStrings, seed_key
 
 PROTOCOLS = ("equality", "bisection", "full", "sketch")
 STEP4_RULES = ("fixed", "as_printed")
@@ -88,7 +88,6 @@ def pack(bits: np.ndarray) -> np.ndarray:
     return np.packbits(bits, bitorder="little").view(np.uint32)
 
 
-_ONES = np.uint32(0xFFFFFFFF)
 _FROM_BIT = np.array([(0xFFFFFFFF << b) & 0xFFFFFFFF for b in range(32)], dtype=np.uint32)  # bits ≥ b
 _TO_BIT = np.array([0xFFFFFFFF >> (31 - b) for b in range(32)], dtype=np.uint32)  # bits ≤ b
 
@@ -113,7 +112,8 @@ def segment_inner_products(
     maps: list[np.ndarray], strings: SharedStrings, index: np.ndarray, lo: np.ndarray, hi: np.ndarray
 ) -> list[np.ndarray]:
     """``X[lo..hi] · r_i[lo..hi] mod 2`` for every map X in ``maps`` (packed words), every segment s and each of
-    its indices ``index[s, :]``: one ``(S, k)`` uint8 array per map.
+    its indices ``index[s, :]``: one ``(S, k)`` uint8 array per map, in one compiled call (``kernels_numba``; its
+    numpy oracle is ``tests/helpers/mapsync_reference.py``).
 
     Both robots derive the same ``r_i`` from the shared seed; the simulation generates the words once and lets
     each robot's map use them (the bits exchanged are unaffected).
@@ -121,38 +121,8 @@ def segment_inner_products(
     lo = np.asarray(lo, dtype=np.int64)
     hi = np.asarray(hi, dtype=np.int64)
     index = np.asarray(index, dtype=np.int64)
-    if backend.compiled():
-        out = kernels_numba.inner_products(
-            np.stack(maps),
-            *kernel_strings(strings),
-            index,
-            lo,
-            hi,
-            _FROM_BIT,
-            _TO_BIT,
-        )
-        return list(out)
-    return _inner_products_numpy(maps, strings, index, lo, hi)
-
-
-def _inner_products_numpy(maps, strings, index, lo, hi) -> list[np.ndarray]:
-    """The numpy reference of :func:`segment_inner_products` (the compiled twin: ``kernels_numba``)."""
-    first, last = lo >> 5, hi >> 5
-    span = last - first
-    n_words = int(span.max()) + 1
-    S, k = index.shape
-    stacked = np.stack(maps)  # (M, W)
-    if S == 1 and lo[0] == 0 and hi[0] == 32 * stacked.shape[1] - 1:
-        seg = stacked[:, None, :]  # the whole map, a whole number of words: nothing to mask
-    else:
-        cols = first[:, None] + np.arange(n_words)[None, :]
-        mask = np.where(cols <= last[:, None], _ONES, np.uint32(0))
-        mask[:, 0] &= _FROM_BIT[lo & 31]
-        mask[np.arange(S), span] &= _TO_BIT[hi & 31]
-        seg = stacked[:, np.minimum(cols, stacked.shape[1] - 1)] & mask  # (M, S, n_words)
-    r = strings.words(index.reshape(-1), np.repeat(first, k), n_words).reshape(S, k, n_words)
-    counts = np.bitwise_count(r[None, :, :, :] & seg[:, :, None, :]).sum(axis=-1, dtype=np.int64)
-    return list((counts & 1).astype(np.uint8))
+    out = kernels_numba.inner_products(np.stack(maps), *kernel_strings(strings), index, lo, hi, _FROM_BIT, _TO_BIT)
+    return list(out)
 
 
 @dataclass
@@ -427,11 +397,9 @@ def parity_strings(seed: int, nonce: int, n: int, count: int) -> np.ndarray:
     """``count`` public-coin random n-bit strings for one session (``(count, words)`` uint32)."""
     n_words = (n + 31) // 32
     index = np.array([(nonce * count + j) % (1 << 32) for j in range(count)], dtype=np.uint64)
-    if backend.compiled():  # the same words from the compiled generator (~10× faster at these sizes)
-        k0, k1 = seed_key(seed)
-        words = kernels_numba.stream_words(k0, k1, index, np.zeros(count, np.int64), n_words, DOMAIN_PARITY)
-    else:
-        words = stream_words(seed_key(seed), index, np.zeros(count, np.int64), n_words, DOMAIN_PARITY)
+    # philox.stream_words's words from the compiled generator (~10× faster at these sizes)
+    k0, k1 = seed_key(seed)
+    words = kernels_numba.stream_words(k0, k1, index, np.zeros(count, np.int64), n_words, DOMAIN_PARITY)
     if n % 32:
         words[:, -1] &= np.uint32((1 << (n % 32)) - 1)
     return words

@@ -1,8 +1,8 @@
-"""MapSync's walk, sensing, changing world, disagreement and observation written in numpy: the oracles of their
-compiled kernels.
+"""MapSync's walk, sensing, changing world, disagreement, observation and Protocol 1's inner products written in
+numpy: the oracles of their compiled kernels.
 
 The env computes each in one compiled call (``WorldDynamics._move_and_sense``, ``_change_world``,
-``_update_disagreement``, ``MapSyncEnv._observe``: ``kernels_numba``); these are the same steps (§I, §III, §V-C and
+``_update_disagreement``, ``MapSyncEnv._observe``, ``protocol.segment_inner_products``: ``kernels_numba``); these are the same steps (§I, §III, §V-C and
 the module's observation table), kept here and not in the package (#44: one implementation in the package, the
 reference under tests/). ``ReferenceMapSync`` steps whole episodes with them, and ``tests/mapsync/test_mapsync.py``
 compares those, and each kernel, with the env's byte for byte."""
@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from mrcomm_env.mapsync.env import MapSyncEnv
+from mrcomm_env.mapsync.protocol import _FROM_BIT, _TO_BIT
 
 #: the observation of last_test + 1: no test yet 0, different 1, same ½
 TEST_CODE = np.array([0.0, 1.0, 0.5])
@@ -137,3 +138,24 @@ class ReferenceMapSync(MapSyncEnv):
 
     def _observe(self) -> np.ndarray:
         return reference_observation(self)
+
+
+def reference_inner_products(maps, strings, index, lo, hi) -> list[np.ndarray]:
+    """``protocol.segment_inner_products`` in numpy: ``X[lo..hi] · r_i[lo..hi] mod 2`` for every packed map X, every
+    segment s and each of its indices ``index[s, :]``, from the strings' words (``SharedStrings.words``)."""
+    first, last = lo >> 5, hi >> 5
+    span = last - first
+    n_words = int(span.max()) + 1
+    S, k = index.shape
+    stacked = np.stack(maps)  # (M, W)
+    if S == 1 and lo[0] == 0 and hi[0] == 32 * stacked.shape[1] - 1:
+        seg = stacked[:, None, :]  # the whole map, a whole number of words: nothing to mask
+    else:
+        cols = first[:, None] + np.arange(n_words)[None, :]
+        mask = np.where(cols <= last[:, None], np.uint32(0xFFFFFFFF), np.uint32(0))
+        mask[:, 0] &= _FROM_BIT[lo & 31]
+        mask[np.arange(S), span] &= _TO_BIT[hi & 31]
+        seg = stacked[:, np.minimum(cols, stacked.shape[1] - 1)] & mask  # (M, S, n_words)
+    r = strings.words(index.reshape(-1), np.repeat(first, k), n_words).reshape(S, k, n_words)
+    counts = np.bitwise_count(r[None, :, :, :] & seg[:, :, None, :]).sum(axis=-1, dtype=np.int64)
+    return list((counts & 1).astype(np.uint8))

@@ -12,6 +12,7 @@ from helpers.mapsync_reference import (
     random_walk,
     reference_change_world,
     reference_disagreement,
+    reference_inner_products,
     reference_observation,
     reference_sense,
 )
@@ -504,7 +505,7 @@ def test_compiled_inner_products_equal_the_numpy_reference(n, cached):
         proto._FROM_BIT,
         proto._TO_BIT,
     )
-    reference = proto._inner_products_numpy(maps, strings, index, lo, hi)
+    reference = reference_inner_products(maps, strings, index, lo, hi)
     assert all(np.array_equal(c, r) for c, r in zip(compiled, reference))
 
 
