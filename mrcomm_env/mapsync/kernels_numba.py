@@ -1,16 +1,19 @@
-"""Compiled twin (numba) of :func:`protocol.segment_inner_products`, Protocol 1's inner loop, of
-:func:`philox.stream_words` (the sketch's parity strings, ``protocol.parity_strings``), of Algorithm 1
-(:func:`bisection`) and of the streaming PinSketch (:func:`sketch`, integer arithmetic only).
+"""MapSync's compiled kernels (numba): Protocol 1's inner loop (:func:`inner_products`, the only implementation of
+:func:`protocol.segment_inner_products`), :func:`philox.stream_words` for the sketch's parity strings, Algorithm 1
+(:func:`bisection`, twin of ``protocol.bisection`` with step 4 fixed) and the streaming PinSketch (:func:`sketch`,
+integer arithmetic only, twin of ``protocol.sketch``).
 
-The numpy reference spends its time in a few dozen small array operations per call (one call per round of
-Algorithm 1); this twin computes the same parities in one call: for every segment and index, the words of
-``r_i`` restricted to the segment (from the materialised database, or Philox4x32-10 on demand exactly as
+A numpy inner product spends its time in a few dozen small array operations per call (one call per round of
+Algorithm 1); the kernel computes the same parities in one call: for every segment and index, the words of ``r_i``
+restricted to the segment (from the materialised database, or Philox4x32-10 on demand exactly as
 :func:`philox.stream_words`), ANDed with each robot's map, popcount, parity. ``tests/mapsync/test_mapsync.py``
-compares both kernel by kernel, bit for bit. Used when ``core.backend.compiled()`` (docs/architecture.md).
+compares every kernel with its numpy oracle or twin, bit for bit; the twins run when ``core.backend.compiled()``
+(docs/architecture.md).
 
-The env's other hot loops are here too, and only here (the walk and sensing, the changing world, the disagreement,
-the observation: their numpy oracles are ``tests/helpers/mapsync_reference.py``), and the copy-axis world of ``copy_axis.py`` steps M copies through :func:`open_syncs`,
-:func:`settle_syncs` and :func:`advance_copies`, which run those twins and the protocols' on every copy's rows.
+The env's other hot loops are here too, and only here (the walk and sensing, the changing world, the
+disagreement, the observation: their numpy oracles are ``tests/helpers/mapsync_reference.py``), and the copy-axis
+world of ``copy_axis.py`` steps M copies through :func:`open_syncs`, :func:`settle_syncs` and
+:func:`advance_copies`, which run those kernels and the protocols' on every copy's rows.
 """
 
 from __future__ import annotations
