@@ -1,5 +1,5 @@
-"""Compiled (numba), and only so, the information maps' hot operations (``filters.py``): adding packet entries to a map
-(``np.add.at`` of their ``count · R⁻¹``, ``dy`` and counts), the landmark means μ = Y⁻¹ y of every map, and the
+"""Compiled (numba), and only so, the information maps' hot operations (``filters.py``): adding packet entries to a
+map (``np.add.at`` of their ``count · R⁻¹``, ``dy`` and counts), the landmark means μ = Y⁻¹ y of every map, and the
 bits over each edge of a fusion tree.
 
 On the 2–10 packets and 10 × 200 maps of a decision phase, numpy's per-call overhead is most of their cost: a
@@ -57,10 +57,10 @@ def mean_of(Y, y):
 def edge_bits(known, members, side_starts, side_members, cum_bits, origin):
     """``TeamMaps.fuse_group``'s bits over each tree edge (a, parent[a]) of a group: ``(S, 2)``, a → b then b → a,
     for the sides given as ``side_members[side_starts[s] : side_starts[s + 1]]`` (a's subtree). Each direction
-    carries the packets the sender's side holds beyond the receiver's side (``missing_bits`` of the two sides'
-    union version vectors, in ``tests/helpers/rendezvous_reference.py``), summed from the cumulative bits of u's first k packets,
-    ``cum_bits[origin[u] + k]`` (every vehicle's kept log, one after another: ``TeamMaps._edge_bits``): whole
-    numbers, so the sums are the reference's."""
+    carries the packets the sender's side holds beyond the receiver's side (``missing_bits`` of the two sides' union
+    version vectors, in ``tests/helpers/rendezvous_reference.py``), summed from the cumulative bits of u's first k
+    packets, ``cum_bits[origin[u] + k]`` (every vehicle's kept log, one after another: ``TeamMaps._edge_bits``):
+    whole numbers, so the sums are the reference's."""
     n = known.shape[0]
     S = side_starts.size - 1
     out = np.zeros((S, 2), dtype=np.int64)

@@ -1,13 +1,14 @@
 """RendezvousMapping's observation, compiled (numba): every vehicle's observation in one call
 (``RendezvousMappingEnv._observe``, its only implementation in the package).
 
-The reference (the numpy oracle, ``tests/helpers/rendezvous_reference.py``) assembles the observation from some forty numpy operations on arrays of 10 × 4 entries, and their
-interpreter round trips cost more than the arithmetic (about 150 µs a step for 10 vehicles, an eighth of the
-step). This twin computes every entry with the reference's formulas in float64, in the same operations and order
-(``hypot`` is the C library's in both; nothing is contracted into fused multiply-adds), and rounds once to float32
-at the end, as the reference's ``astype`` does. The K nearest other vehicles are taken in the reference's stable
-order: distance, then vehicle id. ``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares whole seeded
-episodes with the oracle's, observations byte for byte.
+The reference (the numpy oracle, ``tests/helpers/rendezvous_reference.py``) assembles the observation from some
+forty numpy operations on arrays of 10 × 4 entries, and their interpreter round trips cost more than the arithmetic
+(about 150 µs a step for 10 vehicles, an eighth of the step). This twin computes every entry with the reference's
+formulas in float64, in the same operations and order (``hypot`` is the C library's in both; nothing is contracted
+into fused multiply-adds), and rounds once to float32 at the end, as the reference's ``astype`` does. The K nearest
+other vehicles are taken in the reference's stable order: distance, then vehicle id.
+``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares whole seeded episodes with the oracle's,
+observations byte for byte.
 """
 
 from __future__ import annotations

@@ -2,16 +2,16 @@
 observations its landmarks still yield (``RendezvousMappingEnv._window``, its only implementation in the package).
 
 The reference (the numpy oracle, ``tests/helpers/rendezvous_reference.py``) walks each vehicle's legs in Python
-(``_route``), lists every observation instant of every leg,
-sorts all of them by time (ties: vehicle id, then leg) and keeps, per landmark, those within the sensor floor.
-This twin computes the legs with the reference's formulas, in the same floating-point operations and order, and
-never lists the instants: a leg observes a contiguous run of the window's sorted instants (the reference's
-two-sided tolerance test is a range of a sorted array), so it merges the legs' runs in the reference's order and
-drops a leg once its landmark has reached the floor. What it returns, the kept (vehicle, landmark) pairs in the
-reference's order, is what the reference keeps, and it never visits an observation it does not keep (no sort: its
-kernels compile in a fraction of the time numba's sorts take); the noise of each observation is drawn by the caller, in that
-order, as the reference draws it. ``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares whole seeded
-episodes with the oracle's, and this window alone on crowded, tied and out-of-reach windows.
+(``_route``), lists every observation instant of every leg, sorts all of them by time (ties: vehicle id, then leg)
+and keeps, per landmark, those within the sensor floor. This twin computes the legs with the reference's formulas,
+in the same floating-point operations and order, and never lists the instants: a leg observes a contiguous run of
+the window's sorted instants (the reference's two-sided tolerance test is a range of a sorted array), so it merges
+the legs' runs in the reference's order and drops a leg once its landmark has reached the floor. What it returns,
+the kept (vehicle, landmark) pairs in the reference's order, is what the reference keeps, and it never visits an
+observation it does not keep (no sort: its kernels compile in a fraction of the time numba's sorts take); the noise
+of each observation is drawn by the caller, in that order, as the reference draws it.
+``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares whole seeded episodes with the oracle's, and this
+window alone on crowded, tied and out-of-reach windows.
 """
 
 from __future__ import annotations
@@ -206,10 +206,10 @@ def _kept_observations(legs, world_count, floor):
 def group_observations(vehicles, landmarks, contributions, n_landmarks, n_vehicles):
     """The kept observations as packets: ``(owners, bounds, ids, counts, dy, per_vehicle)``.
 
-    Pairs (vehicle, landmark) in increasing order (``np.unique`` of ``vehicle·L + landmark``), each with its
-    number of observations and the sum of its ``contributions`` rows (z·R⁻¹) in the order given (``np.add.at``'s
-    order, from 0); vehicle ``owners[j]`` holds pairs ``bounds[j]`` to ``bounds[j+1]`` (exclusive). ``per_vehicle`` counts each
-    vehicle's observations (``np.bincount``).
+    Pairs (vehicle, landmark) in increasing order (``np.unique`` of ``vehicle·L + landmark``), each with its number
+    of observations and the sum of its ``contributions`` rows (z·R⁻¹) in the order given (``np.add.at``'s order,
+    from 0); vehicle ``owners[j]`` holds pairs ``bounds[j]`` to ``bounds[j+1]`` (exclusive). ``per_vehicle`` counts
+    each vehicle's observations (``np.bincount``).
     """
     m = vehicles.size
     keys = vehicles * n_landmarks + landmarks
