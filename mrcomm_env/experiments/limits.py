@@ -49,6 +49,7 @@ def measure_limit(
     timeout: float | None = None,
     env_vars: dict[str, str] | None = None,
     trace_memory: bool = False,
+    warmup_steps: int = 0,
 ) -> dict[str, Any]:
     """Run ``env_id`` with ``config`` in a fresh process under random actions.
 
@@ -59,12 +60,17 @@ def measure_limit(
     and info seen was finite) and ``n_agents``. A child that fails raises ``RuntimeError`` with its last
     error line; ``timeout`` (seconds) bounds the child. With ``trace_memory`` the child also reports
     ``traced_peak_mb``: the peak of what Python and numpy allocated from construction to the last step
-    (``tracemalloc``, which slows the run down), the env's own memory without the interpreter's.
+    (``tracemalloc``, which slows the run down), the env's own memory without the interpreter's. With
+    ``warmup_steps``, another env of the same arguments first runs that many steps of the same random play, before
+    anything is timed or traced: what the process pays once (numba compiling, or loading from its cache, a kernel
+    on its first call) is then not counted as the measured env's.
     """
     if not (isinstance(seconds, (int, float)) and math.isfinite(seconds) and seconds >= 0):
         raise ValueError(f"argument 'seconds' must be a finite number ≥ 0, got {seconds!r}")
     if isinstance(min_steps, bool) or not isinstance(min_steps, int) or min_steps < 1:
         raise ValueError(f"argument 'min_steps' must be an integer ≥ 1, got {min_steps!r}")
+    if isinstance(warmup_steps, bool) or not isinstance(warmup_steps, int) or warmup_steps < 0:
+        raise ValueError(f"argument 'warmup_steps' must be an integer ≥ 0, got {warmup_steps!r}")
     if max_steps is not None and (
         isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < min_steps
     ):
@@ -81,6 +87,7 @@ def measure_limit(
         "max_steps": max_steps,
         "seed": seed,
         "trace_memory": bool(trace_memory),
+        "warmup_steps": warmup_steps,
     }
     return _in_child(job, timeout, {**os.environ, **(env_vars or {})}, f"{env_id} {config}")
 
@@ -132,6 +139,8 @@ def measure_batched(
 def _run(job: dict[str, Any]) -> dict[str, Any]:
 
     make_env = importlib.import_module(job["env_module"]).parallel_env  # importing is not the env's memory
+    if job.get("warmup_steps"):
+        _random_play(make_env(**job["config"]), job["seed"], job["warmup_steps"])
     if job.get("trace_memory"):
         tracemalloc.start()
     start = time.perf_counter()
@@ -171,6 +180,20 @@ def _run(job: dict[str, Any]) -> dict[str, Any]:
         "reset_s": reset_done - built,
         "finite": bool(finite),
     }
+
+
+def _random_play(env, seed: int, steps: int) -> None:
+    """``steps`` steps of ``env`` under the random actions :func:`_run` plays (episodes restart when they end)."""
+    env.reset(seed=seed)
+    space = env.action_space(env.possible_agents[0])
+    space.seed(seed)
+    episodes = 0
+    for _ in range(steps):
+        if not env.agents:
+            episodes += 1
+            env.reset(seed=seed + episodes)
+        env.step({a: space.sample() for a in env.agents})
+    env.close()
 
 
 def _run_batched(job: dict[str, Any]) -> dict[str, Any]:

@@ -278,3 +278,9 @@ def test_the_cli_refuses_values_that_crashed_in_one_line(env_id, argument, value
     assert proc.returncode != 0
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and f"'{argument}'" in lines[0] and "Traceback" not in proc.stderr, proc.stderr
+
+
+@pytest.mark.parametrize("warmup_steps", [-1, 1.5, True])
+def test_a_warm_up_that_is_no_count_of_steps_is_refused_naming_it(warmup_steps):
+    with pytest.raises(ValueError, match="argument 'warmup_steps' must be an integer ≥ 0"):
+        measure_limit("MapSync-v0", {}, seconds=0.0, min_steps=1, warmup_steps=warmup_steps)
