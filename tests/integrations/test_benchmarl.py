@@ -461,11 +461,15 @@ def test_heldout_evaluation_plays_the_episodes_the_single_env_plays(task):
 
 def test_normalised_scores_put_random_at_zero_and_the_paper_at_one():
     references = {
-        task: {"paper_policy": "paper", "policies": {"random": {"return": [-4.0, -2.0]}, "paper": {"return": [1.0]}}}
+        task: {
+            "env_revision": "v0",
+            "paper_policy": "paper",
+            "policies": {"random": {"return": [-4.0, -2.0]}, "paper": {"return": [1.0]}},
+        }
         for task in ("A", "B")
     }
     records = [
-        {"task": task, "algorithm": "ippo", "seed": seed, "heldout": {"return": [value]}}
+        {"task": task, "algorithm": "ippo", "seed": seed, "heldout": {"return": [value]}, "env_revision": "v0"}
         for task, seed, value in (("A", 0, -3.0), ("A", 1, 1.0), ("B", 0, 2.5), ("B", 1, -3.0))
     ]
     matrices, tasks = benchmarl_reference.score_matrices(records, references)
@@ -477,12 +481,17 @@ def test_score_matrices_leave_out_a_task_with_fewer_seeds_instead_of_cutting_eve
     """IQL had 3 seeds on two tasks and 1 on a third: cutting every task to one seed left one run a task, and the
     stratified bootstrap of one run a task is a zero-width interval."""
     references = {
-        task: {"paper_policy": "paper", "policies": {"random": {"return": [0.0]}, "paper": {"return": [1.0]}}}
+        task: {
+            "env_revision": "v0",
+            "paper_policy": "paper",
+            "policies": {"random": {"return": [0.0]}, "paper": {"return": [1.0]}},
+        }
         for task in ("A", "B", "C")
     }
     runs = [("A", 0, 0.5), ("A", 1, 0.7), ("A", 2, 0.9), ("B", 0, 1.0), ("B", 1, 1.2), ("B", 2, 1.1), ("C", 1, 0.2)]
     records = [
-        {"task": task, "algorithm": "iql", "seed": seed, "heldout": {"return": [value]}} for task, seed, value in runs
+        {"task": task, "algorithm": "iql", "seed": seed, "heldout": {"return": [value]}, "env_revision": "v0"}
+        for task, seed, value in runs
     ]
     matrices, tasks = benchmarl_reference.score_matrices(records, references)
     assert tasks == {"iql": ["A", "B"]}
