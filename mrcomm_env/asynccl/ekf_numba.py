@@ -1,16 +1,16 @@
-"""Compiled twins of the EKF kernels of ``ekf.py`` (numba), used when numba is installed.
+"""The EKF kernels of ``ekf.py`` (``ekf.KERNELS``), compiled with numba.
 
-Same functions, same arguments, same mathematics: the column step of §IV (eq. (1) propagation, one
-batch update with the range/bearing rows of eq. (2) in information form). ``ekf.py`` is the reference;
-``tests/asynccl/test_asynccl_backends.py`` checks that both agree, kernel by kernel and over whole episodes,
-within the forward-error bound of the matrices they invert (``tests/helpers/numerics.py``; when that bound means
-round-off: docs/architecture.md, "Compiled twins"). What differs is only how the arithmetic is organised,
-because at these sizes (3N = 15) the cost of numpy is its per-call overhead, not the arithmetic:
+The column step of §IV: eq. (1) propagation, one batch update with the range/bearing rows of eq. (2) in information
+form. Their numpy oracle is ``tests/helpers/asynccl_reference.py`` (dense products, an LU inverse);
+``tests/asynccl/test_asynccl_backends.py`` checks that both agree, kernel by kernel and over whole episodes, within
+the forward-error bound of the matrices they invert (``tests/helpers/numerics.py``; when that bound means round-off:
+docs/architecture.md, "Compiled twins of hot loops"). At these sizes (3N = 15) the cost of numpy is its per-call overhead, not
+the arithmetic, so the arithmetic is organised for one pass over few numbers:
 
 * propagation applies F = I + E (E has two entries per robot, ∂(x, y)/∂φ) as row and column operations
   instead of dense products;
 * the update adds each held row's outer product on the row's ≤ 5 non-zero columns only, to the symmetric
-  part of the prior information (what ``ekf.update`` sees to first order through its symmetrised result);
+  part of the prior information (what a dense update sees to first order through its symmetrised result);
 * the inverse of the (symmetric positive definite) information matrix goes through its Cholesky factor,
   P = L⁻ᵀ L⁻¹, which is about four times cheaper than the LU inverse and exactly symmetric. A matrix that
   is not numerically positive definite falls back to the LU inverse;
@@ -18,13 +18,10 @@ because at these sizes (3N = 15) the cost of numpy is its per-call overhead, not
   order, so each keeps its bits: at 3N = 15 a running sum's wait for its previous term set the pace, not the
   arithmetic (``tests/asynccl/test_asynccl_backends.py`` pins both to a one-sum-at-a-time loop in Python floats).
 
-``restart_chains`` has no numpy twin: it is ``Estimators._restart_chains``'s loop (the numpy backend runs the loop)
-in one call, the same kernel calls filter by filter. ``recent_column`` goes one step further: the rest of
-``Estimators._step_recent`` (those restarts, the extended estimates, each prior's odometry and held rows, and the
-column call) in one call: at N = 5 the restart call's marshalling took about 35 µs per step against 59 µs inside
-it, and the numpy between the two calls about as much again (``tests/asynccl/test_asynccl_fastpath.py`` compares the
-bytes
-of both with the loop's).
+``group_filters`` and ``recent_column`` are the estimator's common step (``Estimators._step_recent``): the robots
+grouped into filters, then the restarting filters' columns, the extended estimates, each prior's odometry and held
+rows and column t in one call, each filter through the same kernel calls as a loop of batched calls would make
+(``tests/asynccl/test_asynccl_fastpath.py`` compares the bytes of both with that loop's).
 """
 
 from __future__ import annotations
@@ -40,7 +37,7 @@ from mrcomm_env.core.backend import configure_numba_cache, kernel_array
 configure_numba_cache()  # before the @njit(cache=True) below: never cache into the package
 
 TWO_PI = 2.0 * math.pi
-MIN_DISTANCE = 1e-6  # as ``ekf.MIN_DISTANCE``
+MIN_DISTANCE = 1e-6  # guards the Jacobian of two estimates at the same place (the sensor gives d ≥ 5 cm)
 
 
 @njit(cache=True)
@@ -56,7 +53,7 @@ def _inv_spd_into(Y, out, L):
     gives every entry the bits of the one-sum-at-a-time loop (``tests/asynccl/test_asynccl_backends.py`` compares them)
     in about two thirds of its time at 3N = 15 and half of it at 3N = 60 (a throwaway timing).
     """
-    if not _cholesky_into(Y, L):  # not numerically positive definite: LU inverse, symmetrised like ``ekf.update``
+    if not _cholesky_into(Y, L):  # not numerically positive definite: LU inverse, symmetrised
         n = Y.shape[0]
         P = np.linalg.inv(Y)
         for r in range(n):
@@ -186,7 +183,7 @@ def _inv(A):
 
 @njit(cache=True)
 def _propagate(X, P, ud):
-    """``ekf.propagate``: x⁺ = f(x, u) and P⁺ = F P Fᵀ + Γ Q Γᵀ (eq. (1)); ud = [v dt, σ_v dt, σ_ω dt, ω dt]."""
+    """x⁺ = f(x, u) and P⁺ = F P Fᵀ + Γ Q Γᵀ (eq. (1)); ud = [v dt, σ_v dt, σ_ω dt, ω dt]."""
     G, n3 = X.shape
     Xn = np.empty((G, n3))
     Pn = np.empty((G, n3, n3))
@@ -262,17 +259,17 @@ def _information_one(x, a, b, z, inv_sd, inv_sth, A):
 
 
 def inv(A):
-    """``ekf.inv``: batched inverse of symmetric positive definite matrices."""
+    """batched inverse of symmetric positive definite matrices."""
     return _inv(kernel_array(A))
 
 
 def propagate(X, P, ud):
-    """``ekf.propagate``: x⁺ = f(x, u), P⁺ = F P Fᵀ + Γ Q Γᵀ (eq. (1))."""
+    """x⁺ = f(x, u), P⁺ = F P Fᵀ + Γ Q Γᵀ (eq. (1))."""
     return _propagate(kernel_array(X), kernel_array(P), kernel_array(ud))
 
 
 def information(X, geo, z, inv_sd, inv_sth):
-    """``ekf.information``: whitened rows [√W H | √W r] of a column at the priors X, (G, 2m, 3N+1)."""
+    """Whitened rows [√W H | √W r] of a column at the priors X, (G, 2m, 3N+1)."""
     return _information(kernel_array(X), geo.a, geo.b, kernel_array(z), inv_sd, inv_sth)
 
 
@@ -298,8 +295,8 @@ def _update_one(xp, Yp, A, hold, a, b, xn, Pn, Y, L, bvec, cols):
     which it holds those of ``hold`` (2m,); ``Y``, ``L`` (3N, 3N), ``bvec`` (3N,), ``cols`` (5,) are scratch."""
     n3 = xp.shape[0]
     # Y starts from the symmetric part of Y⁻: the Cholesky factorisation below reads only the lower triangle,
-    # while ``ekf.update``'s LU inverse sees the whole matrix and symmetrises its result, which removes the
-    # antisymmetric part of Y⁻ to first order. An LU inverse Y⁻ = P⁻⁻¹ (``ekf.inv``) is asymmetric by up to
+    # while a dense LU inverse (the numpy oracle's) sees the whole matrix and symmetrises its result, which removes
+    # the antisymmetric part of Y⁻ to first order. An LU inverse Y⁻ = P⁻⁻¹ is asymmetric by up to
     # ε·κ(P⁻)·‖Y⁻‖; read from one triangle only, that changed P = Y⁻¹ by a relative κ(Y)·ε·κ(P⁻), up to O(1)
     # at the κ of near-noiseless sensing. A Y⁻ of this module (``inv``) is exactly symmetric: nothing changes.
     for i in range(n3):
@@ -353,7 +350,7 @@ _OWN = np.arange(256, dtype=np.int64)
 
 
 def update(Xp, Yp, A, hold, prior=None, geo=None):
-    """``ekf.update``: information-form update of G filters; ``prior[g]`` picks filter g's prior (default: its own,
+    """information-form update of G filters; ``prior[g]`` picks filter g's prior (default: its own,
     or the single prior when Xp is one state). ``geo`` (the column's ``ekf.Geometry``) gives the rows' columns."""
     G = len(hold)
     if Xp.ndim == 1:
@@ -383,7 +380,7 @@ def _column(Xs, Ps, ud, a, b, z, inv_sd, inv_sth, hold, prior):
 
 
 def column(Xs, Ps, ud, geo, z, inv_sd, inv_sth, hold, prior):
-    """``ekf.column``: propagate, linearise, invert and update in one compiled call."""
+    """propagate, linearise, invert and update in one compiled call."""
     return _column(
         kernel_array(Xs),
         kernel_array(Ps),
@@ -487,31 +484,6 @@ def _chain_inputs(geometries, zs, lins, k0, n3):
     )
 
 
-def restart_chains(Lr, c_r, t, ud_ring, W, sources_known, geometries, zs, lins, inv_sd, inv_sth):
-    """Columns c+1 … t-1 of filters restarting from the central estimates x̂_{c|c} (``Estimators._step_recent``'s
-    restart loop) in one compiled call: (X, P) at column t-1, one row per filter.
-
-    ``Lr`` (G, N) holds each filter's holdings, ``c_r`` its checkpoint c ≤ t-2; ``geometries`` and ``zs`` are the
-    ``ekf.Geometry`` and measurements of columns k0 = min(c)+1 … t-1, ``lins`` maps each first column c+1 to the
-    central chain's kept prior there (X, Y = P⁻¹, whitened rows A). Each filter runs the very calls of the loop,
-    ``update`` on its first column and ``column`` on each later one, with the same inputs: a filter's result never
-    depends on the others of a batched call, so running them one by one gives the loop's numbers."""
-    c_r = np.asarray(c_r, dtype=np.int64)
-    k0 = int(c_r.min()) + 1
-    return _restart_chains(
-        kernel_array(Lr),
-        c_r,
-        int(t),
-        k0,
-        ud_ring,
-        int(W),
-        bool(sources_known),
-        _chain_inputs(geometries, zs, lins, k0, ud_ring.shape[1] * 3),
-        float(inv_sd),
-        float(inv_sth),
-    )
-
-
 @njit(cache=True)
 def _recent_column(Lx, c_r, src_e, t, k0, X_prev, P_prev, cX, cP, ud_ring, W, sources_known, chain, inv_sd, inv_sth):
     a_cat, b_cat, z_cat, off = chain[0], chain[1], chain[2], chain[3]  # ``_chain_inputs``
@@ -555,10 +527,12 @@ def recent_column(
 ):
     """``Estimators._step_recent``'s column t in one compiled call: ``column``'s (X⁻, Y⁻, A, X, P) of the filters of
     ``Lx`` (F, N): the central chain (row 0, prior ``central`` = x̂_{t-1|t-1}), the filters restarting from
-    x̂_{c|c}, c = ``c_r`` ≤ t-2 (their columns c+1 … t-1 as ``restart_chains`` runs them), those extending their
-    previous estimate ``X_prev[src_e]``, ``P_prev[src_e]``, then those restarting at t-1 (the central prior).
-    ``geometries``/``zs``: columns k0 … t (k0 = min(c_r)+1, or t without restarts); ``lins`` as ``restart_chains``'s.
-    The loop's very kernel calls on the same inputs, so the loop's numbers
+    x̂_{c|c}, c = ``c_r`` ≤ t-2 (their columns c+1 … t-1: ``update`` of the central chain's kept prior on column
+    c+1, ``column`` with the last available odometry on each later one), those extending their previous estimate
+    ``X_prev[src_e]``, ``P_prev[src_e]``, then those restarting at t-1 (the central prior). ``geometries``/``zs``:
+    columns k0 … t (k0 = min(c_r)+1, or t without restarts); ``lins`` maps each first column c+1 to the central
+    chain's kept prior there (X, Y = P⁻¹, whitened rows A). Each filter goes through the very kernel calls of a
+    loop of batched calls on the same inputs, so it gets the loop's numbers
     (``tests/asynccl/test_asynccl_fastpath.py``)."""
     c_r = np.array(c_r, dtype=np.int64)
     k0 = t - len(geometries) + 1

@@ -59,18 +59,18 @@ time steps" (only the Table I discussion uses the variants). ``max_history`` bou
 that never completed a step which leaves memory abandons it and restarts from its causal estimate.
 
 **Speed**: the table exchange of teams of up to 24 robots without a budget, the observation and the team's errors
-are compiled (numba); the EKF column steps run compiled twins of their numpy code (``core.backend``;
-``MRCOMM_BACKEND=numpy`` runs the numpy code). Tables, bits and delays are identical on both. Estimates differ by
-rounding (LU versus Cholesky inverses), within β·‖x‖ where β = 2·3·(3N + 2m)·ε·Σ_k κ_k adds up the condition numbers κ_k of the matrices each column step
-inverts (P⁻ and the information matrix Y, eq. (2)). They agree to round-off while β ≪ 1: over 150 steps
+are compiled (numba), and so are the EKF column steps (``ekf_numba.py``), whose numpy oracle is under
+``tests/``. Tables, bits and delays are the oracle's exactly. Estimates differ by rounding (LU versus Cholesky
+inverses), within β·‖x‖ where β = 2·3·(3N + 2m)·ε·Σ_k κ_k adds up the condition numbers κ_k of the matrices each
+column step inverts (P⁻ and the information matrix Y, eq. (2)). They agree to round-off while β ≪ 1: over 150 steps
 β ≈ 2·10⁻⁷ with the defaults (estimates 10⁻¹⁴ m apart), 2·10⁻⁴ with near-noiseless sensing
 (``sigma_d=0.001``, ``sigma_theta_deg=0.01``, 4·10⁻¹⁰ m apart). Only the prior fixes the team's rigid
 motion, so κ grows like (``initial_sigma`` / (σ·d))², σ·d the position precision of a range or bearing at
 distance d. A prior metres wide with near-noiseless sensing (``initial_sigma=5`` and the values above) puts
 κ at 10¹³–10¹⁴ (ε·κ ≈ 10⁻², β ≈ 50): the filter linearises at estimates metres off and amplifies rounding
-up to 10–50-fold per step, so the two backends end metres apart — and so does one backend whose prior
+up to 10–50-fold per step, so the two implementations end metres apart — and so does one whose prior
 mean moved by one ulp: the result is set by rounding, not by the data. The metric ``log10_condition`` (log₁₀ of the
-largest κ(P_{k|k}) of the centralized estimate) flags it: ≈ 4 by default, ≤ 10.5 where backends agree to
+largest κ(P_{k|k}) of the centralized estimate) flags it: ≈ 4 by default, ≤ 10.5 where the two agree to
 10⁻⁷ m, ≥ 12.5 where they differ by centimetres to metres (docs/architecture.md, "Compiled twins").
 """
 
@@ -269,7 +269,7 @@ class AsyncCLEnv(AsyncCLSpec, MrcommParallelEnv):
         """Track the largest κ₂ of the centralized covariance P_{t|t}: it is the inverse of the information matrix
         the column step of t inverted (eq. (2) in information form), so κ(P) = κ(Y), and ε·κ bounds the digits the
         step loses. One symmetric eigenvalue solve of one 3N × 3N matrix per step (without numpy.linalg's per-call
-        checks, like ``ekf.inv``): 1–3 % of a step at N = 5, under 0.5 % at N = 20."""
+        checks): 1–3 % of a step at N = 5, under 0.5 % at N = 20."""
         w = _umath_linalg.eigvalsh_lo(self.est.central[t][1], signature="d->d")
         cond = w[-1] / w[0] if w[0] > EPS * w[-1] else 1.0 / EPS
         if cond > self._max_cond:

@@ -16,15 +16,13 @@ holds. Which packets a filter holds is read from the robot's information table.
   checkpoint only when data about old steps arrived; otherwise it extends its previous causal estimate
   by one column. Filters that share a prior (same state, same odometry) share its propagation and
   linearisation; all filters of a step are batched into the same numpy calls.
-* **Cost.** A step is a handful of batched kernel calls (``ekf.backend()``: numpy, or their compiled
-  twins when numba is installed), so their number is what counts. While every robot is exact (always,
-  unless memory ran out), ``_step_recent`` runs the step as a fixed sequence of batched calls: the central
-  prior of column t is shared by every robot with c = t-1, a restart from an older x̂_{c|c} starts from the
-  central chain's kept prior of column c+1 (``lin``: its state, information and whitened measurement rows),
-  and each update is one Gram product over the rows a filter holds (on the compiled backend the whole step,
-  the restarting filters' columns included, is one call, ``ekf_numba.recent_column``, after one that groups the
-  robots into filters, ``ekf_numba.group_filters``, as ``_groups`` and ``_step_recent`` do). ``_step_general`` (through
-  ``_advance``) handles every other case; both run the same column steps.
+* **Cost.** A step is a handful of compiled kernel calls (``ekf.KERNELS``), so their number is what counts.
+  While every robot is exact (always, unless memory ran out), ``_step_recent`` runs the step as two calls: one
+  groups the robots into filters (``ekf_numba.group_filters``, as ``_groups`` does), one runs column t of them all
+  (``ekf_numba.recent_column``): the central prior of column t is shared by every robot with c = t-1, a restart
+  from an older x̂_{c|c} starts from the central chain's kept prior of column c+1 (``lin``: its state, information
+  and whitened measurement rows), and each update is one Gram product over the rows a filter holds.
+  ``_step_general`` (through ``_advance``) handles every other case; both run the same column steps.
 * **Bounded memory.** When the shared packet ring drops a column that some robot never completed, that
   robot adopts its causal estimate of the column as its new checkpoint (no longer centralized-exact).
 """
@@ -45,23 +43,23 @@ class Estimators:
         self.sv, self.sw, self.sd, self.sth = sigma_v_frac, sigma_omega, sigma_d_frac, sigma_theta
         self.W = history + 3
         n3 = 3 * n
-        self.k = ekf.backend()  # the EKF kernels: compiled when numba is installed, numpy otherwise
+        self.k = ekf.KERNELS  # the compiled EKF kernels (tests put their numpy oracle here)
         self.keep_priors = int(np.clip(KEPT_PRIOR_BYTES // (8 * (n + 1) * (n3 * n3 + n3)), 2, 64))  # columns
 
     def __getstate__(self):  # the kernels are looked up again on unpickling (compiled functions stay local)
         state = self.__dict__.copy()
-        state["k"] = self.k.name
+        del state["k"]
         return state
 
     def __setstate__(self, state):
         self.__dict__.update(state)
-        self.k = ekf.backend(state["k"])
+        self.k = ekf.KERNELS
 
     def reset(self, x0, P0, packets0) -> None:
         n = self.n
         self.packets = {0: packets0}
         # odometry ring: [v dt, σ_v dt, σ_ω dt, ω dt] of every robot per step (u and √Q of eq. (1), as
-        # ``ekf.propagate`` takes them); the extra last slot is the standstill with a large noise used before
+        # ``ekf_numba.propagate`` takes them); the extra last slot is the standstill with a large noise used before
         # any odometry of a robot is known
         self.ud_ring = np.zeros((self.W + 1, n, 4))
         self.ud_ring[:, :, 2] = self.sw * self.dt
@@ -83,7 +81,6 @@ class Estimators:
         self._lin_dirty = False
         self._jidx: dict = {}
         self._last_ab = (None, None, None)
-        self._ar = np.arange(n)[None, :]
         self._sources_known = False  # every robot has some complete column (no odometry source is -1)
 
     def add_packets(self, t: int, packets, floor: int) -> None:
@@ -96,12 +93,6 @@ class Estimators:
         np.multiply(u, self.dt, out=row[:, ::3])  # v dt, ω dt
         np.multiply(np.abs(row[:, 0]), self.sv, out=row[:, 1])  # σ_v |v| dt (σ_ω dt is constant: set in reset)
 
-    def _slots(self, src):
-        """Ring slots of the odometry of steps ``src``; step -1 (none of that robot yet) is the standstill slot.
-
-        Sources are min(L, k-1) ≥ min(c, k-1), so once every robot has a complete column (c ≥ 0) none is -1."""
-        return src % self.W if self._sources_known else np.where(src < 0, self.W, src % self.W)
-
     def _geometry(self, pk):
         """The index tables of column ``pk``'s sensing graph (``ekf.Geometry``): one per distinct (a, b)."""
         if pk.hidx is None:
@@ -113,7 +104,7 @@ class Estimators:
             if pk.hidx is None:
                 if len(self._jidx) > 64:
                     self._jidx.clear()
-                pk.hidx = self._jidx[gkey] = ekf.Geometry(pk.a, pk.b, self.n, self._inv_sth)
+                pk.hidx = self._jidx[gkey] = ekf.Geometry(pk.a, pk.b, self.n)
             self._last_ab = (pk.a, pk.b, pk.hidx)
         return pk.hidx
 
@@ -241,74 +232,24 @@ class Estimators:
         X, P = self._advance(t, sids, starts, Xs, Ps, Ls)
         return X, P, res_of
 
-    def _step_recent(self, t, L, valid, groups):
-        """Every robot exact: the same column steps as ``_advance``, in a fixed short sequence of batched calls.
+    def _step_recent(self, t, c, L, cache_ok):
+        """Every robot exact: the same column steps as ``_advance``, in two compiled calls.
 
+        ``group_filters`` groups the robots into filters (robots with the same frontier c and holdings share one,
+        as ``_groups`` groups them) and orders them; ``recent_column`` (through ``_fused_column``) runs them all.
         Each group's causal estimate is one of: x̂_{t|t} itself (c ≥ t); one column from x̂_{t-1|t-1} (c = t-1:
         it shares the central prior of column t, as it holds everyone's odometry of t-1); its previous causal
-        estimate extended by one column (valid: nothing about steps ≤ t-1 arrived); or a restart from x̂_{c|c}
+        estimate extended by one column (nothing about steps ≤ t-1 arrived); or a restart from x̂_{c|c}
         (c ≤ t-2): column c+1 updates the central chain's prior of c+1 (kept, ``lin``) with the rows it holds,
-        later columns propagate with its last available odometry (§IV). All filters of a column share its calls.
-        Returns ``None`` when the central prior a restart needs is no longer kept (``_step_general`` then).
-        """
-        n, W, lin = self.n, self.W, self.lin
-        res_of = [0] * n
-        rows_a, rows_r, rows_e, src_e, c_r = [], [], [], [], []
-        held = {}  # a group's row of L (its key), shared by its robots
-        for (_, ci, Lrow), robots in groups.items():
-            if ci >= t:
-                continue
-            held[robots[0]] = Lrow
-            rb = None
-            if ci < t - 1:  # the first of its robots whose previous estimate is still valid
-                for r in robots:
-                    if valid[r]:
-                        rb = r
-                        break
-            if rb is not None:
-                rows_e.append(robots)
-                src_e.append(rb)
-            elif ci == t - 1:
-                rows_a.append(robots)
-            elif (ci + 1, ("C", ci), b"") in lin:
-                rows_r.append(robots)
-                c_r.append(ci)
-            else:
-                return None
-        # filters: 0 the central chain, then those with a prior of column t of their own: the groups restarting
-        # at t-2 or earlier (R) and the extended ones (E); last the groups restarting at t-1 (A)
-        order = rows_r + rows_e + rows_a
-        nr, nown = len(rows_r), len(rows_r) + len(rows_e)
-        for g, robots in enumerate(order, start=1):
-            for r in robots:
-                res_of[r] = g
-        Lx = np.array([(t,) * n] + [held[r[0]] for r in order], dtype=np.int64)  # holdings of each filter
-        if getattr(self.k, "recent_column", None) is not None:  # compiled: the calls below in one
-            Xn, Pn = self._fused_column(t, Lx, c_r, src_e)
-            return Xn, Pn, res_of
-        ar = self._ar
-        cX, cP = self.central[t - 1]
-        Xs, Ps = [cX[None]], [cP[None]]
-        if rows_r:  # columns c+1 … t-1 of the restarting groups
-            Xc, Pc = self._restart_chains(t, Lx[1 : 1 + nr], c_r)
-            Xs.append(Xc)
-            Ps.append(Pc)
-        if rows_e:
-            Xs.append(self.X[src_e])
-            Ps.append(self.P[src_e])
-        if nown:  # the central row of Lx gives the odometry of t-1 of everyone
-            ud = self.ud_ring[self._slots(np.minimum(Lx[: 1 + nown], t - 1)), ar]
-            Xp, Pp = np.concatenate(Xs), np.concatenate(Ps)
-        else:
-            ud = self.ud_ring[(t - 1) % W][None]
-            Xp, Pp = Xs[0], Ps[0]
-        pk = self.packets[t]
-        geo = self._geometry(pk)
-        hold = Lx[:, geo.obs_of_row] >= t  # a filter holds the rows of column t of the packets it holds
-        pr = np.array(list(range(1 + nown)) + [0] * len(rows_a))  # the restarts at t-1 share the central prior
-        Xp, Yp, JA, Xn, Pn = self.k.column(Xp, Pp, ud, geo, pk.z, self._inv_sd, self._inv_sth, hold, pr)
-        lin[(t, ("C", t - 1), b"")] = (Xp[0], Yp[0], JA[0])
-        return Xn, Pn, res_of
+        later columns propagate with its last available odometry (§IV). Returns ``None`` when the central prior a
+        restart needs is no longer kept (``_step_general`` then)."""
+        Lx, c_r, src_e, res_of = self.k.group_filters(
+            t, c, L, cache_ok, *((self._cache_c, self._cache_L) if cache_ok else (c, L))
+        )
+        restarts = c_r.tolist()
+        if not all((ci + 1, ("C", ci), b"") in self.lin for ci in set(restarts)):
+            return None
+        return (*self._fused_column(t, Lx, restarts, src_e), res_of)
 
     def _fused_column(self, t, Lx, c_r, src_e):
         """``_step_recent``'s column t for the filters of ``Lx`` (restarts from ``c_r``, extensions of ``src_e``) in
@@ -334,64 +275,6 @@ class Estimators:
         )
         lin[(t, ("C", t - 1), b"")] = (Xp[0], Yp[0], JA[0])
         return Xn, Pn
-
-    def _restart_chains(self, t, Lr, c_r):
-        """Columns c+1 … t-1 of the groups restarting from x̂_{c|c} (c ≤ t-2) with holdings ``Lr``: their (X, P) at
-        column t-1, in the order of ``c_r``. Column c+1 updates the central chain's kept prior of c+1 (``lin``) with
-        the rows a group holds; later columns propagate with its last available odometry (§IV). Compiled: one call
-        (``ekf_numba.restart_chains``) that runs each group through the kernel calls of the loop below, which batches
-        the groups of a column into one call; a filter's numbers do not depend on its batch, so both give the same."""
-        lin = self.lin
-        if getattr(self.k, "restart_chains", None) is not None:  # a kernel namespace may lack it (tests wrap them)
-            columns = range(min(c_r) + 1, t)
-            return self.k.restart_chains(
-                Lr,
-                c_r,
-                t,
-                self.ud_ring,
-                self.W,
-                self._sources_known,
-                [self._geometry(self.packets[k]) for k in columns],
-                [self.packets[k].z for k in columns],
-                {c + 1: lin[(c + 1, ("C", c), b"")] for c in set(c_r)},
-                self._inv_sd,
-                self._inv_sth,
-            )
-        ar, nr = self._ar, len(c_r)
-        running, Xc, Pc = [], None, None  # the groups whose chain has begun, in the order they began
-        for k in range(min(c_r) + 1, t):
-            parts = []
-            if running:  # their prior of column k: last available odometry of step k-1
-                Lk = Lr[running]
-                pk = self.packets[k]
-                geo = self._geometry(pk)
-                parts.append(
-                    self.k.column(
-                        Xc,
-                        Pc,
-                        self.ud_ring[self._slots(np.minimum(Lk, k - 1)), ar],
-                        geo,
-                        pk.z,
-                        self._inv_sd,
-                        self._inv_sth,
-                        Lk[:, geo.obs_of_row] >= k,
-                        np.arange(len(running)),
-                    )[3:]
-                )
-            start = [g for g, ci in enumerate(c_r) if ci + 1 == k]
-            if start:  # first column: the central prior of column k with the rows they hold
-                Ls = Lr if len(start) == nr else Lr[start]
-                geo = self._geometry(self.packets[k])
-                parts.append(self.k.update(*lin[(k, ("C", k - 1), b"")], Ls[:, geo.obs_of_row] >= k, geo=geo))
-                running = running + start
-            if len(parts) == 1:
-                Xc, Pc = parts[0]
-            elif parts:
-                Xc, Pc = np.concatenate([parts[0][0], parts[1][0]]), np.concatenate([parts[0][1], parts[1][1]])
-        if running != sorted(running):  # back in the order of c_r
-            pos = np.argsort(running)
-            Xc, Pc = Xc[pos], Pc[pos]
-        return Xc, Pc
 
     def _groups(self, t, cl, L, cache_ok, exact_all):
         """Which robots' previous causal estimates are still ``valid`` (as ``ekf_numba.group_filters`` says), and the
@@ -427,26 +310,13 @@ class Estimators:
         # a previous causal estimate (step t-1) is still valid when nothing about steps ≤ t-1 arrived; it is
         # only worth extending for a robot whose checkpoint is older than t-1 (from t-1 the restart is as cheap)
         cache_ok = self._cache_step == t - 1 and min(cl) < t - 1
-        fast, recent = None, exact_all and t >= 1
-        if recent and getattr(self.k, "group_filters", None) is not None and self.k.recent_column is not None:
-            # compiled: the grouping below and _step_recent's order of filters in one call, then its column
-            Lx, c_r, src_e, res_of = self.k.group_filters(
-                t, c, L, cache_ok, *((self._cache_c, self._cache_L) if cache_ok else (c, L))
-            )
-            restarts = c_r.tolist()
-            if all((ci + 1, ("C", ci), b"") in self.lin for ci in set(restarts)):
-                fast = (*self._fused_column(t, Lx, restarts, src_e), res_of)
-            recent = False  # done, or a central prior a restart needs is gone, which _step_recent would find too
-        if fast is None:
-            valid, groups = self._groups(t, cl, L, cache_ok, exact_all)
-            if recent:
-                fast = self._step_recent(t, L, valid, groups)
+        fast = self._step_recent(t, c, L, cache_ok) if exact_all and t >= 1 else None
         if fast is not None:
             Xn, Pn, res_of = fast
             self.central[t] = (Xn[0], Pn[0])
             self.X, self.P = Xn[res_of], Pn[res_of]
         else:
-            X, P, res_of = self._step_general(t, L, valid, groups)
+            X, P, res_of = self._step_general(t, L, *self._groups(t, cl, L, cache_ok, exact_all))
             self.central[t] = (X[0], P[0])
             self.X = np.array(X)[res_of]
             self.P = np.array(P)[res_of]

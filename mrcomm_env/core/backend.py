@@ -1,12 +1,11 @@
 """Which implementation of an env's hot loops runs: compiled (numba, the default) or numpy.
 
 numba is a required dependency. Every env's hot loops are compiled kernels. MultiHop's frame (its copy-axis world),
-AsyncCL's table exchange, observation and team errors, MapSync's walk, sensing, changing world, disagreement and
-observation, and RendezvousMapping's window, packets, observation, candidate lists and map fusion exist only
-compiled; the numpy code they are checked against lives under ``tests/helpers``. AsyncCL's EKF, MapSync's
-protocols and RendezvousMapping's plan and forest still keep their numpy references in the
-package: ``MRCOMM_BACKEND=numpy`` runs those (the tests compare both), ``auto`` or
-``numba`` the kernels. The choice is made once per process.
+AsyncCL's EKF, table exchange, observation and team errors, MapSync's walk, sensing, changing world, disagreement
+and observation, and RendezvousMapping's window, packets, observation, candidate lists and map fusion exist only
+compiled; the numpy code they are checked against lives under ``tests/helpers``. MapSync's protocols and
+RendezvousMapping's plan and forest still keep their numpy references in the package: ``MRCOMM_BACKEND=numpy`` runs
+those (the tests compare both), ``auto`` or ``numba`` the kernels. The choice is made once per process.
 
 Compiled kernels are cached on disk (``cache=True``) so that only the first process compiles them. numba's
 own default writes the cache beside the source, into the installed package: that fails on a read-only

@@ -1,9 +1,8 @@
-"""AsyncCL-v0: the compiled twins (numba) of the hot loops agree with the numpy reference.
+"""AsyncCL-v0: the compiled EKF kernels (``ekf_numba.py``) agree with their numpy oracle
+(``tests/helpers/asynccl_reference.py``).
 
-``ekf_numba.py`` re-implements the EKF kernels of ``ekf.py`` and ``table_numba.py`` the dense table
-exchange (checked exactly in ``test_asynccl.py``). Here: kernel by kernel on random problems (full and
-partial sensing graphs, shared and own priors, random row masks), then whole seeded episodes run once
-on each backend, step by step. Floating-point results are compared within bounds derived from the
+Kernel by kernel on random problems (full and partial sensing graphs, shared and own priors, random row masks),
+then whole seeded episodes run once with each (the env's, and one whose estimators run the oracle), step by step. Floating-point results are compared within bounds derived from the
 conditioning of the matrices the kernels invert (``tests/helpers/numerics.py``); tables, bits and delays exactly.
 """
 
@@ -14,6 +13,8 @@ import os
 
 import numpy as np
 import pytest
+from helpers import asynccl_reference as numpy_ekf
+from helpers.asynccl_reference import use_reference
 from helpers.numerics import (
     EPS,
     HEADINGS,
@@ -47,7 +48,7 @@ def _problem(rng, n, G, full):
         keep = rng.random(len(a)) < 0.6
         keep[0] = True
         a, b = a[keep], b[keep]
-    geo = ekf.Geometry(a, b, n, 1.0 / STH)
+    geo = ekf.Geometry(a, b, n)
     X = rng.uniform(-3, 3, (G, 3 * n))
     X[:, 2::3] = rng.uniform(-np.pi, np.pi, (G, n))
     z = np.column_stack([rng.uniform(0.5, 5.0, len(a)), rng.uniform(-np.pi, np.pi, len(a))])
@@ -105,17 +106,17 @@ def test_kernels_agree(n, G, full):
     P = _spd(rng, G, 3 * n)
     ud = np.abs(rng.standard_normal((G, n, 4))) * 0.05
 
-    Xa, Pa = ekf.propagate(X, P, ud)
+    Xa, Pa = numpy_ekf.propagate(X, P, ud)
     Xb, Pb = ekf_numba.propagate(X, P, ud)
     tol_prop_x, tol_prop_p = _propagation_tolerances(X, P, ud)
     assert_close_conditioned(Xb, Xa, tol_prop_x, HEADINGS, "propagate: x")
     assert_close_conditioned(Pb, Pa, tol_prop_p, err_msg="propagate: P")
 
-    Aa = ekf.information(X, geo, z, 1.0 / SD, 1.0 / STH)
+    Aa = numpy_ekf.information(X, geo, z, 1.0 / SD, 1.0 / STH)
     Ab = ekf_numba.information(X, geo, z, 1.0 / SD, 1.0 / STH)
     assert_close_conditioned(Ab, Aa, _information_tolerance(X, geo, Aa, 1.0 / SD, 1.0 / STH), err_msg="information")
 
-    Yp = ekf.inv(P)  # LU versus Cholesky: forward errors of c·n·ε·κ(P)·‖P⁻¹‖ each
+    Yp = numpy_ekf.inv(P)  # LU versus Cholesky: forward errors of c·n·ε·κ(P)·‖P⁻¹‖ each
     assert_close_conditioned(
         ekf_numba.inv(P), Yp, solve_tolerance(P, np.linalg.norm(Yp, 2, axis=(1, 2)).max()), err_msg="inv"
     )
@@ -129,7 +130,7 @@ def test_kernels_agree(n, G, full):
         ((X, Yp, Aa), rng.integers(0, G, G + 2)),
     ]
     for (xp, yp, a), prior in cases:
-        ref = ekf.update(xp, yp, a, hold, prior)
+        ref = numpy_ekf.update(xp, yp, a, hold, prior)
         got = ekf_numba.update(xp, yp, a, hold, prior, geo)
         tol_x, tol_p = _update_tolerances(xp, yp, a, hold, prior, ref)
         assert_close_conditioned(got[1], ref[1], tol_p, err_msg="update: P")  # LU vs Cholesky: κ(Y)·ε
@@ -138,9 +139,11 @@ def test_kernels_agree(n, G, full):
 
     # the fused column step is the composition of the four kernels, on both backends
     prior = rng.integers(0, G, G + 2)
-    ref = ekf.column(X, P, ud, geo, z, 1.0 / SD, 1.0 / STH, hold, prior)
+    ref = numpy_ekf.column(X, P, ud, geo, z, 1.0 / SD, 1.0 / STH, hold, prior)
     got = ekf_numba.column(X, P, ud, geo, z, 1.0 / SD, 1.0 / STH, hold, prior)
-    comp = ekf.update(Xa, Yp_a := ekf.inv(Pa), Aa_p := ekf.information(Xa, geo, z, 1.0 / SD, 1.0 / STH), hold, prior)
+    comp = numpy_ekf.update(
+        Xa, Yp_a := numpy_ekf.inv(Pa), Aa_p := numpy_ekf.information(Xa, geo, z, 1.0 / SD, 1.0 / STH), hold, prior
+    )
     for r, c in zip(ref, (Xa, Yp_a, Aa_p) + comp, strict=True):
         np.testing.assert_array_equal(r, c)
     # chained: the propagated P⁻ (κ(P⁻)) is inverted, then Y (κ(Y)): the bounds of the two inversions add
@@ -170,13 +173,13 @@ def test_update_agrees_on_an_lu_inverted_ill_conditioned_prior():
     rng = np.random.default_rng(7)
     n, G = 5, 3
     geo, X, z = _problem(rng, n, G, True)
-    A = ekf.information(X, geo, z, 1.0 / SD, 1.0 / STH)
+    A = numpy_ekf.information(X, geo, z, 1.0 / SD, 1.0 / STH)
     for smallest in (1e-10, 1e-8, 1e-6):
         V = np.linalg.qr(rng.standard_normal((G, 3 * n, 3 * n)))[0]
         P = V @ (np.geomspace(smallest, 25.0, 3 * n)[None, :, None] * V.transpose(0, 2, 1))
-        Yp = ekf.inv(P)
+        Yp = numpy_ekf.inv(P)
         hold = rng.random((G, 2 * geo.m)) < 0.7
-        ref = ekf.update(X, Yp, A, hold)
+        ref = numpy_ekf.update(X, Yp, A, hold)
         got = ekf_numba.update(X, Yp, A, hold, None, geo)
         tol_x, tol_p = _update_tolerances(X, Yp, A, hold, None, ref)
         assert_close_conditioned(got[1], ref[1], tol_p, err_msg=f"P, κ(P⁻) = {condition(P):.1e}")
@@ -242,8 +245,8 @@ def test_compiled_update_keeps_the_bits_of_one_sum_at_a_time(n):
     rng = np.random.default_rng(n)
     G = 3
     geo, X, z = _problem(rng, n, G, False)
-    Yp = ekf.inv(_spd(rng, G, 3 * n))
-    A = ekf.information(X, geo, z, 1.0 / SD, 1.0 / STH)
+    Yp = numpy_ekf.inv(_spd(rng, G, 3 * n))
+    A = numpy_ekf.information(X, geo, z, 1.0 / SD, 1.0 / STH)
     hold = rng.random((G, 2 * geo.m)) < 0.7
     Xn, Pn = ekf_numba.update(X, Yp, A, hold, None, geo)
     n3 = 3 * n
@@ -265,42 +268,43 @@ def test_compiled_update_keeps_the_bits_of_one_sum_at_a_time(n):
             assert np.float64(x).tobytes() == Xn[g, i].tobytes(), (g, i)
 
 
-def _episode(seed, kw, compiled, monkeypatch, log=None, ulp=False):
-    """A seeded episode on one backend; ``log`` (a ``ConditionLog``) records κ of what its kernels invert, ``ulp``
-    moves the prior mean by one ulp (to measure how sensitive the problem itself is)."""
-    with monkeypatch.context() as m:  # whatever MRCOMM_BACKEND says, run the backend asked for
-        m.setattr(backend, "compiled", lambda: compiled)
-        env = parallel_env(**kw)
-        env.reset(seed=seed)
-        kernels = ekf.backend("numba" if compiled else "numpy")
-        if log is not None:
-            log.kernels = kernels
-            kernels = log.namespace()
+def _episode(seed, kw, compiled, log=None, ulp=False):
+    """A seeded episode with the env's compiled kernels or (``compiled=False``) the numpy oracle; ``log`` (a
+    ``ConditionLog``) records κ of what its kernels invert, ``ulp`` moves the prior mean by one ulp (to measure how
+    sensitive the problem itself is)."""
+    env = parallel_env(**kw)
+    kernels = ekf.KERNELS if compiled else numpy_ekf.NUMPY_KERNELS
+    if log is not None:
+        log.kernels = kernels
+        kernels = log.namespace()
+    if compiled:
         env.est.k = kernels
-        env.reset(seed=seed)
-        if ulp:
-            x0, P0 = env.est.central[-1]
-            env.est.reset(np.nextafter(x0, np.inf), P0, env.est.packets[0])
-            env.est.step(0, env.tables.c, env.tables.latest)
-        rng = np.random.default_rng(seed)
-        n_modes = env.action_space("robot_0").n
-        record = []
-        while env.agents:
-            if log is not None:
-                log.step = env.tables.t
-            _, rew, _, _, infos = env.step({a: int(rng.integers(n_modes)) for a in env.agents})
-            estimates = kw.get("estimation", True)  # without the EKF there are none
-            record.append(
-                (
-                    env.est.X.copy() if estimates else None,
-                    env.est.P.copy() if estimates else None,
-                    env.tables.latest.copy(),
-                    env.tables.known.copy(),
-                    rew["robot_0"],
-                    [infos[a]["bits_sent"] for a in env.agents],
-                )
+    else:
+        use_reference(env, kernels)
+    env.reset(seed=seed)
+    if ulp:
+        x0, P0 = env.est.central[-1]
+        env.est.reset(np.nextafter(x0, np.inf), P0, env.est.packets[0])
+        env.est.step(0, env.tables.c, env.tables.latest)
+    rng = np.random.default_rng(seed)
+    n_modes = env.action_space("robot_0").n
+    record = []
+    while env.agents:
+        if log is not None:
+            log.step = env.tables.t
+        _, rew, _, _, infos = env.step({a: int(rng.integers(n_modes)) for a in env.agents})
+        estimates = kw.get("estimation", True)  # without the EKF there are none
+        record.append(
+            (
+                env.est.X.copy() if estimates else None,
+                env.est.P.copy() if estimates else None,
+                env.tables.latest.copy(),
+                env.tables.known.copy(),
+                rew["robot_0"],
+                [infos[a]["bits_sent"] for a in env.agents],
             )
-        return record, env.metrics()
+        )
+    return record, env.metrics()
 
 
 def _episode_ops(n_robots):
@@ -320,10 +324,10 @@ ESTIMATE_METRICS = ("rms_position", "rms_orientation")  # functions of the estim
         (2, {"n_robots": 3, "trajectory": "waypoint", "sensing_radius": 3.0, "max_cycles": 120, "max_history": 12}),
     ],
 )
-def test_whole_episodes_agree_across_backends(seed, kw, monkeypatch):
-    fast, m_fast = _episode(seed, kw, True, monkeypatch)
+def test_whole_episodes_agree_across_backends(seed, kw):
+    fast, m_fast = _episode(seed, kw, True)
     log = ConditionLog()
-    ref, m_ref = _episode(seed, kw, False, monkeypatch, log)
+    ref, m_ref = _episode(seed, kw, False, log)
     T = kw["max_cycles"]
     assert len(fast) == len(ref) == T
     # the episode bound (tests/helpers/numerics.py): 2·C·ops·ε·Σ_{k≤t} κ_k·scale, κ_k of the reference run's inversions
@@ -364,7 +368,7 @@ def _separation(a, b):
 
 
 @pytest.mark.parametrize("initial_sigma", [0.05, 5.0])
-def test_backends_agree_where_the_filter_is_well_conditioned(initial_sigma, monkeypatch):
+def test_backends_agree_where_the_filter_is_well_conditioned(initial_sigma):
     """Where "the backends agree to round-off" ends (docs/architecture.md, "Compiled twins").
 
     Near-noiseless range/bearing (σ_d = 0.1 %, σ_θ = 0.01°) makes the information matrices ill-conditioned in
@@ -381,20 +385,20 @@ def test_backends_agree_where_the_filter_is_well_conditioned(initial_sigma, monk
     kw = dict(NEAR_NOISELESS, initial_sigma=initial_sigma)
     T, ops = kw["max_cycles"], _episode_ops(5)
     log = ConditionLog()
-    ref, _ = _episode(9, kw, False, monkeypatch, log)
+    ref, _ = _episode(9, kw, False, log)
     conds = log.conds(T)
     beta = episode_budget(conds, ops)
     if initial_sigma < 1.0:
         assert beta[-1] < BETA_EQUIVALENT
-        fast, _ = _episode(9, kw, True, monkeypatch)
+        fast, _ = _episode(9, kw, True)
         tol = episode_tolerance(conds, max(np.linalg.norm(r[0], axis=1).max() for r in ref), ops)
         for t, ((x1, *_), (x2, *_)) in enumerate(zip(fast, ref, strict=True)):
             assert_close_conditioned(x1, x2, tol[t], HEADINGS, f"x at step {t}")
     else:  # outside: the measured conditioning puts it there, and the problem itself is that sensitive
         assert EPS * conds.max() > 1e-3, f"ε·κ = {EPS * conds.max():.1e}"
         assert beta[-1] > 1.0, f"β = {beta[-1]:.1e}"
-        fast, _ = _episode(9, kw, True, monkeypatch)
-        nudged, _ = _episode(9, kw, True, monkeypatch, ulp=True)
+        fast, _ = _episode(9, kw, True)
+        nudged, _ = _episode(9, kw, True, ulp=True)
         assert _separation(fast, nudged) > 1e-3, "one ulp of prior mean should move the estimates by far more"
 
 
@@ -425,9 +429,8 @@ def test_drawn_episodes_keep_the_same_books_on_both_backends(kw, seed):
     """What is bookkeeping (who holds which packet, the bits, the delays and table sizes) is the same on both
     backends, whatever the conditioning of the filter, which only the estimates feel (25 drawn configurations,
     the same ones in ``make test``)."""
-    with pytest.MonkeyPatch.context() as monkeypatch:
-        fast, m_fast = _episode(seed, kw, True, monkeypatch)
-        ref, m_ref = _episode(seed, kw, False, monkeypatch)
+    fast, m_fast = _episode(seed, kw, True)
+    ref, m_ref = _episode(seed, kw, False)
     assert len(fast) == len(ref) == kw["max_cycles"]
     for t, ((_, _, l1, k1, _, b1), (_, _, l2, k2, _, b2)) in enumerate(zip(fast, ref, strict=True)):
         np.testing.assert_array_equal(l1, l2, err_msg=f"latest at step {t}")

@@ -137,11 +137,12 @@ def information_matrices(Xp, Yp, A, hold, prior=None):
 
 
 class ConditionLog:
-    """Wraps an EKF kernel namespace (``ekf.backend()``) and records κ_k per step k: the sum over the step's kernel
-    calls of the largest κ₂ among the matrices the call inverts — prior covariances P⁻ (``inv``, ``column``) and
-    information matrices Y (``update``, ``column``). Calls of one step chain (P⁻ → Y⁻ → Y → P, one column after
-    another when a filter restarts), so their bounds add; the filters of one batched call run side by side, so
-    their worst one counts. Set ``step`` before a step's calls; ``conds(T)`` gives κ_0 … κ_{T−1}."""
+    """Wraps an EKF kernel namespace (``ekf.KERNELS``, or its numpy oracle ``asynccl_reference.NUMPY_KERNELS``) and
+    records κ_k per step k: the sum over the step's kernel calls of the largest κ₂ among the matrices the call
+    inverts — prior covariances P⁻ (``inv``, ``column``) and information matrices Y (``update``, ``column``). Calls
+    of one step chain (P⁻ → Y⁻ → Y → P, one column after another when a filter restarts), so their bounds add; the
+    filters of one batched call run side by side, so their worst one counts. Set ``step`` before a step's calls;
+    ``conds(T)`` gives κ_0 … κ_{T−1}."""
 
     def __init__(self, kernels=None):
         self.kernels, self.step, self.kappa = kernels, 0, {}
@@ -167,9 +168,8 @@ class ConditionLog:
             self._note(information_matrices(Xp, Yp, A, hold, prior))
             return out
 
-        return types.SimpleNamespace(
-            name=k.name, propagate=k.propagate, information=k.information, inv=inv, update=update, column=column
-        )
+        # the others pass through unrecorded (``group_filters``, and ``recent_column``, whose inversions are opaque)
+        return types.SimpleNamespace(**{**vars(k), "inv": inv, "update": update, "column": column})
 
     def conds(self, steps: int) -> np.ndarray:
         return np.array([self.kappa.get(t, 1.0) for t in range(steps)])
