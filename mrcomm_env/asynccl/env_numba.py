@@ -1,15 +1,13 @@
-"""Compiled twins (numba) of two per-step computations of ``AsyncCLEnv``: the observation (``_observe``) and the
-team's position and heading errors (``_errors``).
+"""Two per-step computations of ``AsyncCLEnv``: the observation (``_observe``) and the
+team's position and heading errors (``_errors``), compiled (numba).
 
 Both are a few dozen numpy operations on N × N arrays (N = 5 by default), so numpy's per-call overhead is most of
-their cost (about a tenth of a step). The twins compute every entry with the same operations in the same order:
+their cost (about a tenth of a step). The kernels compute every entry with the same operations in the same order:
 the reductions add in numpy's order at these sizes (robot after robot: the reduced axis is not the contiguous
 one), a heading is wrapped with Python's float modulo, which is ``np.remainder``'s rule, and a float32 entry is
 rounded once from float64, as numpy's assignment into a float32 array rounds it. The own-pose log scale is left to
 numpy (``np.log10``, whose vectorised loops may round otherwise than the C library's). Tests compare both with the
-numpy code bit for bit (``tests/asynccl/test_asynccl.py``).
-
-Used when ``core.backend.compiled()`` (docs/architecture.md).
+numpy oracle bit for bit (``tests/helpers/asynccl_reference.py``, ``tests/asynccl/test_asynccl.py``).
 """
 
 from __future__ import annotations

@@ -1,10 +1,10 @@
-"""Compiled twin (numba) of ``world.spanning_forest``: the connected groups of vehicles and the shortest-path
-trees they fuse over (§III).
+"""``world.spanning_forest`` compiled (numba): the connected groups of vehicles and the shortest-path trees they
+fuse over (§III).
 
-The reference builds a sparse matrix and calls scipy's multi-source Dijkstra (``min_only``, one root per group:
+``world.dijkstra_forest`` builds a sparse matrix and calls scipy's multi-source Dijkstra (``min_only``, one root per group:
 its lowest-index vehicle). On the 5–30 vehicles of a team, scipy's set-up (validation, the CSR matrix and its
-transpose) costs several times the search itself, and the decision phase calls it every time. This twin runs the
-same search on the dense distance matrix.
+transpose) costs several times the search itself, and the decision phase calls it every time. This kernel runs
+the same search on the dense distance matrix.
 
 **Why its trees are scipy's.** scipy relaxes a neighbour only on a strictly shorter path (``val > next_val``) and
 never touches a scanned node. Every tentative distance here is computed as scipy computes it (the scanned node's
@@ -17,12 +17,10 @@ in the order it takes nodes of equal distance off the heap, and that order can m
    its successor have equal distances.
 
 Without either, each node's distance exceeds its predecessor's and its predecessor is the unique first-found
-minimum, whatever the order among equal distances. The twin reports either case as *ambiguous* and the caller
-then runs the reference (exact grids and co-located groups meet case 1 often:
+minimum, whatever the order among equal distances. The kernel reports either case as *ambiguous* and the caller
+then runs scipy's (exact grids and co-located groups meet case 1 often:
 ``tests/rendezvous_mapping/test_rendezvous_compiled.py``
 checks that both branches agree with scipy and that both are taken).
-
-Used when ``core.backend.compiled()`` (docs/architecture.md).
 """
 
 from __future__ import annotations

@@ -1,32 +1,30 @@
-"""Compiled twins (numba) of the recommendation phase's partition loop (§IV-C/D, ``protocol.recommend``).
+"""The recommendation phase's partition loop compiled (numba; §IV-C/D, ``protocol.recommend``).
 
 A pass assigns vehicles to landmarks (Munkres), clusters the assigned landmarks, picks the main cluster μ_max
 (eq. 6) and its central landmark l_c (eigenvector centrality [16]), and, while the assignment is not connected,
-the outlier l_o (eq. 7) whose half-plane cut (eq. 8) shrinks the working set. The numpy reference spends
-~90 µs of interpreter round trips per pass on 2–10 landmarks, and a 10-vehicle team at d_comms = 10 m makes
+the outlier l_o (eq. 7) whose half-plane cut (eq. 8) shrinks the working set. Written in numpy (the oracle,
+``tests/helpers/rendezvous_reference.py``), a pass spends ~90 µs of interpreter round trips on 2–10 landmarks, and a 10-vehicle team at d_comms = 10 m makes
 about a dozen passes per decision phase.
 
 :func:`recommend_loop` runs the whole loop, Munkres included (:func:`lsap_max`, scipy's algorithm step for step),
 and the candidate columns Munkres sees: every row's n best, ties to the lowest column (:func:`_best_union`, as the
-reference's stable sort). It hands back to the caller where the reference's own rounding could matter: an eq. (8)
-product within rounding of 0, whose sign numpy's ``@`` (a BLAS call, rounding otherwise than two products and a
-sum) might round differently; the reference's passes then go on, each with :func:`partition_pass` (the
+reference's stable sort). It hands back to the caller where numpy's rounding could matter: an eq. (8) product
+within rounding of 0, whose sign numpy's ``@`` (a BLAS call, rounding otherwise than two products and a sum) might
+round differently; the caller's passes then go on, each with :func:`partition_pass` (the
 clustering, eq. (6), l_c, eq. (7) and eq. (8)'s offsets in one call). l_c's eigenvector is numba's ``eigh``
 (LAPACK's ``syevd`` through scipy, numpy's ``eigh`` runs the same routine through its own build): it gave the
 reference's eigenvector bit for bit on 20,000 random and grid clusters here, and l_c depends on it only through a
 1e-9 relative tie tolerance, so two builds could disagree only on entries within round-off of that tolerance.
 ``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares Munkres, the eq. (8) signs, single passes, whole
-plans (also resumed from any pass) and whole seeded episodes on both backends.
+plans (also resumed from any pass) and whole seeded episodes with the oracle's.
 
 The phase's other per-step arrays: eq. (1)–(4)'s utility of one map per vehicle up to numpy's ``log1p``
 (:func:`utility_argument`) and the env's candidate lists (:func:`negated_work`, :func:`ranked_candidates`), each
-compared with the numpy code byte for byte.
+compared with numpy byte for byte.
 
 Ties go to the lowest column or landmark id everywhere, never to numpy's ``argpartition``: numpy dispatches that to
 SIMD selection code by CPU (x86-simd-sort on AVX2 and AVX-512), whose choice among equal values differs from one
 CPU to another, so a seeded episode would too.
-
-Used when ``core.backend.compiled()`` (docs/architecture.md).
 """
 
 from __future__ import annotations

@@ -8,18 +8,17 @@ Action module of §V.
 * :func:`utility_matrix` — eq. (1)–(4): U_v(l) = ½ ln |I_{v,l} + Y_l| / |Y_l| with I_{v,l} = t_obs I_obs,
   t_obs = t_window − ‖x_v − x_l‖/u, or ε when the landmark cannot be reached in the window.
 * :func:`assign` — Munkres [15] (``scipy.optimize.linear_sum_assignment``, maximising utility).
-* :func:`clusters` — the fine Dulmage–Mendelsohn blocks [14] of the adjacency of the assigned landmarks.
-  For a symmetric adjacency with its diagonal (a landmark is in range of itself) the diagonal is a
-  perfect matching and the fine blocks are the strongly connected components of the symmetric graph,
-  i.e. its connected components (MATLAB's ``dmperm(A + speye(n))`` idiom); computed with
-  ``scipy.sparse.csgraph``, and :func:`fine_dm_blocks` builds the decomposition directly for the test.
-* :func:`central_landmark` — eigenvector centrality [16] of the best cluster's adjacency.
-* :func:`recommend` — eq. (5)–(8): cluster value J, μ_max, l_c, outlier l_o and the half-plane cut,
-  repeated until the assigned landmarks are connected or fewer working landmarks than vehicles remain. On the
-  compiled backend (``core.backend``) the whole loop runs as one numba call (:mod:`.plan_numba`,
-  ``recommend_loop``: Munkres as scipy computes it), with the same results; where numpy's rounding of eq. (8)
-  could matter it hands over to the passes below, whose clustering, eq. (6), l_c, eq. (7) and the offsets of
-  eq. (8) are still one numba call each.
+* :func:`recommend` — eq. (5)–(8): the clusters of the assigned landmarks, cluster value J, μ_max, l_c, outlier
+  l_o and the half-plane cut, repeated until the assigned landmarks are connected or fewer working landmarks than
+  vehicles remain. The clusters are the fine Dulmage–Mendelsohn blocks [14] of the adjacency of the assigned
+  landmarks: for a symmetric adjacency with its diagonal (a landmark is in range of itself) the diagonal is a
+  perfect matching and the fine blocks are the strongly connected components of the symmetric graph, i.e. its
+  connected components (MATLAB's ``dmperm(A + speye(n))`` idiom); l_c is the largest entry of the Perron vector of
+  the main cluster's adjacency, eigenvector centrality [16]. The whole loop runs as one numba call
+  (:mod:`.plan_numba`, ``recommend_loop``: Munkres as scipy computes it); where numpy's rounding of eq. (8) could
+  matter it hands over to the passes below, whose clustering, eq. (6), l_c, eq. (7) and the offsets of eq. (8) are
+  one numba call each (``partition_pass``). Their numpy statements, and the decomposition built directly, are
+  the kernels' oracle (``tests/helpers/rendezvous_reference.py``).
 
 Ties among a row's best landmarks go to the lowest id (a stable sort), never to numpy's ``argpartition``, which
 numpy dispatches to SIMD code by CPU: its choice among equal values differs from one CPU to another, so a seeded
@@ -28,18 +27,13 @@ episode's plan would too.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import connected_components, maximum_bipartite_matching
 
-from mrcomm_env.core import backend
 from mrcomm_env.core.backend import kernel_array
 from mrcomm_env.rendezvous import plan_numba
-from mrcomm_env.rendezvous.world import dense_components
 
 #: ε of §IV-A: the observation time (s) credited to a landmark that cannot be reached within the window,
 #: "to provide some incentive to travel towards a landmark"
@@ -64,25 +58,42 @@ def utility_matrix(
     the map's landmark estimates. Observations are isotropic, R⁻¹ = ``info_per_obs`` I,
     made at ``obs_rate`` per second, so I_obs = obs_rate·R⁻¹ (eq. 3). The sensor floor caps a landmark at
     ``budget`` independent observations: the gain counts at most the ``budget − count`` the map believes
-    remain (a landmark believed exhausted is worth 0).
+    remain (a landmark believed exhausted is worth 0). One map per vehicle (the env's) is one compiled call
+    (``plan_numba.utility_argument``, up to numpy's log1p), a shared map (a group's, as the baseline plans) is
+    :func:`broadcast_utility`; both give the same bytes on the same maps.
     """
     n, L = np.shape(vehicle_pos)[0], np.shape(count)[-1]
     # one map per vehicle, shapes exactly as the env's (the kernel indexes them without numpy's broadcasting)
     per_vehicle = np.shape(Y) == (n, L, 2, 2) and np.shape(count) == (n, L) and np.shape(landmark_pos) == (n, L, 2)
-    if per_vehicle and np.shape(vehicle_pos) == (n, 2) and backend.compiled():  # one call, up to numpy's log1p
-        argument = plan_numba.utility_argument(
-            kernel_array(Y, np.float64),
-            kernel_array(count, np.int64),
-            kernel_array(vehicle_pos, np.float64),
-            kernel_array(landmark_pos, np.float64),
-            float(speed),
-            float(t_window),
-            float(info_per_obs),
-            float(obs_rate),
-            int(budget),
-            EPS_OBS_TIME,
-        )
-        return 0.5 * np.log1p(argument)
+    if not (per_vehicle and np.shape(vehicle_pos) == (n, 2)):
+        return broadcast_utility(Y, count, vehicle_pos, landmark_pos, speed, t_window, info_per_obs, obs_rate, budget)
+    argument = plan_numba.utility_argument(
+        kernel_array(Y, np.float64),
+        kernel_array(count, np.int64),
+        kernel_array(vehicle_pos, np.float64),
+        kernel_array(landmark_pos, np.float64),
+        float(speed),
+        float(t_window),
+        float(info_per_obs),
+        float(obs_rate),
+        int(budget),
+        EPS_OBS_TIME,
+    )
+    return 0.5 * np.log1p(argument)
+
+
+def broadcast_utility(
+    Y: np.ndarray,
+    count: np.ndarray,
+    vehicle_pos: np.ndarray,
+    landmark_pos: np.ndarray,
+    speed: float,
+    t_window: float,
+    info_per_obs: float,
+    obs_rate: float,
+    budget: int,
+) -> np.ndarray:
+    """:func:`utility_matrix` in numpy, for any shapes numpy broadcasts (a map shared by the vehicles)."""
     offset = vehicle_pos[:, None, :] - (landmark_pos if landmark_pos.ndim == 3 else landmark_pos[None, :, :])
     d = np.sqrt(offset[..., 0] ** 2 + offset[..., 1] ** 2)
     t_obs = t_window - d / speed  # eq. (4) inside t_obs = t_window − t_travel
@@ -122,67 +133,6 @@ def best_positions(negated_U: np.ndarray, columns: np.ndarray) -> np.ndarray:
     return np.argsort(negated_U[:, columns], axis=1, kind="stable")[:, :n]
 
 
-def adjacency(pos: np.ndarray, d_comms: float) -> np.ndarray:
-    """Bool adjacency of the given landmarks: separation less than d_comms (§IV-C), with the diagonal."""
-    if math.isinf(d_comms):
-        return np.ones((len(pos), len(pos)), dtype=bool)
-    adj = ((pos[:, None, :] - pos[None, :, :]) ** 2).sum(-1) < d_comms * d_comms
-    np.fill_diagonal(adj, True)
-    return adj
-
-
-#: up to this many landmarks, :func:`clusters` closes the adjacency densely instead of calling scipy's sparse
-#: graph routines, whose set-up costs ~0.3 ms per call on a 10 × 10 matrix (the plan calls it many times)
-DENSE_CLUSTERS_MAX = 64
-
-
-def clusters(adj: np.ndarray) -> tuple[int, np.ndarray]:
-    """The fine Dulmage–Mendelsohn blocks of a symmetric adjacency with diagonal: its connected components,
-    numbered in order of their lowest member (as ``scipy.sparse.csgraph.connected_components`` numbers them)."""
-    n = len(adj)
-    if n == 1:
-        return 1, np.zeros(1, dtype=np.int32)
-    if n > DENSE_CLUSTERS_MAX:
-        return connected_components(csr_matrix(adj), directed=False)
-    return dense_components(adj)
-
-
-def fine_dm_blocks(adj: np.ndarray) -> list[frozenset[int]]:
-    """The fine Dulmage–Mendelsohn decomposition of a square matrix with a perfect matching, built directly:
-    match rows to columns (Hopcroft–Karp), orient the bipartite graph by the matching, and take the strongly
-    connected components (Pothen & Fan [14]). Used to check :func:`clusters`."""
-    a = csr_matrix(adj.astype(np.int8))
-    match = maximum_bipartite_matching(a, perm_type="column")  # match[row] = column
-    if (match < 0).any():
-        raise ValueError("the matrix has no perfect matching; its fine decomposition has coarse parts")
-    n = adj.shape[0]
-    # directed graph on rows: row i → row j when column match[j] has a nonzero in row i
-    row_of_col = np.empty(n, dtype=np.int64)
-    row_of_col[match] = np.arange(n)
-    rows, cols = np.nonzero(adj)
-    digraph = csr_matrix((np.ones(len(rows)), (rows, row_of_col[cols])), shape=(n, n))
-    k, labels = connected_components(digraph, directed=True, connection="strong")
-    return [frozenset(np.flatnonzero(labels == b).tolist()) for b in range(k)]
-
-
-def central_landmark(adj: np.ndarray, pos: np.ndarray) -> int:
-    """Index (into ``adj``) of the most central landmark: the largest entry of the Perron eigenvector of the
-    cluster's adjacency [16]. Ties (complete graphs, pairs) go to the landmark nearest the cluster's centroid,
-    then to the lowest index."""
-    n = len(adj)
-    if n == 1:
-        return 0
-    a = adj.astype(np.float64)
-    np.fill_diagonal(a, 0.0)  # A and A + I have the same eigenvectors
-    _, vecs = np.linalg.eigh(a)
-    lead = np.abs(vecs[:, -1])
-    top = np.flatnonzero(lead >= lead.max() * (1.0 - 1e-9))
-    if len(top) > 1:
-        centre = pos.mean(0)
-        top = top[np.argsort(((pos[top] - centre) ** 2).sum(-1), kind="stable")]
-    return int(top[0])
-
-
 @dataclass
 class PartitionStep:
     """One pass of §IV-C/D, kept for drawing Fig. 4."""
@@ -220,40 +170,21 @@ def recommend(U: np.ndarray, landmark_pos: np.ndarray, d_comms: float, record: b
     if n == 1 and not record:  # one vehicle: its best landmark is a connected cluster of one (shortcut)
         best = int(np.argmax(U[0]))
         return Recommendation(np.array([best]), np.array([True]), best, True, steps)
-    kernels = plan_numba if backend.compiled() else None
-    if kernels is not None:  # one compiled signature: a read-only or strided view would compile the kernels again
-        U, landmark_pos = kernel_array(U, np.float64), kernel_array(landmark_pos, np.float64)
-    if kernels is not None and not record:  # the passes compiled, up to an eq. (8) sign numpy could round otherwise
-        status, working, assignment, in_main, central, connected = kernels.recommend_loop(
+    # one compiled signature: a read-only or strided view would compile the kernels again
+    U, landmark_pos = kernel_array(U, np.float64), kernel_array(landmark_pos, np.float64)
+    if not record:  # the passes in one call, up to an eq. (8) sign numpy could round otherwise
+        status, working, assignment, in_main, central, connected = plan_numba.recommend_loop(
             U, landmark_pos, float(d_comms), working
         )
-        if status == kernels.PLANNED:
+        if status == plan_numba.PLANNED:
             return Recommendation(assignment, in_main, int(central), bool(connected), steps)
         # AMBIGUOUS: the passes below go on from this working set
     while True:
         rows, lp = assign(U, working)
-        if kernels is None:
-            adj = adjacency(landmark_pos[lp], d_comms)
-            k, labels = clusters(adj)
-            if k == 1:
-                main = 0
-            else:
-                J = np.bincount(labels, weights=U[rows, lp], minlength=k)  # eq. (6)
-                main = int(np.argmax(J))
-            members = np.flatnonzero(labels == main)
-            lc = int(lp[members[central_landmark(adj[np.ix_(members, members)], landmark_pos[lp[members]])]])
-            if k == 1:
-                lo = -1
-            else:
-                outside = lp[labels != main]
-                d2 = ((landmark_pos[outside] - landmark_pos[lc]) ** 2).sum(-1)
-                lo = int(outside[int(np.argmax(d2))])  # eq. (7)
-                axis = landmark_pos[lo] - landmark_pos[lc]
-                offsets = landmark_pos[lo] - landmark_pos[working]
-        else:  # the same pass compiled, up to eq. (8)'s product
-            k, labels, main, lc, lo, axis, offsets = kernels.partition_pass(
-                U, landmark_pos, rows, lp, float(d_comms), working
-            )
+        # clustering, eq. (6), l_c, eq. (7) and eq. (8)'s offsets in one call; eq. (8)'s product in numpy
+        k, labels, main, lc, lo, axis, offsets = plan_numba.partition_pass(
+            U, landmark_pos, rows, lp, float(d_comms), working
+        )
         if record:
             steps.append(PartitionStep(working, _per_vehicle(n, rows, lp), _per_vehicle(n, rows, labels), main, lc, lo))
         if k == 1:

