@@ -519,25 +519,3 @@ def return_bits_table(candidates: int) -> np.ndarray:
             binomial = binomial * (candidates - d) // (d + 1)
     table.flags.writeable = False
     return table
-
-
-def reconcile(
-    protocol: str,
-    x: np.ndarray,
-    y: np.ndarray,
-    strings: SharedStrings,
-    k: int,
-    res: int,
-    rng: np.random.Generator,
-    seed: int,
-    nonce: int,
-) -> Reconciliation:
-    """Run ``bisection``, ``full`` or ``sketch`` by name."""
-    check_protocol(protocol)
-    if protocol == "bisection":
-        return bisection(x, y, strings, k, res, rng)
-    if protocol == "full":
-        return full(x, y)
-    if protocol == "sketch":
-        return sketch(x, y, seed, nonce)
-    raise ValueError(f"argument 'protocol' must be one of bisection, full, sketch for reconciliation; got {protocol!r}")

@@ -1,8 +1,8 @@
 """MultiHop's TDMA frame compiled (numba) over a copy axis: what the copy-axis world (:mod:`.copy_axis`) calls.
 
 Written slot by slot in numpy (the test oracle, ``tests/helpers/multihop_reference.py``), the frame is a handful of
-numpy calls per slot (``protocol.deliver_one``): about 4 ms of the 5 ms a 100-robot frame took. This runs the whole
-frame in one call, with the same rules in the same order (§2.1: every sender stamps its own estimate with the
+numpy calls per slot (the oracle's ``deliver_one``): about 4 ms of the 5 ms a 100-robot frame took. This runs the
+whole frame in one call, with the same rules in the same order (§2.1: every sender stamps its own estimate with the
 current time; it sends its own estimate and the first ``m − 1`` further candidates of its ranked list that it holds;
 each neighbour keeps the newer time stamp per robot; a first arrival is dated at the end of the slot). Every number
 it writes is the oracle's, bit for bit: the clock is advanced by the same float additions, and the rest are copies
@@ -113,7 +113,7 @@ def send_moving_slots(
     ``est`` (M, n, n, 2) each robot's estimate of each position; ``receivers`` (M, n, n) bool: who is within range
     of the k-th slot's sender at that slot; ``sender_pos`` (M, n, 2): that sender's position then (its own estimate
     is stamped there, as ``ReferenceMultiHop._step_world`` does). The rest as :func:`send_frame`: the same selection,
-    clock and first arrivals, and a receiver takes a position with each newer stamp (``protocol.deliver_one``).
+    clock and first arrivals, and a receiver takes a position with each newer stamp (the oracle's ``deliver_one``).
     ``last_sent`` is cleared at the frame's first slot; ``t`` (M,) ends at the last slot sent."""
     n_copies, n = order.shape
     for c in range(n_copies):
@@ -267,8 +267,8 @@ def neighbour_lists(adjacency: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @numba.njit(cache=True)
 def selected_ranks(candidates, selected, rank, count):
-    """The ``relative`` layout's frame lists of every copy (``ReferenceMultiHop._priorities`` then
-    ``protocol.priority_ranking``): each robot's own index, then its selected candidates in candidate order.
+    """The ``relative`` layout's frame lists of every copy (``ReferenceMultiHop._priorities`` then the oracle's
+    ``priority_ranking``): each robot's own index, then its selected candidates in candidate order.
     The selected ranks' priorities fall strictly with the rank, so that order is the descending one.
 
     ``candidates`` (M, n, n − 1) robot index per rank; ``selected`` (M, n, n − 1) bool; writes ``rank`` (M, n, n)
@@ -293,7 +293,7 @@ SCAN_PICKS = 16
 
 @numba.njit(cache=True)
 def priority_ranks(priority, stamps, m, rank, count):
-    """The ``absolute`` layout's frame lists of every copy (``protocol.priority_ranking``), as far as
+    """The ``absolute`` layout's frame lists of every copy (the oracle's ``priority_ranking``), as far as
     :func:`send_frame` reads them: each robot's own index, then the robots it gives a priority above 0, by
     descending priority (ties: lower index first), up to the (m − 1)-th one it holds at the frame's start.
 

@@ -10,10 +10,7 @@ slot orders side by side) run *the same code*:
 * :func:`probabilistic_select` — eq. (2) sampling without replacement, in one shot (Plackett–Luce:
   repeatedly drawing by eq. (2) is the same as ranking ``log f + Gumbel``, :func:`gumbel_ranks`);
 * :func:`age_aware_select` — our rule: importance × freshness gained since last sent;
-* :func:`priority_select` — the env's action semantics: own estimate first, then the highest
-  priorities among the *known* estimates, at most ``m`` in all, priorities ``<= 0`` withheld;
-* :func:`deliver` / :func:`deliver_one` — a broadcast: each receiver keeps the newest time stamp per
-  robot (§2.1), batched / for one run;
+* :func:`deliver` — a broadcast: each receiver keeps the newest time stamp per robot (§2.1), batched;
 * :func:`record_arrivals` — first time a receiver holds a stamp ``>= threshold`` (propagation time).
 
 Time stamps are float64 seconds; an unknown estimate has stamp ``-inf`` (§2.1's "infinity").
@@ -170,51 +167,6 @@ def order_to_mask(order: np.ndarray, n: int) -> np.ndarray:
     ok = cols >= 0
     sel[rows[ok], cols[ok]] = True
     return sel
-
-
-def priority_select(priority: np.ndarray, known: np.ndarray, own: int, m: int) -> np.ndarray:
-    """The env's action semantics for one sender: own estimate, then the ``m-1`` highest priorities
-    among known estimates (ties: lower index first); priorities ``<= 0`` are withheld. Returns indices."""
-    p = np.where(known, priority, 0.0)
-    p[own] = np.inf
-    cand = np.flatnonzero(p > 0.0)
-    if cand.size > m:
-        cand = cand[np.argsort(-p[cand], kind="stable")[:m]]
-    return cand
-
-
-def priority_ranking(priority: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """All senders' candidate lists at once (the env precomputes them once per frame): row ``i`` of
-    ``rank`` lists own index first, then indices with priority ``> 0`` by descending priority (ties: lower
-    index first); ``count[i]`` entries are valid. ``rank[i, :count[i]]`` filtered to known estimates and
-    cut to ``m`` is exactly :func:`priority_select`."""
-    n = priority.shape[1]
-    p = np.where(priority > 0.0, priority, -1.0)
-    p[np.arange(n), np.arange(n)] = np.inf
-    rank = np.argsort(-p, axis=1, kind="stable")
-    return rank, (p > 0.0).sum(axis=1)
-
-
-def deliver_one(
-    stamps: np.ndarray, sender: int, receivers: np.ndarray, idx: np.ndarray, positions: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`deliver` for a single run (``stamps`` (n, n)), with the selection as indices ``idx``.
-
-    Same rule (receivers keep the newest stamp); flat indexing keeps the per-slot cost to a few numpy
-    calls. Returns the flat indices touched, the receivers' old stamps there and the update mask."""
-    n = stamps.shape[1]
-    flat = (receivers[:, None] * n + idx[None, :]).ravel()
-    sv = stamps.reshape(-1)
-    old = sv[flat].reshape(receivers.size, idx.size)
-    new = stamps[sender, idx]
-    upd = new > old  # (K, L), broadcast over receivers
-    sv[flat] = np.where(upd, new, old).ravel()
-    upd = upd.ravel()
-    if positions is not None and upd.any():
-        pv = positions.reshape(n * n, -1)
-        src = np.broadcast_to(positions[sender, idx], (receivers.size, idx.size, pv.shape[1]))
-        pv[flat[upd]] = src.reshape(-1, pv.shape[1])[upd]
-    return flat, old.ravel(), upd
 
 
 def deliver(

@@ -2,7 +2,10 @@
 
 The env steps every scene as the world of its one copy (``mrcomm_env/multihop/copy_axis.py``, compiled); this is
 the frame as the paper states it (§2.1, Algorithm 1's selection at each robot's slot, eq. (1)'s weighted age),
-kept here and not in the package (#44: one implementation in the package, the reference under tests/). It reads
+kept here and not in the package (#44: one implementation in the package, the reference under tests/), with the
+env's action semantics for one sender (``priority_select``: own estimate first, then the highest priorities among
+the *known* estimates, at most ``m`` in all, priorities ``<= 0`` withheld), all senders' candidate lists at once
+(``priority_ranking``) and a broadcast for one run (``deliver_one``, ``protocol.deliver`` unbatched). It reads
 and writes the env's own state, so a ``ReferenceMultiHop`` and a ``MultiHopEnv`` seeded alike can be compared
 whole episodes at a time (``tests/multihop/test_multihop_world.py``, ``test_multihop.py``)."""
 
@@ -13,6 +16,51 @@ import numpy as np
 from mrcomm_env.multihop import coverage as cov
 from mrcomm_env.multihop import protocol as proto
 from mrcomm_env.multihop.env import MultiHopEnv
+
+
+def priority_select(priority: np.ndarray, known: np.ndarray, own: int, m: int) -> np.ndarray:
+    """The env's action semantics for one sender: own estimate, then the ``m-1`` highest priorities
+    among known estimates (ties: lower index first); priorities ``<= 0`` are withheld. Returns indices."""
+    p = np.where(known, priority, 0.0)
+    p[own] = np.inf
+    cand = np.flatnonzero(p > 0.0)
+    if cand.size > m:
+        cand = cand[np.argsort(-p[cand], kind="stable")[:m]]
+    return cand
+
+
+def priority_ranking(priority: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """All senders' candidate lists at once (the env precomputes them once per frame): row ``i`` of
+    ``rank`` lists own index first, then indices with priority ``> 0`` by descending priority (ties: lower
+    index first); ``count[i]`` entries are valid. ``rank[i, :count[i]]`` filtered to known estimates and
+    cut to ``m`` is exactly :func:`priority_select`."""
+    n = priority.shape[1]
+    p = np.where(priority > 0.0, priority, -1.0)
+    p[np.arange(n), np.arange(n)] = np.inf
+    rank = np.argsort(-p, axis=1, kind="stable")
+    return rank, (p > 0.0).sum(axis=1)
+
+
+def deliver_one(
+    stamps: np.ndarray, sender: int, receivers: np.ndarray, idx: np.ndarray, positions: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`deliver` for a single run (``stamps`` (n, n)), with the selection as indices ``idx``.
+
+    Same rule (receivers keep the newest stamp); flat indexing keeps the per-slot cost to a few numpy
+    calls. Returns the flat indices touched, the receivers' old stamps there and the update mask."""
+    n = stamps.shape[1]
+    flat = (receivers[:, None] * n + idx[None, :]).ravel()
+    sv = stamps.reshape(-1)
+    old = sv[flat].reshape(receivers.size, idx.size)
+    new = stamps[sender, idx]
+    upd = new > old  # (K, L), broadcast over receivers
+    sv[flat] = np.where(upd, new, old).ravel()
+    upd = upd.ravel()
+    if positions is not None and upd.any():
+        pv = positions.reshape(n * n, -1)
+        src = np.broadcast_to(positions[sender, idx], (receivers.size, idx.size, pv.shape[1]))
+        pv[flat[upd]] = src.reshape(-1, pv.shape[1])[upd]
+    return flat, old.ravel(), upd
 
 
 class ReferenceMultiHop(MultiHopEnv):
@@ -26,8 +74,8 @@ class ReferenceMultiHop(MultiHopEnv):
         n, m, b = self.n_agents, self.m, self.cfg.bits_per_estimate
         stamps, est, t = self.stamps, self.est, self.t
         # a robot's priorities are fixed for the frame; its candidate list is ranked once, filtered to the
-        # estimates it holds at its own slot (protocol.priority_select, vectorised over the frame)
-        rank, count = proto.priority_ranking(self._priorities(actions))
+        # estimates it holds at its own slot (priority_select, vectorised over the frame)
+        rank, count = priority_ranking(self._priorities(actions))
         sent_counts = np.zeros(n)
         last_sent, sent_stamp = self.last_sent, self.sent_stamp
         last_sent[:] = False
@@ -49,9 +97,9 @@ class ReferenceMultiHop(MultiHopEnv):
             if rcv.size:
                 if moving:
                     est[s, s] = self.pos[s]
-                    flat, old, upd = proto.deliver_one(stamps, s, rcv, idx, est)
+                    flat, old, upd = deliver_one(stamps, s, rcv, idx, est)
                 else:
-                    flat, old, upd = proto.deliver_one(stamps, s, rcv, idx)
+                    flat, old, upd = deliver_one(stamps, s, rcv, idx)
                 if fk is not None:
                     fk[flat[upd & (old == proto.UNKNOWN)]] = t  # first arrival: end of this slot
             if moving:

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from helpers.multihop_reference import ReferenceMultiHop
+from helpers.multihop_reference import ReferenceMultiHop, deliver_one, priority_ranking, priority_select
 from helpers.numerics import assert_close_conditioned, bit_identical, tolerance
 
 from mrcomm_baselines.multihop import POLICIES
@@ -403,21 +403,21 @@ def test_single_run_fast_paths_equal_the_batched_core():
         prio = np.where(rng.random((n, n)) < 0.2, 0.0, rng.random((n, n)))
         prio[rng.random((n, n)) < 0.2] = 0.5  # ties
         known = rng.random((n, n)) < 0.6
-        rank, count = proto.priority_ranking(prio)
+        rank, count = priority_ranking(prio)
         for s in range(n):
             cand = rank[s, : count[s]]
             k = known[s].copy()
             k[s] = True
             fast = cand[k[cand]][:m]
-            np.testing.assert_array_equal(np.sort(fast), np.sort(proto.priority_select(prio[s], known[s], s, m)))
+            np.testing.assert_array_equal(np.sort(fast), np.sort(priority_select(prio[s], known[s], s, m)))
         stamps = np.where(known, rng.uniform(0, 10, (n, n)), proto.UNKNOWN)
         pos = rng.random((n, n, 2))
         s = int(rng.integers(n))
         rcv = np.flatnonzero(rng.random(n) < 0.4)
         rcv = rcv[rcv != s]
-        idx = proto.priority_select(prio[s], known[s], s, m)
+        idx = priority_select(prio[s], known[s], s, m)
         a, pa = stamps.copy(), pos.copy()
-        proto.deliver_one(a, s, rcv, idx, pa)
+        deliver_one(a, s, rcv, idx, pa)
         bst, bpos = stamps[None].copy(), pos[None].copy()
         sel = np.zeros((1, n), dtype=bool)
         sel[0, idx] = True

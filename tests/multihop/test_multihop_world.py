@@ -211,12 +211,13 @@ def test_the_multihop_world_refuses_what_the_env_refuses_and_steps_as_the_copies
 
 
 def test_the_absolute_layout_world_ranks_priorities_as_the_protocol_with_ties_and_zeros():
-    """``frame_numba.priority_ranks`` against ``protocol.priority_ranking`` (numpy's stable sort of whole rows) on
+    """``frame_numba.priority_ranks`` against the oracle's ``priority_ranking`` (numpy's stable sort of whole rows) on
     priorities from four levels, so that most rows hold ties and withheld (0) robots, as random floats never do, and
     with robots not yet held: each row it writes is the reference's row as far as a frame reads it (until the
     (m − 1)-th robot held), by scans alone and past ``SCAN_PICKS`` by its sort."""
+    from helpers.multihop_reference import priority_ranking
+
     from mrcomm_env.multihop import frame_numba
-    from mrcomm_env.multihop.protocol import priority_ranking
 
     rng = np.random.default_rng(3)
     sorted_rows = 0
