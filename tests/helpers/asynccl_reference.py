@@ -121,55 +121,6 @@ def propagate(X, P, ud):
     return Xn, Fa @ Pa @ Fa.transpose(0, 2, 1)
 
 
-class Geometry:
-    """Constant tables of one sensing graph (observer ids ``a``, target ids ``b``), which recurs over many steps.
-
-    Rows 2j and 2j+1 of the whitened measurement matrix are the range and bearing rows of measurement j
-    (eq. (2)): range ∓(Δx, Δy)/d at a / b; bearing (Δy, −Δx)/d², −1 at a and (−Δy, Δx)/d² at b, each times
-    √w (√w = 1/(σ_d z_d) for a range row, 1/σ_θ for a bearing row), with the whitened residual in column 3N.
-    """
-
-    def __init__(self, a, b, n, inv_sth):
-        a, b = np.ascontiguousarray(a, dtype=np.int64), np.ascontiguousarray(b, dtype=np.int64)
-        m = len(a)
-        self.a, self.b, self.n, self.m = a, b, n, m
-        rows = np.arange(m)
-        # S @ poses: rows < m give x_b − x_a (relative positions), rows ≥ m give x_a (the observer's heading)
-        self.S = np.zeros((2 * m, n))
-        self.S[rows, b] = 1.0
-        self.S[rows, a] -= 1.0
-        self.S[m + rows, a] = 1.0
-        self.obs_of_row = np.repeat(a, 2)  # a filter holds a row iff it holds its observer's packet
-        K = 3 * n + 1
-        self.template = np.zeros((2 * m, K))
-        self.template[2 * rows + 1, 3 * a + 2] = -inv_sth  # bearing row: −1 on the observer's heading
-        rng_row, brg_row = 2 * rows * K, (2 * rows + 1) * K
-        # where ``information``'s ten numbers per measurement go (its buffer ``B``, shape (m, 2, 5))
-        self._pos = np.stack(
-            [
-                rng_row + 3 * b,
-                rng_row + 3 * b + 1,
-                brg_row + 3 * a,
-                brg_row + 3 * a + 1,
-                rng_row + 3 * n,
-                rng_row + 3 * a,
-                rng_row + 3 * a + 1,
-                brg_row + 3 * b,
-                brg_row + 3 * b + 1,
-                brg_row + 3 * n,
-            ],
-            axis=1,
-        ).ravel()
-        self._flat: dict = {}
-
-    def positions(self, G):
-        """Flat positions of ``information``'s numbers for G filters at once."""
-        f = self._flat.get(G)
-        if f is None:
-            f = self._flat[G] = (np.arange(G)[:, None] * self.template.size + self._pos[None]).ravel()
-        return f
-
-
 def information(X, geo, z, inv_sd, inv_sth):
     """Whitened measurement rows [√W H | √W r] of column k linearised at the priors X (eq. (2)): (G, 2m, 3N+1).
 
