@@ -1,7 +1,8 @@
 """MapSync's compiled kernels (numba): Protocol 1's inner loop (:func:`inner_products`, the only implementation of
 :func:`protocol.segment_inner_products`), :func:`philox.stream_words` for the sketch's parity strings, Algorithm 1
 (:func:`bisection`, twin of ``protocol.bisection`` with step 4 fixed) and the streaming PinSketch (:func:`sketch`,
-integer arithmetic only, twin of ``protocol.sketch``).
+integer arithmetic only, the only implementation of ``protocol.sketch``: its oracle is in
+``tests/helpers/mapsync_reference.py``).
 
 A numpy inner product spends its time in a few dozen small array operations per call (one call per round of
 Algorithm 1); the kernel computes the same parities in one call: for every segment and index, the words of ``r_i``
@@ -482,7 +483,7 @@ def observe(out, t, clock, last_sync, new_cells, linked, last_test, session_of, 
 
 @numba.njit(cache=True, inline="always")
 def _gf_mul(a, b, exp, log):
-    """a·b in GF(2^m) (``pinsketch.GF2m.mul``): 0 with a 0 factor, else exp[log a + log b]."""
+    """a·b in GF(2^m) on ``pinsketch.GF2m``'s tables: 0 with a 0 factor, else exp[log a + log b]."""
     if a == 0 or b == 0:
         return 0
     return exp[log[a] + log[b]]
@@ -507,8 +508,8 @@ def sketch(x, y, k0, k1, nonce, verify_bits, domain, exp, log, m, strict_feedbac
     bits, Bob's bits, rounds, syndromes sent, outcome), outcome 0 when Bob's map with Alice's cell 0 passed her
     parities, 1 when a decoded difference did, 2 when Alice fell back to her whole map.
 
-    Integer arithmetic only, step for step the reference's: the parity strings of ``protocol.parity_strings``
-    (:func:`stream_words`), Bob's guesses checked against Alice's parities, the odd syndromes of the two cell sets
+    Integer arithmetic only, step for step the oracle's (``reference_sketch`` in ``tests/helpers/mapsync_reference.py``):
+    the session's public-coin parity strings (:func:`stream_words`), Bob's guesses checked against Alice's parities, the odd syndromes of the two cell sets
     (cells 1 … n−1; their XOR is the symmetric difference's, as ``syndromes(A) ^ syndromes(B)``), Berlekamp–Massey
     on zero-padded arrays where the reference grows lists (the padding only ever multiplies into 0), and the Chien
     search by Horner's rule over cells 1 … n−1 (``StreamingDecoder.decode``)."""

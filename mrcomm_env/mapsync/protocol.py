@@ -393,22 +393,6 @@ def _bisection_compiled(x, y, strings: SharedStrings, k: int, res: int, rng: np.
     )
 
 
-def parity_strings(seed: int, nonce: int, n: int, count: int) -> np.ndarray:
-    """``count`` public-coin random n-bit strings for one session (``(count, words)`` uint32)."""
-    n_words = (n + 31) // 32
-    index = np.array([(nonce * count + j) % (1 << 32) for j in range(count)], dtype=np.uint64)
-    # philox.stream_words's words from the compiled generator (~10× faster at these sizes)
-    k0, k1 = seed_key(seed)
-    words = kernels_numba.stream_words(k0, k1, index, np.zeros(count, np.int64), n_words, DOMAIN_PARITY)
-    if n % 32:
-        words[:, -1] &= np.uint32((1 << (n % 32)) - 1)
-    return words
-
-
-def parities(words: np.ndarray, strings: np.ndarray) -> np.ndarray:
-    return (np.bitwise_count(strings & words[None, :]).sum(axis=1) & 1).astype(np.uint8)
-
-
 def sketch(
     x: np.ndarray,
     y: np.ndarray,
@@ -416,7 +400,6 @@ def sketch(
     nonce: int,
     verify_bits: int | None = None,
     strict_feedback: bool = False,
-    block: int = 8,
 ) -> Reconciliation:
     """Streaming PinSketch with parity verification (see the module docstring); Bob learns the difference."""
     n = check_n(len(x))
@@ -426,78 +409,38 @@ def sketch(
         raise ValueError(f"argument 'verify_bits' must be an integer ≥ 1, got {verify_bits!r}")
     x = np.asarray(x, dtype=bool)
     y = np.asarray(y, dtype=bool)
-    alice = verify_bits + 1  # the parities and cell 0
-    bob = 0
-    base = np.array([0]) if x[0] != y[0] else np.empty(0, dtype=np.int64)
     if np.array_equal(x[1:], y[1:]):
-        # Bob's first candidate, his map with Alice's cell 0, *is* her map: it passes her parities whatever the
-        # strings, so they need not be generated (they are the seed's and the nonce's: nothing random is drawn)
-        return Reconciliation("sketch", base, alice, 1, 1, n, base.size > 0, {"syndromes": 0, "fallback": False})
+        # Bob's first candidate, his map with Alice's cell 0, *is* her map: it passes her parities (sent with cell
+        # 0) whatever the strings, so they need not be generated (they are the seed's and the nonce's: nothing
+        # random is drawn)
+        base = np.array([0]) if x[0] != y[0] else np.empty(0, dtype=np.int64)
+        return Reconciliation(
+            "sketch", base, verify_bits + 1, 1, 1, n, base.size > 0, {"syndromes": 0, "fallback": False}
+        )
     m = pinsketch.field_bits(n)
     gf = pinsketch.field(m)
-    if x.shape == y.shape == (n,) and backend.compiled():  # the steps below in one call, integer for integer
-        k0, k1 = seed_key(seed)
-        found, stats = kernels_numba.sketch(
-            np.ascontiguousarray(x),
-            np.ascontiguousarray(y),
-            k0,
-            k1,
-            int(nonce),
-            int(verify_bits),
-            DOMAIN_PARITY,
-            gf.exp,
-            gf.log,
-            m,
-            bool(strict_feedback),
+    k0, k1 = seed_key(seed)
+    # the steps of the module docstring in one call, integer for integer (their Python oracle is under tests/)
+    found, stats = kernels_numba.sketch(
+        np.ascontiguousarray(x),
+        np.ascontiguousarray(y),
+        k0,
+        k1,
+        int(nonce),
+        int(verify_bits),
+        DOMAIN_PARITY,
+        gf.exp,
+        gf.log,
+        m,
+        bool(strict_feedback),
+    )
+    alice, bob, rounds, t, outcome = stats.tolist()
+    if outcome == 0:  # Bob's map with Alice's cell 0 passed her parities
+        return Reconciliation(
+            "sketch", found, alice, bob, rounds, n, found.size > 0, {"syndromes": 0, "fallback": False}
         )
-        alice, bob, rounds, t, outcome = stats.tolist()
-        if outcome == 0:  # Bob's map with Alice's cell 0 passed her parities
-            return Reconciliation(
-                "sketch", found, alice, bob, rounds, n, found.size > 0, {"syndromes": 0, "fallback": False}
-            )
-        extra = {"syndromes": t, "fallback": outcome == 2, "m": m}
-        return Reconciliation("sketch", found, alice, bob, rounds, n, True, extra)
-    rho = parity_strings(seed, nonce, n, verify_bits)
-    alice_parity = parities(pack(x), rho)
-
-    def accepted(candidate: np.ndarray) -> bool:
-        guess = y.copy()
-        guess[candidate] ^= True
-        return bool(np.array_equal(parities(pack(guess), rho), alice_parity))
-
-    if accepted(base):
-        return Reconciliation("sketch", base, alice, 1, 1, n, base.size > 0, {"syndromes": 0, "fallback": False})
-    alice_set = np.flatnonzero(x[1:]) + 1
-    bob_set = np.flatnonzero(y[1:]) + 1
-    decoder = pinsketch.StreamingDecoder(gf, n - 1)
-    t_max = max(0, (n - alice - 1) // m)  # beyond this the raw map is cheaper than more syndromes
-    t = 0
-    rounds = 1
-    while t < t_max:
-        count = min(block, t_max - t)
-        sa = pinsketch.syndromes(gf, alice_set, count, first=t)
-        sb = pinsketch.syndromes(gf, bob_set, count, first=t)
-        for s in (sa ^ sb).tolist():
-            t += 1
-            rounds += 1
-            alice += m
-            if strict_feedback:
-                bob += 1
-            decoder.add(s)
-            if decoder.locator_degree() > t:
-                continue
-            roots = decoder.decode()
-            if roots is not None:
-                candidate = np.sort(np.concatenate([base, roots]))
-                if accepted(candidate):
-                    bob += 0 if strict_feedback else 1
-                    return Reconciliation(
-                        "sketch", candidate, alice, bob, rounds, n, True, {"syndromes": t, "fallback": False, "m": m}
-                    )
-    # no decode within the useful length: Alice sends her map (both know t_max, so no request is needed)
-    alice += n
-    diff = np.flatnonzero(x != y)
-    return Reconciliation("sketch", diff, alice, bob, rounds + 1, n, True, {"syndromes": t, "fallback": True, "m": m})
+    extra = {"syndromes": t, "fallback": outcome == 2, "m": m}
+    return Reconciliation("sketch", found, alice, bob, rounds, n, True, extra)
 
 
 def return_bits(candidates: int, found: int) -> int:

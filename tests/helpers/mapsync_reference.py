@@ -1,18 +1,24 @@
-"""MapSync's walk, sensing, changing world, disagreement, observation and Protocol 1's inner products written in
-numpy: the oracles of their compiled kernels.
+"""MapSync's walk, sensing, changing world, disagreement, observation, Protocol 1's inner products and the streaming
+PinSketch written in numpy and Python: the oracles of their compiled kernels.
 
 The env computes each in one compiled call (``WorldDynamics._move_and_sense``, ``_change_world``,
-``_update_disagreement``, ``MapSyncEnv._observe``, ``protocol.segment_inner_products``: ``kernels_numba``); these are the same steps (§I, §III, §V-C and
-the module's observation table), kept here and not in the package (#44: one implementation in the package, the
+``_update_disagreement``, ``MapSyncEnv._observe``, ``protocol.segment_inner_products``, ``protocol.sketch``:
+``kernels_numba``); these are the same steps (§I, §III, §V-C, the module's observation table, and
+``protocol``'s and ``pinsketch``'s docstrings for the sketch: GF(2^m) arithmetic on log tables, odd syndromes,
+Berlekamp–Massey, a Chien search), kept here and not in the package (#44: one implementation in the package, the
 reference under tests/). ``ReferenceMapSync`` steps whole episodes with them, and ``tests/mapsync/test_mapsync.py``
 compares those, and each kernel, with the env's byte for byte."""
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from mrcomm_env.mapsync.env import MapSyncEnv
-from mrcomm_env.mapsync.protocol import _FROM_BIT, _TO_BIT
+from mrcomm_env.mapsync.philox import DOMAIN_PARITY, seed_key, stream_words
+from mrcomm_env.mapsync.pinsketch import GF2m, field_bits
+from mrcomm_env.mapsync.protocol import _FROM_BIT, _TO_BIT, Reconciliation, check_n, pack, sketch_verify_bits
 
 #: the observation of last_test + 1: no test yet 0, different 1, same ½
 TEST_CODE = np.array([0.0, 1.0, 0.5])
@@ -159,3 +165,198 @@ def reference_inner_products(maps, strings, index, lo, hi) -> list[np.ndarray]:
     r = strings.words(index.reshape(-1), np.repeat(first, k), n_words).reshape(S, k, n_words)
     counts = np.bitwise_count(r[None, :, :, :] & seg[:, :, None, :]).sum(axis=-1, dtype=np.int64)
     return list((counts & 1).astype(np.uint8))
+
+
+# ------------------------------------------------------------------------------------------------ the sketch
+class ArithmeticField(GF2m):
+    """GF(2^m) with scalar arithmetic for Berlekamp–Massey (on short Python lists) and zero-absorbing tables for a
+    vectorised Chien search, on ``pinsketch.GF2m``'s log/antilog tables."""
+
+    def __init__(self, m: int):
+        super().__init__(m)
+        exp, log = self.exp, self.log
+        # zero-absorbing tables for the vectorised Chien search: log(0) points into a block of zeros, so a
+        # product with 0 needs no mask (exp_z[log_z[a] + log[b]] = a·b for every a and nonzero b)
+        self.exp_z = np.concatenate([exp[: 2 * self.order], np.zeros(self.order + 1, np.int64)]).astype(np.int32)
+        self.log_z = np.where(log < 0, 2 * self.order, log).astype(np.int32)
+        self.exp_list = exp.tolist()
+        self.log_list = log.tolist()
+
+    # scalar arithmetic (Berlekamp–Massey works on short Python lists)
+    def mul(self, a: int, b: int) -> int:
+        if a == 0 or b == 0:
+            return 0
+        return self.exp_list[self.log_list[a] + self.log_list[b]]
+
+    def div(self, a: int, b: int) -> int:
+        if b == 0:
+            raise ZeroDivisionError("division by zero in GF(2^m)")
+        if a == 0:
+            return 0
+        return self.exp_list[(self.log_list[a] - self.log_list[b]) % self.order]
+
+    def square(self, a: int) -> int:
+        return 0 if a == 0 else self.exp_list[(2 * self.log_list[a]) % self.order]
+
+    def powers_sum(self, elements: np.ndarray, exponents: np.ndarray) -> np.ndarray:
+        """``s_j = ⊕_{x∈elements} x^j`` for each ``j`` in ``exponents`` (elements nonzero)."""
+        elements = np.asarray(elements, dtype=np.int64)
+        exponents = np.asarray(exponents, dtype=np.int64)
+        if elements.size == 0:
+            return np.zeros(exponents.size, dtype=np.int64)
+        logs = self.log[elements]
+        terms = self.exp[(logs[None, :] * exponents[:, None]) % self.order]
+        return np.bitwise_xor.reduce(terms, axis=1)
+
+
+@lru_cache(maxsize=32)
+def arithmetic_field(m: int) -> ArithmeticField:
+    return ArithmeticField(m)
+
+
+def syndromes(gf: ArithmeticField, elements: np.ndarray, count: int, first: int = 0) -> np.ndarray:
+    """Odd syndromes number ``first … first + count − 1``: ``s_{2j+1}`` for j in that range."""
+    return gf.powers_sum(elements, 2 * np.arange(first, first + count) + 1)
+
+
+class StreamingDecoder:
+    """Bob's side: feed the XOR of Alice's and his own odd syndromes one at a time; try to decode after each.
+
+    Berlekamp–Massey (Massey 1969) runs incrementally over ``S_1, S_2, …`` (each odd syndrome brings its even
+    successor ``S_2j = S_j²``); after ``t`` odd syndromes the locator ``Λ`` is the shortest LFSR generating
+    ``S_1 … S_2t``. When ``deg Λ ≤ t`` a Chien search looks for its roots among the valid elements
+    (``x ∈ [1, n_elements]``: ``Λ(x⁻¹) = 0``); decoding succeeds when it finds exactly ``deg Λ`` of them.
+    """
+
+    def __init__(self, gf: ArithmeticField, n_elements: int):
+        self.gf = gf
+        self.valid = np.arange(1, n_elements + 1, dtype=np.int64)
+        self._valid_log = gf.log[self.valid].astype(np.int32)
+        self.S: list[int] = []  # S_1, S_2, … (index 0 holds S_1)
+        self.C = [1]
+        self.B = [1]
+        self.L = 0
+        self.shift = 1
+        self.b = 1
+        self.t = 0
+
+    def _feed(self, s: int) -> None:
+        gf = self.gf
+        self.S.append(s)
+        r = len(self.S) - 1
+        d = s
+        for i in range(1, self.L + 1):
+            if i < len(self.C):
+                d ^= gf.mul(self.C[i], self.S[r - i])
+        if d == 0:
+            self.shift += 1
+            return
+        coef = gf.div(d, self.b)
+        update = [0] * self.shift + [gf.mul(coef, c) for c in self.B]
+        newC = self.C + [0] * max(0, len(update) - len(self.C))
+        for i, u in enumerate(update):
+            newC[i] ^= u
+        if 2 * self.L <= r:
+            self.B, self.b = self.C, d
+            self.L = r + 1 - self.L
+            self.shift = 1
+        else:
+            self.shift += 1
+        self.C = newC
+
+    def add(self, odd_syndrome: int) -> None:
+        """Append ``S_{2t+1}`` (the next odd syndrome of the difference); ``S_{2t+2} = S_{t+1}²`` follows."""
+        self.t += 1
+        self._feed(int(odd_syndrome))
+        self._feed(self.gf.square(self.S[self.t - 1]))
+
+    def locator_degree(self) -> int:
+        return self.L
+
+    def decode(self) -> np.ndarray | None:
+        """The difference set if the current locator splits into ``deg Λ`` distinct valid roots, else ``None``."""
+        L = self.L
+        coeffs = (self.C + [0] * (L + 1))[: L + 1]
+        if L == 0:
+            return np.empty(0, dtype=np.int64)
+        if L > self.t or coeffs[L] == 0:
+            return None
+        gf = self.gf
+        if L == 1:  # Λ = 1 + C_1 z: the one root is x = C_1
+            root = coeffs[1]
+            return np.array([root], dtype=np.int64) if 1 <= root <= self.valid.size else None
+        # Λ(x⁻¹) = 0  ⟺  x^L Λ(x⁻¹) = Σ_i C_i x^{L−i} = 0: Horner over C_0 … C_L at every valid x at once
+        exp_z, log_z, logx = gf.exp_z, gf.log_z, self._valid_log
+        acc = np.full(self.valid.size, coeffs[0], dtype=np.int32)
+        for c in coeffs[1:]:
+            acc = exp_z[log_z[acc] + logx]
+            acc ^= c
+        roots = self.valid[acc == 0]
+        return roots if roots.size == L else None
+
+
+def parity_strings(seed: int, nonce: int, n: int, count: int) -> np.ndarray:
+    """``count`` public-coin random n-bit strings for one session (``(count, words)`` uint32), from numpy's Philox."""
+    index = np.array([(nonce * count + j) % (1 << 32) for j in range(count)], dtype=np.uint64)
+    words = stream_words(seed_key(seed), index, np.zeros(count, np.int64), (n + 31) // 32, DOMAIN_PARITY)
+    if n % 32:
+        words[:, -1] &= np.uint32((1 << (n % 32)) - 1)
+    return words
+
+
+def parities(words: np.ndarray, strings: np.ndarray) -> np.ndarray:
+    return (np.bitwise_count(strings & words[None, :]).sum(axis=1) & 1).astype(np.uint8)
+
+
+def reference_sketch(x, y, seed, nonce, verify_bits=None, strict_feedback=False, block=8) -> Reconciliation:
+    """``protocol.sketch`` step by step: Alice's parities and cell 0, then odd syndromes (``block`` computed at a
+    time) fed to Bob's streaming decoder, each decoded candidate checked against her parities; her whole map when
+    no syndrome the channel can afford decodes."""
+    n = check_n(len(x))
+    if verify_bits is None:
+        verify_bits = sketch_verify_bits(n)
+    x = np.asarray(x, dtype=bool)
+    y = np.asarray(y, dtype=bool)
+    alice, bob = verify_bits + 1, 0  # the parities and cell 0
+    base = np.array([0]) if x[0] != y[0] else np.empty(0, dtype=np.int64)
+    m = field_bits(n)
+    gf = arithmetic_field(m)
+    rho = parity_strings(seed, nonce, n, verify_bits)
+    alice_parity = parities(pack(x), rho)
+
+    def accepted(candidate: np.ndarray) -> bool:
+        guess = y.copy()
+        guess[candidate] ^= True
+        return bool(np.array_equal(parities(pack(guess), rho), alice_parity))
+
+    if accepted(base):
+        return Reconciliation("sketch", base, alice, 1, 1, n, base.size > 0, {"syndromes": 0, "fallback": False})
+    alice_set = np.flatnonzero(x[1:]) + 1
+    bob_set = np.flatnonzero(y[1:]) + 1
+    decoder = StreamingDecoder(gf, n - 1)
+    t_max = max(0, (n - alice - 1) // m)  # beyond this the raw map is cheaper than more syndromes
+    t = 0
+    rounds = 1
+    while t < t_max:
+        count = min(block, t_max - t)
+        for s in (syndromes(gf, alice_set, count, first=t) ^ syndromes(gf, bob_set, count, first=t)).tolist():
+            t += 1
+            rounds += 1
+            alice += m
+            if strict_feedback:
+                bob += 1
+            decoder.add(s)
+            if decoder.locator_degree() > t:
+                continue
+            roots = decoder.decode()
+            if roots is not None:
+                candidate = np.sort(np.concatenate([base, roots]))
+                if accepted(candidate):
+                    bob += 0 if strict_feedback else 1
+                    return Reconciliation(
+                        "sketch", candidate, alice, bob, rounds, n, True, {"syndromes": t, "fallback": False, "m": m}
+                    )
+    # no decode within the useful length: Alice sends her map (both know t_max, so no request is needed)
+    alice += n
+    diff = np.flatnonzero(x != y)
+    return Reconciliation("sketch", diff, alice, bob, rounds + 1, n, True, {"syndromes": t, "fallback": True, "m": m})
