@@ -157,26 +157,30 @@ def protocol1_batch(
 def equality(
     x: np.ndarray, y: np.ndarray, strings: SharedStrings, k: int, rng: np.random.Generator, step4: str = "fixed"
 ) -> EqualityResult:
-    """Protocol 1 on whole maps ``x`` and ``y`` (bool vectors of n cells)."""
+    """Protocol 1 on whole maps ``x`` and ``y`` (bool vectors of n cells), in one compiled call
+    (``kernels_numba.equality_counter``: :func:`protocol1_batch` on the whole map, the same picks and counter)."""
     n = check_n(len(x))
     if k < 1:
         raise ValueError(f"argument 'k' must be an integer ≥ 1, got {k!r}")
+    if step4 not in STEP4_RULES:
+        raise ValueError(f"argument 'step4' must be one of {', '.join(STEP4_RULES)}; got {step4!r}")
+    if not np.shape(x) == np.shape(y) == (n,):
+        raise ValueError(
+            f"arguments 'x' and 'y' must be maps of the same n cells, got shapes {np.shape(x)}, {np.shape(y)}"
+        )
     if step4 == "fixed" and np.array_equal(x, y):
         # equal maps have equal inner products with every r_i: Bob's counter is 0 whatever Alice picks (step 3e),
         # so only her picks are drawn (step 3a), which keeps the generator where the full run leaves it
         _alice_picks(strings, 1, k, rng)
         return EqualityResult(True, 0, theory.protocol1_bits(n, k), 1)
-    same_shape = np.shape(x) == np.shape(y) == (n,)  # the kernel indexes both maps without checks
-    if step4 == "fixed" and same_shape and backend.compiled():  # protocol1_batch on the whole map in one call
-        picks = _alice_picks(strings, 1, k, rng)[0]
-        database, use_database, key0, key1, domain, words, last_mask = kernel_strings(strings)
-        x_plain, y_plain = np.ascontiguousarray(x, dtype=bool), np.ascontiguousarray(y, dtype=bool)
-        counter = kernels_numba.equality_counter(
-            x_plain, y_plain, database, use_database, key0, key1, domain, words, last_mask, picks
-        )
-        return EqualityResult(counter == 0, counter, theory.protocol1_bits(n, k), 1)
-    equal, counter = protocol1_batch(pack(x), pack(y), strings, k, 0, n - 1, rng, step4)
-    return EqualityResult(bool(equal[0]), int(counter[0]), theory.protocol1_bits(n, k), 1)
+    picks = _alice_picks(strings, 1, k, rng)[0]  # step 3a
+    database, use_database, key0, key1, domain, words, last_mask = kernel_strings(strings)
+    x_plain, y_plain = np.ascontiguousarray(x, dtype=bool), np.ascontiguousarray(y, dtype=bool)
+    counter = kernels_numba.equality_counter(
+        x_plain, y_plain, database, use_database, key0, key1, domain, words, last_mask, picks
+    )
+    # step 4: "greater than zero" means different; as printed ("≥ 0") it can never answer "same"
+    return EqualityResult(step4 == "fixed" and counter == 0, counter, theory.protocol1_bits(n, k), 1)
 
 
 @dataclass
