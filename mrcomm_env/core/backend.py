@@ -1,12 +1,14 @@
 """Which implementation of an env's hot loops runs: compiled (numba, the default) or numpy.
 
 numba is a required dependency. Every env's hot loops are compiled kernels. MultiHop's frame (its copy-axis world),
-AsyncCL's EKF, table exchange, observation and team errors, MapSync's walk, sensing, changing world, disagreement
-and observation, and RendezvousMapping's window, packets, observation, candidate lists, map fusion, plan and
-spanning forest exist only compiled; the numpy code they are checked against lives under ``tests/helpers`` (the
-forest's ties are settled by scipy's Dijkstra, ``world.dijkstra_forest``). MapSync's protocols still keep their numpy
-references in the package: ``MRCOMM_BACKEND=numpy`` runs those (the tests compare both), ``auto`` or ``numba`` the
-kernels. The choice is made once per process.
+AsyncCL's EKF, table exchange, observation and team errors, MapSync's walk, sensing, changing world, disagreement,
+observation, Protocol 1 and sketch, and RendezvousMapping's window, packets, observation, candidate lists, map
+fusion, plan and spanning forest exist only compiled; the numpy code they are checked against lives under
+``tests/helpers`` (the forest's ties are settled by scipy's Dijkstra, ``world.dijkstra_forest``). MapSync's
+Algorithm 1 still keeps its numpy rounds in the package (they also run step 4 as printed, and a run whose picks
+from a generator other than PCG64 would not fit in memory drawn ahead): ``MRCOMM_BACKEND=numpy`` runs those, and
+steps MapSync's copies in turn rather than as its copy-axis world (the tests compare both); ``auto`` or ``numba``
+the kernels. The choice is made once per process.
 
 Compiled kernels are cached on disk (``cache=True``) so that only the first process compiles them. numba's
 own default writes the cache beside the source, into the installed package: that fails on a read-only
