@@ -15,7 +15,7 @@ holds. Which packets a filter holds is read from the robot's information table.
   odometry of a step is missing, that robot's *last available* odometry (§IV). It restarts from the
   checkpoint only when data about old steps arrived; otherwise it extends its previous causal estimate
   by one column. Filters that share a prior (same state, same odometry) share its propagation and
-  linearisation; all filters of a step are batched into the same numpy calls.
+  linearisation; all filters of a step are batched into the same kernel calls.
 * **Cost.** A step is a handful of compiled kernel calls (``ekf.KERNELS``), so their number is what counts.
   While every robot is exact (always, unless memory ran out), ``_step_recent`` runs the step as two calls: one
   groups the robots into filters (``ekf_numba.group_filters``, as ``_groups`` does), one runs column t of them all
