@@ -11,9 +11,10 @@ buffer of a 32-bit half (``has_uint32``, ``uinteger``). :func:`state_of` and :fu
 * :func:`integers_fill` is ``Generator.integers(low, high)`` (int64) for ``high − low − 1`` below 2^32 − 1: Lemire's
   bounded draw on 32-bit halves (``buffered_bounded_lemire_uint32``), whose unused half numpy keeps for the next one.
 
-``tests/core/test_pcg64.py`` compares them with numpy over interleaved draws of every kind, states included. Imported
-only by
-compiled code (numba is optional).
+:func:`draw_integers` draws from either: a state of this module, or a ``numpy.random.Generator`` handed to compiled code
+(numba's own ``Generator.integers``, which is numpy's for every bit generator and advances the caller's object).
+
+``tests/core/test_pcg64.py`` compares them with numpy over interleaved draws of every kind, states included.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import numba
 import numpy as np
 from llvmlite import ir
 from numba.core import types
-from numba.extending import intrinsic
+from numba.extending import intrinsic, overload
 
 from mrcomm_env.core.backend import configure_numba_cache
 
@@ -123,3 +124,27 @@ def integers_fill(state, low, high, out):
                 m = next_uint32(state) * bound
                 leftover = m & _LOW32
         out[i] = low + np.int64(m >> _32)
+
+
+def draw_integers(source, low, high, out):
+    """``Generator.integers(low, high, size=out.size)`` into the int64 ``out``, from ``source``: a state of this module
+    (:func:`integers_fill`, for 0 < high − low ≤ 2^32 − 1) or a ``numpy.random.Generator`` of any bit generator. Called
+    from compiled code only, which chooses by the type of ``source`` when it compiles."""
+    raise TypeError("draw_integers is called from compiled code only")
+
+
+@overload(draw_integers)
+def _draw_integers(source, low, high, out):
+    if isinstance(source, types.Array):
+
+        def from_state(source, low, high, out):
+            integers_fill(source, low, high, out)
+
+        return from_state
+    if isinstance(source, types.NumPyRandomGeneratorType):
+
+        def from_generator(source, low, high, out):
+            out[:] = source.integers(low, high, out.size)
+
+        return from_generator
+    return None

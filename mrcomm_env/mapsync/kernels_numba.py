@@ -1,20 +1,17 @@
-"""MapSync's compiled kernels (numba): Protocol 1's inner loop (:func:`inner_products`, the only implementation of
-:func:`protocol.segment_inner_products`), :func:`philox.stream_words` for the sketch's parity strings, Algorithm 1
-(:func:`bisection`, twin of ``protocol.bisection`` with step 4 fixed) and the streaming PinSketch (:func:`sketch`,
-integer arithmetic only, the only implementation of ``protocol.sketch``: its oracle is in
-``tests/helpers/mapsync_reference.py``).
+"""MapSync's compiled kernels (numba), the only implementation of its hot loops: Protocol 1's inner loop
+(:func:`inner_products`), :func:`philox.stream_words` for the sketch's parity strings, Algorithm 1 (:func:`bisection`,
+``protocol.bisection``) and the streaming PinSketch (:func:`sketch`, integer arithmetic only, ``protocol.sketch``).
 
 A numpy inner product spends its time in a few dozen small array operations per call (one call per round of
 Algorithm 1); the kernel computes the same parities in one call: for every segment and index, the words of ``r_i``
 restricted to the segment (from the materialised database, or Philox4x32-10 on demand exactly as
 :func:`philox.stream_words`), ANDed with each robot's map, popcount, parity. ``tests/mapsync/test_mapsync.py``
-compares every kernel with its numpy oracle or twin, bit for bit; the twins run when ``core.backend.compiled()``
-(docs/architecture.md).
+compares every kernel with its numpy oracle in ``tests/helpers/mapsync_reference.py``, bit for bit.
 
 The env's other hot loops are here too, and only here (the walk and sensing, the changing world, the
-disagreement, the observation: their numpy oracles are ``tests/helpers/mapsync_reference.py``), and the copy-axis
-world of ``copy_axis.py`` steps M copies through :func:`open_syncs`, :func:`settle_syncs` and
-:func:`advance_copies`, which run those kernels and the protocols' on every copy's rows.
+disagreement, the observation), and the copy-axis world of ``copy_axis.py`` steps M copies through
+:func:`open_syncs`, :func:`settle_syncs` and :func:`advance_copies`, which run those kernels and the protocols' on
+every copy's rows.
 """
 
 from __future__ import annotations
@@ -23,7 +20,7 @@ import numba
 import numpy as np
 
 from mrcomm_env.core.backend import configure_numba_cache
-from mrcomm_env.core.pcg64_numba import integers_fill, random_fill
+from mrcomm_env.core.pcg64_numba import draw_integers, integers_fill, random_fill
 from mrcomm_env.core.sums_numba import numpy_sum
 
 # the sync kinds of ``settle_syncs`` are the actions that ask for them (numba reads them as constants)
@@ -138,38 +135,6 @@ def inner_products(
 
 
 @numba.njit(cache=True)
-def bisection_tests(x, y, res):
-    """Protocol 1 calls of :func:`bisection` on maps ``x`` and ``y`` when every test of a segment that differs says
-    so: the most it makes (with step 4 fixed a segment of equal cells always tests "same", and a differing one that
-    tests "same" is not split further), and what it makes unless a test errs (probability ≤ 2^−k each)."""
-    n = x.size
-    differs = np.zeros(n + 1, np.int64)
-    for c in range(n):
-        differs[c + 1] = differs[c] + (1 if x[c] != y[c] else 0)
-    tests = 0
-    lo = np.zeros(1, np.int64)
-    hi = np.full(1, n - 1, np.int64)
-    while lo.size > 0:
-        n_split = 0
-        for s in range(lo.size):
-            if hi[s] - lo[s] + 1 > res:
-                tests += 1
-                if differs[hi[s] + 1] - differs[lo[s]] > 0:
-                    n_split += 1
-        next_lo = np.empty(2 * n_split, np.int64)
-        next_hi = np.empty(2 * n_split, np.int64)
-        j = 0
-        for s in range(lo.size):
-            if hi[s] - lo[s] + 1 > res and differs[hi[s] + 1] - differs[lo[s]] > 0:
-                mid = (lo[s] + hi[s]) // 2
-                next_lo[j], next_hi[j] = lo[s], mid
-                next_lo[j + 1], next_hi[j + 1] = mid + 1, hi[s]
-                j += 2
-        lo, hi = next_lo, next_hi
-    return tests
-
-
-@numba.njit(cache=True)
 def bisection(
     x,
     y,
@@ -180,22 +145,22 @@ def bisection(
     domain,
     words_per_string,
     last_mask,
-    pool,
+    source,
     k,
     res,
     p1_bits,
-    state,
     pick_range,
+    as_printed,
 ):
-    """Algorithm 1 as request/response rounds, every round in one call: twin of ``protocol.bisection`` with
-    step 4 fixed. Alice's picks of i are drawn round by round, as the reference draws them
-    (``rng.integers(0, pick_range, (segments, k))``), from the PCG64 state ``state`` (:mod:`~mrcomm_env.core.pcg64_numba`),
-    or, when ``state`` is empty, taken in order from ``pool`` (what successive ``rng.integers`` calls draw).
+    """Algorithm 1 as request/response rounds, every round in one call (``protocol.bisection``; its numpy rounds are
+    ``reference_bisection`` in ``tests/helpers/mapsync_reference.py``). Alice's picks of i are drawn round by round,
+    ``integers(0, pick_range, (segments, k))``, from ``source``: a copy's PCG64 state or a ``numpy.random.Generator``
+    (:func:`~mrcomm_env.core.pcg64_numba.draw_integers`). ``as_printed``: step 4 as printed, under which every test
+    says "different" (its inner products are then not computed: they decide nothing, while the picks are drawn).
 
     Returns ``(found, stats, messages)``: the sorted cells Bob found; ``stats`` = (alice bits, bob bits, rounds,
-    Protocol 1 calls, cells compared bit by bit, detected, tests that missed a difference, picks used), with
-    picks used = −1 when ``pool`` ran out (the caller then runs the reference); ``messages[r]`` = (Alice's,
-    Bob's) bits in round r, Bob's −1 when he sent nothing.
+    Protocol 1 calls, cells compared bit by bit, detected, tests that missed a difference, picks used);
+    ``messages[r]`` = (Alice's, Bob's) bits in round r, Bob's −1 when he sent nothing.
     """
     n = x.size
     differs = np.zeros(n + 1, np.int64)  # prefix counts of differing cells
@@ -244,44 +209,42 @@ def bisection(
                 inner_lo[j] = lo[s]
                 inner_hi[j] = hi[s]
                 j += 1
-        if state.size:  # step 3a, segment by segment
-            index = np.empty((n_inner, k), np.int64)
-            integers_fill(state, 0, pick_range, index.reshape(-1))
-        elif used + n_inner * k > pool.size:
-            stats[7] = -1
-            return found[:0], stats, messages
-        else:
-            index = pool[used : used + n_inner * k].reshape(n_inner, k)
+        index = np.empty((n_inner, k), np.int64)
+        draw_integers(source, 0, pick_range, index.reshape(-1))  # step 3a, segment by segment
         used += n_inner * k
-        parity = inner_products(
-            maps,
-            database,
-            use_database,
-            k0,
-            k1,
-            domain,
-            words_per_string,
-            last_mask,
-            index,
-            inner_lo,
-            inner_hi,
-            _FROM_BIT,
-            _TO_BIT,
-        )
         tests += n_inner
         alice += n_inner * p1_bits
         bob += n_inner  # Bob's verdicts
-        n_different = 0
-        different = np.zeros(n_inner, np.bool_)
-        for s in range(n_inner):
-            for r in range(k):
-                if parity[0, s, r] != parity[1, s, r]:  # step 4 (fixed): any differing round means different
-                    different[s] = True
-                    break
-            if different[s]:
-                n_different += 1
-            elif differs[inner_hi[s] + 1] - differs[inner_lo[s]] > 0:
-                missed += 1
+        if as_printed:  # step 4 as printed ("≥ 0"): every test says "different"
+            different = np.ones(n_inner, np.bool_)
+            n_different = n_inner
+        else:
+            parity = inner_products(
+                maps,
+                database,
+                use_database,
+                k0,
+                k1,
+                domain,
+                words_per_string,
+                last_mask,
+                index,
+                inner_lo,
+                inner_hi,
+                _FROM_BIT,
+                _TO_BIT,
+            )
+            n_different = 0
+            different = np.zeros(n_inner, np.bool_)
+            for s in range(n_inner):
+                for r in range(k):
+                    if parity[0, s, r] != parity[1, s, r]:  # step 4 (fixed): any differing round means different
+                        different[s] = True
+                        break
+                if different[s]:
+                    n_different += 1
+                elif differs[inner_hi[s] + 1] - differs[inner_lo[s]] > 0:
+                    missed += 1
         if detected < 0:
             detected = 1 if different[0] else 0
         messages[rounds, 0] = alice - alice_before
@@ -648,7 +611,7 @@ def sketch(x, y, k0, k1, nonce, verify_bits, domain, exp, log, m, strict_feedbac
 @numba.njit(cache=True)
 def equality_counter(x, y, database, use_database, k0, k1, domain, words_per_string, last_mask, picks):
     """Protocol 1 on whole maps ``x`` and ``y`` (bool, n cells) with Alice's ``picks`` of i: Bob's counter, the rounds
-    whose inner products differ (``protocol.protocol1_batch`` on the one segment 0 … n−1). x·r ≠ y·r (mod 2) ⟺
+    whose inner products differ (Protocol 1 on the one segment 0 … n−1). x·r ≠ y·r (mod 2) ⟺
     (x ⊕ y)·r = 1 (mod 2), so one packed XOR of the maps is tested against each r_i, as :func:`inner_products`
     forms r_i (from the database, or Philox on demand, masked to the map)."""
     n = x.size
@@ -774,9 +737,6 @@ def open_syncs(
     return count
 
 
-_NO_POOL = np.zeros(0, dtype=np.int64)
-
-
 @numba.njit(cache=True)
 def _protocol(kind, x, y, state, pick_range, protocol1, nonce, sketch_key, sketch_consts, exp, log, return_table):
     """``SyncSessions._transcript`` of one sync, with the copy's PCG64 ``state`` drawing what the protocol draws:
@@ -808,12 +768,12 @@ def _protocol(kind, x, y, state, pick_range, protocol1, nonce, sketch_key, sketc
             domain,
             words,
             last_mask,
-            _NO_POOL,
+            state,
             k,
             res,
             p1_bits,
-            state,
             pick_range,
+            False,
         )
         for r in range(rounds.shape[0]):
             if rounds[r, 0] > 0:

@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from mrcomm_env.core import backend, pcg64_numba
+from mrcomm_env.core import pcg64_numba
 from mrcomm_env.mapsync import kernels_numba, pinsketch, theory
 from mrcomm_env.mapsync.philox import DOMAIN_DATABASE, DOMAIN_PARITY, SharedStrings, seed_key
 
@@ -108,23 +108,6 @@ def kernel_strings(strings) -> tuple[np.ndarray, bool, Any, Any, int, int, int]:
     )
 
 
-def segment_inner_products(
-    maps: list[np.ndarray], strings: SharedStrings, index: np.ndarray, lo: np.ndarray, hi: np.ndarray
-) -> list[np.ndarray]:
-    """``X[lo..hi] · r_i[lo..hi] mod 2`` for every map X in ``maps`` (packed words), every segment s and each of
-    its indices ``index[s, :]``: one ``(S, k)`` uint8 array per map, in one compiled call (``kernels_numba``; its
-    numpy oracle is ``tests/helpers/mapsync_reference.py``).
-
-    Both robots derive the same ``r_i`` from the shared seed; the simulation generates the words once and lets
-    each robot's map use them (the bits exchanged are unaffected).
-    """
-    lo = np.asarray(lo, dtype=np.int64)
-    hi = np.asarray(hi, dtype=np.int64)
-    index = np.asarray(index, dtype=np.int64)
-    out = kernels_numba.inner_products(np.stack(maps), *kernel_strings(strings), index, lo, hi, _FROM_BIT, _TO_BIT)
-    return list(out)
-
-
 @dataclass
 class EqualityResult:
     equal: bool  #: Bob's verdict (Protocol 1's return value 1 = "same")
@@ -138,27 +121,11 @@ def _alice_picks(strings: SharedStrings, segments: int, k: int, rng: np.random.G
     return rng.integers(0, strings.size, size=(segments, k))
 
 
-def protocol1_batch(
-    x_words, y_words, strings: SharedStrings, k: int, lo, hi, rng: np.random.Generator, step4: str = "fixed"
-) -> tuple[np.ndarray, np.ndarray]:
-    """Protocol 1 on many segments at once: (verdict "equal" per segment, counter per segment)."""
-    if step4 not in STEP4_RULES:
-        raise ValueError(f"argument 'step4' must be one of {', '.join(STEP4_RULES)}; got {step4!r}")
-    lo = np.atleast_1d(np.asarray(lo, dtype=np.int64))
-    hi = np.atleast_1d(np.asarray(hi, dtype=np.int64))
-    index = _alice_picks(strings, lo.size, k, rng)  # step 3a
-    b, b_bob = segment_inner_products([x_words, y_words], strings, index, lo, hi)  # steps 3b (Alice), 3d (Bob)
-    counter = (b != b_bob).sum(axis=1)  # step 3e
-    # step 4: "greater than zero" means different; as printed ("≥ 0") it can never answer "same"
-    equal = counter == 0 if step4 == "fixed" else np.zeros(lo.size, dtype=bool)
-    return equal, counter
-
-
 def equality(
     x: np.ndarray, y: np.ndarray, strings: SharedStrings, k: int, rng: np.random.Generator, step4: str = "fixed"
 ) -> EqualityResult:
     """Protocol 1 on whole maps ``x`` and ``y`` (bool vectors of n cells), in one compiled call
-    (``kernels_numba.equality_counter``: :func:`protocol1_batch` on the whole map, the same picks and counter)."""
+    (``kernels_numba.equality_counter``; its numpy rounds are ``protocol1_batch`` in ``tests/helpers/mapsync_reference.py``)."""
     n = check_n(len(x))
     if k < 1:
         raise ValueError(f"argument 'k' must be an integer ≥ 1, got {k!r}")
@@ -216,80 +183,47 @@ def bisection(
     rng: np.random.Generator,
     step4: str = "fixed",
 ) -> Reconciliation:
-    """Algorithm 1, ERRORCORRECTION(X, Y, 1, n, res), as one request/response round per recursion level."""
+    """Algorithm 1, ERRORCORRECTION(X, Y, 1, n, res), as one request/response round per recursion level, in one
+    compiled call (``kernels_numba.bisection``; its numpy rounds are ``reference_bisection`` in
+    ``tests/helpers/mapsync_reference.py``). Alice's picks come from ``rng`` round by round, as
+    ``rng.integers(0, 100n, (segments, k))`` draws them, whatever its bit generator."""
     n = check_n(len(x))
     if k < 1:
         raise ValueError(f"argument 'k' must be an integer ≥ 1, got {k!r}")
     if res < 1:
         raise ValueError(f"argument 'res' must be an integer ≥ 1, got {res!r}")
-    x = np.asarray(x, dtype=bool)
-    y = np.asarray(y, dtype=bool)
+    if step4 not in STEP4_RULES:
+        raise ValueError(f"argument 'step4' must be one of {', '.join(STEP4_RULES)}; got {step4!r}")
+    x = np.ascontiguousarray(x, dtype=bool)
+    y = np.ascontiguousarray(y, dtype=bool)
     if step4 == "fixed" and np.array_equal(x, y):
         return _bisection_of_equal_maps(n, strings, k, res, rng)
-    return _bisection_run(x, y, strings, k, res, rng, step4)
-
-
-def _bisection_run(x, y, strings: SharedStrings, k: int, res: int, rng: np.random.Generator, step4: str):
-    """:func:`bisection` on checked inputs, computed in full: the compiled twin, or the reference rounds."""
-    n = x.size
-    if step4 == "fixed" and backend.compiled():
-        compiled = _bisection_compiled(x, y, strings, k, res, rng)
-        if compiled is not None:
-            return compiled
-    xw, yw = pack(x), pack(y)
-    differs = np.concatenate([[0], np.cumsum(x != y)])  # prefix counts: which segments truly differ (metrics)
-    p1_bits = theory.protocol1_bits(n, k)
-    lo, hi = np.array([0]), np.array([n - 1])
-    alice = bob = rounds = tests = compared = 0
-    found: list[np.ndarray] = []
-    detected = None
-    missed_tests = 0
-    messages: list[tuple[str, int]] = []  # one request (Alice) and one reply (Bob) per round
-    while lo.size:
-        rounds += 1
-        alice_before, bob_before = alice, bob
-        length = hi - lo + 1
-        leaf = length <= res
-        if leaf.any():  # lines 2–6, EQUALLINEAR: Alice sends her bits of the segment, Bob compares
-            leaf_lo, leaf_hi = lo[leaf], hi[leaf]
-            holding = differs[leaf_hi + 1] - differs[leaf_lo] > 0  # Bob's comparison finds these
-            for a, b in zip(leaf_lo[holding].tolist(), leaf_hi[holding].tolist()):
-                found.append(np.flatnonzero(x[a : b + 1] != y[a : b + 1]) + a)
-            leaf_bits = int(length[leaf].sum())
-            compared += leaf_bits
-            alice += leaf_bits
-            if detected is None:
-                detected = bool(found)
-        inner_lo, inner_hi = lo[~leaf], hi[~leaf]
-        if inner_lo.size == 0:
-            messages.append(("alice", alice - alice_before))
-            break
-        equal, _ = protocol1_batch(xw, yw, strings, k, inner_lo, inner_hi, rng, step4)  # line 7
-        tests += inner_lo.size
-        alice += inner_lo.size * p1_bits
-        bob += inner_lo.size  # Bob's verdicts, so that Alice knows which halves to open next
-        if detected is None:
-            detected = not bool(equal[0])
-        different = ~equal
-        if step4 == "fixed":
-            truly = differs[inner_hi + 1] - differs[inner_lo] > 0
-            missed_tests += int((equal & truly).sum())
-        messages += [("alice", alice - alice_before), ("bob", bob - bob_before)]
-        mid = (inner_lo[different] + inner_hi[different]) // 2  # line 1
-        lo = np.concatenate([inner_lo[different], mid + 1])  # lines 10–11
-        hi = np.concatenate([mid, inner_hi[different]])
-        order = np.argsort(lo, kind="stable")
-        lo, hi = lo[order], hi[order]
-    cells = np.sort(np.concatenate(found)) if found else np.empty(0, dtype=np.int64)
+    # numba draws from any numpy Generator handed to it, but through the bit generator's function pointers, at 1.6×
+    # the run's time (282 against 182 µs, n = 4,096, 3 differences, k = 7): a PCG64's state is handed over instead
+    pcg64 = isinstance(rng.bit_generator, np.random.PCG64)
+    source = np.empty(pcg64_numba.STATE_WORDS, dtype=np.uint64) if pcg64 else rng
+    if pcg64:
+        pcg64_numba.state_of(rng, source)
+    found, stats, rounds = kernels_numba.bisection(
+        x, y, *kernel_strings(strings), source, k, res, theory.protocol1_bits(n, k), strings.size, step4 == "as_printed"
+    )
+    if pcg64:
+        pcg64_numba.set_state(rng, source)
+    alice, bob, n_rounds, tests, compared, detected, missed, _ = stats.tolist()
+    messages: list[tuple[str, int]] = []
+    for alice_round, bob_round in rounds.tolist():
+        messages.append(("alice", alice_round))
+        if bob_round >= 0:
+            messages.append(("bob", bob_round))
     return Reconciliation(
         "bisection",
-        cells,
+        found,
         alice,
         bob,
-        rounds,
+        n_rounds,
         compared,
         bool(detected),
-        {"protocol1_calls": tests, "false_equal_tests": missed_tests, "messages": messages},
+        {"protocol1_calls": tests, "false_equal_tests": missed, "messages": messages},
     )
 
 
@@ -323,77 +257,6 @@ def _bisection_of_equal_maps(n: int, strings: SharedStrings, k: int, res: int, r
         0,
         False,
         {"protocol1_calls": 1, "false_equal_tests": 0, "messages": [("alice", p1_bits), ("bob", 1)]},
-    )
-
-
-#: most picks of i drawn ahead for one compiled Algorithm 1 run (8 MB); larger runs take the reference path
-_POOL_MAX = 1 << 20
-_NO_PICKS = np.zeros(0, dtype=np.int64)
-_NO_STATE = np.zeros(0, dtype=np.uint64)
-
-
-def _bisection_compiled(x, y, strings: SharedStrings, k: int, res: int, rng: np.random.Generator):
-    """:func:`bisection` (step 4 fixed) through the compiled twin ``kernels_numba.bisection``; None when it cannot
-    take the run (the reference then runs from the same generator state).
-
-    The reference draws Alice's picks round by round, ``rng.integers(0, 100n, (segments, k))``. From numpy's PCG64
-    (every env's generator) the twin draws the same numbers round by round itself, from the generator's state
-    (``core.pcg64_numba``), which it then hands back. From another bit generator it takes them drawn ahead: with
-    step 4 fixed a test says "different" only for a segment that truly differs (Proposition 2's error is
-    one-sided), so Algorithm 1 makes at most the tests it makes when no test errs
-    (``kernels_numba.bisection_tests``); when a test erred, fewer picks were used, and the generator is put back and
-    advanced by exactly those, so that it ends where the reference leaves it. None when more than ``_POOL_MAX``
-    picks would be drawn ahead.
-    """
-    n = x.size
-    pcg64 = isinstance(rng.bit_generator, np.random.PCG64)
-    saved: dict = {}
-    if pcg64:
-        state = np.empty(pcg64_numba.STATE_WORDS, dtype=np.uint64)
-        pcg64_numba.state_of(rng, state)
-        draws, pool = 0, _NO_PICKS
-    else:
-        state = _NO_STATE
-        draws = k * kernels_numba.bisection_tests(x, y, res)
-        if draws > _POOL_MAX:
-            return None
-        saved = dict(rng.bit_generator.state)  # for a test that errs (probability ≤ 2^−k each)
-        pool = rng.integers(0, strings.size, size=draws) if draws else _NO_PICKS
-    found, stats, rounds = kernels_numba.bisection(
-        x,
-        y,
-        *kernel_strings(strings),
-        pool,
-        k,
-        res,
-        theory.protocol1_bits(n, k),
-        state,
-        strings.size,
-    )
-    alice, bob, n_rounds, tests, compared, detected, missed, used = stats.tolist()
-    if pcg64:
-        pcg64_numba.set_state(rng, state)
-    elif used < 0:  # cannot happen by the bound above; the reference then runs from the same generator state
-        rng.bit_generator.state = saved
-        return None
-    elif used < draws:  # a test said "same" of a segment that differs
-        rng.bit_generator.state = saved
-        if used:
-            rng.integers(0, strings.size, size=used)
-    messages: list[tuple[str, int]] = []
-    for alice_round, bob_round in rounds.tolist():
-        messages.append(("alice", alice_round))
-        if bob_round >= 0:
-            messages.append(("bob", bob_round))
-    return Reconciliation(
-        "bisection",
-        found,
-        alice,
-        bob,
-        n_rounds,
-        compared,
-        bool(detected),
-        {"protocol1_calls": tests, "false_equal_tests": missed, "messages": messages},
     )
 
 

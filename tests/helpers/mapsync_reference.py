@@ -1,8 +1,9 @@
-"""MapSync's walk, sensing, changing world, disagreement, observation, Protocol 1's inner products and the streaming
-PinSketch written in numpy and Python: the oracles of their compiled kernels.
+"""MapSync's walk, sensing, changing world, disagreement, observation, Protocol 1's inner products, Algorithm 1 and
+the streaming PinSketch written in numpy and Python: the oracles of their compiled kernels.
 
 The env computes each in one compiled call (``WorldDynamics._move_and_sense``, ``_change_world``,
-``_update_disagreement``, ``MapSyncEnv._observe``, ``protocol.segment_inner_products``, ``protocol.sketch``:
+``_update_disagreement``, ``MapSyncEnv._observe``, ``kernels_numba.inner_products``, ``protocol.bisection``,
+``protocol.sketch``:
 ``kernels_numba``); these are the same steps (§I, §III, §V-C, the module's observation table, and
 ``protocol``'s and ``pinsketch``'s docstrings for the sketch: GF(2^m) arithmetic on log tables, odd syndromes,
 Berlekamp–Massey, a Chien search), kept here and not in the package (#44: one implementation in the package, the
@@ -15,10 +16,19 @@ from functools import lru_cache
 
 import numpy as np
 
+from mrcomm_env.mapsync import kernels_numba, theory
 from mrcomm_env.mapsync.env import MapSyncEnv
 from mrcomm_env.mapsync.philox import DOMAIN_PARITY, seed_key, stream_words
 from mrcomm_env.mapsync.pinsketch import GF2m, field_bits
-from mrcomm_env.mapsync.protocol import _FROM_BIT, _TO_BIT, Reconciliation, check_n, pack, sketch_verify_bits
+from mrcomm_env.mapsync.protocol import (
+    _FROM_BIT,
+    _TO_BIT,
+    Reconciliation,
+    check_n,
+    kernel_strings,
+    pack,
+    sketch_verify_bits,
+)
 
 #: the observation of last_test + 1: no test yet 0, different 1, same ½
 TEST_CODE = np.array([0.0, 1.0, 0.5])
@@ -147,7 +157,7 @@ class ReferenceMapSync(MapSyncEnv):
 
 
 def reference_inner_products(maps, strings, index, lo, hi) -> list[np.ndarray]:
-    """``protocol.segment_inner_products`` in numpy: ``X[lo..hi] · r_i[lo..hi] mod 2`` for every packed map X, every
+    """``kernels_numba.inner_products`` in numpy: ``X[lo..hi] · r_i[lo..hi] mod 2`` for every packed map X, every
     segment s and each of its indices ``index[s, :]``, from the strings' words (``SharedStrings.words``)."""
     first, last = lo >> 5, hi >> 5
     span = last - first
@@ -165,6 +175,91 @@ def reference_inner_products(maps, strings, index, lo, hi) -> list[np.ndarray]:
     r = strings.words(index.reshape(-1), np.repeat(first, k), n_words).reshape(S, k, n_words)
     counts = np.bitwise_count(r[None, :, :, :] & seg[:, :, None, :]).sum(axis=-1, dtype=np.int64)
     return list((counts & 1).astype(np.uint8))
+
+
+# ------------------------------------------------------------------------------------------------ Algorithm 1
+def segment_inner_products(maps, strings, index, lo, hi) -> list[np.ndarray]:
+    """The compiled inner products (``kernels_numba.inner_products``) called as :func:`reference_inner_products` is."""
+    lo = np.asarray(lo, dtype=np.int64)
+    hi = np.asarray(hi, dtype=np.int64)
+    index = np.asarray(index, dtype=np.int64)
+    out = kernels_numba.inner_products(np.stack(maps), *kernel_strings(strings), index, lo, hi, _FROM_BIT, _TO_BIT)
+    return list(out)
+
+
+def protocol1_batch(x_words, y_words, strings, k: int, lo, hi, rng: np.random.Generator, step4: str = "fixed"):
+    """Protocol 1 on many segments at once in numpy: (verdict "equal" per segment, counter per segment)."""
+    lo = np.atleast_1d(np.asarray(lo, dtype=np.int64))
+    hi = np.atleast_1d(np.asarray(hi, dtype=np.int64))
+    index = rng.integers(0, strings.size, size=(lo.size, k))  # step 3a
+    b, b_bob = reference_inner_products([x_words, y_words], strings, index, lo, hi)  # steps 3b (Alice), 3d (Bob)
+    counter = (b != b_bob).sum(axis=1)  # step 3e
+    # step 4: "greater than zero" means different; as printed ("≥ 0") it can never answer "same"
+    equal = counter == 0 if step4 == "fixed" else np.zeros(lo.size, dtype=bool)
+    return equal, counter
+
+
+def reference_bisection(x, y, strings, k: int, res: int, rng: np.random.Generator, step4: str = "fixed"):
+    """``protocol.bisection`` computed in full (no shortcut for equal maps), round by round in numpy: Alice's picks
+    are ``rng.integers(0, 100n, (segments, k))`` per round, the inner products :func:`reference_inner_products`."""
+    x = np.asarray(x, dtype=bool)
+    y = np.asarray(y, dtype=bool)
+    n = check_n(x.size)
+    xw, yw = pack(x), pack(y)
+    differs = np.concatenate([[0], np.cumsum(x != y)])  # prefix counts: which segments truly differ (metrics)
+    p1_bits = theory.protocol1_bits(n, k)
+    lo, hi = np.array([0]), np.array([n - 1])
+    alice = bob = rounds = tests = compared = 0
+    found: list[np.ndarray] = []
+    detected = None
+    missed_tests = 0
+    messages: list[tuple[str, int]] = []  # one request (Alice) and one reply (Bob) per round
+    while lo.size:
+        rounds += 1
+        alice_before, bob_before = alice, bob
+        length = hi - lo + 1
+        leaf = length <= res
+        if leaf.any():  # lines 2–6, EQUALLINEAR: Alice sends her bits of the segment, Bob compares
+            leaf_lo, leaf_hi = lo[leaf], hi[leaf]
+            holding = differs[leaf_hi + 1] - differs[leaf_lo] > 0  # Bob's comparison finds these
+            for a, b in zip(leaf_lo[holding].tolist(), leaf_hi[holding].tolist()):
+                found.append(np.flatnonzero(x[a : b + 1] != y[a : b + 1]) + a)
+            leaf_bits = int(length[leaf].sum())
+            compared += leaf_bits
+            alice += leaf_bits
+            if detected is None:
+                detected = bool(found)
+        inner_lo, inner_hi = lo[~leaf], hi[~leaf]
+        if inner_lo.size == 0:
+            messages.append(("alice", alice - alice_before))
+            break
+        equal, _ = protocol1_batch(xw, yw, strings, k, inner_lo, inner_hi, rng, step4)  # line 7
+        tests += inner_lo.size
+        alice += inner_lo.size * p1_bits
+        bob += inner_lo.size  # Bob's verdicts, so that Alice knows which halves to open next
+        if detected is None:
+            detected = not bool(equal[0])
+        different = ~equal
+        if step4 == "fixed":
+            truly = differs[inner_hi + 1] - differs[inner_lo] > 0
+            missed_tests += int((equal & truly).sum())
+        messages += [("alice", alice - alice_before), ("bob", bob - bob_before)]
+        mid = (inner_lo[different] + inner_hi[different]) // 2  # line 1
+        lo = np.concatenate([inner_lo[different], mid + 1])  # lines 10–11
+        hi = np.concatenate([mid, inner_hi[different]])
+        order = np.argsort(lo, kind="stable")
+        lo, hi = lo[order], hi[order]
+    cells = np.sort(np.concatenate(found)) if found else np.empty(0, dtype=np.int64)
+    return Reconciliation(
+        "bisection",
+        cells,
+        alice,
+        bob,
+        rounds,
+        compared,
+        bool(detected),
+        {"protocol1_calls": tests, "false_equal_tests": missed_tests, "messages": messages},
+    )
 
 
 # ------------------------------------------------------------------------------------------------ the sketch

@@ -11,13 +11,16 @@ from helpers.mapsync_reference import (
     ReferenceMapSync,
     StreamingDecoder,
     arithmetic_field,
+    protocol1_batch,
     random_walk,
+    reference_bisection,
     reference_change_world,
     reference_disagreement,
     reference_inner_products,
     reference_observation,
     reference_sense,
     reference_sketch,
+    segment_inner_products,
     syndromes,
 )
 from hypothesis import given, settings
@@ -74,7 +77,7 @@ def test_on_demand_strings_equal_the_explicit_database(n):
     index = rng.integers(0, on_demand.size, size=(12, 5))
     lo = rng.integers(0, n, 12)
     hi = np.minimum(n - 1, lo + rng.integers(0, n, 12))
-    (fast,) = proto.segment_inner_products([proto.pack(x)], on_demand, index, lo, hi)
+    (fast,) = segment_inner_products([proto.pack(x)], on_demand, index, lo, hi)
     dense = bits[:, :n].astype(np.int64)
     slow = np.array([[dense[i, a : b + 1] @ x[a : b + 1] % 2 for i in row] for row, a, b in zip(index, lo, hi)])
     assert np.array_equal(fast, slow)
@@ -445,7 +448,9 @@ def test_bad_protocol_inputs_raise():
     with pytest.raises(ValueError, match="'protocol'"):
         proto.check_protocol("telepathy")
     with pytest.raises(ValueError, match="'step4'"):
-        proto.protocol1_batch(proto.pack(x), proto.pack(x), SharedStrings(8, 0), 3, 0, 7, rng, step4="maybe")
+        proto.equality(x, x, SharedStrings(8, 0), 3, rng, step4="maybe")
+    with pytest.raises(ValueError, match="'step4'"):
+        proto.bisection(x, x, SharedStrings(8, 0), 3, 1, rng, step4="maybe")
 
 
 # ------------------------------------------------------------------------------------------------ baselines
@@ -529,15 +534,9 @@ def test_compiled_stream_words_equal_the_numpy_generator(domain):
 
 
 def _use_backend(monkeypatch, compiled: bool) -> None:
-    """Pick the compiled twins or the numpy reference for the protocols, and whether batches step the copy-axis
-    world."""
-    import types
-
-    from mrcomm_env.mapsync import env as env_module
-
-    fake = types.SimpleNamespace(compiled=lambda: compiled)
-    monkeypatch.setattr(proto, "backend", fake)
-    monkeypatch.setattr(env_module, "backend", fake)
+    """Run Algorithm 1 compiled (the package's) or as its numpy rounds (``reference_bisection``) inside the env."""
+    if not compiled:
+        monkeypatch.setattr(proto, "bisection", reference_bisection)
 
 
 def test_compiled_sketch_is_the_reference_step_for_step():
@@ -590,7 +589,7 @@ def test_compiled_equality_is_the_reference(cached):
         step4 = proto.STEP4_RULES[trial % 3 == 0]
         compiled, reference = np.random.default_rng(trial), np.random.default_rng(trial)
         got = proto.equality(x, y, strings, k, compiled, step4)
-        equal, counter = proto.protocol1_batch(proto.pack(x), proto.pack(y), strings, k, 0, n - 1, reference, step4)
+        equal, counter = protocol1_batch(proto.pack(x), proto.pack(y), strings, k, 0, n - 1, reference, step4)
         assert type(got.equal) is bool and type(got.counter) is int
         if step4 == "fixed" and np.array_equal(x, y):  # answered without inner products: the counter is known, 0
             assert int(counter[0]) == 0
@@ -608,30 +607,45 @@ def test_compiled_equality_is_the_reference(cached):
     [(2, 1, 1, 1), (16, 1, 3, 16), (45, 3, 2, 7), (77, 1, 1, 0), (256, 1, 10, 3), (1000, 4, 5, 40), (1024, 1, 7, 1)],
 )
 @pytest.mark.parametrize("cached", [False, True])
-@pytest.mark.parametrize("bit_generator", ["PCG64", "MT19937"])  # drawn by the twin itself, or drawn ahead for it
-def test_compiled_bisection_equals_the_reference(monkeypatch, n, res, k, d, cached, bit_generator):
+@pytest.mark.parametrize("step4", proto.STEP4_RULES)
+@pytest.mark.parametrize("bit_generator", ["PCG64", "MT19937", "Philox"])  # numba draws from any of numpy's
+def test_compiled_bisection_equals_the_reference(n, res, k, d, cached, step4, bit_generator):
+    """The compiled Algorithm 1 against its numpy rounds: the same cells, bits, rounds, messages, tests (missed ones
+    included: small k makes a test say "same" of a differing segment) and the generator's state afterwards."""
     rng = np.random.default_rng(100 * n + d)
     x, y, _ = maps_with_differences(rng, n, d)
     strings = SharedStrings(n, 9, cache=cached)
     runs = []
-    for compiled in (False, True):
-        _use_backend(monkeypatch, compiled)
-        # small k: missed differences happen and must be the same ones
+    for bisection in (reference_bisection, proto.bisection):
         generator = np.random.Generator(getattr(np.random, bit_generator)(d))
-        result = proto.bisection(x, y, strings, k, res, generator)
+        result = bisection(x, y, strings, k, res, generator, step4)
         runs.append((result, pickle.dumps(generator.bit_generator.state)))  # MT19937's state holds an array
-    (reference, state), (twin, twin_state) = runs
-    assert np.array_equal(twin.found, reference.found) and twin.found.dtype == reference.found.dtype
+    (reference, state), (compiled, compiled_state) = runs
+    assert np.array_equal(compiled.found, reference.found) and compiled.found.dtype == reference.found.dtype
     for name in ("alice_bits", "bob_bits", "rounds", "candidates", "detected", "extra"):
-        assert getattr(twin, name) == getattr(reference, name), name
-    assert twin_state == state  # the generator ends where the reference leaves it
+        assert getattr(compiled, name) == getattr(reference, name), name
+    assert compiled_state == state  # the generator ends where the reference leaves it
 
 
-@pytest.mark.parametrize("compiled", [False, True])
-def test_protocol1_and_algorithm1_on_equal_maps_return_and_draw_what_the_full_run_does(monkeypatch, compiled):
+def test_compiled_bisection_misses_differences_as_the_reference_does():
+    """Small k makes tests err (Proposition 2: "same" said of a differing segment w.p. ≤ 2^−k); the compiled and
+    numpy runs must miss the same ones, so the comparison above is not only of runs without errors."""
+    rng = np.random.default_rng(7)
+    missed = 0
+    for trial in range(40):
+        n = int(rng.choice([64, 256, 1000]))
+        x, y, _ = maps_with_differences(rng, n, int(rng.integers(1, 20)))
+        strings = SharedStrings(n, trial)
+        got = proto.bisection(x, y, strings, 1, 2, np.random.default_rng(trial))
+        want = reference_bisection(x, y, strings, 1, 2, np.random.default_rng(trial))
+        assert got.extra == want.extra and np.array_equal(got.found, want.found)
+        missed += got.extra["false_equal_tests"]
+    assert missed > 0
+
+
+def test_protocol1_and_algorithm1_on_equal_maps_return_and_draw_what_the_full_run_does():
     """Equal maps are answered without computing inner products (they are known to agree); the results and the
     generator's state afterwards must be those of the full computation, Alice's picks included."""
-    _use_backend(monkeypatch, compiled)
     rng = np.random.default_rng(5)
     # res ≥ n: the whole map is one EQUALLINEAR segment, sent without a Protocol 1 test or a pick
     for n, res, k in [
@@ -649,46 +663,16 @@ def test_protocol1_and_algorithm1_on_equal_maps_return_and_draw_what_the_full_ru
         seed = int(rng.integers(2**32))
         shortcut, full = np.random.default_rng(seed), np.random.default_rng(seed)
         verdict = proto.equality(x, x.copy(), strings, k, shortcut)
-        equal, counter = proto.protocol1_batch(proto.pack(x), proto.pack(x), strings, k, 0, n - 1, full)
+        equal, counter = protocol1_batch(proto.pack(x), proto.pack(x), strings, k, 0, n - 1, full)
         assert (verdict.equal, verdict.counter) == (bool(equal[0]), int(counter[0]))
         assert verdict.alice_bits == theory.protocol1_bits(n, k) and verdict.bob_bits == 1
         assert shortcut.bit_generator.state == full.bit_generator.state
         got = proto.bisection(x, x.copy(), strings, k, res, shortcut)
-        want = proto._bisection_run(x, x.copy(), strings, k, res, full, "fixed")
+        want = reference_bisection(x, x.copy(), strings, k, res, full)
         assert np.array_equal(got.found, want.found) and got.found.dtype == want.found.dtype
         for name in ("protocol", "alice_bits", "bob_bits", "rounds", "candidates", "detected", "extra"):
             assert getattr(got, name) == getattr(want, name), (n, res, name)
         assert shortcut.bit_generator.state == full.bit_generator.state
-
-
-def test_bisection_tests_counts_algorithm1s_protocol1_calls_when_no_test_errs(monkeypatch):
-    """What the compiled bisection draws ahead: exactly the reference's Protocol 1 calls when no test errs (k = 40), and
-    never fewer when tests do err (k = 1: a differing segment then often tests "same" and is not split)."""
-    kernels = kernels_numba
-    _use_backend(monkeypatch, False)
-    rng = np.random.default_rng(7)
-    fewer = 0
-    for n, res, d in [(2, 1, 1), (16, 1, 16), (45, 3, 7), (77, 1, 0), (256, 1, 3), (1000, 4, 40), (1024, 1, 1)]:
-        x, y, _ = maps_with_differences(rng, n, d)
-        strings = SharedStrings(n, 9)
-        exact = proto.bisection(x, y, strings, 40, res, np.random.default_rng(n)).extra["protocol1_calls"]
-        assert kernels.bisection_tests(x, y, res) == exact, (n, res, d)
-        erring = proto.bisection(x, y, strings, 1, res, np.random.default_rng(n)).extra["protocol1_calls"]
-        assert erring <= exact
-        fewer += erring < exact
-    assert fewer > 0  # tests did err
-
-
-@pytest.mark.parametrize("n", [4, 64, 300])
-def test_compiled_bisection_never_runs_out_of_picks(n):
-    """Every cell differs: the most Protocol 1 calls Algorithm 1 can make fit in the picks drawn ahead."""
-    x = np.zeros(n, dtype=bool)
-    y = ~x
-    k, rng = 40, np.random.default_rng(n)  # a test misses a difference w.p. ≤ 2^−40: the run is exact
-    result = proto._bisection_compiled(x, y, SharedStrings(n, 1), k, 1, rng)
-    assert result is not None and np.array_equal(result.found, np.arange(n))
-    # with all cells differing every segment is tested: 2n − 1 nodes of the tree, n of them leaves
-    assert result.extra["protocol1_calls"] == n - 1
 
 
 def test_compiled_walk_and_sense_equals_the_reference():
