@@ -1,5 +1,5 @@
 """numpy's pairwise summation of float64, compiled (numba): kernels whose sums must be the numpy reference's,
-bit for bit, sum with :func:`numpy_sum`. Imported only by compiled twins (numba is optional)."""
+bit for bit, sum with :func:`numpy_sum`."""
 
 from __future__ import annotations
 

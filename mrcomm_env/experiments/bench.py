@@ -20,7 +20,6 @@ from typing import Any
 from tqdm.auto import tqdm
 
 from mrcomm_baselines import default_policy, make_policy
-from mrcomm_env.core import backend
 from mrcomm_env.core.memory import BUDGET_ARGUMENT, GIB
 from mrcomm_env.experiments.evaluation import run_episode, steps_per_second
 from mrcomm_env.experiments.limits import limit_configs, measure_batched, measure_limit
@@ -275,7 +274,6 @@ def sweep_section(
         "params": params or {},
         "tasks": n_tasks,
         "runs": runs,
-        "compiled_backend": backend.name(),
         # the machine's load when the benchmark began and ended: other processes on the same cores slow every
         # backend, and the parallel ones most
         "load_average_1min": os.getloadavg()[0],

@@ -10,7 +10,6 @@ import json
 from pathlib import Path
 
 from mrcomm_baselines import make_policy, policy_names
-from mrcomm_env.core import backend
 from mrcomm_env.core.policy import Policy
 from mrcomm_env.registry import canonical_id, short_name
 
@@ -70,11 +69,13 @@ def sb3_algo(spec: dict) -> str:
 
 def run_folder(label: str, config: dict) -> str:
     """``<grid point>-<digest>/s<seed>``: the digest covers every setting of the run but its seed and its stepping
-    processes (env arguments, algorithm, hyperparameters, agent-steps, …) and the backend of the env's hot loops, so a
-    rerun with any of them changed trains new runs instead of reusing the old ones."""
+    processes (env arguments, algorithm, hyperparameters, agent-steps, …), so a rerun with any of them changed trains
+    new runs instead of reusing the old ones."""
     # env_workers: how many processes step the copies changes no number of the run, only its speed
     settings = {k: v for k, v in config.items() if k not in ("seed", "env_workers")}
-    blob = json.dumps([settings, backend.name()], sort_keys=True, default=str)
+    # "numba": the digest once also named the backend of the env's hot loops, numba or numpy (MRCOMM_BACKEND, gone
+    # since every hot loop is compiled); kept so that run folders made before keep their names and resume
+    blob = json.dumps([settings, "numba"], sort_keys=True, default=str)
     return f"{label}-{hashlib.sha1(blob.encode()).hexdigest()[:8]}/s{config['seed']}"
 
 

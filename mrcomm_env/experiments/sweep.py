@@ -15,7 +15,7 @@ Backends, chosen by one flag of the CLI (:func:`add_runner_arguments`):
 
 Every backend shows one progress bar over the tasks and retries a failed task once (on Ray, a task that raised
 is resubmitted by the runner; a task whose worker or node died is rerun by Ray's own ``max_retries``). On Ray,
-each task first checks that its node runs the driver's code (:func:`code_version`) and compiled twins. With a ``cache`` folder, each result is written there atomically as soon
+each task first checks that its node runs the driver's code (:func:`code_version`). With a ``cache`` folder, each result is written there atomically as soon
 as its task ends, under a name that includes a hash of the task, and a rerun loads it instead of running
 the task again: an interrupted sweep resumes where it stopped, and a task whose arguments changed runs anew.
 """
@@ -47,7 +47,6 @@ from typing import Any
 
 from tqdm.auto import tqdm
 
-from mrcomm_env.core import backend
 from mrcomm_env.core.sharded import WORKERS_VARIABLE
 from mrcomm_env.experiments.arguments import positive_int
 from mrcomm_env.experiments.io import atomic_write_text
@@ -75,10 +74,9 @@ class Task:
     name: str = ""
 
     def key(self) -> str:
-        """A file-safe name that changes whenever the function, any argument, the package's code or the backend of
-        its hot loops (numba or numpy: their results agree to round-off, not to the bit) does."""
+        """A file-safe name that changes whenever the function, any argument or the package's code does."""
 
-        blob = json.dumps([self.fn, self.kwargs, code_version(), backend.name()], sort_keys=True, default=str)
+        blob = json.dumps([self.fn, self.kwargs, code_version()], sort_keys=True, default=str)
         digest = hashlib.sha1(blob.encode()).hexdigest()[:12]
         label = re.sub(r"[^A-Za-z0-9_.=,-]+", "_", self.name or self.fn.rsplit(":", 1)[-1])[:80]
         return f"{label}-{digest}"
@@ -308,12 +306,11 @@ class Runner:
         except ImportError as exc:
             raise ValueError("argument 'ray' needs Ray: pip install 'mrcomm-env[ray]' (docs/scaling.md)") from exc
 
-        driver = {"code": code_version(), "backend": backend.name()}
+        driver = {"code": code_version()}
         if not ray.is_initialized():
-            # one BLAS/torch thread per task, as for local processes, and the driver's choice of compiled twins
-            # (docs/architecture.md); the package must be importable on every node (installed there, as
-            # docs/scaling.md shows). A session the caller opened is used as it is.
-            env_vars = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", backend.VARIABLE: driver["backend"]}
+            # one BLAS/torch thread per task, as for local processes; the package must be importable on every node
+            # (installed there, as docs/scaling.md shows). A session the caller opened is used as it is.
+            env_vars = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
             ray.init(address=self.ray, runtime_env={"env_vars": env_vars}, log_to_driver=False)
         # Ray itself reruns a task whose worker process or node died (max_retries). A task that raised is
         # resubmitted here instead of by Ray's retry_exceptions, so that the retry shows in ``stats`` as on the
@@ -393,22 +390,20 @@ def _ray_outcome(ray, ref) -> Any:
 
 
 class CodeMismatch(RuntimeError):
-    """A Ray node runs other mrcomm-env code, or other compiled twins of hot loops, than the driver: its numbers
+    """A Ray node runs other mrcomm-env code than the driver: its numbers
     would not be the driver's, and would be cached under the driver's key."""
 
 
 def _ray_execute(fn: str, kwargs: dict[str, Any], driver: dict[str, str] | None = None) -> Any:
     """What a Ray worker runs: :func:`execute`, after checking that this node has the driver's code (the cache
-    key holds the driver's :func:`code_version`) and the driver's choice of compiled twins (numba and numpy
-    estimates differ by round-off: docs/architecture.md)."""
+    key holds the driver's :func:`code_version`)."""
     one_thread()
     if driver is not None:
-        here = {"code": code_version(), "backend": backend.name()}
-        if here != driver:
+        here = code_version()
+        if here != driver["code"]:
             raise CodeMismatch(
-                f"node {socket.gethostname()} runs mrcomm-env code {here['code']} with {here['backend']} hot loops, "
-                f"the driver code {driver['code']} with {driver['backend']}: install the same version of mrcomm-env, "
-                f"with the same extras, on every node (docs/scaling.md)"
+                f"node {socket.gethostname()} runs mrcomm-env code {here}, the driver code {driver['code']}: install "
+                f"the same version of mrcomm-env, with the same extras, on every node (docs/scaling.md)"
             )
     return execute(fn, kwargs)
 

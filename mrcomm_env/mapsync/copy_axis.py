@@ -3,8 +3,8 @@ leading copy axis (the copy-axis world).
 
 What :class:`~mrcomm_env.core.batched.BatchedEnv` steps instead of M env objects when
 :meth:`MapSyncEnv.copy_axis_world` allows it: no ``bits_per_step`` (every sync opens, completes and closes in the step
-it is asked for, ``SyncSessions._sync_within_step``), links always up (no ``comm_range``, ``link_prob`` 1), on the
-compiled backend. That is the default and the shipped training configuration.
+it is asked for, ``SyncSessions._sync_within_step``), links always up (no ``comm_range``, ``link_prob`` 1).
+That is the default and the shipped training configuration.
 
 A step is three compiled calls over all copies. ``kernels_numba.open_syncs`` opens the syncs the robots ask for, in
 the env's order (``SyncSessions._sync_within_step``: each asking robot not yet in a sync, with the free peer it synced

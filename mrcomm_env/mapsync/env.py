@@ -45,7 +45,7 @@ from collections import deque
 import numpy as np
 from gymnasium import spaces
 
-from mrcomm_env.core import BitLedger, MrcommParallelEnv, backend
+from mrcomm_env.core import BitLedger, MrcommParallelEnv
 from mrcomm_env.core import render as rendering
 from mrcomm_env.mapsync import kernels_numba, world
 from mrcomm_env.mapsync.actions import ACTIONS, BISECTION, EQUALITY, FULL, IDLE, SKETCH  # noqa: F401 (the module API)
@@ -73,11 +73,9 @@ class MapSyncEnv(MapSyncSpec, WorldDynamics, SyncSessions, MrcommParallelEnv):
     @classmethod
     def copy_axis_world(cls, cfg):
         """Links that carry any transcript within a step (no ``bits_per_step``) and are always up (no ``comm_range``,
-        ``link_prob`` 1), on the compiled backend, step M copies as one batch of arrays (:mod:`.copy_axis`): the
-        default and the shipped training configuration. Other configurations step their copies in turn."""
+        ``link_prob`` 1) step M copies as one batch of arrays (:mod:`.copy_axis`): the default and the shipped
+        training configuration. Other configurations step their copies in turn."""
         if cfg.bits_per_step is not None or cfg.comm_range is not None or cfg.link_prob < 1.0:
-            return None
-        if not backend.compiled():
             return None
         return UnlimitedLinkBatch
 

@@ -200,15 +200,23 @@ def bisection(
         return _bisection_of_equal_maps(n, strings, k, res, rng)
     # numba draws from any numpy Generator handed to it, but through the bit generator's function pointers, at 1.6×
     # the run's time (282 against 182 µs, n = 4,096, 3 differences, k = 7): a PCG64's state is handed over instead
+    state = np.empty(pcg64_numba.STATE_WORDS, dtype=np.uint64)
     pcg64 = isinstance(rng.bit_generator, np.random.PCG64)
-    source = np.empty(pcg64_numba.STATE_WORDS, dtype=np.uint64) if pcg64 else rng
     if pcg64:
-        pcg64_numba.state_of(rng, source)
+        pcg64_numba.state_of(rng, state)
     found, stats, rounds = kernels_numba.bisection(
-        x, y, *kernel_strings(strings), source, k, res, theory.protocol1_bits(n, k), strings.size, step4 == "as_printed"
+        x,
+        y,
+        *kernel_strings(strings),
+        state if pcg64 else rng,
+        k,
+        res,
+        theory.protocol1_bits(n, k),
+        strings.size,
+        step4 == "as_printed",
     )
     if pcg64:
-        pcg64_numba.set_state(rng, source)
+        pcg64_numba.set_state(rng, state)
     alice, bob, n_rounds, tests, compared, detected, missed, _ = stats.tolist()
     messages: list[tuple[str, int]] = []
     for alice_round, bob_round in rounds.tolist():

@@ -202,8 +202,7 @@ class MultiHopSpec(EnvSpec):
 
     MEMORY_FORMULA = (
         "8 MiB + 180·n² for n robots (`n_robots`, or `grid_side`² in the grid scene): every robot's estimate "
-        "table, its candidate observation and the pairwise distances and links are n × n; on the compiled backend "
-        "every scene adds 24 MiB + 48·n² (it steps as the "
+        "table, its candidate observation and the pairwise distances and links are n × n; every scene adds 24 MiB + 48·n² (it steps as the "
         "copy-axis world of one copy: numba's kernels, and the world's rows beside the env's arrays); "
         "`observe_heard` adds 28·n³ (each robot's n × n table of what it heard and the frame's two n³ temporaries); "
         "`mask_unheld` adds 72·n² (every robot's n − 1 mask columns in the infos, as arrays and as its info dict)"

@@ -9,7 +9,6 @@ conditioning of the matrices the kernels invert (``tests/helpers/numerics.py``);
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 import pytest
@@ -32,7 +31,6 @@ from hypothesis import strategies as st
 
 from mrcomm_env.asynccl import ekf, ekf_numba
 from mrcomm_env.asynccl_v0 import parallel_env
-from mrcomm_env.core import backend
 
 SD, STH = 0.02, np.radians(1.0)
 
@@ -439,19 +437,3 @@ def test_drawn_episodes_keep_the_same_books_on_both_backends(kw, seed):
     assert m_fast.keys() == m_ref.keys()
     for key in set(m_ref) - {*ESTIMATE_METRICS, "log10_condition"}:
         assert m_fast[key] == m_ref[key] or (math.isnan(m_fast[key]) and math.isnan(m_ref[key])), key
-
-
-def test_backend_variable_is_validated(monkeypatch):
-    try:
-        monkeypatch.setenv(backend.VARIABLE, "fortran")
-        backend.compiled.cache_clear()
-        with pytest.raises(ValueError, match="MRCOMM_BACKEND"):
-            backend.compiled()
-        monkeypatch.setenv(backend.VARIABLE, "numpy")
-        backend.compiled.cache_clear()
-        assert backend.compiled() is False and backend.name() == "numpy"
-    finally:
-        monkeypatch.undo()
-        backend.compiled.cache_clear()
-    # numba is importable here: the ambient choice decides again
-    assert backend.compiled() is (os.environ.get(backend.VARIABLE, "auto") != "numpy")

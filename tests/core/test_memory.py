@@ -2,9 +2,7 @@
 
 The estimate is held to the measured peak within a factor of 2 at three sizes per env (``MEMORY_PROBES``). The
 peak is what Python and numpy allocate from construction through reset and a few steps (``tracemalloc`` in a
-fresh process on the numpy backend, whose arrays ``tracemalloc`` sees; the compiled twins allocate the same state,
-except MultiHop's copy-axis world of one copy, whose estimate is measured on the compiled backend as well).
-Kernels that exist only compiled hold their state in arrays the env allocates in numpy; what they allocate inside a
+fresh process). Compiled kernels hold their state in arrays the env allocates in numpy; what they allocate inside a
 call (RendezvousMapping's window: its legs and the observations it keeps, bounded by the team and the sensor floor)
 ``tracemalloc`` does not see, and their memory models say why it is small.
 """
@@ -44,39 +42,16 @@ def test_every_env_states_its_memory(env_id):
 
 @pytest.mark.slow
 @pytest.mark.parametrize(("env_id", "name"), PROBES)
-def test_estimate_within_a_factor_of_two_of_the_measured_peak(env_id, name, monkeypatch):
-    _assert_estimate_near_the_peak(env_id, env_class(env_id).MEMORY_PROBES[name], "numpy", monkeypatch)
+def test_estimate_within_a_factor_of_two_of_the_measured_peak(env_id, name):
+    _assert_estimate_near_the_peak(env_id, env_class(env_id).MEMORY_PROBES[name])
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("name", ["field_768", "moving_768", "grid_32x32", "masked_32x32", "heard_16x16"])
-def test_a_multihop_env_stepping_as_a_world_of_one_copy_counts_it(name, monkeypatch):
-    """On the compiled backend a MultiHop scene, still or moving, steps as the copy-axis world of one copy, which
-    holds more than the reference (numba's kernels, the world's rows): its estimate says so."""
-    _assert_estimate_near_the_peak(
-        "mrcomm/MultiHop-v0", env_class("MultiHop-v0").MEMORY_PROBES[name], "auto", monkeypatch
-    )
-
-
-def _assert_estimate_near_the_peak(env_id, config, backend_name, monkeypatch):
-    from mrcomm_env.core import backend
-
-    # the estimate of the backend the measuring process runs (this process chose its own once: functools.cache)
-    monkeypatch.setenv("MRCOMM_BACKEND", backend_name)
-    monkeypatch.setattr(backend, "compiled", backend.compiled.__wrapped__)
+def _assert_estimate_near_the_peak(env_id, config):
     estimate_mb = _estimate(env_id, config) / 2**20
-    result = measure_limit(
-        env_id,
-        config,
-        seconds=0.0,
-        min_steps=3,
-        trace_memory=True,
-        timeout=600,
-        env_vars={"MRCOMM_BACKEND": backend_name},
-    )
+    result = measure_limit(env_id, config, seconds=0.0, min_steps=3, trace_memory=True, timeout=600)
     measured_mb = result["traced_peak_mb"]
     assert measured_mb / 2 <= estimate_mb <= measured_mb * 2, (
-        f"{env_id} {config} ({backend_name}): estimate {estimate_mb:.1f} MB, measured peak {measured_mb:.1f} MB"
+        f"{env_id} {config}: estimate {estimate_mb:.1f} MB, measured peak {measured_mb:.1f} MB"
     )
 
 
@@ -123,9 +98,7 @@ def test_memory_does_not_grow_with_the_horizon(env_id):
     short, long = {"max_cycles": 10}, {"max_cycles": _horizon(env_id, 10**9)}
     assert _estimate(env_id, short) == _estimate(env_id, long)
     peaks = [
-        measure_limit(
-            env_id, cfg, seconds=0.0, min_steps=3, trace_memory=True, timeout=600, env_vars={"MRCOMM_BACKEND": "numpy"}
-        )["traced_peak_mb"]
+        measure_limit(env_id, cfg, seconds=0.0, min_steps=3, trace_memory=True, timeout=600)["traced_peak_mb"]
         for cfg in (short, long)
     ]
     assert peaks[1] <= peaks[0] + 1.0, f"{env_id}: {peaks[0]:.1f} MB at 10 steps, {peaks[1]:.1f} MB at 1e9"
@@ -154,7 +127,6 @@ def test_memory_does_not_grow_over_a_long_episode(env_id):
             min_steps=steps,
             trace_memory=True,
             timeout=600,
-            env_vars={"MRCOMM_BACKEND": "numpy"},
             warmup_steps=1200,
         )["traced_peak_mb"]
         for steps in (150, 1200)

@@ -19,7 +19,7 @@ def package_files() -> set[Path]:
 def test_compiled_kernels_are_cached_outside_the_package(tmp_path):
     before = package_files()
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
-    env.update(XDG_CACHE_HOME=str(tmp_path), MRCOMM_BACKEND="numba")
+    env.update(XDG_CACHE_HOME=str(tmp_path))
     code = (
         "import mrcomm_env\n"
         "e = mrcomm_env.make('AsyncCL-v0', n_robots=3, max_cycles=3)\n"

@@ -101,19 +101,15 @@ def test_ray_without_ray_installed_says_how_to_get_it(monkeypatch):
 
 def test_a_ray_task_refuses_to_run_on_a_node_with_other_code():
     # what each Ray task runs first (in-process here: the check needs no cluster); the cache key holds the
-    # driver's code version, so a node with other code, or other compiled twins, must not file its numbers under it
-    from mrcomm_env.core import backend
+    # driver's code version, so a node with other code must not file its numbers under it
     from mrcomm_env.experiments.sweep import CodeMismatch, _ray_execute, code_version
 
     task = (FN + "count_calls", {"log": os.devnull, "value": 3})
-    here = {"code": code_version(), "backend": backend.name()}
+    here = {"code": code_version()}
     assert _ray_execute(*task, here) == 9
-    other_code = {**here, "code": "0" * len(here["code"])}
-    with pytest.raises(CodeMismatch, match=rf"runs mrcomm-env code {here['code']} .*the driver code {'0' * 12}"):
+    other_code = {"code": "0" * len(here["code"])}
+    with pytest.raises(CodeMismatch, match=rf"runs mrcomm-env code {here['code']}, the driver code {'0' * 12}"):
         _ray_execute(*task, other_code)
-    other_twins = {**here, "backend": "numpy" if here["backend"] == "numba" else "numba"}
-    with pytest.raises(CodeMismatch, match=rf"with {here['backend']} hot loops, .* with {other_twins['backend']}:"):
-        _ray_execute(*task, other_twins)
 
 
 @pytest.mark.xdist_group("processes")
@@ -166,17 +162,6 @@ def test_a_corrupt_cached_result_is_run_again_with_a_warning(tmp_path):
         again = Runner(workers=1, progress=False).map([task], cache=tmp_path)
     assert again == expected
     assert json.loads(path.read_text())["result"] == expected[0]
-
-
-def test_the_cache_key_holds_the_backend_of_the_hot_loops(monkeypatch):
-    from mrcomm_env.core import backend
-
-    task = Task(FN + "draw", {"seed": 4})
-    keys = set()
-    for name in ("numba", "numpy"):
-        monkeypatch.setattr(backend, "name", lambda name=name: name)
-        keys.add(task.key())
-    assert len(keys) == 2
 
 
 class _LosesFirstCancel:

@@ -39,7 +39,7 @@ def _assert_mapsync_copies_hold_the_single_envs_state(batch, singles):
 def test_a_mapsync_copy_axis_world_gives_each_copy_the_single_env_episodes(kwargs):
     env_id = "mrcomm/MapSync-v0"
     batch = mrcomm_env.make_batched(env_id, 3, **kwargs)
-    assert batch.world is not None  # compiled backend (extra "fast"), no bits_per_step, links always up
+    assert batch.world is not None  # no bits_per_step, links always up
     singles = assert_copies_are_single_envs(batch, env_id, kwargs, 2 * kwargs["max_cycles"] + 3)
     _assert_mapsync_copies_hold_the_single_envs_state(batch, singles)
     assert sum(env.metrics()["syncs"] for env in singles) > 0

@@ -4,10 +4,8 @@ batches and the sweep runner (``experiments/bench.py`` measures; a benchmark, no
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
-from mrcomm_env.core import backend
 from mrcomm_env.experiments import bench
 from mrcomm_env.experiments.arguments import (
     check_writable_file,
@@ -96,11 +94,7 @@ def run(args: argparse.Namespace) -> int:
             _, shipped_kwargs, _ = bench.shipped_training(env_id)
             make(env_id, **{**shipped_kwargs, **params}).close()
     reference = bench.reference_section(args.seconds, args.runs, args.warmup)
-    results = {"reference": reference, "backend": backend.name()}
-    print(
-        f"compiled twins of hot loops: {results['backend']} ({backend.VARIABLE}="
-        f"{os.environ.get(backend.VARIABLE, 'auto')})"
-    )
+    results = {"reference": reference}
     results["envs"] = bench.speed_section(targets, params, reference, args.seconds, args.runs, args.warmup)
     results["runs"] = args.runs
     results["seconds_per_run"] = args.seconds

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import time
 
-from mrcomm_env.core import backend
 from mrcomm_env.experiments.arguments import check_writable_dir
 from mrcomm_env.experiments.evaluation import limit_threads
 from mrcomm_env.experiments.io import atomic_remove, atomic_write_text
@@ -65,8 +64,7 @@ def run(args: argparse.Namespace) -> int:
     header = (
         "# mrcomm-env reproduction report\n\n"
         f"Command: `{command}`. Scripted baselines only. "
-        "Each section puts the paper's numbers beside ours. "
-        f"Compiled twins of hot loops: {backend.name()} (`{backend.VARIABLE}`; see docs/architecture.md).\n\n"
+        "Each section puts the paper's numbers beside ours.\n\n"
     )
     atomic_write_text(report, header + "\n".join(sections))
     print(f"wrote {report}")
