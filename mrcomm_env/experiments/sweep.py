@@ -390,8 +390,8 @@ def _ray_outcome(ray, ref) -> Any:
 
 
 class CodeMismatch(RuntimeError):
-    """A Ray node runs other mrcomm-env code than the driver: its numbers
-    would not be the driver's, and would be cached under the driver's key."""
+    """A Ray node runs other mrcomm-env code than the driver: its numbers would not be the driver's, and would be
+    cached under the driver's key."""
 
 
 def _ray_execute(fn: str, kwargs: dict[str, Any], driver: dict[str, str] | None = None) -> Any:
