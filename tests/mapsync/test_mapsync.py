@@ -533,7 +533,7 @@ def test_compiled_stream_words_equal_the_numpy_generator(domain):
         assert got.dtype == want.dtype == np.uint32 and np.array_equal(got, want)
 
 
-def _use_backend(monkeypatch, compiled: bool) -> None:
+def _use_compiled_bisection(monkeypatch, compiled: bool) -> None:
     """Run Algorithm 1 compiled (the package's) or as its numpy rounds (``reference_bisection``) inside the env."""
     if not compiled:
         monkeypatch.setattr(proto, "bisection", reference_bisection)
@@ -819,7 +819,7 @@ def _assert_backends_agree(monkeypatch, cfg, policy, seed):
     metrics, detections, maps, world, bits and the generator's final state are the same."""
 
     def episode(compiled):
-        _use_backend(monkeypatch, compiled)
+        _use_compiled_bisection(monkeypatch, compiled)
         env = (MapSyncEnv if compiled else ReferenceMapSync)(**cfg)
         pol = make_policy("MapSync-v0", policy)
         views = env.local_views()
